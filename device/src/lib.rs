@@ -1,0 +1,128 @@
+//! Device layer of spidar: everything that talks in raw board units (DA volts out, encoder
+//! counts in) lives here and nowhere else.
+//!
+//! A backend implements [`Device`]: open, activate, deactivate, and one [`Device::exchange`] per
+//! 1 kHz tick that writes every DA channel and reads every counter. `exchange` runs inside the
+//! real-time tick, so implementations must not allocate, lock or panic on that path, and their
+//! errors are plain `Copy` data (formatted only later, on a non-real-time thread).
+
+pub mod sim;
+
+use thiserror::Error;
+
+/// Most DA/counter channels one device can have.
+pub const MAX_CHANNELS: usize = 16;
+
+/// What the tick writes: DA volts per channel (only the first `DeviceInfo::channels` are used).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Output {
+    pub volts: [f64; MAX_CHANNELS],
+}
+
+/// What the tick reads: counters extended to i64 (monotonic, no wrap) and board status bits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Input {
+    pub counts: [i64; MAX_CHANNELS],
+    pub status: u32,
+}
+
+/// Identity and limits of an opened device.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeviceInfo {
+    /// Board kind, e.g. "simulated SPIDAR-H".
+    pub board: heapless::String<48>,
+    /// Serial number, port or switch setting: whatever tells two boards apart.
+    pub identity: heapless::String<48>,
+    pub channels: usize,
+    /// DA output range; commands outside it are clipped by the board.
+    pub volts_min: f64,
+    pub volts_max: f64,
+}
+
+/// The small code generic code reacts to (see embedded-hal's `ErrorKind`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ErrorKind {
+    /// No answer within the deadline; the next tick may succeed.
+    Timeout,
+    /// An answer arrived but was malformed (short, bad header, bad checksum).
+    Corrupt,
+    /// The board is gone (unplugged, port closed).
+    Disconnected,
+    /// The board answered something the protocol does not allow in this state.
+    Protocol,
+    Other,
+}
+
+/// Device errors. Every variant is `Copy` so that raising one inside the tick allocates nothing.
+#[derive(Clone, Copy, Debug, Error, PartialEq)]
+pub enum DeviceError {
+    #[error("device did not answer within {waited_us} us: check the cable and that the board is powered")]
+    Timeout { waited_us: u32 },
+    #[error("corrupt reply from the device ({what}): check the cable; if it persists, the board firmware")]
+    Corrupt { what: &'static str },
+    #[error("device disconnected ({what}): reconnect it, then restart or wait for the reopen")]
+    Disconnected { what: &'static str },
+    #[error("protocol error: {what}")]
+    Protocol { what: &'static str },
+    #[error("device call not allowed while {state}: {what}")]
+    WrongState { state: &'static str, what: &'static str },
+    #[error("{what}")]
+    Other { what: &'static str },
+}
+
+impl DeviceError {
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            DeviceError::Timeout { .. } => ErrorKind::Timeout,
+            DeviceError::Corrupt { .. } => ErrorKind::Corrupt,
+            DeviceError::Disconnected { .. } => ErrorKind::Disconnected,
+            DeviceError::Protocol { .. } | DeviceError::WrongState { .. } => ErrorKind::Protocol,
+            DeviceError::Other { .. } => ErrorKind::Other,
+        }
+    }
+}
+
+/// A motor/encoder board (or the simulated rig) seen as DA volts out and counts in.
+///
+/// Lifecycle: `open` (identify, reset; outputs zero) -> `activate` (outputs enabled) ->
+/// `exchange` once per tick -> `deactivate` (outputs zero). `exchange` may be called while
+/// inactive: it then reads the counters and the board holds its outputs at zero.
+pub trait Device: Send {
+    fn open(&mut self) -> Result<(), DeviceError>;
+    fn activate(&mut self) -> Result<(), DeviceError>;
+    fn deactivate(&mut self) -> Result<(), DeviceError>;
+    /// Writes `out` to every DA channel and reads every counter into `inp`. One call per tick;
+    /// must not allocate, lock or panic.
+    fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError>;
+    /// Valid after `open`.
+    fn info(&self) -> &DeviceInfo;
+}
+
+impl<D: Device + ?Sized> Device for Box<D> {
+    fn open(&mut self) -> Result<(), DeviceError> {
+        (**self).open()
+    }
+    fn activate(&mut self) -> Result<(), DeviceError> {
+        (**self).activate()
+    }
+    fn deactivate(&mut self) -> Result<(), DeviceError> {
+        (**self).deactivate()
+    }
+    fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
+        (**self).exchange(out, inp)
+    }
+    fn info(&self) -> &DeviceInfo {
+        (**self).info()
+    }
+}
+
+/// Fills a `heapless::String`, cutting at capacity on a char boundary (set-up time only).
+pub fn short_string<const N: usize>(s: &str) -> heapless::String<N> {
+    let mut out = heapless::String::new();
+    for c in s.chars() {
+        if out.push(c).is_err() {
+            break;
+        }
+    }
+    out
+}

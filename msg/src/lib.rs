@@ -1,0 +1,209 @@
+//! Plain-data messages that cross between the 1 kHz rt-loop and the scene (simulation) thread.
+//!
+//! Both sides import this crate and nothing else of each other, so `device` and `sim` stay leaves.
+//! Everything here is `Copy`, fixed-size and allocation-free: a message is moved through a bounded
+//! `crossbeam-channel` with `try_send`/`try_recv` and never blocks the tick.
+//!
+//! Frame: every position, velocity and force here is in the **world frame** (metres, y up, floor
+//! at y = 0, the user at the origin facing -z). The rt-loop maps its rig frame to the world with
+//! the rig file's `rig_to_world` transform before sending and back after receiving.
+//! Time: `t_s` / `stamp_s` are seconds on the loop clock shared by both threads (the real
+//! monotonic clock since the loop started, or the virtual clock in tests).
+
+use glam::DVec3;
+
+/// Number of hands of a SPIDAR-H.
+pub const HANDS: usize = 2;
+/// Most contact proxies one `ContactModel` can carry.
+pub const MAX_PROXIES: usize = 16;
+
+/// Which sim body and part a proxy stands for, so the impulse the rt-loop applied to it can be
+/// given back to that body.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct ProxyId {
+    pub body: u16,
+    pub part: u16,
+}
+
+/// Geometry of a local contact proxy, valid at `ContactModel::stamp_s`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ProxyShape {
+    /// Half-space bounded by the plane through `point_m` with outward unit `normal`; the solid
+    /// side is opposite the normal.
+    Plane { point_m: DVec3, normal: DVec3 },
+    /// Solid sphere.
+    Sphere { centre_m: DVec3, radius_m: f64 },
+    /// Solid capsule: the segment `a_m`..`b_m` swept by `radius_m`.
+    Capsule { a_m: DVec3, b_m: DVec3, radius_m: f64 },
+}
+
+/// One contact proxy: a shape, its penalty gains, and its velocity for extrapolation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Proxy {
+    pub id: ProxyId,
+    pub shape: ProxyShape,
+    /// Penalty stiffness on penetration depth.
+    pub k_n_per_m: f64,
+    /// Penalty damping on the approach speed (acts only while in contact).
+    pub d_n_s_per_m: f64,
+    /// Linear velocity of the proxy; the rt-loop moves the shape by `vel * age` before use.
+    pub vel_m_per_s: DVec3,
+    /// Bit 0: hand 0 may touch it; bit 1: hand 1 may touch it.
+    pub hand_mask: u8,
+}
+
+impl Proxy {
+    pub const BOTH_HANDS: u8 = 0b11;
+
+    pub fn touches(&self, hand: usize) -> bool {
+        self.hand_mask & (1 << hand) != 0
+    }
+
+    /// The same proxy moved by `dt_s` at its own velocity.
+    pub fn extrapolated(&self, dt_s: f64) -> ProxyShape {
+        let d = self.vel_m_per_s * dt_s;
+        match self.shape {
+            ProxyShape::Plane { point_m, normal } => ProxyShape::Plane { point_m: point_m + d, normal },
+            ProxyShape::Sphere { centre_m, radius_m } => {
+                ProxyShape::Sphere { centre_m: centre_m + d, radius_m }
+            }
+            ProxyShape::Capsule { a_m, b_m, radius_m } => {
+                ProxyShape::Capsule { a_m: a_m + d, b_m: b_m + d, radius_m }
+            }
+        }
+    }
+}
+
+/// What the scene sends the rt-loop every simulation step: the local proxies near the hands,
+/// plus a held per-hand force (the attenuated "damage" force of hits on the avatar's body).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactModel {
+    /// Increases by one for every model a scene sends.
+    pub seq: u64,
+    /// Loop-clock time at which the proxy geometry is valid.
+    pub stamp_s: f64,
+    pub proxies: [Proxy; MAX_PROXIES],
+    pub proxy_count: u8,
+    /// Extra force per hand added after rendering (world frame); faded like the rest when stale.
+    pub extra_force_n: [DVec3; HANDS],
+}
+
+impl Default for ContactModel {
+    fn default() -> Self {
+        ContactModel {
+            seq: 0,
+            stamp_s: 0.0,
+            proxies: [Proxy {
+                id: ProxyId::default(),
+                shape: ProxyShape::Sphere { centre_m: DVec3::ZERO, radius_m: 0.0 },
+                k_n_per_m: 0.0,
+                d_n_s_per_m: 0.0,
+                vel_m_per_s: DVec3::ZERO,
+                hand_mask: 0,
+            }; MAX_PROXIES],
+            proxy_count: 0,
+            extra_force_n: [DVec3::ZERO; HANDS],
+        }
+    }
+}
+
+impl ContactModel {
+    pub fn proxies(&self) -> &[Proxy] {
+        &self.proxies[..self.proxy_count as usize]
+    }
+
+    /// Appends a proxy; returns false (and drops it) when the model is full.
+    pub fn push(&mut self, p: Proxy) -> bool {
+        let n = self.proxy_count as usize;
+        if n >= MAX_PROXIES {
+            return false;
+        }
+        self.proxies[n] = p;
+        self.proxy_count += 1;
+        true
+    }
+}
+
+/// One hand as the rt-loop measured it on one tick (world frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HandState {
+    pub pos_m: DVec3,
+    pub vel_m_per_s: DVec3,
+    /// Force the rig commanded on the user's hand this tick, after safety.
+    pub force_n: DVec3,
+    /// False when the pose is not trustworthy (not homed, faulted, residual too large).
+    pub valid: bool,
+}
+
+/// What the rt-loop sends the scene every tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HandSample {
+    /// Tick index since the loop started.
+    pub tick: u64,
+    /// Loop-clock time of the encoder read.
+    pub t_s: f64,
+    pub hands: [HandState; HANDS],
+    /// `seq` of the contact model the impulses below were computed against (0: none).
+    pub model_seq: u64,
+    /// Impulse this tick applied to each proxy of that model (index as in `proxies`), summed over
+    /// both hands: the reaction of the force on the hands times the tick period. The scene
+    /// applies it to the body the proxy names, so momentum is consistent.
+    pub proxy_impulse_n_s: [DVec3; MAX_PROXIES],
+}
+
+impl Default for HandSample {
+    fn default() -> Self {
+        HandSample {
+            tick: 0,
+            t_s: 0.0,
+            hands: [HandState::default(); HANDS],
+            model_seq: 0,
+            proxy_impulse_n_s: [DVec3::ZERO; MAX_PROXIES],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn push_stops_at_capacity() {
+        let mut m = ContactModel::default();
+        let p = m.proxies[0];
+        for _ in 0..MAX_PROXIES {
+            assert!(m.push(p));
+        }
+        assert!(!m.push(p));
+        assert_eq!(m.proxies().len(), MAX_PROXIES);
+    }
+
+    #[test]
+    fn extrapolation_moves_every_shape_by_velocity_times_age() {
+        let v = DVec3::new(1.0, -2.0, 0.5);
+        let mk = |shape| Proxy {
+            id: ProxyId::default(),
+            shape,
+            k_n_per_m: 1.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: v,
+            hand_mask: Proxy::BOTH_HANDS,
+        };
+        let d = v * 0.01;
+        match mk(ProxyShape::Sphere { centre_m: DVec3::ONE, radius_m: 0.1 }).extrapolated(0.01) {
+            ProxyShape::Sphere { centre_m, radius_m } => {
+                assert_eq!(centre_m, DVec3::ONE + d);
+                assert_eq!(radius_m, 0.1);
+            }
+            _ => panic!("shape changed"),
+        }
+        match mk(ProxyShape::Capsule { a_m: DVec3::X, b_m: DVec3::Y, radius_m: 0.1 }).extrapolated(0.01) {
+            ProxyShape::Capsule { a_m, b_m, .. } => assert_eq!((a_m, b_m), (DVec3::X + d, DVec3::Y + d)),
+            _ => panic!("shape changed"),
+        }
+        match mk(ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::Y }).extrapolated(0.01) {
+            ProxyShape::Plane { point_m, normal } => assert_eq!((point_m, normal), (d, DVec3::Y)),
+            _ => panic!("shape changed"),
+        }
+    }
+}

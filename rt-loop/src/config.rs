@@ -1,0 +1,123 @@
+//! Loading RON configuration files with errors a person can act on: every error names the file,
+//! the line and column, and the field, whether the file does not parse or a value is out of range.
+//!
+//! Parsing (serde + ron) gives positions for syntax and type errors; semantic checks done after
+//! parsing find their field's position again with [`locate`].
+
+use std::path::Path;
+
+use serde::de::DeserializeOwned;
+
+/// An error in a configuration file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{origin}:{line}:{column}: {field}: {message}")]
+pub struct ConfigError {
+    /// File path, or a name such as "configs/rig-spidar-h.ron (built in)".
+    pub origin: String,
+    pub line: usize,
+    pub column: usize,
+    /// Dotted path of the offending field, e.g. `hands[1].strings[2].anchor_m`.
+    pub field: String,
+    /// What is wrong and what to do about it.
+    pub message: String,
+}
+
+/// Reads and parses a RON file; I/O errors are reported with the path.
+pub fn load_file<T: DeserializeOwned>(path: &Path) -> Result<(T, String), ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        origin: path.display().to_string(),
+        line: 0,
+        column: 0,
+        field: "(file)".into(),
+        message: format!("cannot read the file: {e}"),
+    })?;
+    let value = parse(&text, &path.display().to_string())?;
+    Ok((value, text))
+}
+
+/// Parses RON text; `origin` names it in errors.
+pub fn parse<T: DeserializeOwned>(text: &str, origin: &str) -> Result<T, ConfigError> {
+    ron::Options::default().from_str(text).map_err(|e| {
+        let field = match &e.code {
+            ron::Error::NoSuchStructField { found, .. } => found.clone(),
+            ron::Error::MissingStructField { field, .. } => field.to_string(),
+            ron::Error::DuplicateStructField { field, .. } => field.to_string(),
+            _ => "(syntax)".to_string(),
+        };
+        ConfigError {
+            origin: origin.to_string(),
+            line: e.span.start.line,
+            column: e.span.start.col,
+            field,
+            message: e.code.to_string(),
+        }
+    })
+}
+
+/// Builds the error for a semantically invalid field, locating `key` (the last component of the
+/// field path) at its `occurrence`-th appearance (0-based) as `key:` in the text.
+pub fn invalid(
+    text: &str,
+    origin: &str,
+    field: &str,
+    key: &str,
+    occurrence: usize,
+    message: String,
+) -> ConfigError {
+    let (line, column) = locate(text, key, occurrence).unwrap_or((0, 0));
+    ConfigError { origin: origin.to_string(), line, column, field: field.to_string(), message }
+}
+
+/// 1-based line and column of the `occurrence`-th `key:` (outside comments) in RON text.
+pub fn locate(text: &str, key: &str, occurrence: usize) -> Option<(usize, usize)> {
+    let mut seen = 0;
+    for (i, line) in text.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        let mut from = 0;
+        while let Some(pos) = code[from..].find(key) {
+            let at = from + pos;
+            let before_ok = at == 0 || !is_ident(code.as_bytes()[at - 1]);
+            let rest = code[at + key.len()..].trim_start();
+            if before_ok && rest.starts_with(':') {
+                if seen == occurrence {
+                    return Some((i + 1, at + 1));
+                }
+                seen += 1;
+            }
+            from = at + key.len();
+        }
+    }
+    None
+}
+
+fn is_ident(b: u8) -> bool {
+    b.is_ascii_alphanumeric() || b == b'_'
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn locate_finds_nth_key_and_skips_comments_and_longer_names() {
+        let text = "(\n  // k_n: 3\n  kk_n: 1,\n  k_n: 2,\n  b: (k_n: 4),\n)";
+        assert_eq!(locate(text, "k_n", 0), Some((4, 3)));
+        assert_eq!(locate(text, "k_n", 1), Some((5, 7)));
+        assert_eq!(locate(text, "k_n", 2), None);
+    }
+
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Small {
+        a_m: f64,
+    }
+
+    #[test]
+    fn unknown_field_is_named_with_its_position() {
+        let e = parse::<Small>("(\n  a_m: 1.0,\n  b_m: 2.0,\n)", "x.ron").unwrap_err();
+        assert_eq!(e.field, "b_m");
+        assert_eq!(e.line, 3);
+        assert!(e.to_string().starts_with("x.ron:3:"), "{e}");
+    }
+}

@@ -1,0 +1,35 @@
+//! spidar's hard-real-time side: the 1 kHz haptic loop and the rig model it runs on.
+//!
+//! A tick reads the encoders, computes both hand poses from the string lengths, renders penalty
+//! forces against the contact proxies the scene sent, applies the safety rules and allocates
+//! string tensions, then writes DA volts. Phases live in their own modules, in the order they
+//! run: [`kinematics`], [`velocity`], [`render`], [`safety`], [`tension`]; [`tick`] strings them
+//! together with the lifecycle, [`runner`] adds the device, the clock and the channels.
+
+pub mod clock;
+pub mod config;
+pub mod kinematics;
+pub mod render;
+pub mod rig;
+pub mod rt_thread;
+pub mod runner;
+pub mod safety;
+pub mod telemetry;
+pub mod tension;
+pub mod tick;
+pub mod velocity;
+
+pub use clock::{Clock, MonotonicClock, VirtualClock};
+pub use config::ConfigError;
+pub use rig::Rig;
+pub use runner::{Endpoints, FarEnds, RtLoop};
+pub use tick::{Command, Counters, Event, FaultReason, Lifecycle, TickCore};
+
+/// Errors of the rt-loop crate (set-up time only; the tick itself reports by counters and events).
+#[derive(Debug, thiserror::Error)]
+pub enum RtError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("hand {hand}: the anchor geometry cannot be used: {why}; check anchor_m in the rig file")]
+    Geometry { hand: usize, why: String },
+}

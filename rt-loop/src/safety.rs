@@ -1,0 +1,156 @@
+//! The safety phase: what stands between a rendered force and the user's hand.
+//!
+//! In order: a NaN/inf guard (a non-finite force becomes zero), the staleness fade (a contact model
+//! older than its limit fades linearly to zero; no model at all is zero), the ramp (force rises
+//! from zero after activation or after a fault clears and falls to zero before stopping), and last
+//! the per-hand force clamp, so nothing upstream can exceed the rig's limit. Every intervention is
+//! reported to the caller, which counts it. Allocation-free; never panics.
+
+use glam::DVec3;
+
+/// Gain in [0, 1] for a contact model of age `age_s` (None: no model yet).
+pub fn staleness_gain(age_s: Option<f64>, stale_after_s: f64, fade_s: f64) -> f64 {
+    match age_s {
+        None => 0.0,
+        Some(a) if a.is_nan() => 0.0,
+        Some(a) if a <= stale_after_s => 1.0,
+        Some(a) if fade_s > 0.0 => (1.0 - (a - stale_after_s) / fade_s).clamp(0.0, 1.0),
+        Some(_) => 0.0,
+    }
+}
+
+/// A linear ramp of the force gain between 0 and 1.
+#[derive(Clone, Copy, Debug)]
+pub struct Ramp {
+    gain: f64,
+    up_per_tick: f64,
+    down_per_tick: f64,
+    rising: bool,
+}
+
+impl Ramp {
+    pub fn new(ramp_in_s: f64, ramp_out_s: f64, dt_s: f64) -> Ramp {
+        let step = |t: f64| if t > 0.0 { dt_s / t } else { 1.0 };
+        Ramp { gain: 0.0, up_per_tick: step(ramp_in_s), down_per_tick: step(ramp_out_s), rising: false }
+    }
+    /// Start rising from the current gain.
+    pub fn rise(&mut self) {
+        self.rising = true;
+    }
+    /// Start falling from the current gain.
+    pub fn fall(&mut self) {
+        self.rising = false;
+    }
+    /// Drop to zero at once (faults).
+    pub fn cut(&mut self) {
+        self.rising = false;
+        self.gain = 0.0;
+    }
+    /// Advances one tick and returns the gain to apply this tick.
+    pub fn step(&mut self) -> f64 {
+        // Snap within a rounding error of the ends, so N steps of 1/N reach them exactly.
+        const SNAP: f64 = 1e-9;
+        self.gain = if self.rising {
+            let g = self.gain + self.up_per_tick;
+            if g > 1.0 - SNAP {
+                1.0
+            } else {
+                g
+            }
+        } else {
+            let g = self.gain - self.down_per_tick;
+            if g < SNAP {
+                0.0
+            } else {
+                g
+            }
+        };
+        self.gain
+    }
+    pub fn gain(&self) -> f64 {
+        self.gain
+    }
+    pub fn is_rising(&self) -> bool {
+        self.rising
+    }
+}
+
+/// What the safety phase did to one hand's force this tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Guarded {
+    pub force_n: DVec3,
+    pub non_finite: bool,
+    pub clamped: bool,
+}
+
+/// NaN guard, gains, then the clamp to `limit_n` (scaling along the force's own direction).
+pub fn guard(force_n: DVec3, gain: f64, limit_n: f64) -> Guarded {
+    let mut out = Guarded::default();
+    let mut f = force_n;
+    if !f.is_finite() {
+        out.non_finite = true;
+        f = DVec3::ZERO;
+    }
+    let g = if gain.is_finite() { gain.clamp(0.0, 1.0) } else { 0.0 };
+    f *= g;
+    let mag = f.length();
+    if mag > limit_n {
+        out.clamped = true;
+        f *= limit_n / mag;
+    }
+    out.force_n = f;
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn staleness_fades_linearly_after_the_limit() {
+        assert_eq!(staleness_gain(None, 0.03, 0.1), 0.0);
+        assert_eq!(staleness_gain(Some(0.02), 0.03, 0.1), 1.0);
+        assert!((staleness_gain(Some(0.08), 0.03, 0.1) - 0.5).abs() < 1e-12);
+        assert_eq!(staleness_gain(Some(0.5), 0.03, 0.1), 0.0);
+        assert_eq!(staleness_gain(Some(0.031), 0.03, 0.0), 0.0);
+        assert_eq!(staleness_gain(Some(f64::NAN), 0.03, 0.1), 0.0);
+    }
+
+    #[test]
+    fn ramp_takes_the_configured_number_of_ticks() {
+        let mut r = Ramp::new(0.5, 0.3, 0.001);
+        r.rise();
+        let mut n = 0;
+        while r.step() < 1.0 {
+            n += 1;
+        }
+        assert_eq!(n + 1, 500);
+        r.fall();
+        let mut n = 0;
+        while r.step() > 0.0 {
+            n += 1;
+        }
+        assert_eq!(n + 1, 300);
+    }
+
+    proptest! {
+        #[test]
+        fn clamp_holds_for_any_input(x in proptest::num::f64::ANY, y in proptest::num::f64::ANY,
+                                     z in proptest::num::f64::ANY, gain in proptest::num::f64::ANY,
+                                     limit in 0.0f64..50.0) {
+            let g = guard(DVec3::new(x, y, z), gain, limit);
+            prop_assert!(g.force_n.is_finite());
+            prop_assert!(g.force_n.length() <= limit * (1.0 + 1e-12));
+        }
+
+        #[test]
+        fn clamp_keeps_direction(x in -1e3f64..1e3, y in -1e3f64..1e3, z in -1e3f64..1e3) {
+            let f = DVec3::new(x, y, z);
+            let g = guard(f, 1.0, 4.0);
+            prop_assume!(f.length() > 1e-6);
+            prop_assert!(g.force_n.cross(f).length() <= 1e-9 * f.length());
+            prop_assert!(g.force_n.dot(f) >= 0.0);
+        }
+    }
+}

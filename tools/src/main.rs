@@ -1,0 +1,229 @@
+//! `spidar`: run a SPIDAR-H (real or simulated) with a scene behind it, and benchmark the loop.
+//! Arguments are parsed here and checked into parameters; the work is in the library.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand, ValueEnum};
+use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::telemetry::fmt_dur;
+use spidar_rt::Rig;
+use spidar_tools::bench::{bench_rt, RtBenchOptions};
+use spidar_tools::scene;
+use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
+
+#[derive(Parser)]
+#[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
+    Run(RunArgs),
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCmd,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+enum DeviceKind {
+    /// The simulated SPIDAR-H: motors, strings, encoders and a scripted user's hands.
+    Sim,
+}
+
+#[derive(clap::Args)]
+struct RigArgs {
+    /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// Do not ask for SCHED_FIFO and locked memory.
+    #[arg(long)]
+    no_rt: bool,
+    /// SCHED_FIFO priority for the loop thread.
+    #[arg(long, default_value_t = 80, value_parser = clap::value_parser!(u8).range(1..=99))]
+    priority: u8,
+    /// Pin the loop thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    #[command(flatten)]
+    rig: RigArgs,
+    /// Which device drives the rig.
+    #[arg(long, value_enum, default_value = "sim")]
+    device: DeviceKind,
+    /// Scene behind the loop: `walls` (the rig check) or a scene file (.ron).
+    #[arg(long, default_value = "walls")]
+    scene: String,
+    /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
+    #[arg(long, default_value = "tour")]
+    script: String,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Seed of the simulated rig and of random scripts; the same seed gives the same run on the
+    /// virtual clock.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Encoder noise of the simulated rig, standard deviation in counts.
+    #[arg(long, default_value_t = 0.0)]
+    noise_counts: f64,
+    /// Simulate string sag when a tension drops below 0.3 N.
+    #[arg(long)]
+    slack: bool,
+    /// Run on the virtual clock, as fast as the machine computes (needs --seconds).
+    #[arg(long = "virtual")]
+    virtual_clock: bool,
+    /// No live status line.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Subcommand)]
+enum BenchCmd {
+    /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
+    Rt {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds for each of the two loops.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Alternations between the two loops.
+        #[arg(long, default_value_t = 10)]
+        blocks: u32,
+    },
+}
+
+fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
+    Ok(match &args.rig {
+        Some(p) => Rig::load(p)?,
+        None => Rig::default_rig(),
+    })
+}
+
+fn rt_options(args: &RigArgs) -> RtOptions {
+    if args.no_rt {
+        RtOptions { fifo_priority: None, lock_memory: false, cpu: args.cpu, ..RtOptions::default() }
+    } else {
+        RtOptions { fifo_priority: Some(args.priority), cpu: args.cpu, ..RtOptions::default() }
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Cmd::Run(a) => run(a),
+        Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!("running each loop for {seconds} s in {blocks} blocks ...");
+            let rep = bench_rt(&r, &RtBenchOptions { seconds_each: seconds, blocks, rt: rt_options(&rig) })?;
+            println!("{rep}");
+            Ok(())
+        }
+    }
+}
+
+fn run(a: RunArgs) -> anyhow::Result<()> {
+    if let Some(s) = a.seconds {
+        if !(s.is_finite() && s > 0.0) {
+            bail!("--seconds must be a positive number of seconds");
+        }
+    }
+    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
+        bail!("--noise-counts must be >= 0");
+    }
+    let rig = load_rig(&a.rig)?;
+    let scene = scene::load(&a.scene)?;
+    let scene_name = format!("{} ({})", a.scene, scene.name());
+    let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let sim_opts = SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, slack: a.slack };
+    let dev = match a.device {
+        DeviceKind::Sim => sim_device(&rig, scripts, &sim_opts)?,
+    };
+    eprintln!(
+        "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
+        rig.name, a.seed, scene_name, a.script
+    );
+
+    if a.virtual_clock {
+        let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
+        let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
+        v.home_and_activate();
+        let ticks = (seconds / rig.period_s).round() as u64;
+        let t0 = std::time::Instant::now();
+        v.run_ticks(ticks);
+        v.rt.command(spidar_rt::Command::Stop);
+        while v.rt.tick() {}
+        let wall = t0.elapsed().as_secs_f64();
+        let c = v.counters();
+        println!(
+            "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
+            c.ticks,
+            wall,
+            seconds / wall
+        );
+        println!("  compute      {}", v.stats.compute.percentiles());
+        println!(
+            "  max force    left {:.2} N, right {:.2} N",
+            v.stats.max_force_n[0], v.stats.max_force_n[1]
+        );
+        println!(
+            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
+            c.clamped[0],
+            c.clamped[1],
+            c.infeasible[0],
+            c.infeasible[1],
+            c.fallback[0],
+            c.fallback[1],
+            c.faults
+        );
+        println!("  end          {}", v.rt.state().name());
+        return Ok(());
+    }
+
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let summary = session::run_live(
+        dev,
+        &rig,
+        scene,
+        LiveOptions {
+            seconds: a.seconds,
+            rt: rt_options(&a.rig),
+            status_every: (!a.quiet).then_some(Duration::from_millis(500)),
+            stop,
+            scene_name,
+            script_name: a.script.clone(),
+        },
+    )?;
+    println!("{summary}");
+    let lat = summary.stats.lateness.percentiles();
+    if summary.counters.misses > 0 {
+        eprintln!(
+            "note: {} ticks woke more than 1 ms late (worst {}); see `spidar bench rt` for this machine's floor",
+            summary.counters.misses,
+            fmt_dur(lat.max_s)
+        );
+    }
+    if !summary.clean_stop {
+        bail!("the loop did not stop cleanly");
+    }
+    Ok(())
+}
