@@ -57,9 +57,9 @@ impl fmt::Display for KinematicsError {
             }
             KinematicsError::Coplanar { shape } => write!(
                 f,
-                "the four anchors are (nearly) coplanar or coincide (6V/L^3 = {shape:.3e}, need >= {MIN_ANCHOR_SHAPE:.0e}): \
-                 the grip position cannot be computed; check anchor_m in the rig file (the motors must not lie in \
-                 one plane)"
+                "the four anchors are (nearly) coplanar or coincide (6V/L^3 = {shape:.3e}, need >= \
+                 {MIN_ANCHOR_SHAPE:.0e}): the grip position cannot be computed; check anchor_m in the rig \
+                 file (the motors must not lie in one plane)"
             ),
         }
     }
@@ -116,8 +116,8 @@ impl Kinematics {
             }
         }
         let shape = if longest > 0.0 { six_vol / (longest * longest * longest) } else { 0.0 };
-        // `!(>=)` so that a NaN ratio (possible only with absurd magnitudes) is rejected too.
-        if !(shape >= MIN_ANCHOR_SHAPE) {
+        // A NaN ratio (possible only with absurd magnitudes) is rejected too.
+        if shape.is_nan() || shape < MIN_ANCHOR_SHAPE {
             return Err(KinematicsError::Coplanar { shape });
         }
         let centroid_m = (a0 + a1 + a2 + a3) * 0.25;

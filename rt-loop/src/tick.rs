@@ -83,7 +83,9 @@ impl std::fmt::Display for FaultReason {
 /// What the control side may ask of the loop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Command {
-    /// Preset the counters' zero lengths so each grip reads its home point (Inactive only).
+    /// Preset the counters' zero lengths so each grip reads its home point (Inactive only). Done
+    /// after the strings have been held at minimum tension for `HOMING_SETTLE_S`, so no string is
+    /// still slack (a slack string reads long and would bake its sag into the zero length).
     Home,
     /// Start rendering forces (Inactive and homed only); force ramps in.
     Activate,
@@ -135,6 +137,9 @@ pub struct Counters {
     pub models: u64,
 }
 
+/// Time the strings are held at minimum tension before homing takes the counts.
+pub const HOMING_SETTLE_S: f64 = 0.1;
+
 struct HandCore {
     kin: Kinematics,
     alloc: Allocator,
@@ -159,6 +164,10 @@ pub struct TickCore {
     good_ticks: u32,
     ramp: Ramp,
     deactivating: bool,
+    /// Ticks left before a requested homing takes the counts.
+    homing_wait: Option<u32>,
+    /// An activation asked for while homing was pending: done once homed.
+    activate_after_homing: bool,
     model: Option<ContactModel>,
     counters: Counters,
     events: heapless::Deque<Event, 16>,
@@ -191,6 +200,8 @@ impl TickCore {
             good_ticks: 0,
             ramp: Ramp::new(rig.safety.ramp_in_s, rig.safety.ramp_out_s, rig.period_s),
             deactivating: false,
+            homing_wait: None,
+            activate_after_homing: false,
             model: None,
             counters: Counters::default(),
             events: heapless::Deque::new(),
@@ -259,6 +270,13 @@ impl TickCore {
         if self.state == Lifecycle::Faulted {
             return;
         }
+        if self.homing_wait.take().is_some() {
+            self.activate_after_homing = false;
+            self.emit(Event::Refused {
+                command: Command::Home,
+                why: "a fault interrupted homing: home again",
+            });
+        }
         self.resume_active = self.state == Lifecycle::Active && !self.deactivating;
         self.deactivating = false;
         self.fault = Some(why);
@@ -291,15 +309,18 @@ impl TickCore {
                 if self.state != Lifecycle::Inactive {
                     return refuse(self, "homing needs the rig inactive: deactivate first");
                 }
-                for (h, hr) in self.hands.iter_mut().zip(self.rig.hands.iter()) {
-                    h.zero_m = Some(hr.home_offsets(h.counts, hr.home_m));
-                    h.vel.reset();
-                    h.bad_residual_ticks = 0;
+                if self.homing_wait.is_none() {
+                    self.homing_wait = Some((HOMING_SETTLE_S / self.rig.period_s).round() as u32);
+                    // The pose is about to be redefined: until then it is unknown (no residual
+                    // check on the old zero lengths; the safe output uses the last good pose).
+                    for h in self.hands.iter_mut() {
+                        h.zero_m = None;
+                    }
                 }
-                self.emit(Event::Homed);
             }
             Command::Activate => match self.state {
                 Lifecycle::Active if !self.deactivating => {}
+                Lifecycle::Inactive if self.homing_wait.is_some() => self.activate_after_homing = true,
                 Lifecycle::Active | Lifecycle::Inactive => {
                     if !self.is_homed() {
                         return refuse(self, "not homed: hold each grip at its home point and home first");
@@ -312,6 +333,7 @@ impl TickCore {
             },
             Command::Deactivate | Command::Stop => {
                 self.resume_active = false;
+                self.activate_after_homing = false;
                 if self.state == Lifecycle::Active {
                     self.deactivating = true;
                     self.ramp.fall();
@@ -324,6 +346,34 @@ impl TickCore {
                 }
             }
         }
+    }
+
+    /// Counts down a pending homing while the strings hold minimum tension, then takes this
+    /// tick's counts as the home point's.
+    fn homing_step(&mut self, device_ok: bool) {
+        let Some(left) = self.homing_wait else { return };
+        if self.state != Lifecycle::Inactive || !device_ok {
+            return;
+        }
+        if left > 0 {
+            self.homing_wait = Some(left - 1);
+            return;
+        }
+        self.homing_wait = None;
+        for (h, hr) in self.hands.iter_mut().zip(self.rig.hands.iter()) {
+            h.zero_m = Some(hr.home_offsets(h.counts, hr.home_m));
+            h.vel.reset();
+            h.bad_residual_ticks = 0;
+        }
+        self.emit(Event::Homed);
+        if std::mem::take(&mut self.activate_after_homing) {
+            self.command(Command::Activate);
+        }
+    }
+
+    /// True while a homing request waits for the strings to settle.
+    pub fn is_homing(&self) -> bool {
+        self.homing_wait.is_some()
     }
 
     /// Replaces the contact model (the loop keeps only the newest one it received).
@@ -411,6 +461,7 @@ impl TickCore {
         if let Some(f) = fault {
             self.enter_fault(f);
         }
+        self.homing_step(device_ok);
 
         // Render, safety, allocate, volts.
         let age = self.model_age_s(now_s);
@@ -523,6 +574,14 @@ mod tests {
         TickCore::new(&Rig::default_rig()).unwrap()
     }
 
+    /// Homes and activates, running through the settle time.
+    fn home_and_activate(c: &mut TickCore) {
+        c.command(Command::Home);
+        c.command(Command::Activate);
+        run(c, (HOMING_SETTLE_S / c.rig().period_s).round() as usize + 1, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Active);
+    }
+
     fn run(c: &mut TickCore, n: usize, io: Result<(), DeviceError>) -> (Output, TickRecord) {
         let mut out = Output::default();
         let mut rec = TickRecord::default();
@@ -542,8 +601,13 @@ mod tests {
         assert_eq!(c.state(), Lifecycle::Inactive);
         assert!(matches!(c.pop_event(), Some(Event::Refused { command: Command::Activate, .. })));
         c.command(Command::Home);
+        c.command(Command::Activate); // waits for homing instead of being refused
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Inactive, "homing waits for the strings to settle");
+        run(&mut c, 1, Ok(()));
         assert_eq!(c.pop_event(), Some(Event::Homed));
-        c.command(Command::Activate);
         assert_eq!(c.state(), Lifecycle::Active);
     }
 
@@ -562,8 +626,7 @@ mod tests {
     #[test]
     fn device_error_faults_at_once_and_a_transient_one_recovers_to_active() {
         let mut c = core();
-        c.command(Command::Home);
-        c.command(Command::Activate);
+        home_and_activate(&mut c);
         run(&mut c, 600, Ok(()));
         assert_eq!(c.ramp_gain(), 1.0);
         let (out, rec) = run(&mut c, 1, Err(DeviceError::Timeout { waited_us: 900 }));
@@ -593,8 +656,7 @@ mod tests {
     #[test]
     fn deactivate_ramps_out_then_goes_inactive() {
         let mut c = core();
-        c.command(Command::Home);
-        c.command(Command::Activate);
+        home_and_activate(&mut c);
         run(&mut c, 600, Ok(()));
         c.command(Command::Deactivate);
         let ramp_out = (c.rig().safety.ramp_out_s / c.rig().period_s).round() as usize;

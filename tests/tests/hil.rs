@@ -1,1 +1,626 @@
+//! Hardware-in-the-loop tests: the whole haptic stack (simulated rig -> rt-loop -> scene and back)
+//! on the virtual clock, checked against the simulated rig's ground truth.
+//!
+//! One test binary for the workspace (see DESIGN.md section 2). Shared helpers are at the top.
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+
+use glam::DVec3;
+use spidar_device::sim::{Script, ScriptFile, Segment, SimRig, Truth};
+use spidar_device::DeviceError;
+use spidar_msg::{ContactModel, HandSample};
+use spidar_rt::{Command, Lifecycle, Rig};
+use spidar_tools::scene::walls::WallsScene;
+use spidar_tools::scene::Scene;
+use spidar_tools::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+
+// ---------------------------------------------------------------------------------------------
+// A global allocator that fails the test on any allocation inside a forbidden section.
+
+struct Guarded;
+
+thread_local! {
+    static FORBID: Cell<bool> = const { Cell::new(false) };
+}
+static FORBIDDEN_ALLOCS: AtomicU64 = AtomicU64::new(0);
+static FIRST_FORBIDDEN_SIZE: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Guarded {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if FORBID.try_with(|f| f.get()).unwrap_or(false) {
+            FORBIDDEN_ALLOCS.fetch_add(1, Ordering::SeqCst);
+            let _ =
+                FIRST_FORBIDDEN_SIZE.compare_exchange(0, layout.size(), Ordering::SeqCst, Ordering::SeqCst);
+            // Fail the allocation: with the caller's error path this is as loud as it gets, and
+            // the counter tells the test which section did it.
+            return std::ptr::null_mut();
+        }
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        if FORBID.try_with(|f| f.get()).unwrap_or(false) {
+            FORBIDDEN_ALLOCS.fetch_add(1, Ordering::SeqCst);
+            return std::ptr::null_mut();
+        }
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOC: Guarded = Guarded;
+
+/// Runs `f` with allocation forbidden on this thread.
+fn no_alloc<R>(f: impl FnOnce() -> R) -> R {
+    FORBID.with(|x| x.set(true));
+    let r = f();
+    FORBID.with(|x| x.set(false));
+    r
+}
+
+// ---------------------------------------------------------------------------------------------
+// Helpers.
+
+fn rig() -> Rig {
+    Rig::default_rig()
+}
+
+/// A scene with only the front wall of the rig-check scene: plane z = -0.30 m (world and rig).
+fn front_wall(k_n_per_m: f64, d_n_s_per_m: f64) -> WallsScene {
+    let text = format!(
+        "(version: 1, name: \"front wall\", step_s: 0.003, planes: [(label: \"wall\", point_m: (0.0, 1.1, -0.30), \
+         normal: (0.0, 0.0, 1.0), k_n_per_m: {k_n_per_m:?}, d_n_s_per_m: {d_n_s_per_m:?})], spheres: [])"
+    );
+    WallsScene::from_str(&text, "test wall").unwrap()
+}
+
+const WALL_Z_M: f64 = -0.30;
+
+/// Reach to `to` in 1 s, then hold there.
+fn reach_and_hold(to: DVec3) -> Script {
+    Script::from_segments(
+        vec![
+            Segment::Reach { to_m: to.to_array(), duration_s: 1.0 },
+            Segment::Hold { at_m: to.to_array(), for_s: 1e6 },
+        ],
+        false,
+    )
+}
+
+fn session(scripts: [Script; 2], scene: Option<Box<dyn Scene>>, opts: &SimOptions) -> VirtualRun<SimRig> {
+    let rig = rig();
+    // The user holds the grips at home while the rig homes, as `load_scripts` arranges.
+    let scripts = scripts.map(|s| {
+        let hold = s.start_hold_s.max(HOLD_AT_HOME_S);
+        s.with_start_hold(hold)
+    });
+    let dev = sim_device(&rig, scripts, opts).unwrap();
+    let mut v = VirtualRun::new(dev, &rig, scene).unwrap();
+    v.home_and_activate();
+    v
+}
+
+fn truth(v: &VirtualRun<SimRig>) -> Truth {
+    *v.rt.device().truth()
+}
+
+/// FNV-1a over the bits of everything a run produced (not the wall-clock timings).
+struct Digest(u64);
+impl Digest {
+    fn new() -> Digest {
+        Digest(0xcbf2_9ce4_8422_2325)
+    }
+    fn u64(&mut self, x: u64) {
+        for b in x.to_le_bytes() {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    fn f(&mut self, x: f64) {
+        self.u64(x.to_bits());
+    }
+    fn v(&mut self, x: DVec3) {
+        self.f(x.x);
+        self.f(x.y);
+        self.f(x.z);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The wall: the user feels k x depth.
+
+#[test]
+fn hand_pushed_into_the_wall_feels_k_times_depth_within_5_percent() {
+    let r = rig();
+    let k = 2000.0;
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    // The arm presses the fist (radius 0.04) 1.5 cm past first contact: about 2.7 N at equilibrium.
+    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
+    let mut v = session(
+        [reach_and_hold(press), Script::hold(home[1])],
+        Some(Box::new(front_wall(k, 5.0))),
+        &SimOptions::default(),
+    );
+    v.run_ticks(4000);
+    let t = truth(&v);
+    let depth = r.hands[0].grip_radius_m - (t.hands[0].pos_m.z - WALL_Z_M);
+    assert!(depth > 0.5e-3, "the hand should be in the wall: depth {depth}");
+    let felt = t.hands[0].string_force_n;
+    let expected = k * depth;
+    assert!((felt.z - expected).abs() < 0.05 * expected, "felt {felt} N, k x depth = {expected} N");
+    assert!(felt.truncate().length() < 0.05 * expected, "the wall pushes along its normal only: {felt}");
+    // The other hand, touching nothing, feels (almost) nothing.
+    assert!(t.hands[1].string_force_n.length() < 0.01, "{}", t.hands[1].string_force_n);
+    assert_eq!(v.counters().faults, 0);
+}
+
+#[test]
+fn wall_force_holds_with_encoder_noise_and_motor_lag_in_the_plant() {
+    let r = rig();
+    let k = 2000.0;
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    let press = DVec3::new(home[1].x, 0.0, WALL_Z_M + 0.04 - 0.015);
+    let opts = SimOptions { seed: 3, encoder_noise_counts: 1.0, slack: true };
+    let mut v =
+        session([Script::hold(home[0]), reach_and_hold(press)], Some(Box::new(front_wall(k, 5.0))), &opts);
+    v.run_ticks(3000);
+    // Average over 0.5 s: noise makes single ticks jitter, the felt force is the mean.
+    let (mut felt, mut expected) = (0.0, 0.0);
+    for _ in 0..500 {
+        v.tick();
+        let t = truth(&v);
+        felt += t.hands[1].string_force_n.z / 500.0;
+        expected += k * (r.hands[1].grip_radius_m - (t.hands[1].pos_m.z - WALL_Z_M)) / 500.0;
+    }
+    assert!((felt - expected).abs() < 0.05 * expected, "felt {felt} N, k x depth {expected} N");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Kinematics against ground truth.
+
+#[test]
+fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
+    let r = rig();
+    let scripts = load_scripts("spar", &r, 11).unwrap();
+    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &SimOptions::default());
+    let resolution = r.hands[0].metres_per_count[0].abs();
+    let mut worst: f64 = 0.0;
+    v.run_ticks(200); // homing
+    for _ in 0..20_000 {
+        // The counts a tick reads are sampled before the plant advances through that tick.
+        let before = truth(&v);
+        let rec = v.tick();
+        for h in 0..2 {
+            assert!(rec.hands[h].valid);
+            worst = worst.max((rec.hands[h].pos_m - before.hands[h].pos_m).length());
+        }
+    }
+    assert!(worst < 1e-4 + resolution, "worst pose error {worst} m");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tensions always in range.
+
+#[test]
+fn every_commanded_tension_stays_in_range_over_100k_ticks_of_random_sparring() {
+    let r = rig();
+    let scripts = load_scripts("spar", &r, 42).unwrap();
+    let opts = SimOptions { seed: 42, encoder_noise_counts: 0.5, slack: true };
+    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    let mut contact_ticks = 0;
+    let mut out_of_range = 0;
+    for _ in 0..100_000 {
+        let rec = v.tick();
+        assert_ne!(rec.state, Lifecycle::Faulted, "tick {}: {:?}", rec.tick, rec.fault);
+        for (h, hr) in rec.hands.iter().enumerate() {
+            let (lo, hi) = (r.hands[h].tension_min_n, r.hands[h].tension_max_n);
+            for t in hr.tensions_n {
+                if !(t >= lo - 1e-9 && t <= hi + 1e-9) {
+                    out_of_range += 1;
+                }
+            }
+            if hr.contacts > 0 {
+                contact_ticks += 1;
+            }
+            assert!(hr.output_n.length() <= r.hands[h].force_limit_n + 1e-9);
+        }
+    }
+    assert_eq!(out_of_range, 0);
+    assert!(contact_ticks > 1000, "sparring should hit the scene: {contact_ticks} contact ticks");
+    assert_eq!(v.counters().misses, 0, "no deadline missed on the virtual clock");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fade, clamp, faults and stop.
+
+#[test]
+fn force_fades_to_zero_within_the_configured_time_when_the_contact_model_stops() {
+    let r = rig();
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
+    let mut v = session(
+        [reach_and_hold(press), Script::hold(home[1])],
+        Some(Box::new(front_wall(2000.0, 5.0))),
+        &SimOptions::default(),
+    );
+    v.run_ticks(3000);
+    let full = v.rt.last_record().hands[0].commanded_n.length();
+    assert!(full > 2.0, "pressing: {full} N");
+    v.stop_scene(); // the simulation stops sending
+                    // The last model arrived within a scene step; it is then stale after `stale` and gone after
+                    // `stale + fade`.
+    let (stale, fade) = (r.safety.contact_stale_after_s, r.safety.contact_fade_s);
+    let limit_ticks = ((stale + fade) / r.period_s).ceil() as usize + 4;
+    let mut prev = f64::INFINITY;
+    let mut zero_at = None;
+    for i in 0..limit_ticks + 200 {
+        let rec = v.tick();
+        let f = rec.hands[0].commanded_n.length();
+        assert!(f <= prev + 0.2, "tick {i}: force rose from {prev} to {f} while fading");
+        prev = f;
+        if f == 0.0 && zero_at.is_none() {
+            zero_at = Some(i);
+        }
+        if i == ((stale * 0.5) / r.period_s) as usize {
+            assert!(f > 0.5 * full, "a fresh-enough model still renders: {f}");
+        }
+    }
+    let zero_at = zero_at.expect("force never reached zero");
+    assert!(zero_at <= limit_ticks, "force reached zero after {zero_at} ticks, limit {limit_ticks}");
+    assert!(v.counters().stale > 0);
+    // The rig is still on: minimum tension, zero force.
+    let rec = v.rt.last_record();
+    assert_eq!(rec.state, Lifecycle::Active);
+    assert!(rec.hands[0].output_n.length() < 1e-9);
+}
+
+/// A scene that sends absurd proxies: huge stiffness, NaN, infinities, at the hands.
+struct Hostile {
+    seq: u64,
+    rng: u64,
+}
+
+impl Hostile {
+    fn next(&mut self) -> f64 {
+        // xorshift: deterministic, no dependency.
+        self.rng ^= self.rng << 13;
+        self.rng ^= self.rng >> 7;
+        self.rng ^= self.rng << 17;
+        (self.rng >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+impl Scene for Hostile {
+    fn name(&self) -> &str {
+        "hostile"
+    }
+    fn step_s(&self) -> f64 {
+        0.003
+    }
+    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        self.seq += 1;
+        let mut m = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
+        let Some(s) = samples.last() else { return m };
+        for h in 0..2 {
+            let p = s.hands[h].pos_m;
+            let k = match self.seq % 5 {
+                0 => f64::NAN,
+                1 => f64::INFINITY,
+                _ => 10f64.powf(2.0 + 8.0 * self.next()),
+            };
+            let dir =
+                DVec3::new(self.next() - 0.5, self.next() - 0.5, self.next() - 0.5).normalize_or(DVec3::Y);
+            m.push(Proxy {
+                id: ProxyId { body: 9, part: h as u16 },
+                shape: ProxyShape::Sphere { centre_m: p + dir * 0.05, radius_m: 0.03 },
+                k_n_per_m: k,
+                d_n_s_per_m: 1e3 * self.next(),
+                vel_m_per_s: DVec3::new(self.next(), -self.next(), 50.0 * (self.next() - 0.5)),
+                hand_mask: Proxy::BOTH_HANDS,
+            });
+        }
+        if self.seq % 7 == 0 {
+            m.extra_force_n = [DVec3::new(f64::NAN, 1.0, 0.0), DVec3::splat(1e9)];
+        }
+        m
+    }
+}
+
+#[test]
+fn clamp_holds_for_any_scene_input() {
+    let r = rig();
+    let scripts = load_scripts("spar", &r, 5).unwrap();
+    for seed in 1..=4u64 {
+        let mut v = session(
+            scripts.clone(),
+            Some(Box::new(Hostile { seq: 0, rng: seed * 0x9E37_79B9 })),
+            &SimOptions::default(),
+        );
+        let mut clamped = 0;
+        for _ in 0..5000 {
+            let rec = v.tick();
+            for (h, hr) in rec.hands.iter().enumerate() {
+                let limit = r.hands[h].force_limit_n;
+                assert!(
+                    hr.commanded_n.is_finite() && hr.commanded_n.length() <= limit + 1e-9,
+                    "{}",
+                    hr.commanded_n
+                );
+                assert!(hr.output_n.length() <= limit + 1e-9);
+                assert!(hr.tensions_n.iter().all(|t| t.is_finite() && *t >= 1.0 - 1e-9 && *t <= 20.0 + 1e-9));
+                clamped += hr.clamped as u32;
+            }
+        }
+        assert!(clamped > 100, "the hostile scene should have needed the clamp");
+        assert!(v.counters().non_finite > 0, "NaN forces are counted");
+    }
+}
+
+#[test]
+fn device_timeout_goes_safe_within_one_tick_then_recovers_and_ramps_in() {
+    let r = rig();
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
+    let mut v = session(
+        [reach_and_hold(press), Script::hold(home[1])],
+        Some(Box::new(front_wall(2000.0, 5.0))),
+        &SimOptions::default(),
+    );
+    v.run_ticks(3000);
+    assert!(v.rt.last_record().hands[0].commanded_n.length() > 2.0);
+    v.rt.device_mut().fail_next(3, DeviceError::Timeout { waited_us: 1000 });
+    let rec = v.tick();
+    assert_eq!(rec.state, Lifecycle::Faulted);
+    assert_eq!(rec.hands[0].commanded_n, DVec3::ZERO, "safe on the very tick the fault is seen");
+    assert!(rec.hands[0].tensions_n.iter().all(|t| *t >= 1.0 - 1e-9), "strings stay taut");
+    let recovery = r.safety.fault_recovery_ticks as u64;
+    v.run_ticks(recovery + 5);
+    assert_eq!(v.rt.state(), Lifecycle::Active, "a transient fault clears itself");
+    let gain = v.rt.last_record().gain;
+    assert!(gain > 0.0 && gain < 0.1, "force ramps in again: gain {gain}");
+    assert_eq!(v.counters().faults, 1);
+    assert_eq!(v.counters().device_errors, 3);
+}
+
+#[test]
+fn wrong_anchor_in_the_rig_file_faults_on_the_residual_and_drops_force() {
+    // The rig file believes one anchor 20 cm from where the simulated frame has it (a typo).
+    let truth_rig = rig();
+    let mut believed = truth_rig.clone();
+    believed.hands[0].anchors_m[2] += DVec3::new(0.2, 0.0, 0.0);
+    let scripts = load_scripts("spar", &truth_rig, 1).unwrap();
+    let dev = sim_device(&truth_rig, scripts, &SimOptions::default()).unwrap();
+    let mut v = VirtualRun::new(dev, &believed, Some(Box::new(WallsScene::builtin()))).unwrap();
+    v.home_and_activate();
+    let mut faulted_at = None;
+    for i in 0..30_000 {
+        let rec = v.tick();
+        if rec.state == Lifecycle::Faulted {
+            faulted_at = Some(i);
+            assert_eq!(rec.fault, Some(spidar_rt::FaultReason::Residual { hand: 0 }));
+            assert_eq!(rec.hands[0].commanded_n, DVec3::ZERO);
+            break;
+        }
+    }
+    assert!(faulted_at.is_some(), "an inconsistent geometry must not go unnoticed");
+    assert!(v.counters().residual_high[0] >= r_fault_ticks(&believed));
+}
+
+fn r_fault_ticks(r: &Rig) -> u64 {
+    r.safety.residual_fault_ticks as u64
+}
+
+#[test]
+fn stop_ramps_force_out_holds_minimum_tension_and_switches_the_device_off() {
+    let r = rig();
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
+    let mut v = session(
+        [reach_and_hold(press), Script::hold(home[1])],
+        Some(Box::new(front_wall(2000.0, 5.0))),
+        &SimOptions::default(),
+    );
+    v.run_ticks(3000);
+    v.rt.command(Command::Stop);
+    let ramp_ticks = (r.safety.ramp_out_s / r.period_s).round() as usize;
+    // The gain falls monotonically (the force itself may rise a little as the user, no longer
+    // held back, presses deeper while the gain falls).
+    let mut prev = v.rt.last_record().gain;
+    let mut ticks = 0;
+    while !v.rt.is_finished() {
+        let rec = v.tick();
+        let f = rec.hands[0].commanded_n.length();
+        assert!(rec.gain <= prev, "gain must not rise while stopping: {prev} -> {}", rec.gain);
+        prev = rec.gain;
+        ticks += 1;
+        if ticks > ramp_ticks {
+            assert_eq!(f, 0.0, "ramped out within {ramp_ticks} ticks");
+            assert!(rec.hands[0].tensions_n.iter().all(|t| *t >= 1.0 - 1e-9));
+        }
+        assert!(ticks < ramp_ticks + 100, "stop took too long");
+    }
+    assert_eq!(v.rt.state(), Lifecycle::Inactive);
+    assert!(!v.rt.device().is_active(), "the device is switched off at the end");
+}
+
+#[test]
+fn a_stall_on_the_virtual_clock_counts_as_a_missed_deadline() {
+    let r = rig();
+    let mut v = session(
+        [Script::hold(r.hands[0].home_m), Script::hold(r.hands[1].home_m)],
+        None,
+        &SimOptions::default(),
+    );
+    v.run_ticks(100);
+    assert_eq!(v.counters().misses, 0);
+    // A 2.5 ms stall makes this tick 2.5 ms late and the next 1.5 ms late: two misses.
+    v.clock.stall_next(2_500_000);
+    v.run_ticks(10);
+    assert_eq!(v.counters().misses, 2);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Determinism.
+
+fn digest_of_run(seed: u64, ticks: usize) -> u64 {
+    let r = rig();
+    let scripts = load_scripts("spar", &r, seed).unwrap();
+    let opts = SimOptions { seed, encoder_noise_counts: 0.7, slack: true };
+    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    let mut d = Digest::new();
+    for _ in 0..ticks {
+        let rec = v.tick();
+        d.u64(rec.tick);
+        d.f(rec.t_s);
+        d.f(rec.gain);
+        for h in &rec.hands {
+            d.v(h.pos_m);
+            d.v(h.vel_m_per_s);
+            d.f(h.residual_m);
+            d.v(h.commanded_n);
+            for t in h.tensions_n {
+                d.f(t);
+            }
+        }
+        let t = truth(&v);
+        for h in &t.hands {
+            d.v(h.pos_m);
+            d.v(h.string_force_n);
+        }
+    }
+    d.0
+}
+
+#[test]
+fn runs_with_the_same_seed_are_bit_identical() {
+    let a = digest_of_run(7, 20_000);
+    let b = digest_of_run(7, 20_000);
+    assert_eq!(a, b);
+    assert_ne!(a, digest_of_run(8, 20_000), "the seed must matter");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The tick allocates nothing.
+
+#[test]
+fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
+    let r = rig();
+    let scripts = load_scripts("spar", &r, 3).unwrap();
+    let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true };
+    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    v.run_ticks(1000); // warm-up: histograms, first models
+    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let mut scene = v.stop_scene().unwrap();
+    let mut samples: Vec<HandSample> = Vec::with_capacity(64);
+    // Every path of the tick: rendering with contacts, a device fault and its recovery, a
+    // deactivation, homing (with the user's hands brought home) and re-activation, stale models.
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    for i in 0..30_000u32 {
+        match i {
+            5_000 => v.rt.device_mut().fail_next(2, DeviceError::Corrupt { what: "test" }),
+            12_000 => v.rt.command(Command::Deactivate),
+            12_001 => (0..2).for_each(|h| v.rt.device_mut().set_script(h, reach_and_hold(home[h]))),
+            14_000 => {
+                v.rt.command(Command::Home);
+                v.rt.command(Command::Activate);
+            }
+            15_000 => {
+                let s = load_scripts("spar", &r, 4).unwrap();
+                for (h, s) in s.into_iter().enumerate() {
+                    v.rt.device_mut().set_script(h, s);
+                }
+            }
+            _ => {}
+        }
+        no_alloc(|| v.rt.tick());
+        if i % 3 == 0 && !(20_000..20_500).contains(&i) {
+            samples.clear();
+            samples.extend(v.far.samples.try_iter());
+            let m = scene.step(v.clock.now_s(), &samples);
+            let _ = v.far.models.try_send(m);
+        }
+    }
+    let forbidden = FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before;
+    assert_eq!(
+        forbidden,
+        0,
+        "the tick allocated {forbidden} times (first: {} bytes)",
+        FIRST_FORBIDDEN_SIZE.load(Ordering::SeqCst)
+    );
+    let c = v.counters();
+    assert!(c.faults >= 1 && c.stale > 0 && c.active_ticks > 25_000, "{c:?}");
+    assert_eq!(v.rt.state(), Lifecycle::Active);
+}
+
+#[test]
+fn the_guard_allocator_does_catch_an_allocation() {
+    // Proves the allocator test above can fail.
+    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let failed = no_alloc(|| {
+        let mut v: Vec<u8> = Vec::new();
+        std::hint::black_box(v.try_reserve(64).is_err())
+    });
+    assert!(failed, "the allocation inside the section failed");
+    assert_eq!(FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before, 1);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Configs.
+
+#[test]
+fn every_default_config_loads() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_string_lossy().to_string();
+        if name.starts_with("rig-") {
+            Rig::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("scene-") {
+            WallsScene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("script-") {
+            ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else {
+            continue;
+        }
+        n += 1;
+    }
+    assert!(n >= 2, "found {n} configs");
+    // The built-in copies are the files.
+    assert_eq!(Rig::default_rig(), Rig::load(&dir.join("rig-spidar-h.ron")).unwrap());
+}
+
+#[test]
+fn homing_makes_each_grip_read_its_home_point() {
+    // Counters start arbitrary on a real rig: here the simulated counters are offset by a
+    // configured zero length that does not match, and homing fixes it.
+    let r = rig();
+    let mut wrong = r.clone();
+    for h in wrong.hands.iter_mut() {
+        h.length_at_zero_m = Some([1.0, 2.0, 3.0, 4.0]);
+    }
+    let dev = sim_device(
+        &r,
+        [Script::hold(r.hands[0].home_m), Script::hold(r.hands[1].home_m)],
+        &SimOptions::default(),
+    )
+    .unwrap();
+    let mut v = VirtualRun::new(dev, &wrong, None).unwrap();
+    v.run_ticks(2);
+    let off = (v.rt.last_record().hands[0].pos_m - r.hands[0].home_m).length();
+    assert!(off > 0.01, "before homing the pose is wrong: {off}");
+    v.rt.command(Command::Home);
+    v.run_ticks(2);
+    assert!(v.rt.core().is_homing(), "homing waits for the strings to settle");
+    v.run_ticks((spidar_rt::tick::HOMING_SETTLE_S / r.period_s) as u64 + 2);
+    for h in 0..2 {
+        let e = (v.rt.last_record().hands[h].pos_m - r.hands[h].home_m).length();
+        assert!(e < 1e-4, "hand {h} reads {e} m from home after homing");
+    }
+    assert!(v.rt.core().is_homed());
+}

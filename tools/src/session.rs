@@ -24,21 +24,28 @@ use spidar_rt::{
 
 use crate::scene::{self, Scene, SceneCounters};
 
-/// The simulated user's scripts by built-in name or RON file.
+/// How long the simulated user holds the grips still at their home points before a script
+/// starts, as an operator does while the rig homes (`spidar_rt::tick::HOMING_SETTLE_S` plus margin).
+pub const HOLD_AT_HOME_S: f64 = 0.3;
+
+/// The simulated user's scripts by built-in name or RON file, each starting with a hold at home.
 pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<[Script; 2]> {
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
-    if let Some(s) = builtin_script(name_or_path, home, seed) {
-        return Ok(s);
-    }
-    if name_or_path.ends_with(".ron") {
+    let scripts = if let Some(s) = builtin_script(name_or_path, home, seed) {
+        s
+    } else if name_or_path.ends_with(".ron") {
         let path = std::path::Path::new(name_or_path);
-        let f = ScriptFile::load(path).with_context(|| format!("loading the script file {name_or_path}"))?;
-        return Ok(f.hands);
-    }
-    bail!(
-        "unknown script '{name_or_path}': use one of {} or a script file (.ron)",
-        BUILTIN_SCRIPTS.join(", ")
-    )
+        ScriptFile::load(path).with_context(|| format!("loading the script file {name_or_path}"))?.hands
+    } else {
+        bail!(
+            "unknown script '{name_or_path}': use one of {} or a script file (.ron)",
+            BUILTIN_SCRIPTS.join(", ")
+        )
+    };
+    Ok(scripts.map(|s| {
+        let hold = s.start_hold_s.max(HOLD_AT_HOME_S);
+        s.with_start_hold(hold)
+    }))
 }
 
 /// Options of the simulated rig that a user may want to change from the command line.

@@ -304,16 +304,30 @@ pub struct Script {
     /// Start again from the first segment (from wherever the last one ended) when done.
     #[serde(default)]
     pub repeat: bool,
+    /// Hold still at the start point this long before the first segment, once (not repeated):
+    /// the user holds the grip at home while the rig homes.
+    #[serde(default)]
+    pub start_hold_s: f64,
 }
 
 impl Script {
     /// Hold at one point forever.
     pub fn hold(at_m: DVec3) -> Script {
-        Script { segments: vec![Segment::Hold { at_m: at_m.to_array(), for_s: 1.0 }], repeat: true }
+        Script {
+            segments: vec![Segment::Hold { at_m: at_m.to_array(), for_s: 1.0 }],
+            repeat: true,
+            start_hold_s: 0.0,
+        }
     }
 
     pub fn from_segments(segments: Vec<Segment>, repeat: bool) -> Script {
-        Script { segments, repeat }
+        Script { segments, repeat, start_hold_s: 0.0 }
+    }
+
+    /// The same script, held still at its start for `s` seconds first.
+    pub fn with_start_hold(mut self, s: f64) -> Script {
+        self.start_hold_s = s;
+        self
     }
 
     /// Loads every `Trajectory { file }` (relative paths against `base_dir`) and validates every
@@ -331,6 +345,13 @@ impl Script {
 
     /// Validates a prepared script (no `Trajectory` left to load).
     pub fn validate(&self, what: &str) -> Result<(), SimError> {
+        if !(self.start_hold_s.is_finite() && self.start_hold_s >= 0.0) {
+            return Err(SimError::InvalidScript {
+                script: what.to_owned(),
+                segment: 0,
+                problem: format!("start_hold_s must be a finite time >= 0, not {}", self.start_hold_s),
+            });
+        }
         for (i, seg) in self.segments.iter().enumerate() {
             seg.validate(what, i)?;
         }
@@ -363,7 +384,7 @@ impl Script {
             return None;
         }
         let mut cursor = ScriptCursor::new(start_m);
-        let mut total = 0.0;
+        let mut total = self.start_hold_s;
         let mut from = start_m;
         for (i, seg) in self.segments.iter().enumerate() {
             let d = seg.duration_s(from)?;
@@ -443,14 +464,16 @@ impl ScriptFile {
 pub const BUILTIN_SCRIPTS: &[&str] = &["hold", "circle", "spar", "tour"];
 
 /// Targets of the "tour" script for the rig-check scene (configs/scene-walls.ron): a front wall at
-/// rig z = -0.30 m, a table at rig y = -0.30 m and a ball of radius 0.08 m centred at rig
+/// rig z = -0.30 m, a table at rig y = -0.20 m (pressed 20 cm in front of the body: straight below
+/// the origin this frame's strings need 15-20 N just to hold zero force) and a ball of radius 0.08 m centred at rig
 /// (0, 0.25, -0.12) m (world = rig + (0, 1.10, 0)). With a 4 cm fist each target is 1.5 cm past
 /// first contact, so the 200 N/m arm presses with about 3 N: inside the default 4 N limit.
 pub mod tour {
     /// The tour pushes the grip centre to z = FRONT_TARGET_Z_M.
     pub const FRONT_TARGET_Z_M: f64 = -0.275;
-    /// The tour pushes the grip centre to y = FLOOR_TARGET_Y_M.
-    pub const FLOOR_TARGET_Y_M: f64 = -0.275;
+    /// The tour pushes the grip centre down to y = FLOOR_TARGET_Y_M at z = FLOOR_TARGET_Z_M.
+    pub const FLOOR_TARGET_Y_M: f64 = -0.175;
+    pub const FLOOR_TARGET_Z_M: f64 = -0.20;
     /// Both hands squeeze the ball from the sides, to x = -/+ BALL_PRESS_X_M at the centre's height.
     pub const BALL_CENTRE_M: [f64; 3] = [0.0, 0.25, -0.12];
     pub const BALL_PRESS_X_M: f64 = 0.105;
@@ -490,7 +513,7 @@ pub fn builtin_script(name: &str, home_m: [DVec3; 2], seed: u64) -> Option<[Scri
                 let reach = |to: DVec3| Segment::Reach { to_m: to.to_array(), duration_s: REACH_S };
                 let hold = |at: DVec3, for_s: f64| Segment::Hold { at_m: at.to_array(), for_s };
                 let front = DVec3::new(home.x, home.y, FRONT_TARGET_Z_M);
-                let floor = DVec3::new(home.x, FLOOR_TARGET_Y_M, home.z);
+                let floor = DVec3::new(home.x, FLOOR_TARGET_Y_M, FLOOR_TARGET_Z_M);
                 let mut segs = vec![
                     hold(home, REST_S),
                     reach(front),
@@ -733,6 +756,10 @@ impl ScriptCursor {
     /// Target at script time `t_s` (time since the script started). Never allocates or panics;
     /// going back in time replays from the start.
     pub fn target(&mut self, script: &Script, t_s: f64) -> Target {
+        if t_s < script.start_hold_s {
+            return Target { pos_m: self.start_m, vel_m_per_s: DVec3::ZERO };
+        }
+        let t_s = t_s - script.start_hold_s;
         let t = if t_s.is_finite() { t_s } else { self.last_t };
         if t < self.last_t {
             self.reset(self.start_m);

@@ -740,7 +740,7 @@ fn builtin_scripts_exist_and_tour_presses_past_the_surfaces() {
         );
         assert_eq!(
             s.target_at(home[h], floor_t).pos_m,
-            DVec3::new(home[h].x, tour::FLOOR_TARGET_Y_M, home[h].z)
+            DVec3::new(home[h].x, tour::FLOOR_TARGET_Y_M, tour::FLOOR_TARGET_Z_M)
         );
     }
     // Both hands squeeze the ball from opposite sides, 1.5 cm past first contact of a 4 cm fist.
