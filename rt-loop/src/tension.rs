@@ -313,12 +313,12 @@ impl Allocator {
         let a_dot_n = a[0] * n[0] + a[1] * n[1] + a[2] * n[2] + a[3] * n[3];
         let lambda_u = sum_n * (self.lo - (self.hi - self.lo) / TIE_BREAK) - s * a_dot_n;
         let lambda = if l <= u_ {
-            lambda_u.clamp(l, u_)
+            lambda_u.max(l).min(u_)
         } else if let Some(HalfPlane { p, q, b }) = vertex {
             // The largest s is a vertex of the (s, lambda) polygon and rounding inverted the
             // interval there (by ~1e-16 / |n_i| for a small n_i): the binding half-plane with the
             // larger |q| places lambda without that amplification.
-            ((b - p * s) / q).clamp(u_, l)
+            ((b - p * s) / q).max(u_).min(l)
         } else {
             // Feasible only within the slack: the interval is inverted by at most that much.
             0.5 * (l + u_)
