@@ -85,14 +85,26 @@ fn bench(c: &mut Criterion) {
 
     let kin = Kinematics::new(rig.hands[0].anchors_m).unwrap();
     let lengths = kin.lengths(press[0] + DVec3::new(1e-5, -2e-5, 3e-5));
-    c.bench_function("phase/kinematics_solve_2_iterations", |b| b.iter(|| black_box(kin.solve(black_box(&lengths), 2))));
+    c.bench_function("phase/kinematics_solve_2_iterations", |b| {
+        b.iter(|| black_box(kin.solve(black_box(&lengths), 2)))
+    });
 
     let world = rig.rig_to_world.point(press[0]);
     let model = scene_model(0.0);
     c.bench_function("phase/render_hand_3_proxies", |b| {
         b.iter(|| {
             let mut imp = [DVec3::ZERO; MAX_PROXIES];
-            black_box(render_hand(0, black_box(world), DVec3::ZERO, 0.04, 5000.0, &model, 0.002, 0.001, &mut imp))
+            black_box(render_hand(
+                0,
+                black_box(world),
+                DVec3::ZERO,
+                0.04,
+                5000.0,
+                &model,
+                0.002,
+                0.001,
+                &mut imp,
+            ))
         })
     });
 

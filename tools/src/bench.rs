@@ -19,6 +19,8 @@ pub struct RtBenchOptions {
     /// Number of alternations.
     pub blocks: u32,
     pub rt: RtOptions,
+    /// Sleep to this long before each deadline and spin the rest, in both loops (0: pure sleep).
+    pub spin_ns: u64,
 }
 
 pub struct LoopResult {
@@ -53,11 +55,12 @@ pub fn bench_rt(rig: &Rig, opts: &RtBenchOptions) -> anyhow::Result<RtBenchRepor
     let rig = rig.clone();
     let rt_opts = opts.rt.clone();
     let blocks = opts.blocks.max(1);
+    let spin_ns = opts.spin_ns;
     let per_block = ((opts.seconds_each / blocks as f64) / rig.period_s).round().max(1.0) as u64;
     let handle = std::thread::Builder::new().name("spidar-bench-rt".into()).spawn(
         move || -> anyhow::Result<RtBenchReport> {
             let report = rt_thread::setup_current_thread(&rt_opts);
-            let mut clock = MonotonicClock::new();
+            let mut clock = MonotonicClock::new().with_spin(spin_ns);
             let (ep, far) = Endpoints::pair();
             let mut rt = RtLoop::new(dev, clock, &rig, ep)?;
             rt.configure().map_err(|e| anyhow::anyhow!("opening the simulated rig: {e}"))?;

@@ -53,6 +53,10 @@ struct RigArgs {
     /// Pin the loop thread to this CPU.
     #[arg(long)]
     cpu: Option<usize>,
+    /// Sleep to this many microseconds before each deadline, then busy-wait: hides the kernel's
+    /// wake-up latency at the cost of that much CPU per millisecond.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=900))]
+    spin_us: u64,
 }
 
 #[derive(clap::Args)]
@@ -129,7 +133,15 @@ fn main() -> anyhow::Result<()> {
             }
             let r = load_rig(&rig)?;
             eprintln!("running each loop for {seconds} s in {blocks} blocks ...");
-            let rep = bench_rt(&r, &RtBenchOptions { seconds_each: seconds, blocks, rt: rt_options(&rig) })?;
+            let rep = bench_rt(
+                &r,
+                &RtBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    spin_ns: rig.spin_us * 1000,
+                },
+            )?;
             println!("{rep}");
             Ok(())
         }
@@ -207,6 +219,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         LiveOptions {
             seconds: a.seconds,
             rt: rt_options(&a.rig),
+            spin_ns: a.rig.spin_us * 1000,
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
             scene_name,

@@ -245,6 +245,8 @@ impl std::fmt::Display for Summary {
 pub struct LiveOptions {
     pub seconds: Option<f64>,
     pub rt: RtOptions,
+    /// Sleep to this long before each deadline and spin the rest (0: pure sleep).
+    pub spin_ns: u64,
     /// Print the status line (to stderr) every this often; None: quiet.
     pub status_every: Option<Duration>,
     pub stop: Arc<AtomicBool>,
@@ -263,7 +265,7 @@ pub fn run_live<D: Device + 'static>(
     let device_name = format!("{} ({})", dev_board(&dev), dev_identity(&dev));
     let clock = MonotonicClock::new();
     let (ep, far) = Endpoints::pair();
-    let mut rt = RtLoop::new(dev, clock, rig, ep)?;
+    let mut rt = RtLoop::new(dev, clock.with_spin(opts.spin_ns), rig, ep)?;
     rt.configure().map_err(|e| anyhow::anyhow!("opening the device: {e}"))?;
 
     let scene_stop = Arc::new(AtomicBool::new(false));
