@@ -10,7 +10,7 @@ use serde::de::DeserializeOwned;
 
 /// An error in a configuration file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{origin}:{line}:{column}: {field}: {message}")]
+#[error("{}", self.render())]
 pub struct ConfigError {
     /// File path, or a name such as "configs/rig-spidar-h.ron (built in)".
     pub origin: String,
@@ -20,6 +20,16 @@ pub struct ConfigError {
     pub field: String,
     /// What is wrong and what to do about it.
     pub message: String,
+}
+
+impl ConfigError {
+    fn render(&self) -> String {
+        if self.line == 0 {
+            format!("{}: {}", self.origin, self.message)
+        } else {
+            format!("{}:{}:{}: {}: {}", self.origin, self.line, self.column, self.field, self.message)
+        }
+    }
 }
 
 /// Reads and parses a RON file; I/O errors are reported with the path.

@@ -65,7 +65,8 @@ pub fn render_hand(
         let shape = proxy.extrapolated(age_s);
         let (dist, n) = distance(&shape, pos_m);
         let depth = radius_m - dist;
-        if !(depth > 0.0) {
+        // Written so that a NaN depth also counts as "no contact".
+        if depth.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             continue;
         }
         let mut k = proxy.k_n_per_m;

@@ -328,7 +328,8 @@ pub fn run_live<D: Device + 'static>(
         if let Some(every) = status_every {
             if last_status.elapsed() >= every {
                 last_status = Instant::now();
-                let line = status_line(&stats, scene_counters.steps.load(Ordering::Relaxed));
+                let line =
+                    status_line(&stats, faults_seen.len(), scene_counters.steps.load(Ordering::Relaxed));
                 let mut err = std::io::stderr().lock();
                 let _ = write!(err, "\r{line}\x1b[K");
                 let _ = err.flush();
@@ -372,14 +373,14 @@ fn dev_identity<D: Device>(d: &D) -> String {
 }
 
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
-pub fn status_line(stats: &Stats, scene_steps: u64) -> String {
+pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let w = &stats.window;
     let Some(last) = w.last else { return "waiting for the first tick".into() };
     let p = w.lateness.percentiles();
     let f = |h: usize| last.hands[h].output_n.length();
     let fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
     format!(
-        "t {:6.1} s  {}{}  {:6.1} Hz  late p99 {:>8}  force L {:4.1} N R {:4.1} N (max {:4.1}/{:4.1})  gain {:.2}  scene steps {}",
+        "t {:6.1} s  {}{}  {:6.1} Hz  late p99 {:>8}  force L {:4.1} N R {:4.1} N (max {:4.1}/{:4.1})  gain {:.2}  faults {}  scene steps {}",
         last.t_s,
         last.state.name(),
         fault,
@@ -390,6 +391,7 @@ pub fn status_line(stats: &Stats, scene_steps: u64) -> String {
         w.max_force_n[0],
         w.max_force_n[1],
         last.gain,
+        faults,
         scene_steps
     )
 }

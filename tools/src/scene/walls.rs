@@ -127,7 +127,7 @@ impl WallsScene {
         }
         let np = file.planes.len();
         for (i, s) in file.spheres.iter().enumerate() {
-            if !(s.radius_m.is_finite() && s.radius_m > 0.0) || !s.centre_m.iter().all(|v| v.is_finite()) {
+            if !(s.radius_m.is_finite() && s.radius_m > 0.0 && s.centre_m.iter().all(|v| v.is_finite())) {
                 return Err(bad(
                     format!("spheres[{i}].radius_m"),
                     "radius_m",
@@ -144,14 +144,15 @@ impl WallsScene {
                 ));
             }
             if let Some(m) = &s.motion {
-                if !(m.period_s.is_finite() && m.period_s > 0.0)
-                    || !m.amplitude_m.iter().all(|v| v.is_finite())
+                if !(m.period_s.is_finite()
+                    && m.period_s > 0.0
+                    && m.amplitude_m.iter().all(|v| v.is_finite()))
                 {
                     return Err(bad(
                         format!("spheres[{i}].motion"),
                         "period_s",
                         i,
-                        "motion needs a positive period",
+                        "motion needs a positive period and a finite amplitude",
                     ));
                 }
             }
