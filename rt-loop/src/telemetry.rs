@@ -164,7 +164,8 @@ pub struct Stats {
     pub late_over_1ms: u64,
     pub max_force_n: [f64; 2],
     pub max_tension_n: f64,
-    pub min_tension_active_n: f64,
+    /// Lowest tension commanded on any string.
+    pub min_tension_n: f64,
     pub window: Window,
 }
 
@@ -191,7 +192,7 @@ impl Window {
 
 impl Stats {
     pub fn new() -> Stats {
-        Stats { min_tension_active_n: f64::INFINITY, ..Default::default() }
+        Stats { min_tension_n: f64::INFINITY, ..Default::default() }
     }
 
     pub fn add(&mut self, r: &TickRecord) {
@@ -216,9 +217,7 @@ impl Stats {
             w.max_force_n[i] = w.max_force_n[i].max(f);
             for t in h.tensions_n {
                 self.max_tension_n = self.max_tension_n.max(t);
-                if r.state != Lifecycle::Unconfigured {
-                    self.min_tension_active_n = self.min_tension_active_n.min(t);
-                }
+                self.min_tension_n = self.min_tension_n.min(t);
             }
         }
     }

@@ -497,6 +497,7 @@ impl TickCore {
             let vel = if pose_ok { h.vel.velocity() } else { DVec3::ZERO };
             let mut rendered = Rendered::default();
             let mut want_rig = DVec3::ZERO;
+            let mut hand_impulses = [DVec3::ZERO; MAX_PROXIES];
             if active && pose_ok {
                 if let Some(m) = self.model.as_ref() {
                     let age_s = age.unwrap_or(0.0).max(0.0);
@@ -509,7 +510,7 @@ impl TickCore {
                         m,
                         age_s,
                         dt,
-                        &mut impulses,
+                        &mut hand_impulses,
                     );
                     want_rig = xf.vector_to_rig(rendered.force_n + m.extra_force_n[hi]);
                 }
@@ -527,6 +528,16 @@ impl TickCore {
             // Directions from the current pose, or from the last good one when it is not trusted.
             let dir_pos = if pose_ok { h.pose.pos_m } else { h.safe_pos_m };
             let alloc: Allocation = h.alloc.allocate(&h.kin.directions(dir_pos), g.force_n);
+            // The proxies get back only what the user's hand really received: the rendered force
+            // after the ramp, fade, clamp and allocation scaling (all along its own direction).
+            let want_sq = want_rig.length_squared();
+            let applied =
+                if want_sq > 0.0 { (alloc.force_n.dot(want_rig) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+            if rendered.contacts > 0 {
+                for (acc, imp) in impulses.iter_mut().zip(hand_impulses.iter()) {
+                    *acc += *imp * applied;
+                }
+            }
             match alloc.method {
                 Method::Exact => {}
                 Method::Scaled => self.counters.infeasible[hi] += 1,

@@ -91,6 +91,24 @@ fn reach_and_hold(to: DVec3) -> Script {
     )
 }
 
+/// The left hand pressing the front wall (stiffness `k`, damping 5 N s/m): the arm pushes the fist
+/// (radius 0.04 m) toward 1.5 cm past first contact, about 2.7 N at equilibrium. Not yet run.
+fn left_hand_pressing_the_wall(k_n_per_m: f64) -> VirtualRun<SimRig> {
+    left_hand_pressing_the_wall_by(k_n_per_m, 0.015)
+}
+
+/// The same, the arm aiming `past_contact_m` beyond first contact.
+fn left_hand_pressing_the_wall_by(k_n_per_m: f64, past_contact_m: f64) -> VirtualRun<SimRig> {
+    let r = rig();
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - past_contact_m);
+    session(
+        [reach_and_hold(press), Script::hold(home[1])],
+        Some(Box::new(front_wall(k_n_per_m, 5.0))),
+        &SimOptions::default(),
+    )
+}
+
 fn session(scripts: [Script; 2], scene: Option<Box<dyn Scene>>, opts: &SimOptions) -> VirtualRun<SimRig> {
     let rig = rig();
     // The user holds the grips at home while the rig homes, as `load_scripts` arranges.
@@ -137,14 +155,7 @@ impl Digest {
 fn hand_pushed_into_the_wall_feels_k_times_depth_within_5_percent() {
     let r = rig();
     let k = 2000.0;
-    let home = [r.hands[0].home_m, r.hands[1].home_m];
-    // The arm presses the fist (radius 0.04) 1.5 cm past first contact: about 2.7 N at equilibrium.
-    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
-    let mut v = session(
-        [reach_and_hold(press), Script::hold(home[1])],
-        Some(Box::new(front_wall(k, 5.0))),
-        &SimOptions::default(),
-    );
+    let mut v = left_hand_pressing_the_wall(k);
     v.run_ticks(4000);
     let t = truth(&v);
     let depth = r.hands[0].grip_radius_m - (t.hands[0].pos_m.z - WALL_Z_M);
@@ -156,6 +167,36 @@ fn hand_pushed_into_the_wall_feels_k_times_depth_within_5_percent() {
     // The other hand, touching nothing, feels (almost) nothing.
     assert!(t.hands[1].string_force_n.length() < 0.01, "{}", t.hands[1].string_force_n);
     assert_eq!(v.counters().faults, 0);
+
+    // Momentum: the impulse handed back to the wall is the reaction of the force the hand got.
+    v.stop_scene();
+    v.tick();
+    let s = v.last_sample.unwrap();
+    let applied_world = s.hands[0].force_n;
+    let back = s.proxy_impulse_n_s[0];
+    assert!(
+        (back + applied_world * r.period_s).length() < 1e-9 * applied_world.length().max(1.0),
+        "{back} vs {applied_world}"
+    );
+}
+
+#[test]
+fn clamped_contact_hands_back_only_the_applied_impulse() {
+    // The arm pushes 4 cm past contact (8 N), more than the 4 N clamp lets the wall resist: the
+    // hand sinks until the rendered force is far above 4 N, and the wall must be told 4 N.
+    let r = rig();
+    let mut v = left_hand_pressing_the_wall_by(2000.0, 0.04);
+    v.run_ticks(4000);
+    let rec = *v.rt.last_record();
+    assert!(
+        rec.hands[0].clamped && rec.hands[0].rendered_n.length() > r.hands[0].force_limit_n + 0.5,
+        "{rec:?}"
+    );
+    v.stop_scene();
+    v.tick();
+    let s = v.last_sample.unwrap();
+    let back = s.proxy_impulse_n_s[0].length() / r.period_s;
+    assert!((back - r.hands[0].force_limit_n).abs() < 1e-6, "{back} N handed back");
 }
 
 #[test]
@@ -240,13 +281,7 @@ fn every_commanded_tension_stays_in_range_over_100k_ticks_of_random_sparring() {
 #[test]
 fn force_fades_to_zero_within_the_configured_time_when_the_contact_model_stops() {
     let r = rig();
-    let home = [r.hands[0].home_m, r.hands[1].home_m];
-    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
-    let mut v = session(
-        [reach_and_hold(press), Script::hold(home[1])],
-        Some(Box::new(front_wall(2000.0, 5.0))),
-        &SimOptions::default(),
-    );
+    let mut v = left_hand_pressing_the_wall(2000.0);
     v.run_ticks(3000);
     let full = v.rt.last_record().hands[0].commanded_n.length();
     assert!(full > 2.0, "pressing: {full} N");
@@ -364,13 +399,7 @@ fn clamp_holds_for_any_scene_input() {
 #[test]
 fn device_timeout_goes_safe_within_one_tick_then_recovers_and_ramps_in() {
     let r = rig();
-    let home = [r.hands[0].home_m, r.hands[1].home_m];
-    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
-    let mut v = session(
-        [reach_and_hold(press), Script::hold(home[1])],
-        Some(Box::new(front_wall(2000.0, 5.0))),
-        &SimOptions::default(),
-    );
+    let mut v = left_hand_pressing_the_wall(2000.0);
     v.run_ticks(3000);
     assert!(v.rt.last_record().hands[0].commanded_n.length() > 2.0);
     v.rt.device_mut().fail_next(3, DeviceError::Timeout { waited_us: 1000 });
@@ -418,13 +447,7 @@ fn r_fault_ticks(r: &Rig) -> u64 {
 #[test]
 fn stop_ramps_force_out_holds_minimum_tension_and_switches_the_device_off() {
     let r = rig();
-    let home = [r.hands[0].home_m, r.hands[1].home_m];
-    let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
-    let mut v = session(
-        [reach_and_hold(press), Script::hold(home[1])],
-        Some(Box::new(front_wall(2000.0, 5.0))),
-        &SimOptions::default(),
-    );
+    let mut v = left_hand_pressing_the_wall(2000.0);
     v.run_ticks(3000);
     v.rt.command(Command::Stop);
     let ramp_ticks = (r.safety.ramp_out_s / r.period_s).round() as usize;

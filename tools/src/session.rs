@@ -83,6 +83,8 @@ pub struct VirtualRun<D: Device> {
     pub scene: Option<Box<dyn Scene>>,
     pub clock: VirtualClock,
     pub stats: Stats,
+    /// The newest hand sample the loop sent (for inspection).
+    pub last_sample: Option<HandSample>,
     scene_step_ns: u64,
     next_scene_ns: u64,
     samples: Vec<HandSample>,
@@ -104,6 +106,7 @@ impl<D: Device> VirtualRun<D> {
             scene,
             clock,
             stats: Stats::new(),
+            last_sample: None,
             scene_step_ns,
             next_scene_ns: 0,
             samples: Vec::with_capacity(64),
@@ -122,16 +125,18 @@ impl<D: Device> VirtualRun<D> {
         let rec = *self.rt.last_record();
         self.stats.add(&rec);
         let now = self.clock.now_ns();
-        if let Some(scene) = self.scene.as_mut() {
-            if now >= self.next_scene_ns {
-                self.samples.clear();
-                self.samples.extend(self.far.samples.try_iter());
-                let m = scene.step(now as f64 * 1e-9, &self.samples);
-                let _ = self.far.models.try_send(m);
-                self.next_scene_ns = now + self.scene_step_ns;
+        let scene_due = self.scene.is_some() && now >= self.next_scene_ns;
+        if scene_due || self.scene.is_none() {
+            self.samples.clear();
+            self.samples.extend(self.far.samples.try_iter());
+            if let Some(s) = self.samples.last() {
+                self.last_sample = Some(*s);
             }
-        } else {
-            for _ in self.far.samples.try_iter() {}
+        }
+        if let (true, Some(scene)) = (scene_due, self.scene.as_mut()) {
+            let m = scene.step(now as f64 * 1e-9, &self.samples);
+            let _ = self.far.models.try_send(m);
+            self.next_scene_ns = now + self.scene_step_ns;
         }
         rec
     }
@@ -195,7 +200,7 @@ impl std::fmt::Display for Summary {
         writeln!(
             f,
             "  tensions     {:.2} .. {:.2} N commanded",
-            if s.min_tension_active_n.is_finite() { s.min_tension_active_n } else { 0.0 },
+            if s.min_tension_n.is_finite() { s.min_tension_n } else { 0.0 },
             s.max_tension_n
         )?;
         writeln!(

@@ -2,8 +2,8 @@
 //!
 //! Used after assembling a rig: press each grip into each wall and feel k x depth, squeeze the
 //! ball from both sides. The ball may move (sinusoidally) so the rt-loop's extrapolation of moving
-//! proxies is exercised. The scene is fixed: impulses from the hands are summed for the status
-//! (the scenery is immovable and absorbs them).
+//! proxies is exercised. The scenery is immovable: the impulses the hands apply to it only tell
+//! the status which shapes are being touched.
 
 use std::path::Path;
 
@@ -68,8 +68,6 @@ pub struct WallsScene {
     step_s: f64,
     file: SceneFile,
     seq: u64,
-    /// Total impulse the hands applied to each proxy (for the status: how hard the user pushed).
-    impulse_n_s: Vec<DVec3>,
     /// Which proxies the hands touched in the newest sample.
     touched: Vec<bool>,
 }
@@ -158,14 +156,7 @@ impl WallsScene {
             }
         }
         let n = file.planes.len() + file.spheres.len();
-        Ok(WallsScene {
-            name: file.name.clone(),
-            step_s: file.step_s,
-            file,
-            seq: 0,
-            impulse_n_s: vec![DVec3::ZERO; n],
-            touched: vec![false; n],
-        })
+        Ok(WallsScene { name: file.name.clone(), step_s: file.step_s, file, seq: 0, touched: vec![false; n] })
     }
 
     /// The model at time `t_s` (positions and velocities of moving balls at that time).
@@ -204,10 +195,6 @@ impl WallsScene {
         m
     }
 
-    pub fn total_impulse_n_s(&self) -> &[DVec3] {
-        &self.impulse_n_s
-    }
-
     fn label(&self, i: usize) -> &str {
         let np = self.file.planes.len();
         if i < np {
@@ -228,14 +215,6 @@ impl Scene for WallsScene {
     }
 
     fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
-        for s in samples {
-            if s.model_seq == 0 {
-                continue;
-            }
-            for (acc, imp) in self.impulse_n_s.iter_mut().zip(s.proxy_impulse_n_s.iter()) {
-                *acc += *imp;
-            }
-        }
         if let Some(last) = samples.last() {
             for (t, imp) in self.touched.iter_mut().zip(last.proxy_impulse_n_s.iter()) {
                 *t = imp.length_squared() > 0.0;
