@@ -205,7 +205,7 @@ fn wall_force_holds_with_encoder_noise_and_motor_lag_in_the_plant() {
     let k = 2000.0;
     let home = [r.hands[0].home_m, r.hands[1].home_m];
     let press = DVec3::new(home[1].x, 0.0, WALL_Z_M + 0.04 - 0.015);
-    let opts = SimOptions { seed: 3, encoder_noise_counts: 1.0, slack: true };
+    let opts = SimOptions { seed: 3, encoder_noise_counts: 1.0, slack: true, motor_time_constant_s: 0.002 };
     let mut v =
         session([Script::hold(home[0]), reach_and_hold(press)], Some(Box::new(front_wall(k, 5.0))), &opts);
     v.run_ticks(3000);
@@ -250,7 +250,7 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
 fn every_commanded_tension_stays_in_range_over_100k_ticks_of_random_sparring() {
     let r = rig();
     let scripts = load_scripts("spar", &r, 42).unwrap();
-    let opts = SimOptions { seed: 42, encoder_noise_counts: 0.5, slack: true };
+    let opts = SimOptions { seed: 42, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
     let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
     let mut contact_ticks = 0;
     let mut out_of_range = 0;
@@ -493,7 +493,7 @@ fn a_stall_on_the_virtual_clock_counts_as_a_missed_deadline() {
 fn digest_of_run(seed: u64, ticks: usize) -> u64 {
     let r = rig();
     let scripts = load_scripts("spar", &r, seed).unwrap();
-    let opts = SimOptions { seed, encoder_noise_counts: 0.7, slack: true };
+    let opts = SimOptions { seed, encoder_noise_counts: 0.7, slack: true, ..Default::default() };
     let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
     let mut d = Digest::new();
     for _ in 0..ticks {
@@ -539,7 +539,7 @@ fn runs_with_the_same_seed_are_bit_identical() {
 fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let r = rig();
     let scripts = load_scripts("spar", &r, 3).unwrap();
-    let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true };
+    let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
     let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
     v.run_ticks(1000); // warm-up: histograms, first models
     let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);

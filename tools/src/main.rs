@@ -161,7 +161,12 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let scene = scene::load(&a.scene)?;
     let scene_name = format!("{} ({})", a.scene, scene.name());
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
-    let sim_opts = SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, slack: a.slack };
+    let sim_opts = SimOptions {
+        seed: a.seed,
+        encoder_noise_counts: a.noise_counts,
+        slack: a.slack,
+        ..Default::default()
+    };
     let dev = match a.device {
         DeviceKind::Sim => sim_device(&rig, scripts, &sim_opts)?,
     };

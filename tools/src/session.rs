@@ -54,11 +54,13 @@ pub struct SimOptions {
     pub seed: u64,
     pub encoder_noise_counts: f64,
     pub slack: bool,
+    /// First-order lag of the motors' tension (0: ideal motors).
+    pub motor_time_constant_s: f64,
 }
 
 impl Default for SimOptions {
     fn default() -> Self {
-        SimOptions { seed: 1, encoder_noise_counts: 0.0, slack: false }
+        SimOptions { seed: 1, encoder_noise_counts: 0.0, slack: false, motor_time_constant_s: 0.0 }
     }
 }
 
@@ -68,6 +70,7 @@ pub fn sim_device(rig: &Rig, scripts: [Script; 2], opts: &SimOptions) -> anyhow:
     p.period_s = rig.period_s;
     p.seed = opts.seed;
     p.encoder_noise_counts = opts.encoder_noise_counts;
+    p.motor_time_constant_s = opts.motor_time_constant_s;
     if opts.slack {
         // A string below 0.3 N sags; the encoder then reads up to 5 mm too long.
         p.slack_tension_n = 0.3;
