@@ -225,6 +225,8 @@ impl Rig {
             ));
         }
         let mut channels_seen = [false; spidar_device::MAX_CHANNELS];
+        // How many length_at_zero_m fields came before: locates a bad one in the text.
+        let mut zeros_seen = 0;
         let mut hands = Vec::with_capacity(2);
         for (h, hf) in f.hands.iter().enumerate() {
             let field = |name: &str| format!("hands[{h}].{name}");
@@ -342,12 +344,13 @@ impl Rig {
                         return Err(bad(
                             sfield("length_at_zero_m"),
                             "length_at_zero_m",
-                            0,
+                            zeros_seen,
                             "must be finite".into(),
                         ));
                     }
                     zero[s] = l;
                     zero_count += 1;
+                    zeros_seen += 1;
                 }
                 anchors[s] = DVec3::from_array(sf.anchor_m);
                 mpc[s] = sf.metres_per_count;

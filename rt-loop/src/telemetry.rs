@@ -151,6 +151,14 @@ impl DurationHist {
     }
 }
 
+/// Ticks per second of loop-clock time for `records` ticks between `first_t_s` and `last_t_s`.
+fn rate_hz(records: u64, first_t_s: Option<f64>, last_t_s: f64) -> f64 {
+    match first_t_s {
+        Some(t0) if last_t_s > t0 => records.saturating_sub(1) as f64 / (last_t_s - t0),
+        _ => 0.0,
+    }
+}
+
 /// Statistics over the records a consumer has seen (whole run and a live window).
 #[derive(Clone, Debug, Default)]
 pub struct Stats {
@@ -183,10 +191,7 @@ pub struct Window {
 impl Window {
     /// Ticks per second of loop-clock time over the window.
     pub fn rate_hz(&self) -> f64 {
-        match self.first_t_s {
-            Some(t0) if self.last_t_s > t0 => (self.records.saturating_sub(1)) as f64 / (self.last_t_s - t0),
-            _ => 0.0,
-        }
+        rate_hz(self.records, self.first_t_s, self.last_t_s)
     }
 }
 
@@ -224,10 +229,7 @@ impl Stats {
 
     /// Ticks per second of loop-clock time over the whole run.
     pub fn rate_hz(&self) -> f64 {
-        match self.first_t_s {
-            Some(t0) if self.last_t_s > t0 => (self.records.saturating_sub(1)) as f64 / (self.last_t_s - t0),
-            _ => 0.0,
-        }
+        rate_hz(self.records, self.first_t_s, self.last_t_s)
     }
 
     pub fn reset_window(&mut self) {

@@ -226,10 +226,6 @@ impl TickCore {
     pub fn is_homed(&self) -> bool {
         self.hands.iter().all(|h| h.zero_m.is_some())
     }
-    /// Counter zero lengths per hand (what homing found), for writing back to the rig file.
-    pub fn zero_lengths(&self) -> [Option<[f64; 4]>; HANDS] {
-        [self.hands[0].zero_m, self.hands[1].zero_m]
-    }
     /// Current force gain from the ramp (0 .. 1).
     pub fn ramp_gain(&self) -> f64 {
         self.ramp.gain()
@@ -237,9 +233,6 @@ impl TickCore {
     /// True once a deactivation or stop has fully ramped out.
     pub fn is_quiet(&self) -> bool {
         self.state != Lifecycle::Active && self.ramp.gain() == 0.0
-    }
-    pub fn pose(&self, hand: usize) -> Option<Pose> {
-        self.hands.get(hand).map(|h| h.pose)
     }
     /// Takes the counters as read before the first tick, so homing can use them at once.
     pub fn observe_counts(&mut self, inp: &Input) {

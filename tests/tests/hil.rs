@@ -122,6 +122,13 @@ fn session(scripts: [Script; 2], scene: Option<Box<dyn Scene>>, opts: &SimOption
     v
 }
 
+/// Random sparring (seeded) against the rig-check scene, with the given encoder noise and slack.
+fn sparring(seed: u64, encoder_noise_counts: f64, slack: bool) -> VirtualRun<SimRig> {
+    let scripts = load_scripts("spar", &rig(), seed).unwrap();
+    let opts = SimOptions { seed, encoder_noise_counts, slack, ..Default::default() };
+    session(scripts, Some(Box::new(WallsScene::builtin())), &opts)
+}
+
 fn truth(v: &VirtualRun<SimRig>) -> Truth {
     *v.rt.device().truth()
 }
@@ -226,8 +233,7 @@ fn wall_force_holds_with_encoder_noise_and_motor_lag_in_the_plant() {
 #[test]
 fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
     let r = rig();
-    let scripts = load_scripts("spar", &r, 11).unwrap();
-    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &SimOptions::default());
+    let mut v = sparring(11, 0.0, false);
     let resolution = r.hands[0].metres_per_count[0].abs();
     let mut worst: f64 = 0.0;
     v.run_ticks(200); // homing
@@ -249,9 +255,7 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
 #[test]
 fn every_commanded_tension_stays_in_range_over_100k_ticks_of_random_sparring() {
     let r = rig();
-    let scripts = load_scripts("spar", &r, 42).unwrap();
-    let opts = SimOptions { seed: 42, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
-    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    let mut v = sparring(42, 0.5, true);
     let mut contact_ticks = 0;
     let mut out_of_range = 0;
     for _ in 0..100_000 {
@@ -491,10 +495,7 @@ fn a_stall_on_the_virtual_clock_counts_as_a_missed_deadline() {
 // Determinism.
 
 fn digest_of_run(seed: u64, ticks: usize) -> u64 {
-    let r = rig();
-    let scripts = load_scripts("spar", &r, seed).unwrap();
-    let opts = SimOptions { seed, encoder_noise_counts: 0.7, slack: true, ..Default::default() };
-    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    let mut v = sparring(seed, 0.7, true);
     let mut d = Digest::new();
     for _ in 0..ticks {
         let rec = v.tick();
@@ -538,9 +539,7 @@ fn runs_with_the_same_seed_are_bit_identical() {
 #[test]
 fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let r = rig();
-    let scripts = load_scripts("spar", &r, 3).unwrap();
-    let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
-    let mut v = session(scripts, Some(Box::new(WallsScene::builtin())), &opts);
+    let mut v = sparring(3, 0.5, true);
     v.run_ticks(1000); // warm-up: histograms, first models
     let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
     let mut scene = v.stop_scene().unwrap();

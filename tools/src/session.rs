@@ -270,7 +270,7 @@ pub fn run_live<D: Device + 'static>(
     scene: Box<dyn Scene>,
     opts: LiveOptions,
 ) -> anyhow::Result<Summary> {
-    let device_name = format!("{} ({})", dev_board(&dev), dev_identity(&dev));
+    let device_name = format!("{} ({})", dev.info().board, dev.info().identity);
     let clock = MonotonicClock::new();
     let (ep, far) = Endpoints::pair();
     let mut rt = RtLoop::new(dev, clock.with_spin(opts.spin_ns), rig, ep)?;
@@ -371,13 +371,6 @@ pub fn run_live<D: Device + 'static>(
         faults_seen,
         clean_stop: rt.is_finished(),
     })
-}
-
-fn dev_board<D: Device>(d: &D) -> String {
-    d.info().board.to_string()
-}
-fn dev_identity<D: Device>(d: &D) -> String {
-    d.info().identity.to_string()
 }
 
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
