@@ -236,6 +236,7 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
     let mut v = sparring(11, 0.0, false);
     let resolution = r.hands[0].metres_per_count[0].abs();
     let mut worst: f64 = 0.0;
+    let mut worst_residual: f64 = 0.0;
     v.run_ticks(200); // homing
     for _ in 0..20_000 {
         // The counts a tick reads are sampled before the plant advances through that tick.
@@ -244,9 +245,12 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
         for h in 0..2 {
             assert!(rec.hands[h].valid);
             worst = worst.max((rec.hands[h].pos_m - before.hands[h].pos_m).length());
+            worst_residual = worst_residual.max(rec.hands[h].residual_m);
         }
     }
     assert!(worst < 1e-4 + resolution, "worst pose error {worst} m");
+    // A healthy rig stays well inside the residual fault limit (the rig file quotes this).
+    assert!(worst_residual < 0.5e-3, "worst residual {worst_residual} m");
 }
 
 // ---------------------------------------------------------------------------------------------
