@@ -7,7 +7,8 @@
 //! together with the lifecycle, [`runner`] adds the device, the clock and the channels.
 
 pub mod clock;
-pub mod config;
+/// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
+pub use spidar_config as config;
 pub mod kinematics;
 pub mod render;
 pub mod rig;

@@ -612,8 +612,13 @@ fn every_default_config_loads() {
         let name = p.file_name().unwrap().to_string_lossy().to_string();
         if name.starts_with("rig-") {
             Rig::load(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("scene-") {
+        } else if name.starts_with("scene-walls") {
             WallsScene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("scene-") {
+            spidar_sim::load_scene(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("body-") {
+            let text = std::fs::read_to_string(&p).unwrap();
+            spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}"));
         } else if name.starts_with("script-") {
             ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"));
         } else {
@@ -621,7 +626,7 @@ fn every_default_config_loads() {
         }
         n += 1;
     }
-    assert!(n >= 2, "found {n} configs");
+    assert!(n >= 4, "found {n} configs");
     // The built-in copies are the files.
     assert_eq!(Rig::default_rig(), Rig::load(&dir.join("rig-spidar-h.ron")).unwrap());
 }
