@@ -10,7 +10,8 @@
 //! mass of the two rigid bodies at that point (a lower bound of the articulated one). Softened
 //! points are counted in `Workspace::contacts_softened`.
 //! Friction is viscous below the slip speed `s`; that viscosity `mu f_n / s` is kept below
-//! `m_red / h` by raising `s` where needed, so sticking never oscillates.
+//! `m / h` (`m` the contact's effective mass) by raising `s` where needed, so sticking never
+//! oscillates.
 //!
 //! Must never: allocate (the contact list has a fixed capacity and counts the records it drops;
 //! their forces are still applied), pull
@@ -64,7 +65,7 @@ pub fn contacts(model: &Model, ws: &mut Workspace) -> usize {
             let fn_ = (ks * hit.depth_m - ds * vn).max(0.0);
             let vt = vrel - hit.normal * vn;
             let mu_fn = pair.friction * fn_;
-            let slip = model.contact.slip_m_per_s.max(mu_fn * share * h / pair.m_red_kg);
+            let slip = model.contact.slip_m_per_s.max(mu_fn * h / m_eff);
             let vt_len = vt.length();
             let ft = if vt_len > 0.0 { -vt * (mu_fn / vt_len.max(slip)) } else { DVec3::ZERO };
             let force = hit.normal * fn_ + ft;

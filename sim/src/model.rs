@@ -110,8 +110,8 @@ pub struct ShapePair {
     pub k_n_per_m: f64,
     pub d_n_s_per_m: f64,
     pub friction: f64,
-    /// Reduced mass of the two bodies' segments (one body's mass against scenery): bounds the
-    /// friction regularisation for stability.
+    /// Reduced mass of the two bodies' segments (one body's mass against scenery), which `Rate`
+    /// contact gains are scaled by.
     pub m_red_kg: f64,
 }
 
