@@ -665,3 +665,28 @@ fn single_body_character_stands_on_the_floor() {
     assert!((depth - expected).abs() < 0.02 * expected, "depth {depth:.3e}, m g / k {expected:.3e}");
     assert!(ws.contacts.iter().all(|c| m.shapes[c.shape_b as usize].name.ends_with("feet")));
 }
+
+/// A joint pushed past its limit stops there: it settles where the limit's spring (300 N m/rad
+/// in these scenes) balances the push, and the limit damper does not hold it when pushed back.
+#[test]
+fn joint_stops_at_its_limit() {
+    let body = r#"(version: 1, name: "bar", source: "test", gain_dt_s: 0.003, links: [
+        (name: "bar", parent: None, joint: (kind: Revolute(axis: (0.0, 0.0, 1.0)), anchor_m: (0.0, 1.0, 0.0),
+            stiffness: Abs(0.0), damping: Abs(0.5), limits_deg: Some([(-20.0, 20.0)])),
+         mass: Box(mass_kg: 1.0, size_m: (0.04, 0.4, 0.04), centre_m: (0.0, -0.2, 0.0)))])"#;
+    let m = scene(0.003, 0.0, NO_CONTACT, "", &actor("b", 0.0, 0.0, 0.0), body);
+    let mut s = State::new(&m);
+    let mut ws = Workspace::new(&m);
+    for _ in 0..3000 {
+        ws.tau[0] = 10.0;
+        step(&m, &mut s, &mut ws);
+    }
+    let expected = 20f64.to_radians() + 10.0 / 300.0;
+    assert!((s.q[0] - expected).abs() < 1e-4, "angle {} vs {}", s.q[0], expected);
+    // Pushed back, it leaves the limit and swings freely to the other one.
+    for _ in 0..3000 {
+        ws.tau[0] = -10.0;
+        step(&m, &mut s, &mut ws);
+    }
+    assert!((s.q[0] + expected).abs() < 1e-4, "angle {} vs {}", s.q[0], -expected);
+}
