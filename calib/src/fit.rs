@@ -48,6 +48,8 @@ const GAUGE_WEIGHT: f64 = 1e4;
 /// Singular values below this fraction of the largest count as zero (exact null directions come
 /// out near 1e-15; the weakest real direction of a usable data set is far above 1e-9).
 const NULL_TOL: f64 = 1e-9;
+/// Smallest residual scale assumed (0.1 um): keeps weights finite on exact synthetic data.
+const SIGMA_FLOOR_M: f64 = 1e-7;
 /// Condition number above which the data are called degenerate even without an exact null space.
 const MAX_CONDITION: f64 = 1e8;
 
@@ -61,8 +63,10 @@ pub struct FitOptions {
     /// A residual beyond this many robust standard deviations (and beyond `outlier_floor_m`) is an outlier.
     pub outlier_sigmas: f64,
     pub outlier_floor_m: f64,
-    /// A string with outliers in more than this fraction of poses (and at least 3) is slack: error.
+    /// A string with outliers in at least this fraction of poses (and at least `slack_min_poses`)
+    /// is slack or slipping: an error, not something to fit through.
     pub slack_fraction: f64,
+    pub slack_min_poses: usize,
     /// Two poses closer than this in string length (RMS over the four strings) are duplicates: error.
     pub duplicate_m: f64,
     /// Poses whose smallest spread about their best plane is below this are planar: error.
@@ -78,7 +82,8 @@ impl Default for FitOptions {
             huber_k: 1.345,
             outlier_sigmas: 6.0,
             outlier_floor_m: 0.3e-3,
-            slack_fraction: 0.2,
+            slack_fraction: 0.08,
+            slack_min_poses: 4,
             duplicate_m: 2e-3,
             min_depth_spread_m: 0.03,
             weak_std_m: 0.5e-3,
@@ -542,7 +547,6 @@ pub fn fit_hand(
         x,
     };
     let lm = LevenbergMarquardt::new().with_patience(200);
-    let quantum = mpc0.iter().map(|m| m.abs()).fold(0.0, f64::max);
     let mut evaluations = 0;
     let mut rounds = 0;
     let mut sigma = 0.0;
@@ -555,8 +559,9 @@ pub fn fit_hand(
             return Err(CalibError::NoConvergence { hand, why: format!("{:?}", report.termination) });
         }
         let r = problem.raw_residuals();
-        // Robust scale (MAD), floored at a quarter count so quantised exact data still weigh.
-        sigma = (1.4826 * median(r.iter().flatten().map(|v| v.abs()).collect())).max(0.25 * quantum);
+        // Robust scale (MAD). Averaged noisy counts resolve far below one count (the noise
+        // dithers the quantiser), so no count-sized floor: only a tiny one against exact data.
+        sigma = (1.4826 * median(r.iter().flatten().map(|v| v.abs()).collect())).max(SIGMA_FLOOR_M);
         let k = opts.huber_k * sigma;
         let new_w: Vec<[f64; 4]> =
             r.iter().map(|rk| rk.map(|v| if v.abs() <= k { 1.0 } else { (k / v.abs()).sqrt() })).collect();
@@ -587,7 +592,7 @@ pub fn fit_hand(
     // A string that disagrees in many poses is slack or slipping: not something to fit through.
     for i in 0..4 {
         let bad: Vec<&(usize, usize, f64)> = outliers.iter().filter(|o| o.1 == i).collect();
-        if bad.len() >= 3 && bad.len() as f64 > opts.slack_fraction * obs.len() as f64 {
+        if bad.len() >= opts.slack_min_poses.max((opts.slack_fraction * obs.len() as f64).ceil() as usize) {
             let worst = bad.iter().max_by(|a, b| a.2.abs().total_cmp(&b.2.abs())).unwrap();
             return Err(CalibError::InconsistentString {
                 hand,
@@ -607,30 +612,39 @@ pub fn fit_hand(
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .unwrap();
 
-    // Observability: SVD of the weighted data Jacobian (without the gauge rows).
+    // Observability: SVD of the weighted data Jacobian with the gauge rows appended (scaled like
+    // the data rows). The gauge rows pin exactly the gauge directions, so what is still (nearly)
+    // singular is a real lack of information. (Without them the scale direction is not exactly
+    // null: scaling everything scales the residuals too.)
     let jd = problem.data_jacobian();
-    let svd = jd.clone().svd(false, true);
+    let jn = jd.norm() / (jd.ncols() as f64).sqrt();
+    let j_obs = match gauge.as_ref() {
+        Some(g) => {
+            let jg = problem.gauge_jacobian(g) * (jn / GAUGE_WEIGHT);
+            let mut j = DMatrix::zeros(jd.nrows() + jg.nrows(), jd.ncols());
+            j.rows_mut(0, jd.nrows()).copy_from(&jd);
+            j.rows_mut(jd.nrows(), jg.nrows()).copy_from(&jg);
+            j
+        }
+        None => jd.clone(),
+    };
+    let svd = j_obs.svd(false, true);
     let v_t = svd.v_t.as_ref().expect("requested");
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
     let smax = svd.singular_values[order[0]];
     let null: Vec<usize> =
         order.iter().copied().filter(|&q| svd.singular_values[q] < NULL_TOL * smax).collect();
-    let rank = layout.n - null.len();
+    let rank = layout.n - null.len() - gauge_dof;
     let smallest = order.iter().copied().rfind(|q| !null.contains(q)).unwrap_or(order[0]);
     let condition = smax / svd.singular_values[smallest];
-    // Component of each parameter in the null space.
+    // Component of each parameter in the (extra) null space.
     let null_part = |col: usize| null.iter().map(|&q| v_t[(q, col)].powi(2)).sum::<f64>().sqrt();
     let name = |col: usize| param_name(&layout, col, &labels);
-    if null.len() > gauge_dof || condition > MAX_CONDITION {
+    if !null.is_empty() || condition > MAX_CONDITION {
         let mut cols: Vec<usize> = (0..layout.n).collect();
-        let weak_dir = |col: usize| {
-            if null.len() > gauge_dof {
-                null_part(col)
-            } else {
-                v_t[(smallest, col)].abs()
-            }
-        };
+        let weak_dir =
+            |col: usize| if !null.is_empty() { null_part(col) } else { v_t[(smallest, col)].abs() };
         cols.sort_by(|&a, &b| weak_dir(b).total_cmp(&weak_dir(a)));
         let names: Vec<String> =
             cols.iter().take(6).filter(|&&c| weak_dir(c) > 0.05).map(|&c| name(c)).collect();
@@ -642,8 +656,8 @@ pub fn fit_hand(
         return Err(degenerate(format!(
             "the data do not determine the geometry: {} ({} of {} directions unobservable{}, condition {:.1e}); \
              involved: {}. Spread the poses through the whole workspace, in all three directions.{jig_hint}",
-            if null.len() > gauge_dof { "rank deficient" } else { "nearly rank deficient" },
-            null.len().saturating_sub(gauge_dof).max(1),
+            if !null.is_empty() { "rank deficient" } else { "nearly rank deficient" },
+            null.len().max(1),
             layout.n - gauge_dof,
             if gauge_dof > 0 { format!(" beyond the {gauge_dof} of the frame") } else { String::new() },
             condition,
@@ -660,7 +674,7 @@ pub fn fit_hand(
     let redundancy = (m + gauge_dof) as f64 - layout.n as f64;
     let wsum: f64 =
         residuals.iter().zip(&weights).flat_map(|(r, w)| (0..4).map(move |i| w[i] * r[i] * r[i])).sum();
-    let s2 = (wsum / redundancy.max(1.0)).max((0.25 * quantum).powi(2));
+    let s2 = (wsum / redundancy.max(1.0)).max(SIGMA_FLOOR_M * SIGMA_FLOOR_M);
     let cov = normal.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
         degenerate("the normal equations are singular although the rank check passed: report this".into())
     })? * s2;
@@ -674,8 +688,11 @@ pub fn fit_hand(
         metres_per_count: mpc,
     };
     let configured = HandGeometry { length_at_zero_m: start.length_at_zero_m, ..start };
+    // In the free-pose gauge every anchor moves with the frame, and with the scale free the
+    // lengths and metres per count scale with it (exactly: see the module doc).
+    let in_gauge = |col: usize| gauge_dof > 0 && (col < 12 || gauge_dof == 7);
     let status = |col: usize, std: f64, weak: f64| {
-        if null_part(col) > 0.1 {
+        if in_gauge(col) {
             Observability::Gauge
         } else if std > weak {
             Observability::Weak

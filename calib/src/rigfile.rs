@@ -32,9 +32,8 @@ pub struct Stamp {
     pub session: String,
 }
 
-/// The text with `//` comments blanked out (same byte offsets), so searches skip them. String
-/// literals in a rig file hold no `//` the tool would care about except in `name`/`label`, which
-/// are kept intact because only text after `//` outside quotes is blanked.
+/// The text with `//` comments blanked and string contents masked (same byte offsets), so that
+/// searches for keys and brackets see only RON structure.
 fn code_mask(text: &str) -> Vec<u8> {
     let mut out = text.as_bytes().to_vec();
     let b = text.as_bytes();
@@ -43,16 +42,20 @@ fn code_mask(text: &str) -> Vec<u8> {
     while i < b.len() {
         if in_str {
             if b[i] == b'\\' {
+                out[i] = b'_';
+                if i + 1 < b.len() {
+                    out[i + 1] = b'_';
+                }
                 i += 2;
                 continue;
             }
             if b[i] == b'"' {
                 in_str = false;
+            } else {
+                out[i] = b'_';
             }
-            out[i] = b' ';
         } else if b[i] == b'"' {
             in_str = true;
-            out[i] = b' ';
         } else if b[i] == b'/' && b.get(i + 1) == Some(&b'/') {
             while i < b.len() && b[i] != b'\n' {
                 out[i] = b' ';
@@ -373,7 +376,7 @@ mod tests {
             assert!(out.contains(line), "comment lost: {line}");
         }
         let file: spidar_rt::rig::RigFile = ron::from_str(&out).unwrap();
-        let cal = file.calibration.unwrap();
+        let cal = file.calibration;
         assert_eq!(cal.fitted_utc, "2025-01-02T03:04:05Z");
         assert_eq!(cal.fit_residual_rms_m, 2e-5);
         // A second update edits the record in place rather than adding another.
@@ -386,7 +389,7 @@ mod tests {
         .unwrap();
         assert_eq!(again.matches("calibration:").count(), 1);
         let file: spidar_rt::rig::RigFile = ron::from_str(&again).unwrap();
-        assert_eq!(file.calibration.unwrap().homed_utc, "x");
+        assert_eq!(file.calibration.homed_utc, "x");
     }
 
     #[test]

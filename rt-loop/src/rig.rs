@@ -39,8 +39,8 @@ pub struct RigFile {
     pub estimation: EstimationFile,
     /// When the counters were last homed and the geometry last fitted; written by `spidar calib`,
     /// absent in a rig file that was never calibrated.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<CalibrationFile>,
+    #[serde(default)]
+    pub calibration: CalibrationFile,
 }
 
 /// The calibration record of a rig file (informational: the geometry itself is in `hands`).
