@@ -184,10 +184,14 @@ pub struct HandFit {
     pub irls_rounds: usize,
 }
 
+/// The geometry unknowns (the LM's parameters): 12 anchor coordinates, 4 lengths at the
+/// reference pose, 4 relative metres-per-count changes. Free poses are not LM parameters: they are
+/// solved per pose inside each evaluation (variable projection, see [`Problem`]).
 struct Layout {
     fit_mpc: bool,
-    /// Column of each observation's position (free poses), or None (jig).
-    pose_col: Vec<Option<usize>>,
+    /// Which observations are free poses (unknown position).
+    free: Vec<bool>,
+    /// Geometry parameters.
     n: usize,
 }
 
@@ -195,17 +199,18 @@ impl Layout {
     const L: usize = 12;
     const S: usize = 16;
     fn new(obs: &[Observation], fit_mpc: bool) -> Layout {
-        let mut col = if fit_mpc { 20 } else { 16 };
-        let pose_col = obs
-            .iter()
-            .map(|o| {
-                o.known_m.is_none().then(|| {
-                    col += 3;
-                    col - 3
-                })
-            })
-            .collect();
-        Layout { fit_mpc, pose_col, n: col }
+        Layout {
+            fit_mpc,
+            free: obs.iter().map(|o| o.known_m.is_none()).collect(),
+            n: if fit_mpc { 20 } else { 16 },
+        }
+    }
+    fn n_free(&self) -> usize {
+        self.free.iter().filter(|f| **f).count()
+    }
+    /// All unknowns, the free poses' coordinates included.
+    fn n_all(&self) -> usize {
+        self.n + 3 * self.n_free()
     }
 }
 
@@ -226,6 +231,11 @@ impl Gauge {
     }
 }
 
+/// Variable projection: for given geometry every free pose is the least-squares point of its
+/// four (weighted) lengths, solved by Gauss-Newton in `set_params`; the LM sees residuals as a
+/// function of the geometry alone, and a Jacobian with each pose's directions projected out
+/// (Kaufman's form: `(I - J_p J_p^+) J_g` per pose). Same optimum as fitting everything jointly,
+/// at the cost of a 20-parameter problem instead of one with 3 more per pose.
 struct Problem<'a> {
     obs: &'a [Observation],
     /// Counts relative to the reference pose.
@@ -235,6 +245,8 @@ struct Problem<'a> {
     layout: &'a Layout,
     gauge: Option<&'a Gauge>,
     x: DVector<f64>,
+    /// Current pose of every observation (jig: the known point; free: solved for `x`).
+    poses: Vec<DVec3>,
 }
 
 impl Problem<'_> {
@@ -249,13 +261,44 @@ impl Problem<'_> {
         }
     }
     fn pose(&self, k: usize) -> DVec3 {
-        match self.layout.pose_col[k] {
-            Some(c) => DVec3::new(self.x[c], self.x[c + 1], self.x[c + 2]),
-            None => self.obs[k].known_m.unwrap_or(DVec3::NAN),
-        }
+        self.poses[k]
     }
     fn m(&self) -> usize {
         4 * self.obs.len() + self.gauge.map_or(0, Gauge::rows)
+    }
+    /// Solves every free pose for the current geometry, from its previous value.
+    fn solve_poses(&mut self) {
+        let anchors: [DVec3; 4] = std::array::from_fn(|i| self.anchor(i));
+        let mpc: [f64; 4] = std::array::from_fn(|i| self.mpc(i));
+        for k in 0..self.obs.len() {
+            if !self.layout.free[k] {
+                continue;
+            }
+            let l: [f64; 4] = std::array::from_fn(|i| self.x[Layout::L + i] + mpc[i] * self.dc[k][i]);
+            let w = self.sqrt_w[k].map(|v| v * v);
+            let mut p = self.poses[k];
+            for _ in 0..30 {
+                let mut jtj = glam::DMat3::ZERO;
+                let mut jtr = DVec3::ZERO;
+                for i in 0..4 {
+                    let d = anchors[i] - p;
+                    let dist = d.length().max(1e-9);
+                    let u = d / dist;
+                    // r = l - |a - p|, dr/dp = u
+                    jtj += glam::DMat3::from_cols(u * u.x, u * u.y, u * u.z) * w[i];
+                    jtr += u * (w[i] * (l[i] - dist));
+                }
+                let step = -(jtj.inverse() * jtr);
+                if !step.is_finite() {
+                    break;
+                }
+                p += step;
+                if step.length() < 1e-13 {
+                    break;
+                }
+            }
+            self.poses[k] = p;
+        }
     }
     /// Unweighted residuals: measured minus modelled length.
     fn raw_residuals(&self) -> Vec<[f64; 4]> {
@@ -268,11 +311,14 @@ impl Problem<'_> {
             })
             .collect()
     }
-    /// Jacobian of the weighted data rows only (no gauge rows).
+    /// Jacobian of the weighted data rows with respect to the geometry, each free pose's
+    /// directions projected out (no gauge rows).
     fn data_jacobian(&self) -> DMatrix<f64> {
-        let mut j = DMatrix::zeros(4 * self.obs.len(), self.layout.n);
+        let n = self.layout.n;
+        let mut j = DMatrix::zeros(4 * self.obs.len(), n);
         for k in 0..self.obs.len() {
             let p = self.pose(k);
+            let mut jp = [DVec3::ZERO; 4];
             for i in 0..4 {
                 let row = 4 * k + i;
                 let w = self.sqrt_w[k][i];
@@ -286,9 +332,19 @@ impl Problem<'_> {
                 if self.layout.fit_mpc {
                     j[(row, Layout::S + i)] = w * self.mpc0[i] * self.dc[k][i];
                 }
-                if let Some(col) = self.layout.pose_col[k] {
-                    for c in 0..3 {
-                        j[(row, col + c)] = w * u[c];
+                jp[i] = u * w;
+            }
+            if self.layout.free[k] {
+                // Project out the pose: J_g -= J_p (J_p^T J_p)^-1 J_p^T J_g over this pose's 4 rows.
+                let jtj = jp
+                    .iter()
+                    .fold(glam::DMat3::ZERO, |m, u| m + glam::DMat3::from_cols(*u * u.x, *u * u.y, *u * u.z));
+                let inv = jtj.inverse();
+                for col in 0..n {
+                    let jtg = (0..4).fold(DVec3::ZERO, |acc, i| acc + jp[i] * j[(4 * k + i, col)]);
+                    let c = inv * jtg;
+                    for i in 0..4 {
+                        j[(4 * k + i, col)] -= jp[i].dot(c);
                     }
                 }
             }
@@ -337,6 +393,7 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
 
     fn set_params(&mut self, x: &DVector<f64>) {
         self.x.copy_from(x);
+        self.solve_poses();
     }
     fn params(&self) -> DVector<f64> {
         self.x.clone()
@@ -370,18 +427,14 @@ impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_> {
     }
 }
 
-fn param_name(layout: &Layout, col: usize, labels: &[String]) -> String {
+fn param_name(col: usize) -> String {
     const XYZ: [&str; 3] = ["x", "y", "z"];
     if col < 12 {
         format!("anchor[{}].{}", col / 3, XYZ[col % 3])
     } else if col < 16 {
         format!("length[{}]", col - 12)
-    } else if layout.fit_mpc && col < 20 {
-        format!("metres_per_count[{}]", col - 16)
     } else {
-        let k = layout.pose_col.iter().position(|c| c.is_some_and(|c| col >= c && col < c + 3)).unwrap_or(0);
-        let c = layout.pose_col[k].unwrap_or(col);
-        format!("pose {k} ({}).{}", labels[k], XYZ[(col - c).min(2)])
+        format!("metres_per_count[{}]", col - 16)
     }
 }
 
@@ -521,13 +574,6 @@ pub fn fit_hand(
         }
         x[Layout::L + i] = l_ref[i];
     }
-    for (k, col) in layout.pose_col.iter().enumerate() {
-        if let Some(col) = col {
-            for c in 0..3 {
-                x[col + c] = start_positions[k][c];
-            }
-        }
-    }
     let gauge = (n_jig == 0).then(|| {
         let cen = hr.anchors_m.iter().copied().sum::<DVec3>() / 4.0;
         let b = hr.anchors_m.map(|a| a - cen);
@@ -545,15 +591,20 @@ pub fn fit_hand(
         layout: &layout,
         gauge: gauge.as_ref(),
         x,
+        poses: start_positions,
     };
+    problem.solve_poses();
     let lm = LevenbergMarquardt::new().with_patience(200);
     let mut evaluations = 0;
     let mut rounds = 0;
     let mut sigma = 0.0;
     for round in 0..10 {
         rounds = round + 1;
+        let before = problem.x.clone();
         let (p, report) = lm.minimize(problem);
         problem = p;
+        // Converged when reweighting no longer moves the geometry (0.01 um).
+        let moved = (&problem.x - &before).amax();
         evaluations += report.number_of_evaluations;
         if !report.termination.was_successful() {
             return Err(CalibError::NoConvergence { hand, why: format!("{:?}", report.termination) });
@@ -571,7 +622,7 @@ pub fn fit_hand(
             .flat_map(|(a, b)| (0..4).map(move |i| (a[i] - b[i]).abs()))
             .fold(0.0, f64::max);
         problem.sqrt_w = new_w;
-        if change < 1e-3 && round > 0 {
+        if round > 0 && (change < 1e-3 || moved < 1e-8) {
             break;
         }
     }
@@ -635,12 +686,14 @@ pub fn fit_hand(
     let smax = svd.singular_values[order[0]];
     let null: Vec<usize> =
         order.iter().copied().filter(|&q| svd.singular_values[q] < NULL_TOL * smax).collect();
-    let rank = layout.n - null.len() - gauge_dof;
+    // Rank over all unknowns: each free pose is determined by its own 4 strings (3 of them span
+    // space inside the anchor tetrahedron), so a deficiency can only be in the geometry.
+    let rank = layout.n_all() - null.len() - gauge_dof;
     let smallest = order.iter().copied().rfind(|q| !null.contains(q)).unwrap_or(order[0]);
     let condition = smax / svd.singular_values[smallest];
     // Component of each parameter in the (extra) null space.
     let null_part = |col: usize| null.iter().map(|&q| v_t[(q, col)].powi(2)).sum::<f64>().sqrt();
-    let name = |col: usize| param_name(&layout, col, &labels);
+    let name = param_name;
     if !null.is_empty() || condition > MAX_CONDITION {
         let mut cols: Vec<usize> = (0..layout.n).collect();
         let weak_dir =
@@ -658,7 +711,7 @@ pub fn fit_hand(
              involved: {}. Spread the poses through the whole workspace, in all three directions.{jig_hint}",
             if !null.is_empty() { "rank deficient" } else { "nearly rank deficient" },
             null.len().max(1),
-            layout.n - gauge_dof,
+            layout.n_all() - gauge_dof,
             if gauge_dof > 0 { format!(" beyond the {gauge_dof} of the frame") } else { String::new() },
             condition,
             names.join(", ")
@@ -671,7 +724,7 @@ pub fn fit_hand(
         let jg = problem.gauge_jacobian(g);
         normal += jg.transpose() * jg;
     }
-    let redundancy = (m + gauge_dof) as f64 - layout.n as f64;
+    let redundancy = (m + gauge_dof) as f64 - layout.n_all() as f64;
     let wsum: f64 =
         residuals.iter().zip(&weights).flat_map(|(r, w)| (0..4).map(move |i| w[i] * r[i] * r[i])).sum();
     let s2 = (wsum / redundancy.max(1.0)).max(SIGMA_FLOOR_M * SIGMA_FLOOR_M);
@@ -806,7 +859,7 @@ pub fn fit_hand(
         outliers,
         n_jig,
         n_free,
-        n_params: layout.n,
+        n_params: layout.n_all(),
         rank,
         gauge_dof,
         gauge_note,
