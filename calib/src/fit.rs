@@ -634,9 +634,9 @@ pub fn fit_hand(
     let limit = (opts.outlier_sigmas * sigma).max(opts.outlier_floor_m);
     let mut outliers = Vec::new();
     for (k, rk) in residuals.iter().enumerate() {
-        for i in 0..4 {
-            if rk[i].abs() > limit {
-                outliers.push((k, i, rk[i]));
+        for (i, &r) in rk.iter().enumerate() {
+            if r.abs() > limit {
+                outliers.push((k, i, r));
             }
         }
     }

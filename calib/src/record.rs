@@ -331,12 +331,12 @@ impl<'r, D: Device> Recorder<'r, D> {
             s.sort_by(f64::total_cmp);
             0.5 * (s[1] + s[2])
         };
-        for i in 0..4 {
-            if spread_m[i] > 0.1e-3 && spread_m[i] > 5.0 * median_spread {
+        for (i, &spread) in spread_m.iter().enumerate() {
+            if spread > 0.1e-3 && spread > 5.0 * median_spread {
                 let line = format!(
                     "hand {hand} string {i}: its length wobbles by {:.2} mm while the others hold still: slack? \
                      check its tension",
-                    spread_m[i] * 1e3
+                    spread * 1e3
                 );
                 let mut tell = |s: &str| op.tell(s);
                 self.warn(&mut tell, line);

@@ -265,9 +265,9 @@ pub fn updated_rig_text(
         let Some(g) = g else { continue };
         let hr = &rig.hands[h];
         let z = hr.length_at_zero_m.ok_or_else(|| bad("length_at_zero_m did not read back".into()))?;
-        for s in 0..4 {
+        for (s, zs) in z.iter().enumerate() {
             let ok = hr.anchors_m[s].distance(g.anchors_m[s]) < 1e-6
-                && (z[s] - g.length_at_zero_m[s]).abs() < 1e-6
+                && (zs - g.length_at_zero_m[s]).abs() < 1e-6
                 && (hr.metres_per_count[s] / g.metres_per_count[s] - 1.0).abs() < 1e-10;
             if !ok {
                 return Err(bad(format!(

@@ -2,6 +2,8 @@
 //! metres per count off by 8-10 %, counters starting anywhere, 0.5 count encoder noise on top of
 //! quantisation): record, fit, verify against the truth.
 
+// Indexing hands 0..2 and strings 0..4 in parallel arrays reads plainer than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
 use glam::DVec3;
 use spidar_calib::fit::{fit_hand, observations, FitOptions, Observability, Observation};
 use spidar_calib::jig::JigFile;

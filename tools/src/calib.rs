@@ -6,7 +6,7 @@
 //! starting anywhere), whatever `--rig` says, so that home, record, fit --write and verify all
 //! run against the same simulated hardware while the rig file is being corrected.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand, ValueEnum};
@@ -148,7 +148,7 @@ fn check_device_args(d: &DeviceArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn load_rig(path: &PathBuf) -> anyhow::Result<(Rig, String)> {
+fn load_rig(path: &Path) -> anyhow::Result<(Rig, String)> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("reading the rig file {} (give one with --rig)", path.display()))?;
     let rig = Rig::from_str(&text, &path.display().to_string())?;
@@ -226,7 +226,7 @@ fn record(
     jig: Option<PathBuf>,
     free: usize,
     half: f64,
-    out: &PathBuf,
+    out: &Path,
 ) -> anyhow::Result<()> {
     if !(half.is_finite() && (0.05..=1.0).contains(&half)) {
         bail!("--free-half-extent-m must be in 0.05 .. 1 m");
@@ -259,8 +259,8 @@ fn record(
 }
 
 fn fit(
-    rig_path: &PathBuf,
-    session_path: &PathBuf,
+    rig_path: &Path,
+    session_path: &Path,
     fixed_mpc: bool,
     plots: Option<PathBuf>,
     write: bool,
@@ -277,7 +277,7 @@ fn fit(
     let mut geometry = [None, None];
     let mut trustworthy = true;
     let mut rms = 0.0f64;
-    for h in 0..2 {
+    for (h, slot) in geometry.iter_mut().enumerate() {
         let obs = observations(&session, h);
         if obs.is_empty() {
             continue;
@@ -293,7 +293,7 @@ fn fit(
         }
         trustworthy &= fit.is_trustworthy() && fit.gauge_dof == 0;
         rms = rms.max(fit.rms_m);
-        geometry[h] = Some(fit.geometry);
+        *slot = Some(fit.geometry);
     }
     if geometry.iter().all(Option::is_none) {
         bail!("the session {} has no poses", session_path.display());
@@ -326,7 +326,7 @@ fn fit(
     Ok(())
 }
 
-fn verify(d: &DeviceArgs, hands: Hands, jig: &PathBuf, max_error_m: f64) -> anyhow::Result<()> {
+fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow::Result<()> {
     let (rig, _) = load_rig(&d.rig)?;
     let jig = JigFile::load(jig)?;
     let geometry: [Option<HandGeometry>; 2] = std::array::from_fn(|h| HandGeometry::from_rig(&rig.hands[h]));
