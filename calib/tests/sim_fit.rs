@@ -262,3 +262,22 @@ fn the_session_round_trips_through_its_file() {
     assert_eq!(back, session);
     std::fs::remove_file(&path).unwrap();
 }
+
+#[test]
+fn two_jig_points_leave_a_rotation_unobservable_and_the_fit_says_so() {
+    let rig = Rig::default_rig();
+    let (session, _) = jig_session();
+    // Keep the home pose, two jig points and the free poses: a rotation about the line through the
+    // two points changes no length.
+    let obs: Vec<Observation> = observations(&session, 0)
+        .into_iter()
+        .enumerate()
+        .filter(|(k, o)| o.known_m.is_none() || *k <= 2)
+        .map(|(_, o)| o)
+        .collect();
+    assert_eq!(obs.iter().filter(|o| o.known_m.is_some()).count(), 2);
+    let e = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, CalibError::Degenerate { .. }), "{msg}");
+    assert!(msg.contains("rank deficient") && msg.contains("at least 4"), "{msg}");
+}
