@@ -871,7 +871,8 @@ pub fn fit_hand(
 }
 
 impl HandFit {
-    /// True when nothing is weak and there are no outliers: safe to write into the rig file.
+    /// True when no parameter is weakly determined (outliers alone do not count: they were
+    /// down-weighted and are listed in the report).
     pub fn is_trustworthy(&self) -> bool {
         self.params.iter().all(|p| p.status != Observability::Weak)
     }
