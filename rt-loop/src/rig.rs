@@ -37,6 +37,28 @@ pub struct RigFile {
     pub rig_to_world: TransformFile,
     pub safety: SafetyFile,
     pub estimation: EstimationFile,
+    /// When the counters were last homed and the geometry last fitted; written by `spidar calib`,
+    /// absent in a rig file that was never calibrated.
+    #[serde(default)]
+    pub calibration: CalibrationFile,
+}
+
+/// The calibration record of a rig file (informational: the geometry itself is in `hands`).
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    /// Last `spidar calib home --write`, UTC (RFC 3339); empty: never.
+    #[serde(default)]
+    pub homed_utc: String,
+    /// Last `spidar calib fit --write`, UTC (RFC 3339); empty: never.
+    #[serde(default)]
+    pub fitted_utc: String,
+    /// RMS string-length residual of that fit.
+    #[serde(default)]
+    pub fit_residual_rms_m: f64,
+    /// The session file it was fitted from.
+    #[serde(default)]
+    pub session: String,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]

@@ -26,6 +26,11 @@ struct Cli {
 enum Cmd {
     /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
     Run(RunArgs),
+    /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
+    Calib {
+        #[command(subcommand)]
+        what: spidar_tools::calib::CalibCmd,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -127,6 +132,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Cmd::Run(a) => run(a),
+        Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
             if !(seconds.is_finite() && seconds > 0.0) {
                 bail!("--seconds must be a positive number");
