@@ -51,7 +51,7 @@
 
 pub mod script;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
