@@ -17,7 +17,8 @@
 //! Plant time ([`PlantClock`]): `PerTick` advances the simulated rig by one period for each
 //! complete servo tick the host sends (every board's current command), so a run is the same as
 //! the in-process simulated rig whatever the machine's timing (tests); `RealTime` advances it
-//! every period of the wall clock with the latest commands, as real boards do (`spidar emulate`).
+//! every period of the wall clock with the latest commands, as real boards do (`spidar emulate`),
+//! from the first current command on (until then the simulated user holds the grips at home).
 //!
 //! What it must never do: take commands for a board it did not announce, reply out of protocol
 //! (the host's decoder would accept garbage), or keep currents on after the watchdog expired.
@@ -54,6 +55,9 @@ pub struct EmulatorOptions {
     pub watchdog: Duration,
     /// Current-command digits per volt (as the host's driver).
     pub digits_per_volt: f64,
+    /// Run the serving thread at this SCHED_FIFO priority (as a board answers at once); falls
+    /// back to the normal scheduler when not permitted ([`Control::fifo`] tells which).
+    pub fifo_priority: Option<i32>,
 }
 
 impl Default for EmulatorOptions {
@@ -64,6 +68,7 @@ impl Default for EmulatorOptions {
             plant: PlantClock::RealTime,
             watchdog: Duration::from_millis(50),
             digits_per_volt: protocol::DEFAULT_DIGITS_PER_VOLT,
+            fifo_priority: None,
         }
     }
 }
@@ -269,7 +274,9 @@ impl Boards {
                 self.latched = [[0; MAX_MOTORS]; MAX_BOARDS];
             }
         }
-        if self.opts.plant == PlantClock::RealTime {
+        // The simulated user holds the grips at home until the host starts servoing (as an
+        // operator does while the rig homes): the plant starts with the first current command.
+        if self.opts.plant == PlantClock::RealTime && self.last_command.is_some() {
             let next = *self.next_plant.get_or_insert(now);
             let mut next = next;
             let mut steps = 0;
@@ -354,6 +361,7 @@ struct Faults {
     /// Bumped each time a new pty is up (the first one is 1).
     connections: AtomicU64,
     connected: AtomicBool,
+    fifo: AtomicBool,
 }
 
 /// Switches the emulator's faults from another thread (tests, the stdin of `spidar emulate`).
@@ -392,6 +400,10 @@ impl Control {
     /// Whether a pty is up, and how many have been (1 after start, +1 per reconnect).
     pub fn connection(&self) -> (bool, u64) {
         (self.faults.connected.load(Ordering::SeqCst), self.faults.connections.load(Ordering::SeqCst))
+    }
+    /// Whether the serving thread got SCHED_FIFO.
+    pub fn fifo(&self) -> bool {
+        self.faults.fifo.load(Ordering::SeqCst)
     }
     /// The boards (and the simulated rig behind them), locked.
     pub fn boards(&self) -> MutexGuard<'_, Boards> {
@@ -491,6 +503,7 @@ impl Emulator {
     /// Starts the boards in front of `rig` on a new pty, reachable at `link` (a symlink that
     /// survives reconnects; it is replaced if it exists).
     pub fn spawn(rig: SimRig, opts: EmulatorOptions, link: &Path) -> Result<Emulator, EmulatorError> {
+        let opts_fifo = opts.fifo_priority;
         let boards = Boards::new(rig, opts).map_err(EmulatorError::Config)?;
         let pty = Pty::open().map_err(EmulatorError::Pty)?;
         point_link(link, &pty.path)
@@ -501,9 +514,17 @@ impl Emulator {
         let control = Control { faults, boards: Arc::new(Mutex::new(boards)) };
         let c = control.clone();
         let link_owned = link.to_path_buf();
+        let fifo = opts_fifo;
         let thread = std::thread::Builder::new()
             .name("spidar-emulator".into())
-            .spawn(move || serve(pty, c, link_owned))
+            .spawn(move || {
+                if let Some(prio) = fifo {
+                    let p = libc::sched_param { sched_priority: prio };
+                    let ok = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &p) } == 0;
+                    c.faults.fifo.store(ok, Ordering::SeqCst);
+                }
+                serve(pty, c, link_owned)
+            })
             .map_err(EmulatorError::Pty)?;
         Ok(Emulator { link: link.to_path_buf(), control, thread: Some(thread) })
     }
