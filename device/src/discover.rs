@@ -72,7 +72,15 @@ fn check_serial(path: &str, probe: bool) -> Result<String, String> {
             let boards: Vec<String> = dev
                 .boards()
                 .iter()
-                .map(|b| format!("id {} {} ({} motors, {} current sensors)", b.id, b.model_name(), b.n_motor, b.n_current))
+                .map(|b| {
+                    format!(
+                        "id {} {} ({} motors, {} current sensors)",
+                        b.id,
+                        b.model_name(),
+                        b.n_motor,
+                        b.n_current
+                    )
+                })
                 .collect();
             let motors: usize = dev.boards().iter().map(|b| usize::from(b.n_motor)).sum();
             Ok(format!("UART boards: {}; {motors} channels", boards.join(", ")))
@@ -93,7 +101,8 @@ pub fn usb_devices() -> Result<Vec<UsbReport>, String> {
     Ok(list_usb()?
         .into_iter()
         .map(|s| {
-            let kind = (s.vid == crate::usb::protocol::VENDOR_ID).then(|| UsbKind::from_product_id(s.pid)).flatten();
+            let kind =
+                (s.vid == crate::usb::protocol::VENDOR_ID).then(|| UsbKind::from_product_id(s.pid)).flatten();
             UsbReport { seen: s, kind }
         })
         .collect())

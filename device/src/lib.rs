@@ -159,7 +159,8 @@ impl OpenError {
         match e {
             DeviceError::Disconnected { .. } => OpenError::BadPath {
                 path: port.into(),
-                why: "no such serial port (list them with `spidar devices`; an emulator prints its path)".into(),
+                why: "no such serial port (list them with `spidar devices`; an emulator prints its path)"
+                    .into(),
             },
             DeviceError::Other { what } if what.starts_with("permission") => {
                 OpenError::Permission { what: port.into(), fix: what.into() }
@@ -173,7 +174,9 @@ impl OpenError {
         match self {
             OpenError::Device { source, .. } => *source,
             OpenError::BadPath { .. } => DeviceError::Disconnected { what: "no such device" },
-            OpenError::Permission { .. } => DeviceError::Other { what: "permission denied (see `spidar devices`)" },
+            OpenError::Permission { .. } => {
+                DeviceError::Other { what: "permission denied (see `spidar devices`)" }
+            }
             OpenError::NoBoard { .. } | OpenError::NoUsbBoard { .. } => {
                 DeviceError::Protocol { what: "no board answered" }
             }

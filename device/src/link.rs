@@ -81,7 +81,12 @@ impl FdLink {
         self.fd
     }
 
-    fn wait(&mut self, events: libc::c_short, deadline: Instant, waited_from: Instant) -> Result<(), DeviceError> {
+    fn wait(
+        &mut self,
+        events: libc::c_short,
+        deadline: Instant,
+        waited_from: Instant,
+    ) -> Result<(), DeviceError> {
         loop {
             let Some(ms) = poll_ms(deadline) else {
                 return Err(DeviceError::Timeout { waited_us: waited_us(waited_from) });
@@ -204,7 +209,9 @@ impl Drop for FdLink {
 /// lines (a pty has none) and without allocating: `path` is a prepared C string, so a driver can
 /// call this again from its reopen path inside the tick.
 pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceError> {
-    let fd = unsafe { libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC) };
+    let fd = unsafe {
+        libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC)
+    };
     if fd < 0 {
         let e = last_errno();
         return Err(match e {

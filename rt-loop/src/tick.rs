@@ -103,7 +103,10 @@ pub enum Event {
     State(Lifecycle),
     Fault(FaultReason),
     Homed,
-    Refused { command: Command, why: &'static str },
+    Refused {
+        command: Command,
+        why: &'static str,
+    },
     /// The device came back after a disconnect; the rig returns to Inactive and must be homed.
     DeviceReopened,
     Stopped,
@@ -712,7 +715,11 @@ mod tests {
         home_and_activate(&mut c);
         run(&mut c, 10, Err(DeviceError::Timeout { waited_us: 1 }));
         run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
-        assert_eq!(c.fault(), Some(FaultReason::Device(ErrorKind::Disconnected)), "a disconnect outranks a timeout");
+        assert_eq!(
+            c.fault(),
+            Some(FaultReason::Device(ErrorKind::Disconnected)),
+            "a disconnect outranks a timeout"
+        );
         c.device_reopened();
         let need = c.rig().safety.fault_recovery_ticks as usize;
         run(&mut c, need, Ok(()));

@@ -118,7 +118,8 @@ pub fn start_emulator(rig: &Rig, scripts: [Script; 2], opts: &EmulateOptions) ->
     Ok(Emulator::spawn(sim, opts.emulator.clone(), &opts.link)?)
 }
 
-pub const EMULATE_HELP: &str = "commands: drop N | corrupt N | delay N MS | silent on|off | disconnect | reconnect | status | quit";
+pub const EMULATE_HELP: &str =
+    "commands: drop N | corrupt N | delay N MS | silent on|off | disconnect | reconnect | status | quit";
 
 /// Applies one stdin command to the emulator; returns a reply line, or None to quit.
 pub fn emulate_command(c: &Control, line: &str) -> Option<String> {
@@ -229,7 +230,10 @@ pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
         let _ = writeln!(s, "  {w}");
     }
     if ports.is_empty() {
-        let _ = writeln!(s, "  none found (a pty from `spidar emulate` is not listed: add --port {DEFAULT_LINK})");
+        let _ = writeln!(
+            s,
+            "  none found (a pty from `spidar emulate` is not listed: add --port {DEFAULT_LINK})"
+        );
     }
     for p in &ports {
         let status = match &p.status {
@@ -254,10 +258,18 @@ pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
                 };
                 let open = match &d.seen.openable {
                     None => String::new(),
-                    Some(Ok(())) => "opens (run with --device usb-simple/usb-sh4; the switch is read at open)".into(),
+                    Some(Ok(())) => {
+                        "opens (run with --device usb-simple/usb-sh4; the switch is read at open)".into()
+                    }
                     Some(Err(e)) => format!("cannot open: {e}"),
                 };
-                let _ = writeln!(s, "  {:<18} {:04x}:{:04x}  {what}  {open}", d.seen.place(), d.seen.vid, d.seen.pid);
+                let _ = writeln!(
+                    s,
+                    "  {:<18} {:04x}:{:04x}  {what}  {open}",
+                    d.seen.place(),
+                    d.seen.vid,
+                    d.seen.pid
+                );
             }
         }
     }
@@ -285,7 +297,11 @@ pub struct UartBenchReport {
 
 impl std::fmt::Display for UartBenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "spidar bench uart: the UART driver against the board emulator on a pseudo-terminal ({})", self.boards)?;
+        writeln!(
+            f,
+            "spidar bench uart: the UART driver against the board emulator on a pseudo-terminal ({})",
+            self.boards
+        )?;
         writeln!(
             f,
             "  round trip   {}  ({} exchanges back to back, {} timed out)",

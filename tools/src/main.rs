@@ -8,12 +8,12 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand, ValueEnum};
-use spidar_rt::rt_thread::RtOptions;
-use spidar_rt::telemetry::fmt_dur;
-use spidar_rt::Rig;
 use spidar_device::uart::UartOptions;
 use spidar_device::usb::{UsbKind, UsbOptions};
 use spidar_device::Device;
+use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::telemetry::fmt_dur;
+use spidar_rt::Rig;
 use spidar_tools::bench::{bench_rt, RtBenchOptions};
 use spidar_tools::hardware::{self, HardwareChoice};
 use spidar_tools::scene;
@@ -98,7 +98,8 @@ impl HardwareArgs {
             }
             DeviceKind::UsbSimple | DeviceKind::UsbSh4 => {
                 let kind = if kind == DeviceKind::UsbSimple { UsbKind::Simple } else { UsbKind::Sh4 };
-                let mut opts = UsbOptions { switch: self.switch, reply_timeout: timeout, ..UsbOptions::default() };
+                let mut opts =
+                    UsbOptions { switch: self.switch, reply_timeout: timeout, ..UsbOptions::default() };
                 if let Some(d) = self.digits_per_volt {
                     opts.digits_per_volt = d;
                 }
@@ -297,7 +298,8 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
         bail!("--noise-counts must be >= 0");
     }
-    let models = spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
+    let models =
+        spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
     let opts = hardware::EmulateOptions {
         link: a.link.clone(),
@@ -330,13 +332,18 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     }
     println!(
         "serving thread: {}",
-        if emu.control().fifo() { "SCHED_FIFO 70" } else { "normal priority (SCHED_FIFO not permitted or not asked)" }
+        if emu.control().fifo() {
+            "SCHED_FIFO 70"
+        } else {
+            "normal priority (SCHED_FIFO not permitted or not asked)"
+        }
     );
     println!("{}", hardware::EMULATE_HELP);
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed)).context("installing the Ctrl-C handler")?;
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("installing the Ctrl-C handler")?;
     }
     hardware::run_emulator(emu, stop, a.seconds)
 }

@@ -305,7 +305,8 @@ impl Boards {
         for (id, b) in self.boards.iter().enumerate() {
             if let Some(b) = b {
                 for m in 0..usize::from(b.n_motor) {
-                    out.volts[self.offsets[id] + m] = f64::from(self.latched[id][m]) / self.opts.digits_per_volt;
+                    out.volts[self.offsets[id] + m] =
+                        f64::from(self.latched[id][m]) / self.opts.digits_per_volt;
                 }
             }
         }
@@ -520,7 +521,9 @@ impl Emulator {
             .spawn(move || {
                 if let Some(prio) = fifo {
                     let p = libc::sched_param { sched_priority: prio };
-                    let ok = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &p) } == 0;
+                    let ok =
+                        unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &p) }
+                            == 0;
                     c.faults.fifo.store(ok, Ordering::SeqCst);
                 }
                 serve(pty, c, link_owned)
@@ -588,7 +591,9 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
         }
         let now = Instant::now();
         let wake = control.boards().next_wake();
-        let timeout_ms = wake.map_or(2, |w| w.saturating_duration_since(now).as_micros().div_ceil(1000) as i32).clamp(0, 2);
+        let timeout_ms = wake
+            .map_or(2, |w| w.saturating_duration_since(now).as_micros().div_ceil(1000) as i32)
+            .clamp(0, 2);
         let Some(p) = pty.as_ref() else {
             std::thread::sleep(Duration::from_millis(1));
             control.boards().idle(Instant::now());
@@ -620,8 +625,14 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
 }
 
 /// Applies the one-shot faults to this batch's servo-tick replies; returns a delay to wait first.
-fn apply_faults(f: &Faults, control: &Control, out: &mut Vec<u8>, ticks: &[(usize, usize)]) -> Option<Duration> {
-    let take = |a: &AtomicU32| a.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| v.checked_sub(1)).is_ok();
+fn apply_faults(
+    f: &Faults,
+    control: &Control,
+    out: &mut Vec<u8>,
+    ticks: &[(usize, usize)],
+) -> Option<Duration> {
+    let take =
+        |a: &AtomicU32| a.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |v| v.checked_sub(1)).is_ok();
     let mut delay = None;
     // Walk backwards so removing a range keeps the earlier ranges valid.
     for &(start, end) in ticks.iter().rev() {

@@ -22,7 +22,9 @@ use std::time::{Duration, Instant};
 use crate::frame::Unwrap;
 use crate::link::{open_serial, ByteLink, FdLink};
 use crate::{short_string, Device, DeviceError, DeviceInfo, Input, OpenError, Output, MAX_CHANNELS};
-use protocol::{BoardInfo, CurrentReply, INFO_REPLY_LEN, INFO_REQUEST_LEN, MAX_BOARDS, SET_CMD_LEN_REQUEST_LEN};
+use protocol::{
+    BoardInfo, CurrentReply, INFO_REPLY_LEN, INFO_REQUEST_LEN, MAX_BOARDS, SET_CMD_LEN_REQUEST_LEN,
+};
 
 /// Status bit set in `Input::status` while the outputs are enabled.
 pub const STATUS_ACTIVE: u32 = 1;
@@ -283,7 +285,11 @@ fn identify<L: ByteLink>(link: &mut L, id: u8, deadline: Instant) -> Result<Boar
     Ok(protocol::decode_info_reply(id, &rep)?)
 }
 
-fn set_command_lengths<L: ByteLink>(link: &mut L, boards: &[BoardInfo], deadline: Instant) -> Result<(), DeviceError> {
+fn set_command_lengths<L: ByteLink>(
+    link: &mut L,
+    boards: &[BoardInfo],
+    deadline: Instant,
+) -> Result<(), DeviceError> {
     for b in boards {
         let mut buf = [0u8; SET_CMD_LEN_REQUEST_LEN];
         protocol::encode_set_command_lengths(b, &mut buf);

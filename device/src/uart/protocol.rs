@@ -267,7 +267,11 @@ pub fn decode_current_reply(info: &BoardInfo, bytes: &[u8]) -> Result<CurrentRep
 }
 
 /// The board side: writes `reply` for board `info` into `buf`; returns the bytes written.
-pub fn encode_current_reply(info: &BoardInfo, reply: &CurrentReply, buf: &mut [u8]) -> Result<usize, FrameError> {
+pub fn encode_current_reply(
+    info: &BoardInfo,
+    reply: &CurrentReply,
+    buf: &mut [u8],
+) -> Result<usize, FrameError> {
     let len = info.current_reply_len();
     if buf.len() < len {
         return Err(FrameError::Short { need: len, got: buf.len() });
@@ -299,11 +303,22 @@ fn exact_len(bytes: &[u8], len: usize) -> Result<(), FrameError> {
 /// What a board's parser made of the host's byte stream.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum HostCommand {
-    BoardInfo { board: u8 },
-    SetCommandLengths { board: u8, lengths: [u8; COMMANDS] },
-    Current { board: u8, currents: [i16; MAX_MOTORS] },
+    BoardInfo {
+        board: u8,
+    },
+    SetCommandLengths {
+        board: u8,
+        lengths: [u8; COMMANDS],
+    },
+    Current {
+        board: u8,
+        currents: [i16; MAX_MOTORS],
+    },
     /// A command this emulator does not implement, skipped by its declared length.
-    Unsupported { board: u8, command: u8 },
+    Unsupported {
+        board: u8,
+        command: u8,
+    },
 }
 
 /// The boards' side of the link: a streaming parser that turns the host's bytes into commands.

@@ -158,7 +158,12 @@ impl<O: UsbOpener> UsbBoard<O> {
         let pid = self.kind.product_id();
         let cands = self.opener.candidates(vid, pid)?;
         if cands.is_empty() {
-            return Err(OpenError::NoUsbBoard { board: self.kind.name(), vid, pid, found: self.opener.seen() });
+            return Err(OpenError::NoUsbBoard {
+                board: self.kind.name(),
+                vid,
+                pid,
+                found: self.opener.seen(),
+            });
         }
         let mut switches = Vec::new();
         let mut chosen = None;
@@ -183,7 +188,9 @@ impl<O: UsbOpener> UsbBoard<O> {
         let Some((place, link)) = chosen else {
             return Err(OpenError::WrongBoard {
                 what: match self.opts.switch {
-                    Some(s) => format!("no {} with switch {s}; found {}", self.kind.name(), switches.join(", ")),
+                    Some(s) => {
+                        format!("no {} with switch {s}; found {}", self.kind.name(), switches.join(", "))
+                    }
                     None => format!(
                         "{n} boards of kind {} and none chosen; found {}: choose one with --switch",
                         self.kind.name(),
@@ -345,7 +352,9 @@ impl<O: UsbOpener> Device for UsbBoard<O> {
         }
         let deadline = Instant::now() + self.opts.reply_timeout;
         let Some(mut link) = self.link.take() else {
-            return Err(DeviceError::Disconnected { what: "USB board gone: reconnect it and restart spidar" });
+            return Err(DeviceError::Disconnected {
+                what: "USB board gone: reconnect it and restart spidar",
+            });
         };
         let (kind, active) = (self.kind, self.active);
         let opts = self.opts;

@@ -26,7 +26,9 @@ fn map(e: rusb::Error, doing: &'static str) -> DeviceError {
         rusb::Error::Timeout => DeviceError::Timeout { waited_us: 0 },
         rusb::Error::NoDevice => DeviceError::Disconnected { what: "USB board unplugged" },
         rusb::Error::Pipe | rusb::Error::Overflow => DeviceError::Corrupt { what: doing },
-        rusb::Error::Access => DeviceError::Other { what: "USB permission denied: install configs/udev/99-spidar.rules" },
+        rusb::Error::Access => {
+            DeviceError::Other { what: "USB permission denied: install configs/udev/99-spidar.rules" }
+        }
         _ => DeviceError::Other { what: doing },
     }
 }
@@ -78,7 +80,8 @@ impl UsbSeen {
 
 /// Lists the USB devices (opening the SPIDAR boards to see whether permissions allow it).
 pub fn list_usb() -> Result<Vec<UsbSeen>, String> {
-    let ctx = rusb::Context::new().map_err(|e| format!("USB is not available on this machine (libusb: {e})"))?;
+    let ctx =
+        rusb::Context::new().map_err(|e| format!("USB is not available on this machine (libusb: {e})"))?;
     let devs = ctx.devices().map_err(|e| format!("cannot list USB devices: {e}"))?;
     let mut out = Vec::new();
     for d in devs.iter() {
@@ -116,8 +119,14 @@ impl UsbOpener for RusbOpener {
             }
             let place = format!("bus {} addr {}", d.bus_number(), d.address());
             let handle = d.open().map_err(|e| match e {
-                rusb::Error::Access => OpenError::Permission { what: format!("{vid:04x}:{pid:04x} at {place}"), fix: UDEV_FIX.into() },
-                e => OpenError::Device { what: format!("opening {vid:04x}:{pid:04x} at {place} ({e})"), source: map(e, "USB open failed") },
+                rusb::Error::Access => OpenError::Permission {
+                    what: format!("{vid:04x}:{pid:04x} at {place}"),
+                    fix: UDEV_FIX.into(),
+                },
+                e => OpenError::Device {
+                    what: format!("opening {vid:04x}:{pid:04x} at {place} ({e})"),
+                    source: map(e, "USB open failed"),
+                },
             })?;
             let _ = handle.set_auto_detach_kernel_driver(true);
             handle.claim_interface(0).map_err(|e| OpenError::Device {

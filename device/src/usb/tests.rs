@@ -115,7 +115,13 @@ impl BulkLink for FakeLink {
         }
         let pio = u16::from(b.switch) << 4;
         let n = if b.sh4 {
-            let r = Sh4In { da_echo: b.da, counts: b.counts.map(|c| c as u16), pio, unknown: 42, ..Default::default() };
+            let r = Sh4In {
+                da_echo: b.da,
+                counts: b.counts.map(|c| c as u16),
+                pio,
+                unknown: 42,
+                ..Default::default()
+            };
             let mut p = [0u8; SH4_LEN];
             sh4_encode_in(&r, &mut p);
             buf[..SH4_LEN].copy_from_slice(&p);
@@ -165,7 +171,10 @@ fn board(sh4: bool, switch: u8) -> Shared {
 #[test]
 fn simple_driver_picks_the_board_by_switch_resets_it_and_scales_the_da() {
     let (a, b) = (board(false, 1), board(false, 3));
-    let bus = FakeBus { boards: vec![(SIMPLE_PRODUCT_ID, a.clone()), (SIMPLE_PRODUCT_ID, b.clone())], denied: false };
+    let bus = FakeBus {
+        boards: vec![(SIMPLE_PRODUCT_ID, a.clone()), (SIMPLE_PRODUCT_ID, b.clone())],
+        denied: false,
+    };
     let mut d = UsbBoard::new(UsbKind::Simple, bus, UsbOptions { switch: Some(3), ..Default::default() });
     d.open_detailed().unwrap();
     assert_eq!(d.switch(), 3);
@@ -249,7 +258,10 @@ fn not_found_wrong_switch_and_permission_errors_say_what_was_found_and_what_to_d
     let msg = d.open_detailed().unwrap_err().to_string();
     assert!(msg.contains("switch 4") && msg.contains("switch 2"), "{msg}");
 
-    let bus = FakeBus { boards: vec![(SH4_PRODUCT_ID, board(true, 2)), (SH4_PRODUCT_ID, board(true, 6))], denied: false };
+    let bus = FakeBus {
+        boards: vec![(SH4_PRODUCT_ID, board(true, 2)), (SH4_PRODUCT_ID, board(true, 6))],
+        denied: false,
+    };
     let mut d = UsbBoard::new(UsbKind::Sh4, bus, UsbOptions::default());
     let msg = d.open_detailed().unwrap_err().to_string();
     assert!(msg.contains("--switch") && msg.contains("switch 6"), "{msg}");
