@@ -6,6 +6,8 @@
 //! real-time tick, so implementations must not allocate, lock or panic on that path, and their
 //! errors are plain `Copy` data (formatted only later, on a non-real-time thread).
 
+#[cfg(test)]
+mod decoder_props;
 pub mod discover;
 pub mod emulator;
 pub mod frame;
