@@ -253,8 +253,7 @@ fn driver_reads_the_same_counts_and_drives_the_same_tensions_as_the_rig_in_proce
 fn inactive_driver_commands_zero_current() {
     let (mut d, boards, _) = driver(vec![1, 1]);
     d.open().unwrap();
-    let mut out = Output::default();
-    out.volts = [2.0; crate::MAX_CHANNELS];
+    let out = Output { volts: [2.0; crate::MAX_CHANNELS] };
     let mut inp = Input::default();
     d.exchange(&out, &mut inp).unwrap();
     assert_eq!(boards.lock().unwrap().motor_currents(), [0; crate::MAX_CHANNELS]);

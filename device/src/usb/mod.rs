@@ -320,7 +320,7 @@ fn transfer<L: BulkLink>(
     }
     *st.pio = pio;
     inp.counts = counts;
-    inp.status = u32::from(active) * STATUS_ACTIVE | (u32::from(pio) << STATUS_PIO_SHIFT);
+    inp.status = (u32::from(active) * STATUS_ACTIVE) | (u32::from(pio) << STATUS_PIO_SHIFT);
     Ok(())
 }
 
