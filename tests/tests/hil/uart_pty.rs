@@ -57,7 +57,7 @@ fn pressing_through_the_pty(name: &str, k: f64, reply_timeout: Duration) -> PtyS
 }
 
 const FORCE_TIMEOUT: Duration = Duration::from_millis(500);
-const FAULT_TIMEOUT: Duration = Duration::from_millis(60);
+const FAULT_TIMEOUT: Duration = Duration::from_millis(100);
 
 #[test]
 fn wall_through_the_uart_driver_and_the_emulator_feels_k_times_depth_as_in_process() {
@@ -169,9 +169,15 @@ fn transient_fault_goes_safe_and_recovers(
     let after = *s.v.counters();
     assert_eq!(after.faults, before.faults + 1, "reported once");
     assert!(after.device_errors > before.device_errors);
-    // Recovery: back to Active, force ramping in again, then the wall's force back.
-    run_checked(&mut s, r.safety.fault_recovery_ticks as u64 + bad_ticks + 5);
-    assert_eq!(s.v.rt.state(), Lifecycle::Active);
+    // Recovery: back to Active once `fault_recovery_ticks` exchanges in a row were good (a late
+    // reply can cost a few more ticks than injected), force ramping in again, then the wall's force.
+    let mut k = 0;
+    while s.v.rt.state() != Lifecycle::Active {
+        run_checked(&mut s, 1);
+        k += 1;
+        assert!(k < 2000, "no recovery: {:?}", s.v.counters());
+    }
+    assert_eq!(s.v.counters().faults, before.faults + 1, "one fault, not one per bad tick");
     run_checked(&mut s, 1500);
     let t = c.truth();
     let depth = r.hands[0].grip_radius_m - (t.hands[0].pos_m.z - WALL_Z_M);
@@ -193,7 +199,7 @@ fn corrupted_reply_is_rejected_goes_safe_in_one_tick_and_recovers() {
 fn delayed_reply_past_the_deadline_goes_safe_in_one_tick_and_recovers() {
     transient_fault_goes_safe_and_recovers(
         "delay",
-        |c| c.delay_replies(1, Duration::from_millis(200)),
+        |c| c.delay_replies(1, Duration::from_millis(300)),
         ErrorKind::Timeout,
         4,
     );
@@ -215,8 +221,13 @@ fn board_that_stops_answering_keeps_the_rig_safe_until_it_answers_again() {
     assert!(s.v.counters().device_errors >= 11);
     c.set_silent(false);
     boards_drive_the_safe_output(&mut s);
-    run_checked(&mut s, rig().safety.fault_recovery_ticks as u64 + 5);
-    assert_eq!(s.v.rt.state(), Lifecycle::Active);
+    let mut k = 0;
+    while s.v.rt.state() != Lifecycle::Active {
+        run_checked(&mut s, 1);
+        k += 1;
+        assert!(k < 2000, "no recovery: {:?}", s.v.counters());
+    }
+    assert_eq!(s.v.counters().faults, 1);
 }
 
 #[test]
