@@ -251,6 +251,7 @@ pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
             if devs.is_empty() {
                 let _ = writeln!(s, "  none");
             }
+            let devs_kinds: Vec<Option<UsbKind>> = devs.iter().map(|d| d.kind).collect();
             for d in devs {
                 let what = match d.kind {
                     Some(k) => k.name().to_string(),
@@ -271,9 +272,32 @@ pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
                     d.seen.pid
                 );
             }
+            // Only when one of our boards is there: opening resets it.
+            let ours = |k: UsbKind| devs_kinds.contains(&Some(k));
+            if probe {
+                for kind in [UsbKind::Simple, UsbKind::Sh4] {
+                    if ours(kind) {
+                        let _ = writeln!(s, "  {}: {}", kind.name(), probe_usb(kind));
+                    }
+                }
+            }
         }
     }
     s
+}
+
+/// Opens every board of `kind` to read its switch (resets it: only when no rig is running on it).
+fn probe_usb(kind: UsbKind) -> String {
+    let opener = match RusbOpener::new() {
+        Ok(o) => o,
+        Err(e) => return e.to_string(),
+    };
+    let mut d = UsbBoard::new(kind, opener, UsbOptions::default());
+    match d.open_detailed() {
+        Ok(()) => format!("one board, switch {}, 8 channels", d.switch()),
+        // With several boards the error lists each one's switch; with none, what was seen.
+        Err(e) => e.to_string(),
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
