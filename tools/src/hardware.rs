@@ -7,7 +7,7 @@
 //! identified, or hide that the board's DA range clips tensions the rig file asks for.
 
 use std::io::BufRead;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -428,14 +428,4 @@ pub fn bench_uart(
     let r = handle.join().map_err(|_| anyhow::anyhow!("the benchmark thread panicked"))?;
     emu.stop();
     r
-}
-
-/// The emulator's link path for a test or bench of its own.
-pub fn private_link(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("spidar-{name}-{}", std::process::id()))
-}
-
-/// True if `p` exists (a link to a live pty).
-pub fn link_exists(p: &Path) -> bool {
-    std::fs::symlink_metadata(p).is_ok()
 }

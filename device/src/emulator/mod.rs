@@ -215,8 +215,8 @@ impl Boards {
         self.tick_mask = 0;
     }
 
-    /// Takes the host's bytes; appends the boards' replies to `out`. Returns whether a servo tick
-    /// completed (its replies are at `out[reply_start..]`, for the fault layer).
+    /// Takes the host's bytes; appends the boards' replies to `out`, and to `ticks` the byte range
+    /// in `out` of each servo tick's current replies (for the fault layer).
     pub fn feed(&mut self, bytes: &[u8], now: Instant, out: &mut Vec<u8>, ticks: &mut Vec<(usize, usize)>) {
         for &b in bytes {
             let Some(c) = self.parser.push(b) else { continue };
@@ -495,8 +495,18 @@ impl Drop for Pty {
     }
 }
 
+/// Points the symlink `link` at `target`, replacing an old symlink but never anything else.
 fn point_link(link: &Path, target: &Path) -> Result<(), std::io::Error> {
-    let _ = std::fs::remove_file(link);
+    match std::fs::symlink_metadata(link) {
+        Ok(m) if m.file_type().is_symlink() => std::fs::remove_file(link)?,
+        Ok(_) => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "exists and is not a symlink (not replaced)",
+            ))
+        }
+        Err(_) => {}
+    }
     std::os::unix::fs::symlink(target, link)
 }
 
@@ -556,7 +566,14 @@ impl Emulator {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
-        let _ = std::fs::remove_file(&self.link);
+        remove_link(&self.link);
+    }
+}
+
+/// Removes the link if it is (still) a symlink.
+fn remove_link(link: &Path) {
+    if std::fs::symlink_metadata(link).is_ok_and(|m| m.file_type().is_symlink()) {
+        let _ = std::fs::remove_file(link);
     }
 }
 
@@ -576,7 +593,7 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
     while !f.stop.load(Ordering::SeqCst) {
         if f.disconnect.swap(false, Ordering::SeqCst) {
             pty = None; // closing the master hangs up the host's end
-            let _ = std::fs::remove_file(&link);
+            remove_link(&link);
             f.connected.store(false, Ordering::SeqCst);
         }
         if f.reconnect.swap(false, Ordering::SeqCst) && pty.is_none() {

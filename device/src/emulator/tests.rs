@@ -136,3 +136,13 @@ fn the_board_watchdog_zeroes_the_currents_when_commands_stop() {
     dev.exchange(&out, &mut inp).unwrap();
     assert!(!emu.control().boards().watchdog_tripped());
 }
+
+#[test]
+fn the_link_never_replaces_a_real_file() {
+    let p = link_path("file");
+    std::fs::write(&p, b"precious").unwrap();
+    let err = Emulator::spawn(lab_rig(), EmulatorOptions::default(), &p).err().expect("must refuse");
+    assert!(err.to_string().contains("not a symlink"), "{err}");
+    assert_eq!(std::fs::read(&p).unwrap(), b"precious");
+    std::fs::remove_file(&p).unwrap();
+}
