@@ -148,7 +148,7 @@ pub enum OpenError {
     WrongBoard { what: String },
     #[error("permission denied opening {what}: {fix}")]
     Permission { what: String, fix: String },
-    #[error("{what}: {source}")]
+    #[error("{what}")]
     Device {
         what: String,
         #[source]

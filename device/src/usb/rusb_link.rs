@@ -55,7 +55,9 @@ impl RusbOpener {
     pub fn new() -> Result<RusbOpener, OpenError> {
         let ctx = rusb::Context::new().map_err(|e| OpenError::Device {
             what: format!("USB is not available on this machine (libusb: {e})"),
-            source: DeviceError::Other { what: "no USB" },
+            source: DeviceError::Other {
+                what: "libusb sees no USB bus (a VM or container without USB passthrough?)",
+            },
         })?;
         Ok(RusbOpener { ctx })
     }
