@@ -6,7 +6,15 @@
 //! real-time tick, so implementations must not allocate, lock or panic on that path, and their
 //! errors are plain `Copy` data (formatted only later, on a non-real-time thread).
 
+#[cfg(test)]
+mod decoder_props;
+pub mod discover;
+pub mod emulator;
+pub mod frame;
+pub mod link;
 pub mod sim;
+pub mod uart;
+pub mod usb;
 
 use thiserror::Error;
 
@@ -96,6 +104,13 @@ pub trait Device: Send {
     fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError>;
     /// Valid after `open`.
     fn info(&self) -> &DeviceInfo;
+    /// One bounded attempt to get a device back after it reported `Disconnected`, called by the
+    /// loop from inside the tick at a limited rate: must not allocate or block past `budget`.
+    /// On success the counters may have restarted, so the rig must be homed again.
+    fn reopen(&mut self, budget: std::time::Duration) -> Result<(), DeviceError> {
+        let _ = budget;
+        Err(DeviceError::Other { what: "this device cannot be reopened: restart spidar" })
+    }
 }
 
 impl<D: Device + ?Sized> Device for Box<D> {
@@ -113,6 +128,62 @@ impl<D: Device + ?Sized> Device for Box<D> {
     }
     fn info(&self) -> &DeviceInfo {
         (**self).info()
+    }
+    fn reopen(&mut self, budget: std::time::Duration) -> Result<(), DeviceError> {
+        (**self).reopen(budget)
+    }
+}
+
+/// Why a board could not be opened, with what was found and what to do (set-up time only, so it
+/// carries text; the tick's errors are the `Copy` [`DeviceError`]).
+#[derive(Debug, Error)]
+pub enum OpenError {
+    #[error("{path}: {why}")]
+    BadPath { path: String, why: String },
+    #[error("no board on {port}: {found}")]
+    NoBoard { port: String, found: String },
+    #[error("no {board} found (USB {vid:04x}:{pid:04x}); USB devices seen: {found}. Check the cable and power, then `spidar devices`")]
+    NoUsbBoard { board: &'static str, vid: u16, pid: u16, found: String },
+    #[error("wrong board: {what}")]
+    WrongBoard { what: String },
+    #[error("permission denied opening {what}: {fix}")]
+    Permission { what: String, fix: String },
+    #[error("{what}")]
+    Device {
+        what: String,
+        #[source]
+        source: DeviceError,
+    },
+}
+
+impl OpenError {
+    pub(crate) fn from_serial(port: &str, e: DeviceError) -> OpenError {
+        match e {
+            DeviceError::Disconnected { .. } => OpenError::BadPath {
+                path: port.into(),
+                why: "no such serial port (list them with `spidar devices`; an emulator prints its path)"
+                    .into(),
+            },
+            DeviceError::Other { what } if what.starts_with("permission") => {
+                OpenError::Permission { what: port.into(), fix: what.into() }
+            }
+            e => OpenError::Device { what: port.into(), source: e },
+        }
+    }
+
+    /// The plain `DeviceError` for the `Device` trait (the text of the others is lost there).
+    pub fn kind_error(&self) -> DeviceError {
+        match self {
+            OpenError::Device { source, .. } => *source,
+            OpenError::BadPath { .. } => DeviceError::Disconnected { what: "no such device" },
+            OpenError::Permission { .. } => {
+                DeviceError::Other { what: "permission denied (see `spidar devices`)" }
+            }
+            OpenError::NoBoard { .. } | OpenError::NoUsbBoard { .. } => {
+                DeviceError::Protocol { what: "no board answered" }
+            }
+            OpenError::WrongBoard { .. } => DeviceError::Protocol { what: "wrong board" },
+        }
     }
 }
 

@@ -124,6 +124,14 @@ pub struct SafetyFile {
     pub residual_fault_ticks: u32,
     /// Good exchanges in a row after a transient device fault before recovering; 0 = never.
     pub fault_recovery_ticks: u32,
+    /// After the device reports a disconnect, try to reopen it this often (each attempt bounded
+    /// to half a tick); 0 = never (restart spidar). Optional: 0.2 s when left out.
+    #[serde(default = "default_device_reopen_s")]
+    pub device_reopen_s: f64,
+}
+
+fn default_device_reopen_s() -> f64 {
+    0.2
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -438,7 +446,8 @@ impl Rig {
             ));
         }
         let s = &f.safety;
-        let checks: [(&str, f64, f64, f64); 5] = [
+        let checks: [(&str, f64, f64, f64); 6] = [
+            ("device_reopen_s", s.device_reopen_s, 0.0, 60.0),
             ("ramp_in_s", s.ramp_in_s, 0.0, 10.0),
             ("ramp_out_s", s.ramp_out_s, 0.0, 10.0),
             ("contact_stale_after_s", s.contact_stale_after_s, f.period_s, 1.0),

@@ -10,10 +10,10 @@
 //! behind (the machine stalled), the deadline is re-based on now and the skipped periods are
 //! counted as misses, rather than running a burst of catch-up ticks into the user's hand.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
-use spidar_device::{Device, DeviceError, Input, Output};
+use spidar_device::{Device, DeviceError, ErrorKind, Input, Output};
 use spidar_msg::{ContactModel, HandSample};
 
 use crate::clock::Clock;
@@ -88,6 +88,12 @@ pub struct RtLoop<D: Device, C: Clock> {
     stop_hold: u32,
     finished: bool,
     last: TickRecord,
+    /// The device reported a disconnect and has not been reopened yet.
+    disconnected: bool,
+    /// Ticks between reopen attempts (0: never) and until the next one.
+    reopen_every: u32,
+    reopen_wait: u32,
+    reopen_budget: Duration,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -108,6 +114,11 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             stop_hold: 0,
             finished: false,
             last: TickRecord::default(),
+            disconnected: false,
+            reopen_every: (rig.safety.device_reopen_s / rig.period_s).round() as u32,
+            reopen_wait: 0,
+            // Half a tick: the attempt, the compute and the sleep must all fit in the period.
+            reopen_budget: Duration::from_secs_f64(rig.period_s * 0.5),
         })
     }
 
@@ -180,7 +191,16 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         }
 
         let t_io = Instant::now();
-        let io = self.dev.exchange(&self.out, &mut self.inp);
+        let io = if self.disconnected {
+            self.try_reopen()
+        } else {
+            let r = self.dev.exchange(&self.out, &mut self.inp);
+            if r.is_err_and(|e| e.kind() == ErrorKind::Disconnected) {
+                self.disconnected = true;
+                self.reopen_wait = self.reopen_every;
+            }
+            r
+        };
         let io_s = t_io.elapsed().as_secs_f64();
 
         let t_compute = Instant::now();
@@ -228,6 +248,29 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             self.deadline_ns += skipped * self.period_ns;
         }
         !self.finished
+    }
+
+    /// While disconnected: every `reopen_every` ticks, one bounded reopen attempt instead of the
+    /// exchange. The tick itself still counts as failed (nothing was read); the next one exchanges.
+    fn try_reopen(&mut self) -> Result<(), DeviceError> {
+        const WAITING: DeviceError = DeviceError::Disconnected { what: "waiting to reopen the device" };
+        if self.reopen_every == 0 {
+            return Err(WAITING);
+        }
+        if self.reopen_wait > 0 {
+            self.reopen_wait -= 1;
+            return Err(WAITING);
+        }
+        self.reopen_wait = self.reopen_every;
+        self.core.counters_mut().reopen_attempts += 1;
+        match self.dev.reopen(self.reopen_budget) {
+            Ok(()) => {
+                self.disconnected = false;
+                self.core.device_reopened();
+                Err(DeviceError::Disconnected { what: "device reopened: exchanging from the next tick" })
+            }
+            Err(e) => Err(e),
+        }
     }
 
     fn core_event(&mut self, e: Event) {

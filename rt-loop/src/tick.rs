@@ -103,7 +103,12 @@ pub enum Event {
     State(Lifecycle),
     Fault(FaultReason),
     Homed,
-    Refused { command: Command, why: &'static str },
+    Refused {
+        command: Command,
+        why: &'static str,
+    },
+    /// The device came back after a disconnect; the rig returns to Inactive and must be homed.
+    DeviceReopened,
     Stopped,
 }
 
@@ -128,6 +133,9 @@ pub struct Counters {
     pub residual_high: [u64; HANDS],
     pub faults: u64,
     pub device_errors: u64,
+    /// Attempts to reopen a disconnected device, and how many succeeded.
+    pub reopen_attempts: u64,
+    pub reopens: u64,
     /// Deadline misses (woke more than one period late), counted by the loop.
     pub misses: u64,
     pub telemetry_dropped: u64,
@@ -161,6 +169,9 @@ pub struct TickCore {
     fault: Option<FaultReason>,
     /// Return to Active (not just Inactive) when a transient fault clears.
     resume_active: bool,
+    /// The device was reopened after a disconnect: the fault clears after enough good ticks, to
+    /// Inactive and unhomed.
+    reopened: bool,
     good_ticks: u32,
     ramp: Ramp,
     deactivating: bool,
@@ -197,6 +208,7 @@ impl TickCore {
             state: Lifecycle::Inactive,
             fault: None,
             resume_active: false,
+            reopened: false,
             good_ticks: 0,
             ramp: Ramp::new(rig.safety.ramp_in_s, rig.safety.ramp_out_s, rig.period_s),
             deactivating: false,
@@ -261,6 +273,12 @@ impl TickCore {
 
     fn enter_fault(&mut self, why: FaultReason) {
         if self.state == Lifecycle::Faulted {
+            // A disconnect outranks whatever faulted first: it forgets the homing when it clears.
+            let lost = FaultReason::Device(ErrorKind::Disconnected);
+            if why == lost && self.fault != Some(lost) {
+                self.fault = Some(lost);
+                self.emit(Event::Fault(why));
+            }
             return;
         }
         if self.homing_wait.take().is_some() {
@@ -284,8 +302,25 @@ impl TickCore {
         self.emit(Event::Fault(why));
     }
 
+    /// The loop reopened the device after a disconnect. Its counters may have restarted, so the
+    /// homing is forgotten; the fault clears to Inactive after `fault_recovery_ticks` good ticks.
+    pub fn device_reopened(&mut self) {
+        self.counters.reopens += 1;
+        self.emit(Event::DeviceReopened);
+        if self.fault == Some(FaultReason::Device(ErrorKind::Disconnected)) {
+            self.reopened = true;
+            self.good_ticks = 0;
+        }
+    }
+
     fn leave_fault(&mut self, to_active: bool) {
         self.fault = None;
+        if std::mem::take(&mut self.reopened) {
+            for h in self.hands.iter_mut() {
+                h.zero_m = None;
+                h.vel.reset();
+            }
+        }
         if to_active {
             self.ramp.rise();
             self.set_state(Lifecycle::Active);
@@ -400,14 +435,17 @@ impl TickCore {
         match io {
             Err(e) => {
                 self.counters.device_errors += 1;
+                // Recovery needs good exchanges in a row.
+                self.good_ticks = 0;
                 self.enter_fault(FaultReason::Device(e.kind()));
             }
             Ok(()) => {
                 if let Some(f) = self.fault {
                     self.good_ticks = self.good_ticks.saturating_add(1);
                     let need = self.rig.safety.fault_recovery_ticks;
-                    if f.is_transient() && need > 0 && self.good_ticks >= need {
-                        let to_active = self.resume_active;
+                    if (f.is_transient() || self.reopened) && need > 0 && self.good_ticks >= need {
+                        // After a reopen the homing is gone: back to Inactive, never straight to Active.
+                        let to_active = self.resume_active && !self.reopened;
                         self.leave_fault(to_active);
                     }
                 }
@@ -669,5 +707,41 @@ mod tests {
         run(&mut c, 1, Ok(()));
         assert_eq!(c.state(), Lifecycle::Inactive);
         assert!(c.is_quiet());
+    }
+
+    #[test]
+    fn a_reopened_device_clears_the_fault_to_inactive_and_unhomed() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        run(&mut c, 10, Err(DeviceError::Timeout { waited_us: 1 }));
+        run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
+        assert_eq!(
+            c.fault(),
+            Some(FaultReason::Device(ErrorKind::Disconnected)),
+            "a disconnect outranks a timeout"
+        );
+        c.device_reopened();
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, need, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Inactive, "never straight back to Active after a reopen");
+        assert!(!c.is_homed(), "the counters may have restarted: home again");
+        c.command(Command::Activate);
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        assert_eq!(c.counters().reopens, 1);
+    }
+
+    #[test]
+    fn recovery_needs_good_exchanges_in_a_row() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, 1, Err(DeviceError::Timeout { waited_us: 1 }));
+        for _ in 0..3 {
+            run(&mut c, need - 1, Ok(()));
+            run(&mut c, 1, Err(DeviceError::Corrupt { what: "test" }));
+        }
+        assert_eq!(c.state(), Lifecycle::Faulted, "a flaky link must not count its good ticks across errors");
+        run(&mut c, need, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Active);
     }
 }

@@ -660,3 +660,9 @@ fn homing_makes_each_grip_read_its_home_point() {
     }
     assert!(v.rt.core().is_homed());
 }
+
+// ---------------------------------------------------------------------------------------------
+// Through the real serial path: the UART driver, a pseudo-terminal and the board emulator.
+
+#[path = "hil/uart_pty.rs"]
+mod uart_pty;

@@ -4,5 +4,6 @@
 
 pub mod bench;
 pub mod calib;
+pub mod hardware;
 pub mod scene;
 pub mod session;

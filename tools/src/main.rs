@@ -8,10 +8,14 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand, ValueEnum};
+use spidar_device::uart::UartOptions;
+use spidar_device::usb::{UsbKind, UsbOptions};
+use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_rt, RtBenchOptions};
+use spidar_tools::hardware::{self, HardwareChoice};
 use spidar_tools::scene;
 use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
 
@@ -31,6 +35,17 @@ enum Cmd {
         #[command(subcommand)]
         what: spidar_tools::calib::CalibCmd,
     },
+    /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig.
+    Emulate(EmulateArgs),
+    /// List serial ports and USB devices, what each is and whether it can be opened.
+    Devices {
+        /// Ask each serial port that opens for UART boards (sends the enumeration bytes).
+        #[arg(long)]
+        probe: bool,
+        /// Also check this port (ptys, e.g. the emulator's link, are not listed by the OS).
+        #[arg(long)]
+        port: Vec<String>,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -42,6 +57,94 @@ enum Cmd {
 enum DeviceKind {
     /// The simulated SPIDAR-H: motors, strings, encoders and a scripted user's hands.
     Sim,
+    /// UART motor-driver boards on a serial port (--port; `spidar emulate` gives one).
+    Uart,
+    /// The USB 2.0 Simple amplifier board (0cec:0203; --switch picks one of several).
+    UsbSimple,
+    /// The USB 2.0 SH-4 amplifier board (0cec:0205; --switch picks one of several).
+    UsbSh4,
+}
+
+#[derive(clap::Args)]
+struct HardwareArgs {
+    /// Serial port of the UART boards (e.g. /dev/ttyUSB0, or the emulator's /tmp/spidar-uart).
+    #[arg(long)]
+    port: Option<String>,
+    /// Rotary switch of the USB board to use (0..15).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=15))]
+    switch: Option<u8>,
+    /// DA scale of the board in digits per volt (default: 4096/3.3 for UART, 415 for USB).
+    #[arg(long)]
+    digits_per_volt: Option<f64>,
+    /// Deadline of one exchange with the board, in microseconds (keep it below the tick period).
+    #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(u64).range(50..=100_000))]
+    reply_timeout_us: u64,
+}
+
+impl HardwareArgs {
+    fn choice(&self, kind: DeviceKind) -> anyhow::Result<Option<HardwareChoice>> {
+        if let Some(d) = self.digits_per_volt {
+            if !(d.is_finite() && d > 0.0) {
+                bail!("--digits-per-volt must be a positive number");
+            }
+        }
+        let timeout = Duration::from_micros(self.reply_timeout_us);
+        Ok(match kind {
+            DeviceKind::Sim => None,
+            DeviceKind::Uart => {
+                let Some(port) = self.port.clone() else {
+                    bail!("--device uart needs --port PATH (see `spidar devices`, or start `spidar emulate`)")
+                };
+                let mut opts = UartOptions { reply_timeout: timeout, ..UartOptions::default() };
+                if let Some(d) = self.digits_per_volt {
+                    opts.digits_per_volt = d;
+                }
+                Some(HardwareChoice::Uart { port, opts })
+            }
+            DeviceKind::UsbSimple | DeviceKind::UsbSh4 => {
+                let kind = if kind == DeviceKind::UsbSimple { UsbKind::Simple } else { UsbKind::Sh4 };
+                let mut opts =
+                    UsbOptions { switch: self.switch, reply_timeout: timeout, ..UsbOptions::default() };
+                if let Some(d) = self.digits_per_volt {
+                    opts.digits_per_volt = d;
+                }
+                Some(HardwareChoice::Usb { kind, opts })
+            }
+        })
+    }
+}
+
+#[derive(clap::Args)]
+struct EmulateArgs {
+    /// Rig file (RON) whose geometry the simulated rig has. Default: the built-in one.
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// The boards on the link, by model, ids 0, 1, ... in order (B1M, B1F, B2M, B2F, B3M, B3F).
+    #[arg(long, default_value = "B1M,B1M")]
+    boards: String,
+    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`).
+    #[arg(long, default_value = spidar_tools::hardware::DEFAULT_LINK)]
+    link: PathBuf,
+    /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
+    #[arg(long, default_value = "tour")]
+    script: String,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Encoder noise of the simulated rig, standard deviation in counts.
+    #[arg(long, default_value_t = 0.0)]
+    noise_counts: f64,
+    /// The boards zero their motor currents when no command came for this long.
+    #[arg(long, default_value_t = 50)]
+    watchdog_ms: u64,
+    /// Advance the rig one period per servo tick received instead of with the wall clock.
+    #[arg(long)]
+    per_tick: bool,
+    /// Stop after this many seconds (default: until Ctrl-C or `quit` on stdin).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Serve at normal priority instead of SCHED_FIFO 70.
+    #[arg(long)]
+    no_rt: bool,
 }
 
 #[derive(clap::Args)]
@@ -71,6 +174,8 @@ struct RunArgs {
     /// Which device drives the rig.
     #[arg(long, value_enum, default_value = "sim")]
     device: DeviceKind,
+    #[command(flatten)]
+    hw: HardwareArgs,
     /// Scene behind the loop: `walls` (the rig check) or a scene file (.ron).
     #[arg(long, default_value = "walls")]
     scene: String,
@@ -111,6 +216,20 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10)]
         blocks: u32,
     },
+    /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
+    Uart {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Back-to-back exchanges for the round-trip figures.
+        #[arg(long, default_value_t = 20_000)]
+        exchanges: u64,
+        /// Seconds of the 1 kHz loop through the link.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Deadline of one exchange, in microseconds.
+        #[arg(long, default_value_t = 800)]
+        reply_timeout_us: u64,
+    },
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
@@ -133,6 +252,29 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Cmd::Run(a) => run(a),
         Cmd::Calib { what } => spidar_tools::calib::run(what),
+        Cmd::Emulate(a) => emulate(a),
+        Cmd::Devices { probe, port } => {
+            print!("{}", hardware::devices_report(&port, probe));
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Uart { rig, exchanges, seconds, reply_timeout_us } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            let scripts = load_scripts("hold", &r, 1)?;
+            eprintln!("{exchanges} round trips, then {seconds} s of the 1 kHz loop through the emulator ...");
+            let rep = hardware::bench_uart(
+                &r,
+                scripts,
+                exchanges,
+                seconds,
+                &rt_options(&rig),
+                Duration::from_micros(reply_timeout_us),
+            )?;
+            println!("{rep}");
+            Ok(())
+        }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
             if !(seconds.is_finite() && seconds > 0.0) {
                 bail!("--seconds must be a positive number");
@@ -154,6 +296,64 @@ fn main() -> anyhow::Result<()> {
     }
 }
 
+fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
+    let rig = match &a.rig {
+        Some(p) => Rig::load(p)?,
+        None => Rig::default_rig(),
+    };
+    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
+        bail!("--noise-counts must be >= 0");
+    }
+    let models =
+        spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
+    let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let opts = hardware::EmulateOptions {
+        link: a.link.clone(),
+        emulator: spidar_device::emulator::EmulatorOptions {
+            models,
+            plant: if a.per_tick {
+                spidar_device::emulator::PlantClock::PerTick
+            } else {
+                spidar_device::emulator::PlantClock::RealTime
+            },
+            watchdog: Duration::from_millis(a.watchdog_ms),
+            fifo_priority: (!a.no_rt).then_some(70),
+            ..Default::default()
+        },
+        sim: SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, ..Default::default() },
+    };
+    let emu = hardware::start_emulator(&rig, scripts, &opts)?;
+    println!(
+        "spidar emulate: boards {} on {} (link {}), rig '{}', script {}",
+        a.boards,
+        emu.pty_path().map_or("?".into(), |p| p.display().to_string()),
+        emu.link().display(),
+        rig.name,
+        a.script
+    );
+    println!("run the stack against it: spidar run --device uart --port {}", emu.link().display());
+    if !a.no_rt && !emu.control().fifo() {
+        // The thread sets its policy as it starts; give it a moment before reporting.
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    println!(
+        "serving thread: {}",
+        if emu.control().fifo() {
+            "SCHED_FIFO 70"
+        } else {
+            "normal priority (SCHED_FIFO not permitted or not asked)"
+        }
+    );
+    println!("{}", hardware::EMULATE_HELP);
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("installing the Ctrl-C handler")?;
+    }
+    hardware::run_emulator(emu, stop, a.seconds)
+}
+
 fn run(a: RunArgs) -> anyhow::Result<()> {
     if let Some(s) = a.seconds {
         if !(s.is_finite() && s > 0.0) {
@@ -173,13 +373,30 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         slack: a.slack,
         ..Default::default()
     };
-    let dev = match a.device {
-        DeviceKind::Sim => sim_device(&rig, scripts, &sim_opts)?,
+    let dev: Box<dyn Device> = match a.hw.choice(a.device)? {
+        None => {
+            eprintln!(
+                "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
+                rig.name, a.seed, scene_name, a.script
+            );
+            Box::new(sim_device(&rig, scripts, &sim_opts)?)
+        }
+        Some(choice) => {
+            let dev = hardware::open_hardware(&choice)?;
+            eprintln!(
+                "spidar: rig '{}' on {} ({}), scene {}",
+                rig.name,
+                dev.info().board,
+                dev.info().identity,
+                scene_name
+            );
+            for w in hardware::check_rig_against(&rig, dev.info()) {
+                eprintln!("warning: {w}");
+            }
+            eprintln!("hold each grip at its home point: the rig homes as it starts");
+            dev
+        }
     };
-    eprintln!(
-        "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
-        rig.name, a.seed, scene_name, a.script
-    );
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };

@@ -316,6 +316,9 @@ pub fn run_live<D: Device + 'static>(
             match e {
                 Event::Fault(why) => faults_seen.push(format!("{why}")),
                 Event::Refused { command, why } => faults_seen.push(format!("{command:?} refused: {why}")),
+                Event::DeviceReopened => {
+                    faults_seen.push("device reopened after a disconnect: home again".into())
+                }
                 Event::Stopped => stopped = true,
                 _ => {}
             }

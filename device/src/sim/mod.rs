@@ -51,7 +51,7 @@
 
 pub mod script;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
@@ -527,6 +527,14 @@ impl Device for SimRig {
 
     fn info(&self) -> &DeviceInfo {
         &self.info
+    }
+
+    /// The simulated board never really goes away: a reopen succeeds at once (the plant kept running).
+    fn reopen(&mut self, _budget: std::time::Duration) -> Result<(), DeviceError> {
+        if !self.opened {
+            return Err(DeviceError::WrongState { state: "closed", what: "reopen before open" });
+        }
+        Ok(())
     }
 }
 

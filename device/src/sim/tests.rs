@@ -44,7 +44,7 @@ unsafe impl GlobalAlloc for CountingAlloc {
 #[global_allocator]
 static GLOBAL: CountingAlloc = CountingAlloc;
 
-fn allocations_during(f: impl FnOnce()) -> u64 {
+pub(crate) fn allocations_during(f: impl FnOnce()) -> u64 {
     ALLOCS.with(|a| a.set(0));
     COUNTING.with(|c| c.set(true));
     f();

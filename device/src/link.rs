@@ -1,0 +1,261 @@
+//! The transports under the board drivers: a byte stream (a serial port) and bulk transfers (USB).
+//!
+//! Why it exists: the protocol code of every board is pure encode/decode over byte buffers, and
+//! the drivers move those buffers through one of these two small traits. Tests put a fake board
+//! behind the trait and check the bytes exactly; the real transports (a serial file descriptor,
+//! a libusb handle) are thin. What they must never do: allocate, lock or block past the deadline
+//! they are given, or panic; every failure becomes a `Copy` [`DeviceError`].
+
+use std::time::{Duration, Instant};
+
+use crate::DeviceError;
+
+/// A byte stream with deadlines (a serial port, a pseudo-terminal).
+pub trait ByteLink: Send {
+    /// Writes all of `bytes`, or fails once `deadline` has passed.
+    fn write_all(&mut self, bytes: &[u8], deadline: Instant) -> Result<(), DeviceError>;
+    /// Fills all of `buf`, or fails with `Timeout` once `deadline` has passed.
+    fn read_exact(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), DeviceError>;
+    /// Throws away whatever has been received and not read (late or extra replies).
+    fn clear_input(&mut self) -> Result<(), DeviceError>;
+}
+
+/// USB bulk transfers with a timeout.
+pub trait BulkLink: Send {
+    /// Writes `data` to the OUT endpoint `ep`.
+    fn bulk_write(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<(), DeviceError>;
+    /// Reads one transfer from the IN endpoint `ep` into `buf`; returns the bytes received.
+    fn bulk_read(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError>;
+}
+
+/// The time left until `deadline`, rounded up to whole milliseconds for `poll` (0 when passed).
+pub(crate) fn poll_ms(deadline: Instant) -> Option<libc::c_int> {
+    let now = Instant::now();
+    if now >= deadline {
+        return None;
+    }
+    let left = deadline - now;
+    Some(left.as_micros().div_ceil(1000).min(i32::MAX as u128) as libc::c_int)
+}
+
+/// Maps an errno from a serial device to a device error. A pty whose other end closed reads EIO;
+/// an unplugged USB serial adapter reads EIO or ENXIO/ENODEV.
+pub(crate) fn errno_error(errno: i32, doing: &'static str) -> DeviceError {
+    match errno {
+        libc::EIO | libc::ENXIO | libc::ENODEV | libc::EBADF | libc::EPIPE | libc::ENOENT => {
+            DeviceError::Disconnected { what: doing }
+        }
+        libc::ETIMEDOUT => DeviceError::Timeout { waited_us: 0 },
+        _ => DeviceError::Other { what: doing },
+    }
+}
+
+/// The current thread's errno (after a failed libc call).
+pub(crate) fn last_errno() -> i32 {
+    std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
+}
+
+/// A serial port as a raw file descriptor, driven with `poll`/`read`/`write`: no allocation and a
+/// deadline on every call, which a buffered port type does not give.
+#[derive(Debug)]
+pub struct FdLink {
+    fd: libc::c_int,
+    /// Set when an error showed the other end is gone: later calls fail fast.
+    gone: bool,
+}
+
+impl FdLink {
+    /// Takes ownership of an open, configured (raw, non-blocking or blocking) descriptor.
+    pub fn from_raw_fd(fd: libc::c_int) -> FdLink {
+        // Non-blocking, so a read after `poll` said "readable" can never block the tick.
+        unsafe {
+            let flags = libc::fcntl(fd, libc::F_GETFL);
+            if flags >= 0 {
+                libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
+            }
+        }
+        FdLink { fd, gone: false }
+    }
+
+    pub fn fd(&self) -> libc::c_int {
+        self.fd
+    }
+
+    fn wait(
+        &mut self,
+        events: libc::c_short,
+        deadline: Instant,
+        waited_from: Instant,
+    ) -> Result<(), DeviceError> {
+        loop {
+            let Some(ms) = poll_ms(deadline) else {
+                return Err(DeviceError::Timeout { waited_us: waited_us(waited_from) });
+            };
+            let mut p = libc::pollfd { fd: self.fd, events, revents: 0 };
+            let n = unsafe { libc::poll(&mut p, 1, ms) };
+            if n < 0 {
+                let e = last_errno();
+                if e == libc::EINTR {
+                    continue;
+                }
+                return Err(self.fail(e, "poll on the serial port"));
+            }
+            if n == 0 {
+                continue; // the loop head reports the timeout once the deadline has passed
+            }
+            if p.revents & (libc::POLLNVAL) != 0 {
+                return Err(self.fail(libc::EBADF, "serial port closed"));
+            }
+            // POLLHUP with data still buffered: read it first; the read then reports EIO.
+            return Ok(());
+        }
+    }
+
+    fn fail(&mut self, errno: i32, doing: &'static str) -> DeviceError {
+        let e = errno_error(errno, doing);
+        if matches!(e, DeviceError::Disconnected { .. }) {
+            self.gone = true;
+        }
+        e
+    }
+}
+
+fn waited_us(from: Instant) -> u32 {
+    from.elapsed().as_micros().min(u32::MAX as u128) as u32
+}
+
+impl ByteLink for FdLink {
+    fn write_all(&mut self, mut bytes: &[u8], deadline: Instant) -> Result<(), DeviceError> {
+        if self.gone {
+            return Err(DeviceError::Disconnected { what: "serial port gone" });
+        }
+        let from = Instant::now();
+        while !bytes.is_empty() {
+            let n = unsafe { libc::write(self.fd, bytes.as_ptr().cast(), bytes.len()) };
+            if n > 0 {
+                bytes = &bytes[n as usize..];
+                continue;
+            }
+            let e = if n == 0 { libc::EAGAIN } else { last_errno() };
+            match e {
+                libc::EINTR => continue,
+                libc::EAGAIN => self.wait(libc::POLLOUT, deadline, from)?,
+                _ => return Err(self.fail(e, "writing to the serial port")),
+            }
+        }
+        Ok(())
+    }
+
+    fn read_exact(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), DeviceError> {
+        if self.gone {
+            return Err(DeviceError::Disconnected { what: "serial port gone" });
+        }
+        let from = Instant::now();
+        let mut got = 0;
+        while got < buf.len() {
+            let rest = &mut buf[got..];
+            let n = unsafe { libc::read(self.fd, rest.as_mut_ptr().cast(), rest.len()) };
+            if n > 0 {
+                got += n as usize;
+                continue;
+            }
+            if n == 0 {
+                // End of file on a tty: the other side hung up.
+                self.gone = true;
+                return Err(DeviceError::Disconnected { what: "serial port hung up" });
+            }
+            let e = last_errno();
+            match e {
+                libc::EINTR => continue,
+                libc::EAGAIN => self.wait(libc::POLLIN, deadline, from)?,
+                _ => return Err(self.fail(e, "reading from the serial port")),
+            }
+        }
+        Ok(())
+    }
+
+    fn clear_input(&mut self) -> Result<(), DeviceError> {
+        if self.gone {
+            return Err(DeviceError::Disconnected { what: "serial port gone" });
+        }
+        // tcflush drops the kernel's queue; then read away anything that raced in, without waiting.
+        unsafe { libc::tcflush(self.fd, libc::TCIFLUSH) };
+        let mut scratch = [0u8; 256];
+        loop {
+            let n = unsafe { libc::read(self.fd, scratch.as_mut_ptr().cast(), scratch.len()) };
+            if n > 0 {
+                continue;
+            }
+            if n == 0 {
+                self.gone = true;
+                return Err(DeviceError::Disconnected { what: "serial port hung up" });
+            }
+            let e = last_errno();
+            return match e {
+                libc::EAGAIN | libc::EINTR => Ok(()),
+                _ => Err(self.fail(e, "reading from the serial port")),
+            };
+        }
+    }
+}
+
+impl Drop for FdLink {
+    fn drop(&mut self) {
+        unsafe { libc::close(self.fd) };
+    }
+}
+
+/// Opens a serial device (or a pty slave) by path in raw 8N1 mode at `baud`, without the modem
+/// lines (a pty has none) and without allocating: `path` is a prepared C string, so a driver can
+/// call this again from its reopen path inside the tick.
+pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceError> {
+    let fd = unsafe {
+        libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC)
+    };
+    if fd < 0 {
+        let e = last_errno();
+        return Err(match e {
+            libc::ENOENT | libc::ENXIO | libc::ENODEV | libc::EIO => {
+                DeviceError::Disconnected { what: "serial port not present" }
+            }
+            libc::EACCES | libc::EPERM => DeviceError::Other {
+                what: "permission denied on the serial port: add yourself to the 'dialout' group (then log in again)",
+            },
+            libc::EBUSY => DeviceError::Other { what: "the serial port is in use by another program" },
+            _ => DeviceError::Other { what: "cannot open the serial port" },
+        });
+    }
+    let link = FdLink::from_raw_fd(fd);
+    // Exclusive use: two programs writing currents to the same boards is never right.
+    unsafe { libc::ioctl(fd, libc::TIOCEXCL) };
+    let mut t: libc::termios = unsafe { std::mem::zeroed() };
+    if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
+        return Err(DeviceError::Other { what: "the path is not a serial port (tcgetattr failed)" });
+    }
+    unsafe { libc::cfmakeraw(&mut t) };
+    t.c_cflag |= libc::CREAD | libc::CLOCAL;
+    t.c_cflag &= !(libc::CSTOPB | libc::PARENB | libc::CRTSCTS);
+    let speed = baud_constant(baud).ok_or(DeviceError::Other { what: "unsupported baud rate" })?;
+    unsafe {
+        libc::cfsetispeed(&mut t, speed);
+        libc::cfsetospeed(&mut t, speed);
+    }
+    if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
+        return Err(DeviceError::Other { what: "cannot configure the serial port (tcsetattr failed)" });
+    }
+    Ok(link)
+}
+
+fn baud_constant(baud: u32) -> Option<libc::speed_t> {
+    Some(match baud {
+        115_200 => libc::B115200,
+        230_400 => libc::B230400,
+        460_800 => libc::B460800,
+        921_600 => libc::B921600,
+        1_000_000 => libc::B1000000,
+        2_000_000 => libc::B2000000,
+        3_000_000 => libc::B3000000,
+        4_000_000 => libc::B4000000,
+        _ => return None,
+    })
+}
