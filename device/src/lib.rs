@@ -78,6 +78,16 @@ pub enum DeviceError {
     Other { what: &'static str },
 }
 
+/// The error every backend gives for a call that needs an open device.
+#[inline]
+pub fn require_open(opened: bool, what: &'static str) -> Result<(), DeviceError> {
+    if opened {
+        Ok(())
+    } else {
+        Err(DeviceError::WrongState { state: "closed", what })
+    }
+}
+
 impl DeviceError {
     pub fn kind(&self) -> ErrorKind {
         match self {

@@ -493,26 +493,20 @@ impl Device for SimRig {
     }
 
     fn activate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "activate before open" });
-        }
+        crate::require_open(self.opened, "activate before open")?;
         self.active = true;
         Ok(())
     }
 
     fn deactivate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "deactivate before open" });
-        }
+        crate::require_open(self.opened, "deactivate before open")?;
         self.active = false;
         self.latch_commands(None);
         Ok(())
     }
 
     fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "exchange before open" });
-        }
+        crate::require_open(self.opened, "exchange before open")?;
         if self.fail_remaining > 0 {
             self.fail_remaining -= 1;
             self.latch_commands(None);
@@ -531,9 +525,7 @@ impl Device for SimRig {
 
     /// The simulated board never really goes away: a reopen succeeds at once (the plant kept running).
     fn reopen(&mut self, _budget: std::time::Duration) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "reopen before open" });
-        }
+        crate::require_open(self.opened, "reopen before open")?;
         Ok(())
     }
 }

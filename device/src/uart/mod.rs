@@ -304,17 +304,13 @@ impl<C: Connector> Device for UartDevice<C> {
     }
 
     fn activate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "activate before open" });
-        }
+        crate::require_open(self.opened, "activate before open")?;
         self.active = true;
         Ok(())
     }
 
     fn deactivate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "deactivate before open" });
-        }
+        crate::require_open(self.opened, "deactivate before open")?;
         self.active = false;
         // Command zero currents at once rather than at the next tick.
         let mut scratch = Input::default();
@@ -322,9 +318,7 @@ impl<C: Connector> Device for UartDevice<C> {
     }
 
     fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "exchange before open" });
-        }
+        crate::require_open(self.opened, "exchange before open")?;
         let r = self.exchange_on_link(out, inp);
         if let Err(e) = r {
             if e.kind() == crate::ErrorKind::Disconnected {
@@ -337,9 +331,7 @@ impl<C: Connector> Device for UartDevice<C> {
     /// Opens the port again and checks that the same boards answer, all within `budget`.
     /// Counters restart (their history is forgotten): the rig must be homed again.
     fn reopen(&mut self, budget: Duration) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "reopen before open" });
-        }
+        crate::require_open(self.opened, "reopen before open")?;
         let deadline = Instant::now() + budget;
         self.link = None;
         let mut link = self.conn.connect()?;

@@ -330,26 +330,20 @@ impl<O: UsbOpener> Device for UsbBoard<O> {
     }
 
     fn activate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "activate before open" });
-        }
+        crate::require_open(self.opened, "activate before open")?;
         self.active = true;
         Ok(())
     }
 
     fn deactivate(&mut self) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "deactivate before open" });
-        }
+        crate::require_open(self.opened, "deactivate before open")?;
         self.active = false;
         let mut scratch = Input::default();
         self.exchange(&Output::default(), &mut scratch)
     }
 
     fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
-        if !self.opened {
-            return Err(DeviceError::WrongState { state: "closed", what: "exchange before open" });
-        }
+        crate::require_open(self.opened, "exchange before open")?;
         let deadline = Instant::now() + self.opts.reply_timeout;
         let Some(mut link) = self.link.take() else {
             return Err(DeviceError::Disconnected {
