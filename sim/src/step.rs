@@ -60,9 +60,11 @@ impl Predictor {
         Predictor { state: State::new(model), ws: Workspace::new(model) }
     }
 
-    /// Copies `from` and steps `steps` times; before each step `each` may add forces to the
-    /// workspace (extrapolated user input, controllers) and inspect the state and the contacts
-    /// of the previous step. `each` returns false to stop early. Returns the steps taken.
+    /// Copies `from` and steps `steps` times. Before each step `each` may add forces to the
+    /// workspace (extrapolated user input, controllers) and inspect the state and the workspace:
+    /// its kinematics and contacts are those of the previous step's `forward` (one step old; for
+    /// the first step, of `from` itself), so a controller need not run its own kinematics pass.
+    /// `each` returns false to stop early. Returns the steps taken.
     pub fn run(
         &mut self,
         model: &Model,
@@ -71,6 +73,7 @@ impl Predictor {
         mut each: impl FnMut(&Model, &State, &mut Workspace) -> bool,
     ) -> usize {
         self.state.copy_from(from);
+        kinematics(model, &self.state, &mut self.ws);
         self.ws.contacts.clear();
         for n in 0..steps {
             if !each(model, &self.state, &mut self.ws) {
