@@ -59,7 +59,11 @@ impl ConsoleOperator {
                     }
                 }
             })
-            .map_err(|source| CalibError::Io { file: "<console>".into(), what: "starting the key reader", source })?;
+            .map_err(|source| CalibError::Io {
+                file: "<console>".into(),
+                what: "starting the key reader",
+                source,
+            })?;
         Ok(ConsoleOperator {
             keys: rx,
             out,
@@ -73,7 +77,12 @@ impl ConsoleOperator {
 
     /// The terminal: keys from stdin, prompts on stderr (stdout keeps the results).
     pub fn stdio(rig: &Rig) -> Result<ConsoleOperator, CalibError> {
-        ConsoleOperator::new(std::io::BufReader::new(std::io::stdin()), Box::new(std::io::stderr()), rig, true)
+        ConsoleOperator::new(
+            std::io::BufReader::new(std::io::stdin()),
+            Box::new(std::io::stderr()),
+            rig,
+            true,
+        )
     }
 
     /// What the person needs to know before the first request.
@@ -144,7 +153,8 @@ impl<D: Device> Operator<D> for ConsoleOperator {
                 Ok(Some(line)) => match line.trim() {
                     "" => return Ok(Answer::Ready),
                     "s" | "S" if skippable => return Ok(Answer::Skip),
-                    "s" | "S" => self.say("  this point cannot be skipped: press Enter when the grip is there, or q"),
+                    "s" | "S" => self
+                        .say("  this point cannot be skipped: press Enter when the grip is there (q: abort)"),
                     "q" | "Q" => return Err(self.abort(dev, "stopped by the operator (q)")),
                     other => self.say(&format!(
                         "  '{other}' is not an answer: Enter = the grip is there{}, q = abort",
@@ -155,7 +165,9 @@ impl<D: Device> Operator<D> for ConsoleOperator {
             // Keep the boards commanded while the person moves the grip.
             match dev.exchange(&self.hold, &mut self.scratch) {
                 Ok(()) => failures = 0,
-                Err(e) if e.kind() != ErrorKind::Disconnected && failures < MAX_FAILED_EXCHANGES => failures += 1,
+                Err(e) if e.kind() != ErrorKind::Disconnected && failures < MAX_FAILED_EXCHANGES => {
+                    failures += 1
+                }
                 Err(e) => {
                     let why = format!("the device failed while waiting ({e})");
                     let _ = self.abort(dev, &why);
