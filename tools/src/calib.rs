@@ -184,7 +184,7 @@ fn sim_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(SimRig, String)> {
 /// The device a calibration command drives, opened.
 enum Opened {
     /// The simulated rig, its grips moved by the [`SimOperator`].
-    Sim(SimRig),
+    Sim(Box<SimRig>),
     /// Real boards, its grips moved by a person at the console.
     Board(Box<dyn Device>),
 }
@@ -194,7 +194,7 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
     match d.hw.choice(d.device)? {
         None => {
             let (dev, name) = sim_device(d, rig)?;
-            Ok((Opened::Sim(dev), name))
+            Ok((Opened::Sim(Box::new(dev)), name))
         }
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;
@@ -253,7 +253,7 @@ fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
     eprintln!("spidar calib home: {name}");
     let geometry = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
             &mut SimOperator::new(d.verbose),
             |rec, op| home_hands(rec, op, &rig, hands),
         )?,
@@ -314,7 +314,7 @@ fn record(
     let t0 = std::time::Instant::now();
     let (session, warnings) = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
             &mut SimOperator::new(d.verbose),
             |rec, op| {
                 let session = rec.record_plan(op, &plan, &name)?;
@@ -429,7 +429,7 @@ fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow:
     eprintln!("spidar calib verify: {name}");
     let report = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
             &mut SimOperator::new(d.verbose),
             |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
         )?,
