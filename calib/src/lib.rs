@@ -15,6 +15,7 @@
 //! -> [`session::SessionFile`] (RON) -> [`fit`] -> [`report`] text and [`plot`] SVGs -> [`rigfile`]
 //! update -> [`verify`] at check points.
 
+pub mod console;
 pub mod fit;
 pub mod jig;
 pub mod model;
@@ -68,6 +69,9 @@ pub enum CalibError {
     NoConvergence { hand: usize, why: String },
     #[error("recording: {0}")]
     Recording(String),
+    /// The operator stopped the recording (q, or the console closed); outputs were switched off.
+    #[error("aborted: {0}")]
+    Aborted(String),
     #[error("simulated rig: {0}")]
     Sim(#[from] spidar_device::sim::SimError),
     #[error("rig file {file}: {message}")]

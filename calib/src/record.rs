@@ -50,11 +50,22 @@ impl std::fmt::Display for Request {
     }
 }
 
+/// The operator's answer to a [`Request`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Answer {
+    /// The grip is there; the recorder checks stillness and records.
+    Ready,
+    /// Leave this pose out (only free poses may be skipped; the next suggestion follows).
+    Skip,
+}
+
 /// The person (or script) that moves the grip.
 pub trait Operator<D: Device> {
     /// Ask for `req` on `hand`'s grip. Returns once the operator says the grip is there (a real
-    /// operator: presses Enter); stillness is then checked by the recorder.
-    fn request(&mut self, dev: &mut D, hand: usize, req: &Request) -> Result<(), CalibError>;
+    /// operator: presses Enter) or that this free pose is skipped; stillness is then checked by
+    /// the recorder. An operator who waits keeps `dev` exchanging (strings held at minimum
+    /// tension, board watchdogs fed); aborting returns [`CalibError::Aborted`].
+    fn request(&mut self, dev: &mut D, hand: usize, req: &Request) -> Result<Answer, CalibError>;
     /// Progress lines and warnings for the operator.
     fn tell(&mut self, line: &str);
 }
@@ -74,7 +85,7 @@ impl SimOperator {
 }
 
 impl Operator<SimRig> for SimOperator {
-    fn request(&mut self, dev: &mut SimRig, hand: usize, req: &Request) -> Result<(), CalibError> {
+    fn request(&mut self, dev: &mut SimRig, hand: usize, req: &Request) -> Result<Answer, CalibError> {
         let to = match req {
             Request::Home { at_m } | Request::Jig { at_m, .. } => *at_m,
             Request::Free { suggest_m, .. } => *suggest_m,
@@ -89,7 +100,7 @@ impl Operator<SimRig> for SimOperator {
             false,
         );
         dev.try_set_script(hand, script)?;
-        Ok(())
+        Ok(Answer::Ready)
     }
 
     fn tell(&mut self, line: &str) {
@@ -181,16 +192,29 @@ pub struct Recorder<'r, D: Device> {
     warnings: Vec<String>,
 }
 
+/// The output that holds every string of the rig at its minimum tension: what the device gets
+/// all through recording, also while the operator moves the grip.
+pub fn holding_output(rig: &Rig) -> Output {
+    let mut out = Output::default();
+    for hr in &rig.hands {
+        for i in 0..4 {
+            out.volts[hr.channels[i]] = hr.tension_min_n * hr.volts_per_newton[i];
+        }
+    }
+    out
+}
+
 impl<'r, D: Device> Recorder<'r, D> {
     /// Opens and activates the device with every string of the rig at minimum tension.
     pub fn new(mut dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
         dev.open()?;
-        let mut out = Output::default();
-        for hr in &rig.hands {
-            for i in 0..4 {
-                out.volts[hr.channels[i]] = hr.tension_min_n * hr.volts_per_newton[i];
-            }
-        }
+        Recorder::opened(dev, rig, opts)
+    }
+
+    /// As [`Recorder::new`] for a device already opened (a board opened with detailed errors):
+    /// opening again would enumerate the boards twice.
+    pub fn opened(mut dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
+        let out = holding_output(rig);
         dev.activate()?;
         let check_geometry = [0, 1].map(|h| HandGeometry::from_rig(&rig.hands[h]));
         Ok(Recorder { dev, rig, opts, out, inp: Input::default(), check_geometry, warnings: Vec::new() })
@@ -291,7 +315,10 @@ impl<'r, D: Device> Recorder<'r, D> {
         req: &Request,
         earlier: &[PoseRecord],
     ) -> Result<Option<PoseRecord>, CalibError> {
-        op.request(&mut self.dev, hand, req)?;
+        if op.request(&mut self.dev, hand, req)? == Answer::Skip {
+            op.tell("  skipped");
+            return Ok(None);
+        }
         let (counts, counts_std, samples) = self.still_average(hand)?;
         let hr = &self.rig.hands[hand];
         let kind = match req {
@@ -367,6 +394,8 @@ impl<'r, D: Device> Recorder<'r, D> {
                 _ => {}
             }
         }
+        let worst_um = (0..4).map(|i| spread_m[i]).fold(0.0, f64::max) * 1e6;
+        op.tell(&format!("  recorded: {samples} samples, worst string spread {worst_um:.0} um"));
         Ok(Some(PoseRecord { hand, kind, counts, counts_std, samples }))
     }
 
@@ -455,7 +484,9 @@ impl<'r, D: Device> Recorder<'r, D> {
         hand: usize,
         req: &Request,
     ) -> Result<([f64; 4], [f64; 4]), CalibError> {
-        op.request(&mut self.dev, hand, req)?;
+        if op.request(&mut self.dev, hand, req)? == Answer::Skip {
+            return Err(CalibError::Recording(format!("hand {hand}: {req}: this point cannot be skipped")));
+        }
         let (c, s, _) = self.still_average(hand)?;
         Ok((c, s))
     }

@@ -1,31 +1,32 @@
 //! `spidar calib`: home, record, fit and verify the string geometry of a rig (see
 //! `spidar-calib`). Arguments are checked here; the work is in the calib crate.
 //!
-//! Only the simulated rig exists as a device so far. Its true geometry is the built-in rig file
-//! perturbed by `--seed` (anchors off by centimetres, metres per count by up to 10 %, counters
-//! starting anywhere), whatever `--rig` says, so that home, record, fit --write and verify all
-//! run against the same simulated hardware while the rig file is being corrected.
+//! `--device sim` (the default) is the simulated rig, its grips moved by a scripted operator. Its
+//! true geometry is the built-in rig file perturbed by `--seed` (anchors off by centimetres,
+//! metres per count by up to 10 %, counters starting anywhere), whatever `--rig` says, so that
+//! home, record, fit --write and verify all run against the same simulated hardware while the rig
+//! file is being corrected. `--device uart|usb-simple|usb-sh4` opens the boards as `spidar run`
+//! does (`hardware::open_hardware`) and asks a person at the console to move the grips
+//! (`ConsoleOperator`: Enter, s, q); the outputs are switched off however the command ends.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand, ValueEnum};
 use glam::DVec3;
+use spidar_calib::console::ConsoleOperator;
 use spidar_calib::fit::{fit_hand, observations, FitOptions};
 use spidar_calib::jig::JigFile;
 use spidar_calib::model::HandGeometry;
-use spidar_calib::record::{Plan, RecordOptions, Recorder, Request, SimOperator};
+use spidar_calib::record::{Operator, Plan, RecordOptions, Recorder, Request, SimOperator};
 use spidar_calib::rigfile::{update_rig_file, Stamp};
 use spidar_calib::session::SessionFile;
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_device::sim::SimRig;
+use spidar_device::Device;
 use spidar_rt::Rig;
 
-#[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
-pub enum CalibDevice {
-    /// The simulated SPIDAR-H with a deliberately wrong true geometry and a scripted hand.
-    Sim,
-}
+use crate::hardware::{self, DeviceKind, HardwareArgs};
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
 pub enum Hands {
@@ -49,9 +50,12 @@ pub struct DeviceArgs {
     /// Rig file (RON) whose geometry is calibrated (and written with --write).
     #[arg(long, default_value = "configs/rig-spidar-h.ron")]
     pub rig: PathBuf,
-    /// Which device to record from.
+    /// Which device to record from: the simulated rig (a scripted hand moves the grips) or the
+    /// real boards (you move the grips and answer at the console: Enter, s, q).
     #[arg(long, value_enum, default_value = "sim")]
-    pub device: CalibDevice,
+    pub device: DeviceKind,
+    #[command(flatten)]
+    pub hw: HardwareArgs,
     /// Simulated rig: seed of its true geometry and of its encoder noise.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
@@ -64,7 +68,7 @@ pub struct DeviceArgs {
     /// Simulated rig: encoder noise, standard deviation in counts (plus quantisation).
     #[arg(long, default_value_t = 0.5)]
     pub noise_counts: f64,
-    /// Print every request and progress line.
+    /// Simulated rig: print every request and progress line (a console operator always sees them).
     #[arg(long, short)]
     pub verbose: bool,
 }
@@ -177,6 +181,59 @@ fn sim_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(SimRig, String)> {
     Ok((dev, name))
 }
 
+/// The device a calibration command drives, opened.
+enum Opened {
+    /// The simulated rig, its grips moved by the [`SimOperator`].
+    Sim(Box<SimRig>),
+    /// Real boards, its grips moved by a person at the console.
+    Board(Box<dyn Device>),
+}
+
+/// Opens the device `--device` names, with the same options and messages as `spidar run`.
+fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
+    match d.hw.choice(d.device)? {
+        None => {
+            let (dev, name) = sim_device(d, rig)?;
+            Ok((Opened::Sim(Box::new(dev)), name))
+        }
+        Some(choice) => {
+            let dev = hardware::open_hardware(&choice)?;
+            let name = format!("{} ({})", dev.info().board, dev.info().identity);
+            for w in hardware::check_rig_against(rig, dev.info()) {
+                eprintln!("warning: {w}");
+            }
+            Ok((Opened::Board(dev), name))
+        }
+    }
+}
+
+/// Recording on a board is paced by the wall clock (one exchange per tick period), which also
+/// keeps the boards' watchdogs fed.
+fn board_record_options() -> RecordOptions {
+    RecordOptions { pace: true, ..RecordOptions::default() }
+}
+
+/// The person at the console, told how it works.
+fn console_operator(rig: &Rig) -> anyhow::Result<ConsoleOperator> {
+    let mut op = ConsoleOperator::stdio(rig)?;
+    op.introduce();
+    Ok(op)
+}
+
+/// Runs `body` on an activated recorder and switches the outputs off afterwards, also when
+/// `body` failed or the operator aborted.
+fn with_recorder<D: Device, O: Operator<D>, T>(
+    mut rec: Recorder<'_, D>,
+    op: &mut O,
+    body: impl FnOnce(&mut Recorder<'_, D>, &mut O) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    let r = body(&mut rec, op);
+    let off = rec.finish();
+    let t = r?;
+    off.context("switching the outputs off")?;
+    Ok(t)
+}
+
 pub fn run(cmd: CalibCmd) -> anyhow::Result<()> {
     match cmd {
         CalibCmd::Home { dev, hands, write } => home(&dev, hands, write),
@@ -192,14 +249,40 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<()> {
 
 fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
     let (rig, text) = load_rig(&d.rig)?;
-    let (dev, name) = sim_device(d, &rig)?;
+    let (dev, name) = open_device(d, &rig)?;
     eprintln!("spidar calib home: {name}");
-    let mut rec = Recorder::new(dev, &rig, RecordOptions::default())?;
-    let mut op = SimOperator::new(d.verbose);
+    let geometry = match dev {
+        Opened::Sim(dev) => with_recorder(
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            &mut SimOperator::new(d.verbose),
+            |rec, op| home_hands(rec, op, &rig, hands),
+        )?,
+        Opened::Board(dev) => with_recorder(
+            Recorder::opened(dev, &rig, board_record_options())?,
+            &mut console_operator(&rig)?,
+            |rec, op| home_hands(rec, op, &rig, hands),
+        )?,
+    };
+    if write {
+        let stamp = Stamp { homed_utc: spidar_calib::utc_now(), ..Stamp::default() };
+        let bak = update_rig_file(&d.rig, &text, &geometry, &stamp)?;
+        println!("wrote {} (previous file kept as {})", d.rig.display(), bak.display());
+    } else {
+        println!("(not written: add --write to store these lengths in {})", d.rig.display());
+    }
+    Ok(())
+}
+
+fn home_hands<D: Device, O: Operator<D>>(
+    rec: &mut Recorder<'_, D>,
+    op: &mut O,
+    rig: &Rig,
+    hands: Hands,
+) -> anyhow::Result<[Option<HandGeometry>; 2]> {
     let mut geometry = [None, None];
     for h in hands.list() {
         let home = rig.hands[h].home_m;
-        let (counts, _) = rec.record_at(&mut op, h, &Request::Home { at_m: home })?;
+        let (counts, _) = rec.record_at(op, h, &Request::Home { at_m: home })?;
         let g = HandGeometry::homed(&rig.hands[h], &counts, home);
         println!(
             "hand {h} ({}): counts {:?} at the home point -> length_at_zero_m {:.6?}",
@@ -209,15 +292,7 @@ fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
         );
         geometry[h] = Some(g);
     }
-    rec.finish()?;
-    if write {
-        let stamp = Stamp { homed_utc: spidar_calib::utc_now(), ..Stamp::default() };
-        let bak = update_rig_file(&d.rig, &text, &geometry, &stamp)?;
-        println!("wrote {} (previous file kept as {})", d.rig.display(), bak.display());
-    } else {
-        println!("(not written: add --write to store these lengths in {})", d.rig.display());
-    }
-    Ok(())
+    Ok(geometry)
 }
 
 fn record(
@@ -233,15 +308,28 @@ fn record(
     }
     let (rig, _) = load_rig(&d.rig)?;
     let jig = jig.map(|p| JigFile::load(&p)).transpose()?;
-    let (dev, name) = sim_device(d, &rig)?;
-    eprintln!("spidar calib record: {name}");
-    let mut rec = Recorder::new(dev, &rig, RecordOptions::default())?;
-    let mut op = SimOperator::new(d.verbose);
     let plan = Plan { hands: hands.list(), jig, free_per_hand: free, free_half_extent_m: DVec3::splat(half) };
+    let (dev, name) = open_device(d, &rig)?;
+    eprintln!("spidar calib record: {name}");
     let t0 = std::time::Instant::now();
-    let session = rec.record_plan(&mut op, &plan, &name)?;
-    let warnings = rec.warnings().to_vec();
-    rec.finish()?;
+    let (session, warnings) = match dev {
+        Opened::Sim(dev) => with_recorder(
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            &mut SimOperator::new(d.verbose),
+            |rec, op| {
+                let session = rec.record_plan(op, &plan, &name)?;
+                Ok((session, rec.warnings().to_vec()))
+            },
+        )?,
+        Opened::Board(dev) => with_recorder(
+            Recorder::opened(dev, &rig, board_record_options())?,
+            &mut console_operator(&rig)?,
+            |rec, op| {
+                let session = rec.record_plan(op, &plan, &name)?;
+                Ok((session, rec.warnings().to_vec()))
+            },
+        )?,
+    };
     session.save(out)?;
     for h in hands.list() {
         println!("hand {h}: {} poses recorded", session.poses_of(h).count());
@@ -337,12 +425,20 @@ fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow:
             d.rig.display()
         ),
     };
-    let (dev, name) = sim_device(d, &rig)?;
+    let (dev, name) = open_device(d, &rig)?;
     eprintln!("spidar calib verify: {name}");
-    let mut rec = Recorder::new(dev, &rig, RecordOptions::default())?;
-    let mut op = SimOperator::new(d.verbose);
-    let report = spidar_calib::verify::verify(&mut rec, &mut op, &rig, &geometry, &jig, &hands.list())?;
-    rec.finish()?;
+    let report = match dev {
+        Opened::Sim(dev) => with_recorder(
+            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            &mut SimOperator::new(d.verbose),
+            |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
+        )?,
+        Opened::Board(dev) => with_recorder(
+            Recorder::opened(dev, &rig, board_record_options())?,
+            &mut console_operator(&rig)?,
+            |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
+        )?,
+    };
     println!("{report}");
     if report.max_error_m() > max_error_m {
         bail!(

@@ -7,15 +7,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{bail, Context};
-use clap::{Parser, Subcommand, ValueEnum};
-use spidar_device::uart::UartOptions;
-use spidar_device::usb::{UsbKind, UsbOptions};
+use clap::{Parser, Subcommand};
 use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_rt, RtBenchOptions};
-use spidar_tools::hardware::{self, HardwareChoice};
+use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
 use spidar_tools::scene;
 use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
 
@@ -51,67 +49,6 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
-}
-
-#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
-enum DeviceKind {
-    /// The simulated SPIDAR-H: motors, strings, encoders and a scripted user's hands.
-    Sim,
-    /// UART motor-driver boards on a serial port (--port; `spidar emulate` gives one).
-    Uart,
-    /// The USB 2.0 Simple amplifier board (0cec:0203; --switch picks one of several).
-    UsbSimple,
-    /// The USB 2.0 SH-4 amplifier board (0cec:0205; --switch picks one of several).
-    UsbSh4,
-}
-
-#[derive(clap::Args)]
-struct HardwareArgs {
-    /// Serial port of the UART boards (e.g. /dev/ttyUSB0, or the emulator's /tmp/spidar-uart).
-    #[arg(long)]
-    port: Option<String>,
-    /// Rotary switch of the USB board to use (0..15).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=15))]
-    switch: Option<u8>,
-    /// DA scale of the board in digits per volt (default: 4096/3.3 for UART, 415 for USB).
-    #[arg(long)]
-    digits_per_volt: Option<f64>,
-    /// Deadline of one exchange with the board, in microseconds (keep it below the tick period).
-    #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(u64).range(50..=100_000))]
-    reply_timeout_us: u64,
-}
-
-impl HardwareArgs {
-    fn choice(&self, kind: DeviceKind) -> anyhow::Result<Option<HardwareChoice>> {
-        if let Some(d) = self.digits_per_volt {
-            if !(d.is_finite() && d > 0.0) {
-                bail!("--digits-per-volt must be a positive number");
-            }
-        }
-        let timeout = Duration::from_micros(self.reply_timeout_us);
-        Ok(match kind {
-            DeviceKind::Sim => None,
-            DeviceKind::Uart => {
-                let Some(port) = self.port.clone() else {
-                    bail!("--device uart needs --port PATH (see `spidar devices`, or start `spidar emulate`)")
-                };
-                let mut opts = UartOptions { reply_timeout: timeout, ..UartOptions::default() };
-                if let Some(d) = self.digits_per_volt {
-                    opts.digits_per_volt = d;
-                }
-                Some(HardwareChoice::Uart { port, opts })
-            }
-            DeviceKind::UsbSimple | DeviceKind::UsbSh4 => {
-                let kind = if kind == DeviceKind::UsbSimple { UsbKind::Simple } else { UsbKind::Sh4 };
-                let mut opts =
-                    UsbOptions { switch: self.switch, reply_timeout: timeout, ..UsbOptions::default() };
-                if let Some(d) = self.digits_per_volt {
-                    opts.digits_per_volt = d;
-                }
-                Some(HardwareChoice::Usb { kind, opts })
-            }
-        })
-    }
 }
 
 #[derive(clap::Args)]
