@@ -75,7 +75,8 @@ pub fn decide(p: &AiParams, goal: &Goal, b: &BodySpace, policy: Policy) -> (Targ
     let (vs, vf) = b.velocity_sc();
     let sliding = (vs * vs + vf * vf).sqrt() > p.slide_max_m_per_s;
     // Sliding only matters before rising: while standing up the centre of mass moves by itself.
-    t.may_stand_up = b.theta_z.abs() < p.side_fall_max_deg.to_radians() && (policy == Policy::StandUp || !sliding);
+    t.may_stand_up =
+        b.theta_z.abs() < p.side_fall_max_deg.to_radians() && (policy == Policy::StandUp || !sliding);
     let behaviour = if policy == Policy::StandUp { B_STAND_UP } else { B_WALK_AND_FALL };
     (t, behaviour)
 }

@@ -203,7 +203,13 @@ pub struct Targets {
 
 impl Default for Targets {
     fn default() -> Self {
-        Targets { theta_x0: 0.0, theta_z0: 0.0, velocity_m_per_s: DVec3::ZERO, heading: None, may_stand_up: true }
+        Targets {
+            theta_x0: 0.0,
+            theta_z0: 0.0,
+            velocity_m_per_s: DVec3::ZERO,
+            heading: None,
+            may_stand_up: true,
+        }
     }
 }
 

@@ -394,7 +394,9 @@ impl Crowd {
                     let (ss, sp) = self.statics[si];
                     let far = match ss {
                         Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > bound,
-                        _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2),
+                        _ => {
+                            (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2)
+                        }
                     };
                     if far {
                         continue;

@@ -223,18 +223,46 @@ impl KeyframeSet {
     pub fn parse(text: &str, origin: &str) -> Result<KeyframeSet, SimError> {
         let f: KeyframeFile = config::parse(text, origin)?;
         if f.version != 1 {
-            return Err(err(text, origin, "version", "version", 0, format!("version {} is not supported; use 1", f.version)));
+            return Err(err(
+                text,
+                origin,
+                "version",
+                "version",
+                0,
+                format!("version {} is not supported; use 1", f.version),
+            ));
         }
         for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
             if !(v > 0.0 && v.is_finite()) {
-                return Err(err(text, origin, field, field, 0, format!("must be a positive length, got {v}")));
+                return Err(err(
+                    text,
+                    origin,
+                    field,
+                    field,
+                    0,
+                    format!("must be a positive length, got {v}"),
+                ));
             }
         }
         if !(f.behaviour_blend_s > 0.0) {
-            return Err(err(text, origin, "behaviour_blend_s", "behaviour_blend_s", 0, "must be > 0 s".into()));
+            return Err(err(
+                text,
+                origin,
+                "behaviour_blend_s",
+                "behaviour_blend_s",
+                0,
+                "must be > 0 s".into(),
+            ));
         }
         if f.skeleton.is_empty() || f.skeleton.len() > MAX_JOINTS {
-            return Err(err(text, origin, "skeleton", "skeleton", 0, format!("needs 1 to {MAX_JOINTS} joints, got {}", f.skeleton.len())));
+            return Err(err(
+                text,
+                origin,
+                "skeleton",
+                "skeleton",
+                0,
+                format!("needs 1 to {MAX_JOINTS} joints, got {}", f.skeleton.len()),
+            ));
         }
         if f.behaviours.is_empty() || f.behaviours.len() > 255 {
             return Err(err(text, origin, "behaviours", "behaviours", 0, "needs 1 to 255 behaviours".into()));
@@ -244,12 +272,26 @@ impl KeyframeSet {
             let parent = match &j.parent {
                 None if i == 0 => None,
                 None => {
-                    return Err(err(text, origin, &format!("skeleton[{i}].parent"), "parent", i, "only the first joint is the root; name a parent".into()))
+                    return Err(err(
+                        text,
+                        origin,
+                        &format!("skeleton[{i}].parent"),
+                        "parent",
+                        i,
+                        "only the first joint is the root; name a parent".into(),
+                    ))
                 }
                 Some(p) => match f.skeleton[..i].iter().position(|o| &o.name == p) {
                     Some(k) => Some(k),
                     None => {
-                        return Err(err(text, origin, &format!("skeleton[{i}].parent"), "parent", i, format!("parent {p:?} is not a joint listed before {:?}", j.name)))
+                        return Err(err(
+                            text,
+                            origin,
+                            &format!("skeleton[{i}].parent"),
+                            "parent",
+                            i,
+                            format!("parent {p:?} is not a joint listed before {:?}", j.name),
+                        ))
                     }
                 },
             };
@@ -262,10 +304,24 @@ impl KeyframeSet {
         for (ai, a) in f.animations.iter().enumerate() {
             let field = |s: &str| format!("animations[{ai}].{s}");
             let Some(b) = f.behaviours.iter().position(|x| x == &a.behaviour) else {
-                return Err(err(text, origin, &field("behaviour"), "behaviour", ai + 1, format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours)));
+                return Err(err(
+                    text,
+                    origin,
+                    &field("behaviour"),
+                    "behaviour",
+                    ai + 1,
+                    format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours),
+                ));
             };
             if a.keys.is_empty() {
-                return Err(err(text, origin, &field("keys"), "keys", ai, "an animation needs at least one keyframe".into()));
+                return Err(err(
+                    text,
+                    origin,
+                    &field("keys"),
+                    "keys",
+                    ai,
+                    "an animation needs at least one keyframe".into(),
+                ));
             }
             for (ki, k) in a.keys.iter().enumerate() {
                 let occ = key_occ + ki;
@@ -283,8 +339,17 @@ impl KeyframeSet {
                     Axis::Dx => at.d_x = k.at,
                     Axis::Dz => at.d_z = k.at,
                 }
-                if !(at.theta_x.abs() <= std::f64::consts::PI + SAME && at.theta_z.abs() <= std::f64::consts::FRAC_PI_2 + SAME) {
-                    return Err(err(text, origin, &kf, "at", occ, "leans must be within Theta_x in [-180, 180], Theta_z in [-90, 90] degrees".into()));
+                if !(at.theta_x.abs() <= std::f64::consts::PI + SAME
+                    && at.theta_z.abs() <= std::f64::consts::FRAC_PI_2 + SAME)
+                {
+                    return Err(err(
+                        text,
+                        origin,
+                        &kf,
+                        "at",
+                        occ,
+                        "leans must be within Theta_x in [-180, 180], Theta_z in [-90, 90] degrees".into(),
+                    ));
                 }
                 if !((0.0..1.0).contains(&at.d_x) && (0.0..1.0).contains(&at.d_z)) {
                     return Err(err(text, origin, &kf, "at", occ, "walk phases must be in [0, 1)".into()));
@@ -297,10 +362,24 @@ impl KeyframeSet {
                 let mut pose = Pose { root_m: k.root_m, ..Pose::default() };
                 for (name, rv) in &k.pose {
                     let Some(j) = joints.iter().position(|j| &j.name == name) else {
-                        return Err(err(text, origin, &field(&format!("keys[{ki}].pose")), "pose", occ, format!("no joint {name:?} in the skeleton")));
+                        return Err(err(
+                            text,
+                            origin,
+                            &field(&format!("keys[{ki}].pose")),
+                            "pose",
+                            occ,
+                            format!("no joint {name:?} in the skeleton"),
+                        ));
                     };
                     if !rv.is_finite() {
-                        return Err(err(text, origin, &field(&format!("keys[{ki}].pose")), "pose", occ, format!("joint {name:?} has a non-finite rotation")));
+                        return Err(err(
+                            text,
+                            origin,
+                            &field(&format!("keys[{ki}].pose")),
+                            "pose",
+                            occ,
+                            format!("joint {name:?} has a non-finite rotation"),
+                        ));
                     }
                     pose.rot[j] = quat_exp(*rv * (std::f64::consts::PI / 180.0));
                 }
@@ -324,9 +403,19 @@ impl KeyframeSet {
         let mut sub = Vec::new();
         for (b, (front, side)) in planes.into_iter().enumerate() {
             if front.rows.is_empty() && side.rows.is_empty() {
-                return Err(err(text, origin, "behaviours", "behaviours", 0, format!("behaviour {:?} has no keyframes", f.behaviours[b])));
+                return Err(err(
+                    text,
+                    origin,
+                    "behaviours",
+                    "behaviours",
+                    0,
+                    format!("behaviour {:?} has no keyframes", f.behaviours[b]),
+                ));
             }
-            let origin_key = keys.iter().find(|k| k.at.behaviour == b as u8 && same_point(&k.at, &QPoint { behaviour: b as u8, ..QPoint::default() }));
+            let origin_key = keys.iter().find(|k| {
+                k.at.behaviour == b as u8
+                    && same_point(&k.at, &QPoint { behaviour: b as u8, ..QPoint::default() })
+            });
             if !side.rows.is_empty() && (origin_key.is_none() || front.rows.is_empty()) {
                 return Err(err(text, origin, "animations", "animations", 0, format!("behaviour {:?} has side-plane keyframes, so it needs keyframes in the front plane and one at the origin (all leans and phases 0) that both planes share", f.behaviours[b])));
             }

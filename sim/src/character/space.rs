@@ -125,7 +125,12 @@ mod tests {
         close(b.theta_z, 0.0);
         close(b.theta_y, 0.7);
         // Lying face down (head toward the front) is +pi/2, face up -pi/2.
-        let b = BodySpace::new(yaw * DQuat::from_rotation_x(1.5707963267948966), DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+        let b = BodySpace::new(
+            yaw * DQuat::from_rotation_x(1.5707963267948966),
+            DVec3::ZERO,
+            DVec3::ZERO,
+            DVec3::ZERO,
+        );
         close(b.theta_x, std::f64::consts::FRAC_PI_2);
         close(b.theta_y, 0.7);
         // Leaning toward +x_c: rotation about -z.
@@ -142,7 +147,12 @@ mod tests {
 
     #[test]
     fn upside_down_is_finite() {
-        let b = BodySpace::new(DQuat::from_rotation_x(std::f64::consts::PI), DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+        let b = BodySpace::new(
+            DQuat::from_rotation_x(std::f64::consts::PI),
+            DVec3::ZERO,
+            DVec3::ZERO,
+            DVec3::ZERO,
+        );
         assert!(b.theta_x.is_finite() && b.theta_y.is_finite() && b.theta_z.is_finite());
     }
 }
