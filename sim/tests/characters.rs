@@ -2,10 +2,13 @@
 //! stepper and in the general engine; the keyframe set's interpolation; determinism.
 
 use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::crowd::{Crowd, CrowdBody, CrowdWorld};
 use spidar_sim::character::keyframe::KeyframeSet;
+use spidar_sim::character::keyframe::{Pose, QPoint};
 use spidar_sim::character::CharacterParams;
 use spidar_sim::desc::{build_scene, parse_body, ContactDesc, Gain};
 use spidar_sim::state::kinematics;
@@ -176,4 +179,149 @@ fn crowd_stepper_and_engine_agree_for_one_character() {
     }
     assert!(worst < 1e-6, "the two paths differ by {worst}");
     assert_eq!(seen, vec![Policy::Balance, Policy::Fall, Policy::Down, Policy::StandUp, Policy::Balance]);
+}
+
+// ---- the keyframe set ----
+
+#[test]
+fn the_shipped_set_is_the_papers_evaluation_set() {
+    let set = KeyframeSet::builtin();
+    assert_eq!(set.animations, 12);
+    assert_eq!(set.keys.len(), 57);
+    assert_eq!(set.behaviours, vec!["walking and falling", "standing up"]);
+    // Standing-up keyframes are all on the (Theta_z = 0, D_x = 0, D_z = 0) line (section 6.1).
+    for k in set.keys.iter().filter(|k| k.at.behaviour == 1) {
+        assert!(k.at.theta_z == 0.0 && k.at.d_x == 0.0 && k.at.d_z == 0.0, "{:?}", k.at);
+    }
+}
+
+#[test]
+fn the_interpolated_pose_equals_the_keyframe_at_each_keyframe() {
+    let set = KeyframeSet::builtin();
+    let n = set.joints.len();
+    let mut out = Pose::default();
+    for k in &set.keys {
+        set.pose(&k.at, &mut out);
+        let err = out.max_angle_to(&k.pose, n);
+        assert!(err < 1e-7, "{:?}: {err} rad off", k.at);
+        assert!((out.root_m - k.pose.root_m).length() < 1e-12);
+    }
+}
+
+/// A random path through Q (leans, both walk phases wrapping past 1, behaviour switches blended in
+/// time as a character does) never makes a joint turn by more than a bounded amount per step.
+#[test]
+fn the_pose_changes_continuously_along_a_long_random_path() {
+    let set = KeyframeSet::builtin();
+    let n = set.joints.len();
+    let mut rng = Pcg64::seed_from_u64(7);
+    let dt = 0.003;
+    let mut q = QPoint::default();
+    let mut anim = spidar_sim::character::Correspondence { blend: 1.0, ..Default::default() };
+    let (mut prev, mut cur) = (Pose::default(), Pose::default());
+    set.pose(&q, &mut prev);
+    let (mut worst, mut total) = (0.0f64, 0.0);
+    let mut wraps = 0;
+    for step in 0..200_000 {
+        // Leans move at up to 3 rad/s, phases at up to 2 cycles/s (faster than any character).
+        q.theta_x = (q.theta_x + rng.random_range(-3.0..3.0) * dt).clamp(-3.1, 3.1);
+        q.theta_z = (q.theta_z + rng.random_range(-3.0..3.0) * dt).clamp(-1.55, 1.55);
+        let (dx, dz) = (q.d_x + rng.random_range(0.0..2.0) * dt, q.d_z + rng.random_range(-1.0..2.0) * dt);
+        wraps += (dz >= 1.0 || dz < 0.0 || dx >= 1.0) as u32;
+        q.d_x = spidar_sim::character::periodic(dx);
+        q.d_z = spidar_sim::character::periodic(dz);
+        let behaviour = if (step / 5000) % 2 == 1 { 1 } else { 0 };
+        if behaviour != anim.behaviour {
+            anim.from_behaviour = anim.behaviour;
+            anim.behaviour = behaviour;
+            anim.blend = 0.0;
+        }
+        anim.blend = (anim.blend + dt / set.behaviour_blend_s).min(1.0);
+        q.behaviour = anim.behaviour;
+        set.pose_blended(&q, anim.from_behaviour, anim.blend, &mut cur);
+        let d = cur.max_angle_to(&prev, n);
+        worst = worst.max(d);
+        total += d;
+        prev = cur;
+    }
+    assert!(wraps > 100, "the path must cross the phase wrap often ({wraps})");
+    assert!(total > 10.0, "the path must actually animate (total {total} rad)");
+    // The steepest part of the set (40 deg of arm between fall keyframes 15 deg of lean apart, and
+    // a 0.3 s behaviour blend) moves a joint by at most a few degrees per 3 ms step at these rates.
+    assert!(worst < 4f64.to_radians(), "a joint turned {} deg in one step", worst.to_degrees());
+}
+
+#[test]
+fn the_pose_wraps_smoothly_at_the_walk_phase_boundary() {
+    let set = KeyframeSet::builtin();
+    let n = set.joints.len();
+    let (mut a, mut b) = (Pose::default(), Pose::default());
+    for theta_x in [0.0, 0.3, 0.52, -0.52, 0.7] {
+        for theta_z in [0.0, 0.2, -0.43] {
+            let q = QPoint { theta_x, theta_z, d_x: 0.3, ..QPoint::default() };
+            set.pose(&QPoint { d_z: 1.0 - 1e-9, ..q }, &mut a);
+            set.pose(&QPoint { d_z: 0.0, ..q }, &mut b);
+            assert!(a.max_angle_to(&b, n) < 1e-6, "front phase wrap at {theta_x} {theta_z}");
+            set.pose(&QPoint { d_x: 1.0 - 1e-9, d_z: 0.4, ..q }, &mut a);
+            set.pose(&QPoint { d_x: 0.0, d_z: 0.4, ..q }, &mut b);
+            assert!(a.max_angle_to(&b, n) < 1e-6, "side phase wrap at {theta_x} {theta_z}");
+        }
+    }
+}
+
+#[test]
+fn a_keyframe_off_the_planes_is_located_and_explained() {
+    let text = spidar_sim::character::keyframe::KEYFRAMES_HUMANOID_RON.replacen(
+        "line: (theta_x_deg: 30.0)",
+        "line: (theta_x_deg: 30.0, theta_z_deg: 10.0)",
+        1,
+    );
+    let e = KeyframeSet::parse(&text, "k.ron").unwrap_err().to_string();
+    assert!(e.starts_with("k.ron:") && e.contains("front plane"), "{e}");
+    let text = spidar_sim::character::keyframe::KEYFRAMES_HUMANOID_RON.replacen(
+        "\"l_knee\": (",
+        "\"l_knee2\": (",
+        1,
+    );
+    let e = KeyframeSet::parse(&text, "k.ron").unwrap_err().to_string();
+    assert!(e.contains("no joint \"l_knee2\""), "{e}");
+}
+
+// ---- determinism ----
+
+/// A wandering crowd with random pushes: the same seed gives the same motion, bit for bit, and
+/// its digest is pinned.
+#[test]
+fn the_same_seed_gives_the_same_crowd_motion() {
+    fn run(seed: u64) -> (u64, usize) {
+        let mut c = crowd();
+        c.seed(seed);
+        c.wander = Some([-4.0, -4.0, 4.0, 4.0]);
+        let mut rng = Pcg64::seed_from_u64(seed);
+        for i in 0..30 {
+            c.add(
+                (i % 6) as f64 * 1.3 - 3.0,
+                (i / 6) as f64 * 1.3 - 3.0,
+                rng.random_range(-3.0..3.0),
+                Goal::Stand,
+            );
+        }
+        let mut falls = 0;
+        for k in 0..3000 {
+            if k % 100 == 50 {
+                let i = rng.random_range(0..c.len());
+                let b = c.body_space(i);
+                let dir = DVec3::new(rng.random_range(-1.0..1.0), 0.0, rng.random_range(-1.0..1.0));
+                c.add_impulse_at(i, b.r_m + DVec3::Y * rng.random_range(0.0..0.6), dir.normalize() * 110.0);
+            }
+            c.step();
+            falls += c.chars.iter().filter(|ch| ch.control.policy == Policy::Fall).count();
+        }
+        (c.digest(), falls)
+    }
+    let (a, falls) = run(2);
+    assert_eq!(a, run(2).0);
+    assert_ne!(a, run(3).0);
+    assert!(falls > 0, "the pushes should topple someone");
+    assert_eq!(a, 0xd83b_1b33_d8b5_18f1, "digest changed: {a:#018x}");
 }
