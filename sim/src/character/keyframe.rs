@@ -11,9 +11,9 @@
 //! form a *row*: a closed loop over the walk phase D in [0, 1) (a row with one keyframe is the same
 //! pose at every phase). The pose in a plane is the phase-interpolation of the two rows whose leans
 //! bracket the point, blended linearly by lean (held beyond the outermost rows). The two planes are
-//! combined as offsets from their shared origin keyframe: `q = q_front * q_origin^-1 * q_side` per
-//! joint, so a point of either plane gets exactly that plane's pose. Rotations are blended as unit
-//! quaternions (normalised weighted sums, signs aligned), never as angles; the root offset linearly.
+//! combined as offsets from their shared origin keyframe, `q = q_front * blend(q_origin^-1 q_side)`
+//! per joint (the side keyframes are stored as offsets), so a point of either plane gets exactly
+//! that plane's pose. Rotations are blended as unit quaternions (normalised weighted sums, signs aligned), never as angles; the root offset linearly.
 //! Behaviours are categorical and all adjacent (section 5.2): a change of B is a short blend in time
 //! between the two behaviours' poses at the current point, so the pose never jumps.
 //!
@@ -24,7 +24,7 @@
 
 use std::collections::BTreeMap;
 
-use glam::{DQuat, DVec3};
+use glam::{DVec3, Quat, Vec3};
 use serde::Deserialize;
 use spidar_config as config;
 
@@ -32,7 +32,7 @@ use crate::spatial::quat_exp;
 use crate::SimError;
 
 /// Most joints a skeleton may have.
-pub const MAX_JOINTS: usize = 24;
+pub const MAX_JOINTS: usize = 16;
 
 /// The built-in evaluation set of section 6.1.
 pub const KEYFRAMES_HUMANOID_RON: &str = include_str!("../../../configs/keyframes-humanoid.ron");
@@ -53,22 +53,32 @@ pub struct QPoint {
 
 /// A skeleton pose in the body frame `S_r`: each joint's rotation relative to its parent (at rest
 /// all joint frames are aligned with `S_r`), and the root joint's offset from its rest position.
+/// Single precision: a pose is for display (the physics is all f64), and f32 quaternions blend
+/// four at a time in SIMD registers, which is what makes posing thousands of characters cheap.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
-    pub rot: [DQuat; MAX_JOINTS],
-    pub root_m: DVec3,
+    pub rot: [Quat; MAX_JOINTS],
+    pub root_m: Vec3,
 }
 
 impl Default for Pose {
     fn default() -> Self {
-        Pose { rot: [DQuat::IDENTITY; MAX_JOINTS], root_m: DVec3::ZERO }
+        Pose { rot: [Quat::IDENTITY; MAX_JOINTS], root_m: Vec3::ZERO }
     }
 }
 
 impl Pose {
-    /// Largest rotation angle between two poses over the first `n` joints (rad).
+    /// Largest rotation angle between two poses over the first `n` joints (rad), from the chord
+    /// `|a - b| = 2 sin(angle / 4)` (well conditioned for nearly equal rotations, unlike acos).
     pub fn max_angle_to(&self, o: &Pose, n: usize) -> f64 {
-        (0..n).map(|j| self.rot[j].angle_between(o.rot[j])).fold(0.0, f64::max)
+        (0..n)
+            .map(|j| {
+                let (a, b) = (self.rot[j].as_dquat(), o.rot[j].as_dquat());
+                let b = if a.dot(b) < 0.0 { -b } else { b };
+                let chord = (a - b).length();
+                4.0 * (0.5 * chord).min(1.0).asin()
+            })
+            .fold(0.0, f64::max)
     }
 }
 
@@ -173,9 +183,6 @@ struct Plane {
 struct Subspace {
     front: Plane,
     side: Plane,
-    /// Inverse of the origin pose's rotations (the side plane's offsets are taken from it).
-    origin_inv: [DQuat; MAX_JOINTS],
-    origin_root_m: DVec3,
 }
 
 /// A keyframe as it was placed in Q, for tests and tools.
@@ -359,7 +366,7 @@ impl KeyframeSet {
                 if !in_front && !in_side {
                     return Err(err(text, origin, &kf, "at", occ, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
                 }
-                let mut pose = Pose { root_m: k.root_m, ..Pose::default() };
+                let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
                 for (name, rv) in &k.pose {
                     let Some(j) = joints.iter().position(|j| &j.name == name) else {
                         return Err(err(
@@ -381,7 +388,7 @@ impl KeyframeSet {
                             format!("joint {name:?} has a non-finite rotation"),
                         ));
                     }
-                    pose.rot[j] = quat_exp(*rv * (std::f64::consts::PI / 180.0));
+                    pose.rot[j] = quat_exp(*rv * (std::f64::consts::PI / 180.0)).as_quat();
                 }
                 if let Some(o) = keys.iter().find(|o: &&PlacedKey| same_point(&o.at, &at)) {
                     if o.pose != pose {
@@ -420,11 +427,25 @@ impl KeyframeSet {
                 return Err(err(text, origin, "animations", "animations", 0, format!("behaviour {:?} has side-plane keyframes, so it needs keyframes in the front plane and one at the origin (all leans and phases 0) that both planes share", f.behaviours[b])));
             }
             let o = origin_key.map(|k| k.pose).unwrap_or_default();
-            let mut origin_inv = [DQuat::IDENTITY; MAX_JOINTS];
+            let mut origin_inv = [Quat::IDENTITY; MAX_JOINTS];
             for j in 0..MAX_JOINTS {
                 origin_inv[j] = o.rot[j].inverse();
             }
-            sub.push(Subspace { front, side, origin_inv, origin_root_m: o.root_m });
+            // The side plane keeps its keyframes as offsets from the origin, `q_origin^-1 q_side`,
+            // so posing blends offsets and applies them with one product per joint.
+            let mut side = side;
+            if !front.rows.is_empty() {
+                for row in &mut side.rows {
+                    for k in &mut row.keys {
+                        for j in 0..MAX_JOINTS {
+                            let q = origin_inv[j].as_dquat() * k.pose.rot[j].as_dquat();
+                            k.pose.rot[j] = q.normalize().as_quat();
+                        }
+                        k.pose.root_m -= o.root_m;
+                    }
+                }
+            }
+            sub.push(Subspace { front, side });
         }
         Ok(KeyframeSet {
             name: f.name,
@@ -443,21 +464,27 @@ impl KeyframeSet {
     pub fn pose(&self, q: &QPoint, out: &mut Pose) {
         let n = self.joints.len();
         let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
-        if s.side.rows.is_empty() {
-            s.front.eval(q.theta_x, q.d_z, n, out);
+        if s.side.rows.is_empty() || s.front.rows.is_empty() {
+            let w = if s.side.rows.is_empty() {
+                s.front.weights(q.theta_x, q.d_z)
+            } else {
+                s.side.weights(q.theta_z, q.d_x)
+            };
+            out.root_m = root4(&w);
+            let w32 = weights32(&w);
+            for j in 0..n {
+                out.rot[j] = blend4(&w, &w32, j).normalize();
+            }
             return;
         }
-        if s.front.rows.is_empty() {
-            s.side.eval(q.theta_z, q.d_x, n, out);
-            return;
-        }
-        let mut side = Pose::default();
-        s.front.eval(q.theta_x, q.d_z, n, out);
-        s.side.eval(q.theta_z, q.d_x, n, &mut side);
+        let f = s.front.weights(q.theta_x, q.d_z);
+        let d = s.side.weights(q.theta_z, q.d_x);
+        out.root_m = root4(&f) + root4(&d);
+        let (f32w, d32w) = (weights32(&f), weights32(&d));
         for j in 0..n {
-            out.rot[j] = (out.rot[j] * (s.origin_inv[j] * side.rot[j])).normalize();
+            // Normalising once at the end is enough: a product of unnormalised quaternions scales.
+            out.rot[j] = (blend4(&f, &f32w, j) * blend4(&d, &d32w, j)).normalize();
         }
-        out.root_m += side.root_m - s.origin_root_m;
     }
 
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
@@ -470,9 +497,9 @@ impl KeyframeSet {
         self.pose(&QPoint { behaviour: from, ..*q }, &mut other);
         let n = self.joints.len();
         for j in 0..n {
-            out.rot[j] = nlerp2(other.rot[j], 1.0 - w, out.rot[j], w);
+            out.rot[j] = nlerp2(other.rot[j], 1.0 - w as f32, out.rot[j], w as f32);
         }
-        out.root_m = other.root_m * (1.0 - w) + out.root_m * w;
+        out.root_m = other.root_m * (1.0 - w as f32) + out.root_m * w as f32;
     }
 
     pub fn behaviour_index(&self, name: &str) -> Option<u8> {
@@ -503,29 +530,26 @@ impl Plane {
         keys.insert(at, Key { phase, pose });
     }
 
-    fn eval(&self, lean: f64, phase: f64, n: usize, out: &mut Pose) {
+    /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
+    #[inline]
+    fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
         let rows = &self.rows;
         let hi = rows.partition_point(|r| r.lean <= lean);
         if hi == 0 || hi == rows.len() {
             let r = &rows[if hi == 0 { 0 } else { rows.len() - 1 }];
             let (k0, k1, t) = r.bracket(phase);
-            blend(&[(&k0.pose, 1.0 - t), (&k1.pose, t)], n, out);
-            return;
+            return [(&k0.pose, 1.0 - t), (&k1.pose, t), (&k0.pose, 0.0), (&k0.pose, 0.0)];
         }
         let (r0, r1) = (&rows[hi - 1], &rows[hi]);
         let u = (lean - r0.lean) / (r1.lean - r0.lean);
         let (a0, a1, ta) = r0.bracket(phase);
         let (b0, b1, tb) = r1.bracket(phase);
-        blend(
-            &[
-                (&a0.pose, (1.0 - u) * (1.0 - ta)),
-                (&a1.pose, (1.0 - u) * ta),
-                (&b0.pose, u * (1.0 - tb)),
-                (&b1.pose, u * tb),
-            ],
-            n,
-            out,
-        );
+        [
+            (&a0.pose, (1.0 - u) * (1.0 - ta)),
+            (&a1.pose, (1.0 - u) * ta),
+            (&b0.pose, u * (1.0 - tb)),
+            (&b1.pose, u * tb),
+        ]
     }
 }
 
@@ -549,32 +573,39 @@ impl Row {
     }
 }
 
-/// Weighted blend of poses: rotations as normalised quaternion sums (signs aligned with the
-/// heaviest), root offsets linearly. Weights sum to 1.
+/// Weights in single precision and the index of the heaviest (the sign reference).
 #[inline]
-fn blend(items: &[(&Pose, f64)], n: usize, out: &mut Pose) {
-    let heavy = items.iter().enumerate().fold(0, |best, (i, x)| if x.1 > items[best].1 { i } else { best });
-    out.root_m = DVec3::ZERO;
-    for (p, w) in items {
-        out.root_m += p.root_m * *w;
-    }
-    for j in 0..n {
-        let r = items[heavy].0.rot[j];
-        let mut acc = DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0);
-        for (p, w) in items {
-            if *w == 0.0 {
-                continue;
-            }
-            let q = p.rot[j];
-            let q = if q.dot(r) < 0.0 { -q } else { q };
-            acc = acc + q * *w;
+fn weights32(w: &[(&Pose, f64); 4]) -> ([f32; 4], usize) {
+    let mut heavy = 0;
+    for i in 1..4 {
+        if w[i].1 > w[heavy].1 {
+            heavy = i;
         }
-        out.rot[j] = acc.normalize();
     }
+    ([w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32], heavy)
+}
+
+/// Weighted sum of one joint's rotations (signs aligned with the heaviest), not normalised.
+#[inline]
+fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
+    let r = w[*heavy].0.rot[j];
+    let mut acc = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+    for i in 0..4 {
+        let q = w[i].0.rot[j];
+        let s = if q.dot(r) < 0.0 { -wt[i] } else { wt[i] };
+        acc += q * s;
+    }
+    acc
 }
 
 #[inline]
-fn nlerp2(a: DQuat, wa: f64, b: DQuat, wb: f64) -> DQuat {
+fn root4(w: &[(&Pose, f64); 4]) -> Vec3 {
+    let r = |i: usize| w[i].0.root_m * w[i].1 as f32;
+    r(0) + r(1) + r(2) + r(3)
+}
+
+#[inline]
+fn nlerp2(a: Quat, wa: f32, b: Quat, wb: f32) -> Quat {
     let b = if a.dot(b) < 0.0 { -b } else { b };
     (a * wa + b * wb).normalize()
 }

@@ -40,7 +40,14 @@ impl Heading {
         if n < 1e-9 {
             return Heading::from_angle(0.0);
         }
-        Heading::from_angle(2.0 * rot.y.atan2(rot.w))
+        // Half-angle cosine and sine of the twist give the axes without more trigonometry.
+        let (c, s) = (rot.w / n, rot.y / n);
+        let (sin, cos) = (2.0 * s * c, c * c - s * s);
+        Heading {
+            theta_y: 2.0 * s.atan2(c),
+            e_xc: DVec3::new(cos, 0.0, -sin),
+            e_zc: DVec3::new(sin, 0.0, cos),
+        }
     }
 
     /// World horizontal vector from heading-frame components (x: side, z: front).
@@ -126,7 +133,7 @@ mod tests {
         close(b.theta_y, 0.7);
         // Lying face down (head toward the front) is +pi/2, face up -pi/2.
         let b = BodySpace::new(
-            yaw * DQuat::from_rotation_x(1.5707963267948966),
+            yaw * DQuat::from_rotation_x(std::f64::consts::FRAC_PI_2),
             DVec3::ZERO,
             DVec3::ZERO,
             DVec3::ZERO,
