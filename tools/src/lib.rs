@@ -3,5 +3,6 @@
 //! The binary (`main.rs`) only parses arguments and calls into here.
 
 pub mod bench;
+pub mod eval_impacts;
 pub mod scene;
 pub mod session;

@@ -19,6 +19,7 @@ pub mod ai;
 pub mod controller;
 pub mod crowd;
 pub mod keyframe;
+pub mod scene;
 pub mod space;
 
 use glam::{DQuat, DVec3};
