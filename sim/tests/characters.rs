@@ -326,3 +326,31 @@ fn the_same_seed_gives_the_same_crowd_motion() {
     assert!(falls > 0, "the pushes should topple someone");
     assert_eq!(a, 0xadb3_353d_f435_d73f, "digest changed: {a:#018x}");
 }
+
+// ---- the crowd scene file ----
+
+#[test]
+fn the_shipped_crowd_scene_loads_from_disk_and_walks() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/scene-crowd.ron");
+    let mut c = spidar_sim::character::scene::load_crowd(std::path::Path::new(path)).unwrap();
+    assert_eq!(c.len(), 8);
+    let start: Vec<DVec3> = (0..c.len()).map(|i| c.body_space(i).r_m).collect();
+    steps(&mut c, 20.0);
+    for (i, s) in start.iter().enumerate() {
+        let b = c.body_space(i);
+        assert!(b.r_m.is_finite());
+        assert!((b.r_m - *s).length() > 0.3, "character {i} did not walk");
+        let a = [-2.4, -4.0, 2.4, -0.5];
+        assert!(b.r_m.x > a[0] - 1.0 && b.r_m.x < a[2] + 1.0 && b.r_m.z > a[1] - 1.0 && b.r_m.z < a[3] + 1.0);
+    }
+}
+
+#[test]
+fn a_bad_controller_setting_in_the_crowd_scene_is_located() {
+    use spidar_sim::character::scene::{build_crowd, SCENE_CROWD_RON};
+    let text = SCENE_CROWD_RON.replacen("fall_angle_deg: 35.0", "fall_angle_deg: 95.0", 1);
+    let e = build_crowd(&text, "s.ron", |_| unreachable!()).unwrap_err().to_string();
+    let line = text.lines().position(|l| l.contains("fall_angle_deg: 95.0")).unwrap() + 1;
+    assert!(e.starts_with(&format!("s.ron:{line}:")), "{e}");
+    assert!(e.contains("character.controller.fall_angle_deg") && e.contains("between"), "{e}");
+}

@@ -16,6 +16,9 @@ use spidar_tools::scene::walls::WallsScene;
 use spidar_tools::scene::Scene;
 use spidar_tools::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 
+#[path = "hil/crowd.rs"]
+mod crowd;
+
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.
 

@@ -257,10 +257,10 @@ pub fn eval_impacts(
     }
     // Scale each feature by its spread over the practice set.
     let mut scale = [0.0; 9];
-    for f in 0..9 {
+    for (f, sc) in scale.iter_mut().enumerate() {
         let m = practice.iter().map(|p| p.0.v[f]).sum::<f64>() / practice.len() as f64;
         let var = practice.iter().map(|p| (p.0.v[f] - m).powi(2)).sum::<f64>() / practice.len() as f64;
-        scale[f] = 1.0 / var.sqrt().max(1e-6);
+        *sc = 1.0 / var.sqrt().max(1e-6);
     }
     let mut errs: [Vec<f64>; 4] = Default::default();
     let mut patterns = BTreeSet::new();

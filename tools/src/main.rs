@@ -88,7 +88,8 @@ struct RunArgs {
     /// Which device drives the rig.
     #[arg(long, value_enum, default_value = "sim")]
     device: DeviceKind,
-    /// Scene behind the loop: `walls` (the rig check) or a scene file (.ron).
+    /// Scene behind the loop: `walls` (the rig check), `crowd` (keyframe characters to push) or a
+    /// scene file (.ron).
     #[arg(long, default_value = "walls")]
     scene: String,
     /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).

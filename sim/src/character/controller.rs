@@ -135,8 +135,8 @@ impl Default for ControllerParams {
 }
 
 impl ControllerParams {
-    /// Checks the settings; the message names the field and what to do.
-    pub fn check(&self) -> Result<(), String> {
+    /// Checks the settings: an error gives the field and what to do.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
         let positive = [
             ("base_to_com_m", self.base_to_com_m),
             ("lean_inertia_kg_m2", self.lean_inertia_kg_m2),
@@ -148,7 +148,7 @@ impl ControllerParams {
         ];
         for (name, v) in positive {
             if !(v > 0.0 && v.is_finite()) {
-                return Err(format!("{name} must be a positive number, got {v}"));
+                return Err((name, format!("must be a positive number, got {v}")));
             }
         }
         let non_negative = [
@@ -171,16 +171,19 @@ impl ControllerParams {
         ];
         for (name, v) in non_negative {
             if !(v >= 0.0 && v.is_finite()) {
-                return Err(format!("{name} must be >= 0, got {v}"));
+                return Err((name, format!("must be >= 0, got {v}")));
             }
         }
         if self.leg_force_min_n > self.leg_force_max_n {
-            return Err("leg_force_min_n must not exceed leg_force_max_n".into());
+            return Err(("leg_force_min_n", "must not exceed leg_force_max_n".into()));
         }
         if !(self.fall_angle_deg > self.stand_done_deg && self.fall_angle_deg < 90.0) {
-            return Err(format!(
-                "fall_angle_deg must be between stand_done_deg ({}) and 90, got {}",
-                self.stand_done_deg, self.fall_angle_deg
+            return Err((
+                "fall_angle_deg",
+                format!(
+                    "must be between stand_done_deg ({}) and 90, got {}",
+                    self.stand_done_deg, self.fall_angle_deg
+                ),
             ));
         }
         Ok(())

@@ -105,7 +105,10 @@ pub fn build_crowd(
             "friction must be >= 0 and slip_m_per_s > 0".into(),
         ));
     }
-    f.character.controller.check().map_err(|m| err(text, origin, "character.controller", "controller", m))?;
+    f.character
+        .controller
+        .check()
+        .map_err(|(field, m)| err(text, origin, &format!("character.controller.{field}"), field, m))?;
     let a = f.crowd.area_m;
     if !(a[2] > a[0] && a[3] > a[1]) {
         return Err(err(
