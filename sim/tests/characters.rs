@@ -1,6 +1,8 @@
 //! Tests of the keyframe characters (seed 002): balance, pushes, falls and standing up on the crowd
 //! stepper and in the general engine; the keyframe set's interpolation; determinism.
 
+mod alloc_count;
+
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -353,4 +355,28 @@ fn a_bad_controller_setting_in_the_crowd_scene_is_located() {
     let line = text.lines().position(|l| l.contains("fall_angle_deg: 95.0")).unwrap() + 1;
     assert!(e.starts_with(&format!("s.ron:{line}:")), "{e}");
     assert!(e.contains("character.controller.fall_angle_deg") && e.contains("between"), "{e}");
+}
+
+/// After the first step a crowd step (AI, controllers, contacts, grid, integration, posing)
+/// allocates nothing, even while the crowd spreads out and characters fall.
+#[test]
+fn crowd_steps_do_not_allocate() {
+    let mut c = crowd();
+    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
+    for i in 0..25 {
+        c.add((i % 5) as f64 * 1.5 - 3.0, (i / 5) as f64 * 1.5 - 3.0, i as f64, Goal::Stand);
+    }
+    c.step();
+    c.wander = Some([-30.0, -30.0, 30.0, 30.0]);
+    let n = alloc_count::count(|| {
+        for k in 0..2000 {
+            if k % 100 == 0 {
+                let b = c.body_space(k / 100);
+                c.add_impulse_at(k / 100, b.r_m + DVec3::Y * 0.6, DVec3::X * 100.0);
+            }
+            c.step();
+        }
+    });
+    assert_eq!(n, 0, "{n} allocations in 2000 crowd steps");
+    assert!(alloc_count::count(|| drop(vec![1u8; 10])) > 0);
 }

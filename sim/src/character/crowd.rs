@@ -492,18 +492,30 @@ impl Crowd {
             return;
         }
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for s in &self.bodies {
+        // A body with a non-finite position (a broken state) goes to cell 0 and does not size the grid.
+        for s in self.bodies.iter().filter(|s| s.pos_m.is_finite()) {
             lo = lo.min(s.pos_m);
             hi = hi.max(s.pos_m);
         }
-        let cs = self.cell_size();
-        // A runaway character far away must not make the grid huge: cap its size, clamping cells.
-        let nx = (((hi.x - lo.x) / cs) as usize + 1).clamp(1, 4096);
-        let nz = (((hi.z - lo.z) / cs) as usize + 1).clamp(1, 4096);
-        let cells = nx * nz;
-        if self.cell_start.len() < cells + 1 {
-            self.cell_start.resize(cells + 1, 0);
+        // The grid's buffer is sized once (at least four cells per character); when the crowd
+        // spreads wider, the cells grow instead of the buffer, so stepping never allocates. Larger
+        // cells only test more pairs; they never miss one.
+        if self.cell_start.is_empty() {
+            let cs = self.cell_size();
+            let cells = (((hi.x - lo.x) / cs) as usize + 1) * (((hi.z - lo.z) / cs) as usize + 1);
+            self.cell_start.resize(cells.clamp(4 * n, 1 << 22) + 1, 0);
         }
+        let mut cs = self.cell_size();
+        let (mut nx, mut nz);
+        loop {
+            nx = (((hi.x - lo.x) / cs) as usize).saturating_add(1);
+            nz = (((hi.z - lo.z) / cs) as usize).saturating_add(1);
+            if nx.saturating_mul(nz) < self.cell_start.len() {
+                break;
+            }
+            cs *= 1.5;
+        }
+        let cells = nx * nz;
         self.cell_start[..cells + 1].fill(0);
         for i in 0..n {
             let p = self.bodies[i].pos_m;
