@@ -271,14 +271,14 @@ impl ControllerState {
         t: &Targets,
     ) -> Drive {
         self.in_policy_s += dt_s;
-        let tilt = b.tilt();
-        let fall = p.fall_angle_deg.to_radians();
+        // Lean from the vertical compared by its cosine (the trunk axis's height), no acos.
+        let cos_tilt = b.e_yr.y;
         let (v_side, v_front) = b.velocity_sc();
         let speed = (v_side * v_side + v_front * v_front).sqrt();
         let spin = DVec3::new(b.theta_x_dot, b.theta_y_dot, b.theta_z_dot).length();
         // Fig. 3 transitions.
         match self.policy {
-            Policy::Balance if tilt > fall => self.enter(Policy::Fall),
+            Policy::Balance if cos_tilt < p.fall_angle_deg.to_radians().cos() => self.enter(Policy::Fall),
             Policy::Fall | Policy::Down => {
                 if speed < p.stop_speed_m_per_s && spin < p.stop_spin_rad_per_s && ground.normal_n > 0.0 {
                     self.still_s += dt_s;
@@ -296,7 +296,7 @@ impl ControllerState {
             }
             Policy::StandUp => {
                 let rates = (b.theta_x_dot * b.theta_x_dot + b.theta_z_dot * b.theta_z_dot).sqrt();
-                if tilt < p.stand_done_deg.to_radians() && rates < 1.0 {
+                if cos_tilt > p.stand_done_deg.to_radians().cos() && rates < 1.0 {
                     self.enter(Policy::Balance);
                 } else if self.in_policy_s > p.stand_timeout_s || !t.may_stand_up {
                     self.enter(Policy::Fall);

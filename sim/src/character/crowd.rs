@@ -9,7 +9,8 @@
 //! (`contact::penalty_force`, with the stability bound at the contact's effective mass), the same
 //! semi-implicit Euler with the same free-joint coordinates (angular velocity in the body frame,
 //! linear velocity in the world), and the same controller, AI and animation as
-//! `Character::drive_engine`. One character in both gives the same motion (tested to 1e-9 m).
+//! `Character::drive_engine`. One character in both gives the same motion (tested: within 1e-6 m
+//! over 7.5 s of standing, a push, a fall and standing up; the two differ only in rounding).
 //!
 //! What it leaves out: articulations, joint springs, contact records (only per-character floor
 //! summaries are kept), collision groups. Static scenery is a short list of shapes checked against
@@ -442,6 +443,8 @@ impl Crowd {
     #[inline(never)]
     fn scenery_contacts(&mut self) {
         let h = self.world.dt_s;
+        // One scratch buffer for the whole pass (a fresh copy per shape pair would be 448 bytes).
+        let mut hits = self.hits;
         for i in 0..self.len() {
             for k in 0..self.body.shapes.len() {
                 let (shape, _, bound) = self.body.shapes[k];
@@ -457,7 +460,6 @@ impl Crowd {
                     if far {
                         continue;
                     }
-                    let mut hits = self.hits;
                     let nh = collide(&shape, &pose, &ss, &sp, &mut hits);
                     if nh == 0 {
                         continue;
@@ -607,13 +609,13 @@ impl Crowd {
                 if (pa.pos_m - pb.pos_m).length_squared() > (ra + rb) * (ra + rb) {
                     continue;
                 }
-                let mut hits = self.hits;
-                let nh = collide(&sa, &pa, &sb, &pb, &mut hits);
+                let nh = collide(&sa, &pa, &sb, &pb, &mut self.hits);
                 if nh == 0 {
                     continue;
                 }
                 let share = 1.0 / nh as f64;
-                for hit in hits.iter().take(nh) {
+                for hi in 0..nh {
+                    let hit = &{ self.hits[hi] };
                     let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal)
                         + self.inv_mass_along(j, hit.point_m, hit.normal);
                     let vrel = self.vel_at(i, hit.point_m) - self.vel_at(j, hit.point_m);
