@@ -21,6 +21,17 @@
 //! solved from (3) with the torque at its bound): that is the character stepping in the direction
 //! it was pushed. When neither can hold the lean it falls.
 //!
+//! The state machine (Fig. 3's figure is not in the text available to us; these transitions follow
+//! sections 4.2 and 6.1):
+//!
+//! ```text
+//! Balance --lean > fall_angle--> Fall --slow and still for settle_s--> Down
+//! Down --still, and the AI allows it (not on its side, not sliding)--> StandUp
+//! Down --moving again--> Fall
+//! StandUp --lean < stand_done--> Balance
+//! StandUp --timeout, or the AI forbids it--> Fall
+//! ```
+//!
 //! Must never: allocate, apply a force when the body does not touch the floor, or exceed the
 //! bounds above.
 
