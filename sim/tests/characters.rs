@@ -191,6 +191,8 @@ fn the_shipped_set_is_the_papers_evaluation_set() {
     assert_eq!(set.animations, 12);
     assert_eq!(set.keys.len(), 57);
     assert_eq!(set.behaviours, vec!["walking and falling", "standing up"]);
+    // Its quaternions are stored so that posing needs no sign tests (a speed matter only).
+    assert_eq!(set.aligned_planes(), (4, 4));
     // Standing-up keyframes are all on the (Theta_z = 0, D_x = 0, D_z = 0) line (section 6.1).
     for k in set.keys.iter().filter(|k| k.at.behaviour == 1) {
         assert!(k.at.theta_z == 0.0 && k.at.d_x == 0.0 && k.at.d_z == 0.0, "{:?}", k.at);

@@ -319,18 +319,18 @@ impl Crowd {
     /// One step: AI and controllers, contacts, integration, then every character's pose.
     pub fn step(&mut self) {
         self.stats = CrowdStats::default();
-        self.think_all();
-        self.scenery_contacts();
+        self.per_character();
         self.build_grid();
         self.pair_contacts();
         self.integrate_all();
-        self.pose_all();
     }
 
-    /// Character AI and controllers, on the floor contacts of the last step (like the engine).
+    /// Everything that concerns one character alone, done while its data is in cache: AI and
+    /// controller (on the floor contacts of the last step, like the engine), contacts with the
+    /// scenery, and its pose at the point of Q its state at the start of the step maps to.
     // The phases stay separate functions so a profile shows each one.
     #[inline(never)]
-    fn think_all(&mut self) {
+    fn per_character(&mut self) {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
@@ -352,6 +352,8 @@ impl Crowd {
             self.ground_n[i] = 0.0;
             self.ground_moment[i] = DVec3::ZERO;
             self.cache(i, &b);
+            self.scenery_contacts(i);
+            self.chars[i].anim.pose(&b, &self.set, &mut self.poses[i]);
         }
     }
 
@@ -379,14 +381,6 @@ impl Crowd {
         }
         self.time_s += h;
         self.steps += 1;
-    }
-
-    /// Every character's pose at the point of Q its state at the start of the step maps to.
-    #[inline(never)]
-    fn pose_all(&mut self) {
-        for i in 0..self.len() {
-            self.chars[i].anim.pose(&self.spaces[i], &self.set, &mut self.poses[i]);
-        }
     }
 
     /// Fills the per-step caches of character `i` (its state is fixed until integration).
@@ -440,43 +434,40 @@ impl Crowd {
         self.bodies[i].vel_m_per_s + self.w_world[i].cross(p - self.bodies[i].pos_m)
     }
 
-    #[inline(never)]
-    fn scenery_contacts(&mut self) {
+    /// Contacts of character `i` with the scenery (its caches must be filled).
+    #[inline]
+    fn scenery_contacts(&mut self, i: usize) {
         let h = self.world.dt_s;
-        // One scratch buffer for the whole pass (a fresh copy per shape pair would be 448 bytes).
         let mut hits = self.hits;
-        for i in 0..self.len() {
-            for k in 0..self.body.shapes.len() {
-                let (shape, _, bound) = self.body.shapes[k];
-                let pose = self.shape_pose[i * self.body.shapes.len() + k];
-                for si in 0..self.statics.len() {
-                    let (ss, sp) = self.statics[si];
-                    let far = match ss {
-                        Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > bound,
-                        _ => {
-                            (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2)
-                        }
-                    };
-                    if far {
-                        continue;
+        let ns = self.body.shapes.len();
+        for k in 0..ns {
+            let (shape, _, bound) = self.body.shapes[k];
+            let pose = self.shape_pose[i * ns + k];
+            for si in 0..self.statics.len() {
+                let (ss, sp) = self.statics[si];
+                let far = match ss {
+                    Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > bound,
+                    _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2),
+                };
+                if far {
+                    continue;
+                }
+                let nh = collide(&shape, &pose, &ss, &sp, &mut hits);
+                if nh == 0 {
+                    continue;
+                }
+                let share = 1.0 / nh as f64;
+                for hit in hits.iter().take(nh) {
+                    let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal);
+                    let vrel = self.vel_at(i, hit.point_m);
+                    let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
+                    self.apply_hit(i, hit, f);
+                    if hit.normal.y >= 0.7 {
+                        let fn_ = f.dot(hit.normal).max(0.0);
+                        self.ground_n[i] += fn_;
+                        self.ground_moment[i] += hit.point_m * fn_;
                     }
-                    let nh = collide(&shape, &pose, &ss, &sp, &mut hits);
-                    if nh == 0 {
-                        continue;
-                    }
-                    let share = 1.0 / nh as f64;
-                    for hit in hits.iter().take(nh) {
-                        let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal);
-                        let vrel = self.vel_at(i, hit.point_m);
-                        let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
-                        self.apply_hit(i, hit, f);
-                        if hit.normal.y >= 0.7 {
-                            let fn_ = f.dot(hit.normal).max(0.0);
-                            self.ground_n[i] += fn_;
-                            self.ground_moment[i] += hit.point_m * fn_;
-                        }
-                        self.stats.scenery_points += 1;
-                    }
+                    self.stats.scenery_points += 1;
                 }
             }
         }

@@ -177,6 +177,9 @@ struct Row {
 #[derive(Clone, Debug, Default)]
 struct Plane {
     rows: Vec<Row>,
+    /// Every pair of keyframes that can be blended together has its quaternions in the same
+    /// hemisphere for every joint, so blending needs no per-step sign test (see `align`).
+    aligned: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -445,6 +448,9 @@ impl KeyframeSet {
                     }
                 }
             }
+            let (mut front, mut side) = (front, side);
+            front.align(joints.len());
+            side.align(joints.len());
             sub.push(Subspace { front, side });
         }
         Ok(KeyframeSet {
@@ -471,7 +477,7 @@ impl KeyframeSet {
                 s.side.weights(q.theta_z, q.d_x)
             };
             out.root_m = root4(&w);
-            let w32 = weights32(&w);
+            let w32 = weights32(&w, if s.side.rows.is_empty() { s.front.aligned } else { s.side.aligned });
             for j in 0..n {
                 out.rot[j] = blend4(&w, &w32, j).normalize();
             }
@@ -480,7 +486,7 @@ impl KeyframeSet {
         let f = s.front.weights(q.theta_x, q.d_z);
         let d = s.side.weights(q.theta_z, q.d_x);
         out.root_m = root4(&f) + root4(&d);
-        let (f32w, d32w) = (weights32(&f), weights32(&d));
+        let (f32w, d32w) = (weights32(&f, s.front.aligned), weights32(&d, s.side.aligned));
         for j in 0..n {
             // Normalising once at the end is enough: a product of unnormalised quaternions scales.
             out.rot[j] = (blend4(&f, &f32w, j) * blend4(&d, &d32w, j)).normalize();
@@ -502,6 +508,12 @@ impl KeyframeSet {
         out.root_m = other.root_m * (1.0 - w as f32) + out.root_m * w as f32;
     }
 
+    /// Planes (front and side of every behaviour) whose keyframes blend without sign tests.
+    pub fn aligned_planes(&self) -> (usize, usize) {
+        let planes = self.sub.iter().flat_map(|s| [&s.front, &s.side]).filter(|p| !p.rows.is_empty());
+        planes.fold((0, 0), |(a, n), p| (a + p.aligned as usize, n + 1))
+    }
+
     pub fn behaviour_index(&self, name: &str) -> Option<u8> {
         self.behaviours.iter().position(|b| b == name).map(|i| i as u8)
     }
@@ -516,6 +528,38 @@ fn same_point(a: &QPoint, b: &QPoint) -> bool {
 }
 
 impl Plane {
+    /// Flips keyframe quaternions (q and -q are the same rotation) into the hemisphere of the
+    /// plane's first keyframe, joint by joint, and records whether that makes every blendable pair
+    /// (neighbours on a row, including across the wrap, and any two keyframes of adjacent rows)
+    /// agree in sign. Where it does not, posing keeps the sign test.
+    fn align(&mut self, n: usize) {
+        let Some(first) = self.rows.first().and_then(|r| r.keys.first()).map(|k| k.pose) else {
+            self.aligned = true;
+            return;
+        };
+        for row in &mut self.rows {
+            for k in &mut row.keys {
+                for j in 0..n {
+                    if k.pose.rot[j].dot(first.rot[j]) < 0.0 {
+                        k.pose.rot[j] = -k.pose.rot[j];
+                    }
+                }
+            }
+        }
+        let agree = |a: &Key, b: &Key| (0..n).all(|j| a.pose.rot[j].dot(b.pose.rot[j]) >= 0.0);
+        let mut ok = true;
+        for (r, row) in self.rows.iter().enumerate() {
+            let k = &row.keys;
+            for i in 0..k.len() {
+                ok &= agree(&k[i], &k[(i + 1) % k.len()]);
+            }
+            if let Some(next) = self.rows.get(r + 1) {
+                ok &= k.iter().all(|a| next.keys.iter().all(|b| agree(a, b)));
+            }
+        }
+        self.aligned = ok;
+    }
+
     fn insert(&mut self, lean: f64, phase: f64, pose: Pose) {
         let r = match self.rows.iter().position(|r| (r.lean - lean).abs() < SAME) {
             Some(r) => r,
@@ -573,21 +617,30 @@ impl Row {
     }
 }
 
-/// Weights in single precision and the index of the heaviest (the sign reference).
+/// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
+/// when the plane is pre-aligned and no sign test is needed).
 #[inline]
-fn weights32(w: &[(&Pose, f64); 4]) -> ([f32; 4], usize) {
+fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
+    let w32 = [w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32];
+    if aligned {
+        return (w32, usize::MAX);
+    }
     let mut heavy = 0;
     for i in 1..4 {
         if w[i].1 > w[heavy].1 {
             heavy = i;
         }
     }
-    ([w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32], heavy)
+    (w32, heavy)
 }
 
 /// Weighted sum of one joint's rotations (signs aligned with the heaviest), not normalised.
 #[inline]
 fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
+    if *heavy == usize::MAX {
+        let q = |i: usize| w[i].0.rot[j] * wt[i];
+        return q(0) + q(1) + q(2) + q(3);
+    }
     let r = w[*heavy].0.rot[j];
     let mut acc = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0);
     for i in 0..4 {
