@@ -19,8 +19,8 @@
 
 use glam::DVec3;
 
-use crate::collide::{collide, Shape};
-use crate::model::Model;
+use crate::collide::{collide, Hit, Shape};
+use crate::model::{Model, ShapePair};
 use crate::state::{Contact, Workspace, MAX_CONTACTS};
 
 /// Finds contacts for the current shape poses (`kinematics` must have run) and adds their
@@ -50,25 +50,10 @@ pub fn contacts(model: &Model, ws: &mut Workspace) -> usize {
             let hit = ws.hits[h_i];
             let inv_m = sa.body.map_or(0.0, |b| inv_mass_along(model, ws, b, hit.point_m, hit.normal))
                 + sb.body.map_or(0.0, |b| inv_mass_along(model, ws, b, hit.point_m, hit.normal));
-            let m_eff = 1.0 / inv_m;
-            let (k_max, d_max) = (m_eff * share / (h * h), 0.5 * m_eff * share / h);
-            let (mut ks, mut ds) = (pair.k_n_per_m * share, pair.d_n_s_per_m * share);
-            if ks > k_max || ds > d_max {
-                ks = ks.min(k_max);
-                ds = ds.min(d_max);
-                ws.contacts_softened += 1;
-            }
             let va = sa.body.map_or(DVec3::ZERO, |b| point_velocity_world(ws, b, hit.point_m));
             let vb = sb.body.map_or(DVec3::ZERO, |b| point_velocity_world(ws, b, hit.point_m));
-            let vrel = va - vb;
-            let vn = vrel.dot(hit.normal);
-            let fn_ = (ks * hit.depth_m - ds * vn).max(0.0);
-            let vt = vrel - hit.normal * vn;
-            let mu_fn = pair.friction * fn_;
-            let slip = model.contact.slip_m_per_s.max(mu_fn * h / m_eff);
-            let vt_len = vt.length();
-            let ft = if vt_len > 0.0 { -vt * (mu_fn / vt_len.max(slip)) } else { DVec3::ZERO };
-            let force = hit.normal * fn_ + ft;
+            let (force, softened) = penalty_force(&Penalty::of(pair, model), &hit, inv_m, share, h, va - vb);
+            ws.contacts_softened += softened as u64;
             if let Some(b) = sa.body {
                 ws.add_force_at(b, hit.point_m, force);
             }
@@ -94,9 +79,57 @@ pub fn contacts(model: &Model, ws: &mut Workspace) -> usize {
     ws.contacts.len()
 }
 
+/// The gains of one touching pair: what the penalty law needs besides the geometry.
+#[derive(Clone, Copy, Debug)]
+pub struct Penalty {
+    pub k_n_per_m: f64,
+    pub d_n_s_per_m: f64,
+    pub friction: f64,
+    /// The model's minimum slip speed.
+    pub slip_m_per_s: f64,
+}
+
+impl Penalty {
+    #[inline]
+    pub fn of(pair: &ShapePair, model: &Model) -> Penalty {
+        Penalty {
+            k_n_per_m: pair.k_n_per_m,
+            d_n_s_per_m: pair.d_n_s_per_m,
+            friction: pair.friction,
+            slip_m_per_s: model.contact.slip_m_per_s,
+        }
+    }
+}
+
+/// The penalty law for one contact point, shared by the engine and the crowd stepper
+/// (`character::crowd`) so both give the same force: `inv_m` is the summed inverse effective mass
+/// of the two bodies along the normal, `share` is `1 / points` of this pair, `h` the step and
+/// `vrel` the velocity of a's point relative to b's. Returns the force on a and whether the gains
+/// were softened to the stability bound.
+#[inline]
+pub fn penalty_force(p: &Penalty, hit: &Hit, inv_m: f64, share: f64, h: f64, vrel: DVec3) -> (DVec3, bool) {
+    let m_eff = 1.0 / inv_m;
+    let (k_max, d_max) = (m_eff * share / (h * h), 0.5 * m_eff * share / h);
+    let (mut ks, mut ds) = (p.k_n_per_m * share, p.d_n_s_per_m * share);
+    let mut softened = false;
+    if ks > k_max || ds > d_max {
+        ks = ks.min(k_max);
+        ds = ds.min(d_max);
+        softened = true;
+    }
+    let vn = vrel.dot(hit.normal);
+    let fn_ = (ks * hit.depth_m - ds * vn).max(0.0);
+    let vt = vrel - hit.normal * vn;
+    let mu_fn = p.friction * fn_;
+    let slip = p.slip_m_per_s.max(mu_fn * h / m_eff);
+    let vt_len = vt.length();
+    let ft = if vt_len > 0.0 { -vt * (mu_fn / vt_len.max(slip)) } else { DVec3::ZERO };
+    (hit.normal * fn_ + ft, softened)
+}
+
 /// Inverse of the effective mass of a free rigid body pushed at world point `p` along `n`.
 #[inline]
-fn inv_mass_along(model: &Model, ws: &Workspace, body: usize, p: DVec3, n: DVec3) -> f64 {
+pub fn inv_mass_along(model: &Model, ws: &Workspace, body: usize, p: DVec3, n: DVec3) -> f64 {
     let b = &model.bodies[body];
     let x = &ws.x0[body];
     let r = x.e * (p - x.r) - b.com_m;

@@ -650,7 +650,7 @@ fn single_body_character_stands_on_the_floor() {
         .unwrap();
     let contact = "(stiffness: Abs(4e5), damping: Abs(4000.0), friction: 0.8, slip_m_per_s: 0.01)";
     let m = scene(0.003, -9.81, contact, FLOOR, &actor("c", 0.0, 0.01, 0.0), &text);
-    assert_eq!((m.bodies.len(), m.nv, m.shapes.len()), (1, 6, 4));
+    assert_eq!((m.bodies.len(), m.nv, m.shapes.len()), (1, 6, 5));
     let mut s = State::new(&m);
     let mut ws = Workspace::new(&m);
     for _ in 0..1000 {

@@ -16,6 +16,9 @@ use spidar_tools::scene::walls::WallsScene;
 use spidar_tools::scene::Scene;
 use spidar_tools::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 
+#[path = "hil/crowd.rs"]
+mod crowd;
+
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.
 
@@ -614,6 +617,10 @@ fn every_default_config_loads() {
             Rig::load(&p).unwrap_or_else(|e| panic!("{e}"));
         } else if name.starts_with("scene-walls") {
             WallsScene::load(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("scene-crowd") {
+            spidar_sim::character::scene::load_crowd(&p).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("keyframes-") {
+            spidar_sim::character::keyframe::KeyframeSet::load(&p).unwrap_or_else(|e| panic!("{e}"));
         } else if name.starts_with("scene-") {
             spidar_sim::load_scene(&p).unwrap_or_else(|e| panic!("{e}"));
         } else if name.starts_with("body-") {

@@ -5,5 +5,6 @@
 pub mod bench;
 pub mod calib;
 pub mod hardware;
+pub mod eval_impacts;
 pub mod scene;
 pub mod session;

@@ -49,6 +49,28 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
+    /// Evaluations of the simulation against the papers.
+    Eval {
+        #[command(subcommand)]
+        what: EvalCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum EvalCmd {
+    /// Seed 002 section 6.2: an automated estimator guesses impact forces from the keyframe
+    /// characters' motion; prints accuracy, mean and std per parameter next to the paper's Table 1.
+    Impacts {
+        /// Scored hits (the paper: 6 subjects x 20).
+        #[arg(long, default_value_t = 120)]
+        trials: usize,
+        /// Practice hits per parameter combination (54 combinations) for the estimator.
+        #[arg(long, default_value_t = 4)]
+        practice: usize,
+        /// Seed of the random nuisance (heading, drift, exact strength and height).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
 }
 
 #[derive(clap::Args)]
@@ -113,7 +135,8 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `walls` (the rig check) or a scene file (.ron).
+    /// Scene behind the loop: `walls` (the rig check), `crowd` (keyframe characters to push) or a
+    /// scene file (.ron).
     #[arg(long, default_value = "walls")]
     scene: String,
     /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
@@ -210,6 +233,21 @@ fn main() -> anyhow::Result<()> {
                 Duration::from_micros(reply_timeout_us),
             )?;
             println!("{rep}");
+            Ok(())
+        }
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed } } => {
+            use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
+            if trials == 0 || practice == 0 {
+                bail!("--trials and --practice must be at least 1");
+            }
+            let o = ImpactOptions { trials, practice_per_combo: practice, seed, ..ImpactOptions::default() };
+            let report = eval_impacts(&o, |done, total| {
+                if done % 50 == 0 || done == total {
+                    eprint!("\r  simulated {done}/{total} hits");
+                }
+            })?;
+            eprintln!();
+            println!("{report}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {

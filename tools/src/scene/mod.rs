@@ -7,6 +7,7 @@
 //! A scene runs on its own thread on the real clock ([`spawn`]) or interleaved with the loop on
 //! the virtual clock (`session::run_virtual`).
 
+pub mod crowd;
 pub mod walls;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -78,9 +79,10 @@ pub fn spawn(
 pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
     match name_or_path {
         "walls" => Ok(Box::new(walls::WallsScene::builtin())),
+        "crowd" => Ok(Box::new(crowd::CrowdScene::builtin()?)),
         p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
         other => anyhow::bail!(
-            "unknown scene '{other}': use 'walls' or a scene file (.ron) like configs/scene-walls.ron"
+            "unknown scene '{other}': use 'walls', 'crowd' or a scene file (.ron) like configs/scene-walls.ron"
         ),
     }
 }

@@ -1,0 +1,664 @@
+//! The multidimensional keyframe set (seed 002, section 5): skeleton poses placed at points of the
+//! keyframe space Q = {Theta_x, Theta_z, D_x, D_z, B}, and the interpolation that gives the pose at
+//! any point of Q.
+//!
+//! Authoring (section 5.3): a set is a few 1-D keyframe animations, each along one axis of Q on a
+//! line of one of two planes of a behaviour's subspace: the *front plane* (Theta_z = 0, D_x = 0:
+//! leaning and walking to the front and back) and the *side plane* (Theta_x = 0, D_z = 0). The
+//! paper's evaluation set puts all its keyframes there (section 6.1).
+//!
+//! Interpolation (chosen here; the paper leaves it open). In a plane, keyframes with the same lean
+//! form a *row*: a closed loop over the walk phase D in [0, 1) (a row with one keyframe is the same
+//! pose at every phase). The pose in a plane is the phase-interpolation of the two rows whose leans
+//! bracket the point, blended linearly by lean (held beyond the outermost rows). The two planes are
+//! combined as offsets from their shared origin keyframe, `q = q_front * blend(q_origin^-1 q_side)`
+//! per joint (the side keyframes are stored as offsets), so a point of either plane gets exactly
+//! that plane's pose. Rotations are blended as unit quaternions (normalised weighted sums, signs aligned), never as angles; the root offset linearly.
+//! Behaviours are categorical and all adjacent (section 5.2): a change of B is a short blend in time
+//! between the two behaviours' poses at the current point, so the pose never jumps.
+//!
+//! Properties (tested): exact at every keyframe; continuous everywhere, including across the walk
+//! phase's wrap from 1 to 0; the change per step is bounded by the change of the point.
+//!
+//! Must never: allocate while posing (poses are fixed-capacity), or return a non-unit rotation.
+
+use std::collections::BTreeMap;
+
+use glam::{DVec3, Quat, Vec3};
+use serde::Deserialize;
+use spidar_config as config;
+
+use crate::spatial::quat_exp;
+use crate::SimError;
+
+/// Most joints a skeleton may have.
+pub const MAX_JOINTS: usize = 16;
+
+/// The built-in evaluation set of section 6.1.
+pub const KEYFRAMES_HUMANOID_RON: &str = include_str!("../../../configs/keyframes-humanoid.ron");
+
+/// A point of the keyframe space.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct QPoint {
+    /// Lean to the front, [-pi, pi] (rad).
+    pub theta_x: f64,
+    /// Lean to the side, [-pi/2, pi/2] (rad).
+    pub theta_z: f64,
+    /// Walk phases to the side and to the front, [0, 1).
+    pub d_x: f64,
+    pub d_z: f64,
+    /// Behaviour index into `KeyframeSet::behaviours`.
+    pub behaviour: u8,
+}
+
+/// A skeleton pose in the body frame `S_r`: each joint's rotation relative to its parent (at rest
+/// all joint frames are aligned with `S_r`), and the root joint's offset from its rest position.
+/// Single precision: a pose is for display (the physics is all f64), and f32 quaternions blend
+/// four at a time in SIMD registers, which is what makes posing thousands of characters cheap.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    pub rot: [Quat; MAX_JOINTS],
+    pub root_m: Vec3,
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose { rot: [Quat::IDENTITY; MAX_JOINTS], root_m: Vec3::ZERO }
+    }
+}
+
+impl Pose {
+    /// Largest rotation angle between two poses over the first `n` joints (rad), from the chord
+    /// `|a - b| = 2 sin(angle / 4)` (well conditioned for nearly equal rotations, unlike acos).
+    pub fn max_angle_to(&self, o: &Pose, n: usize) -> f64 {
+        (0..n)
+            .map(|j| {
+                let (a, b) = (self.rot[j].as_dquat(), o.rot[j].as_dquat());
+                let b = if a.dot(b) < 0.0 { -b } else { b };
+                let chord = (a - b).length();
+                4.0 * (0.5 * chord).min(1.0).asin()
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+// ---- file format ----
+
+/// Which axis of Q a 1-D animation runs along.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+pub enum Axis {
+    ThetaX,
+    ThetaZ,
+    Dx,
+    Dz,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointFile {
+    pub name: String,
+    pub parent: Option<String>,
+    /// Rest position of the joint in its parent's frame (the root's: in `S_r`) (m).
+    pub offset_m: DVec3,
+}
+
+/// Where a 1-D animation's line lies: the coordinates it does not run along.
+#[derive(Clone, Copy, Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct LineFile {
+    #[serde(default)]
+    pub theta_x_deg: f64,
+    #[serde(default)]
+    pub theta_z_deg: f64,
+    #[serde(default)]
+    pub d_x: f64,
+    #[serde(default)]
+    pub d_z: f64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyFile {
+    /// Position along the animation's axis (degrees for leans, phase in [0, 1) for walks).
+    pub at: f64,
+    /// Joint rotations as rotation vectors in degrees; joints not named are at rest.
+    #[serde(default)]
+    pub pose: BTreeMap<String, DVec3>,
+    /// Offset of the root joint from its rest position (m).
+    #[serde(default)]
+    pub root_m: DVec3,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationFile {
+    pub name: String,
+    pub behaviour: String,
+    pub along: Axis,
+    pub line: LineFile,
+    pub keys: Vec<KeyFile>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframeFile {
+    pub version: u32,
+    pub name: String,
+    pub stride_front_m: f64,
+    pub stride_side_m: f64,
+    pub behaviour_blend_s: f64,
+    pub behaviours: Vec<String>,
+    pub skeleton: Vec<JointFile>,
+    pub animations: Vec<AnimationFile>,
+}
+
+// ---- the built set ----
+
+#[derive(Clone, Debug)]
+pub struct Joint {
+    pub name: String,
+    pub parent: Option<usize>,
+    pub offset_m: DVec3,
+}
+
+/// One keyframe pose, joint rotations only up to the skeleton's length.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Key {
+    phase: f64,
+    pose: Pose,
+}
+
+#[derive(Clone, Debug)]
+struct Row {
+    lean: f64,
+    keys: Vec<Key>,
+}
+
+#[derive(Clone, Debug, Default)]
+struct Plane {
+    rows: Vec<Row>,
+    /// Every pair of keyframes that can be blended together has its quaternions in the same
+    /// hemisphere for every joint, so blending needs no per-step sign test (see `align`).
+    aligned: bool,
+}
+
+#[derive(Clone, Debug)]
+struct Subspace {
+    front: Plane,
+    side: Plane,
+}
+
+/// A keyframe as it was placed in Q, for tests and tools.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlacedKey {
+    pub at: QPoint,
+    pub pose: Pose,
+}
+
+/// A loaded, validated multidimensional keyframe set.
+#[derive(Clone, Debug)]
+pub struct KeyframeSet {
+    pub name: String,
+    pub joints: Vec<Joint>,
+    pub behaviours: Vec<String>,
+    /// Distance walked per walk cycle to the front and to the side (m): eqs 8, 9 with a stride.
+    pub stride_front_m: f64,
+    pub stride_side_m: f64,
+    pub behaviour_blend_s: f64,
+    pub animations: usize,
+    pub keys: Vec<PlacedKey>,
+    sub: Vec<Subspace>,
+}
+
+const SAME: f64 = 1e-9;
+
+fn err(text: &str, origin: &str, field: &str, key: &str, occ: usize, msg: String) -> SimError {
+    SimError::Config(config::invalid(text, origin, field, key, occ, msg))
+}
+
+impl KeyframeSet {
+    /// The built-in humanoid evaluation set.
+    pub fn builtin() -> KeyframeSet {
+        KeyframeSet::parse(KEYFRAMES_HUMANOID_RON, "configs/keyframes-humanoid.ron (built in)")
+            .expect("the built-in keyframe set is valid (tested)")
+    }
+
+    pub fn load(path: &std::path::Path) -> Result<KeyframeSet, SimError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| SimError::Io { path: path.display().to_string(), message: e.to_string() })?;
+        KeyframeSet::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates a keyframe-set file; errors name the file, line, column and field.
+    pub fn parse(text: &str, origin: &str) -> Result<KeyframeSet, SimError> {
+        let f: KeyframeFile = config::parse(text, origin)?;
+        if f.version != 1 {
+            return Err(err(
+                text,
+                origin,
+                "version",
+                "version",
+                0,
+                format!("version {} is not supported; use 1", f.version),
+            ));
+        }
+        for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(err(
+                    text,
+                    origin,
+                    field,
+                    field,
+                    0,
+                    format!("must be a positive length, got {v}"),
+                ));
+            }
+        }
+        if !(f.behaviour_blend_s > 0.0) {
+            return Err(err(
+                text,
+                origin,
+                "behaviour_blend_s",
+                "behaviour_blend_s",
+                0,
+                "must be > 0 s".into(),
+            ));
+        }
+        if f.skeleton.is_empty() || f.skeleton.len() > MAX_JOINTS {
+            return Err(err(
+                text,
+                origin,
+                "skeleton",
+                "skeleton",
+                0,
+                format!("needs 1 to {MAX_JOINTS} joints, got {}", f.skeleton.len()),
+            ));
+        }
+        if f.behaviours.is_empty() || f.behaviours.len() > 255 {
+            return Err(err(text, origin, "behaviours", "behaviours", 0, "needs 1 to 255 behaviours".into()));
+        }
+        let mut joints = Vec::new();
+        for (i, j) in f.skeleton.iter().enumerate() {
+            let parent = match &j.parent {
+                None if i == 0 => None,
+                None => {
+                    return Err(err(
+                        text,
+                        origin,
+                        &format!("skeleton[{i}].parent"),
+                        "parent",
+                        i,
+                        "only the first joint is the root; name a parent".into(),
+                    ))
+                }
+                Some(p) => match f.skeleton[..i].iter().position(|o| &o.name == p) {
+                    Some(k) => Some(k),
+                    None => {
+                        return Err(err(
+                            text,
+                            origin,
+                            &format!("skeleton[{i}].parent"),
+                            "parent",
+                            i,
+                            format!("parent {p:?} is not a joint listed before {:?}", j.name),
+                        ))
+                    }
+                },
+            };
+            joints.push(Joint { name: j.name.clone(), parent, offset_m: j.offset_m });
+        }
+        let nb = f.behaviours.len();
+        let mut planes: Vec<(Plane, Plane)> = vec![(Plane::default(), Plane::default()); nb];
+        let mut keys = Vec::new();
+        let mut key_occ = 0usize;
+        for (ai, a) in f.animations.iter().enumerate() {
+            let field = |s: &str| format!("animations[{ai}].{s}");
+            let Some(b) = f.behaviours.iter().position(|x| x == &a.behaviour) else {
+                return Err(err(
+                    text,
+                    origin,
+                    &field("behaviour"),
+                    "behaviour",
+                    ai + 1,
+                    format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours),
+                ));
+            };
+            if a.keys.is_empty() {
+                return Err(err(
+                    text,
+                    origin,
+                    &field("keys"),
+                    "keys",
+                    ai,
+                    "an animation needs at least one keyframe".into(),
+                ));
+            }
+            for (ki, k) in a.keys.iter().enumerate() {
+                let occ = key_occ + ki;
+                let mut at = QPoint {
+                    theta_x: a.line.theta_x_deg.to_radians(),
+                    theta_z: a.line.theta_z_deg.to_radians(),
+                    d_x: a.line.d_x,
+                    d_z: a.line.d_z,
+                    behaviour: b as u8,
+                };
+                let kf = field(&format!("keys[{ki}].at"));
+                match a.along {
+                    Axis::ThetaX => at.theta_x = k.at.to_radians(),
+                    Axis::ThetaZ => at.theta_z = k.at.to_radians(),
+                    Axis::Dx => at.d_x = k.at,
+                    Axis::Dz => at.d_z = k.at,
+                }
+                if !(at.theta_x.abs() <= std::f64::consts::PI + SAME
+                    && at.theta_z.abs() <= std::f64::consts::FRAC_PI_2 + SAME)
+                {
+                    return Err(err(
+                        text,
+                        origin,
+                        &kf,
+                        "at",
+                        occ,
+                        "leans must be within Theta_x in [-180, 180], Theta_z in [-90, 90] degrees".into(),
+                    ));
+                }
+                if !((0.0..1.0).contains(&at.d_x) && (0.0..1.0).contains(&at.d_z)) {
+                    return Err(err(text, origin, &kf, "at", occ, "walk phases must be in [0, 1)".into()));
+                }
+                let in_front = at.theta_z.abs() < SAME && at.d_x.abs() < SAME;
+                let in_side = at.theta_x.abs() < SAME && at.d_z.abs() < SAME;
+                if !in_front && !in_side {
+                    return Err(err(text, origin, &kf, "at", occ, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
+                }
+                let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
+                for (name, rv) in &k.pose {
+                    let Some(j) = joints.iter().position(|j| &j.name == name) else {
+                        return Err(err(
+                            text,
+                            origin,
+                            &field(&format!("keys[{ki}].pose")),
+                            "pose",
+                            occ,
+                            format!("no joint {name:?} in the skeleton"),
+                        ));
+                    };
+                    if !rv.is_finite() {
+                        return Err(err(
+                            text,
+                            origin,
+                            &field(&format!("keys[{ki}].pose")),
+                            "pose",
+                            occ,
+                            format!("joint {name:?} has a non-finite rotation"),
+                        ));
+                    }
+                    pose.rot[j] = quat_exp(*rv * (std::f64::consts::PI / 180.0)).as_quat();
+                }
+                if let Some(o) = keys.iter().find(|o: &&PlacedKey| same_point(&o.at, &at)) {
+                    if o.pose != pose {
+                        return Err(err(text, origin, &kf, "at", occ, "another keyframe sits at this point of Q with a different pose; a point has one pose".into()));
+                    }
+                    continue;
+                }
+                keys.push(PlacedKey { at, pose });
+                let (front, side) = &mut planes[b];
+                if in_front {
+                    front.insert(at.theta_x, at.d_z, pose);
+                }
+                if in_side {
+                    side.insert(at.theta_z, at.d_x, pose);
+                }
+            }
+            key_occ += a.keys.len();
+        }
+        let mut sub = Vec::new();
+        for (b, (front, side)) in planes.into_iter().enumerate() {
+            if front.rows.is_empty() && side.rows.is_empty() {
+                return Err(err(
+                    text,
+                    origin,
+                    "behaviours",
+                    "behaviours",
+                    0,
+                    format!("behaviour {:?} has no keyframes", f.behaviours[b]),
+                ));
+            }
+            let origin_key = keys.iter().find(|k| {
+                k.at.behaviour == b as u8
+                    && same_point(&k.at, &QPoint { behaviour: b as u8, ..QPoint::default() })
+            });
+            if !side.rows.is_empty() && (origin_key.is_none() || front.rows.is_empty()) {
+                return Err(err(text, origin, "animations", "animations", 0, format!("behaviour {:?} has side-plane keyframes, so it needs keyframes in the front plane and one at the origin (all leans and phases 0) that both planes share", f.behaviours[b])));
+            }
+            let o = origin_key.map(|k| k.pose).unwrap_or_default();
+            let mut origin_inv = [Quat::IDENTITY; MAX_JOINTS];
+            for j in 0..MAX_JOINTS {
+                origin_inv[j] = o.rot[j].inverse();
+            }
+            // The side plane keeps its keyframes as offsets from the origin, `q_origin^-1 q_side`,
+            // so posing blends offsets and applies them with one product per joint.
+            let mut side = side;
+            if !front.rows.is_empty() {
+                for row in &mut side.rows {
+                    for k in &mut row.keys {
+                        for j in 0..MAX_JOINTS {
+                            let q = origin_inv[j].as_dquat() * k.pose.rot[j].as_dquat();
+                            k.pose.rot[j] = q.normalize().as_quat();
+                        }
+                        k.pose.root_m -= o.root_m;
+                    }
+                }
+            }
+            let (mut front, mut side) = (front, side);
+            front.align(joints.len());
+            side.align(joints.len());
+            sub.push(Subspace { front, side });
+        }
+        Ok(KeyframeSet {
+            name: f.name,
+            joints,
+            behaviours: f.behaviours,
+            stride_front_m: f.stride_front_m,
+            stride_side_m: f.stride_side_m,
+            behaviour_blend_s: f.behaviour_blend_s,
+            animations: f.animations.len(),
+            keys,
+            sub,
+        })
+    }
+
+    /// The pose at a point of Q (no behaviour blend).
+    pub fn pose(&self, q: &QPoint, out: &mut Pose) {
+        let n = self.joints.len();
+        let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
+        if s.side.rows.is_empty() || s.front.rows.is_empty() {
+            let w = if s.side.rows.is_empty() {
+                s.front.weights(q.theta_x, q.d_z)
+            } else {
+                s.side.weights(q.theta_z, q.d_x)
+            };
+            out.root_m = root4(&w);
+            let w32 = weights32(&w, if s.side.rows.is_empty() { s.front.aligned } else { s.side.aligned });
+            for j in 0..n {
+                out.rot[j] = blend4(&w, &w32, j).normalize();
+            }
+            return;
+        }
+        let f = s.front.weights(q.theta_x, q.d_z);
+        let d = s.side.weights(q.theta_z, q.d_x);
+        out.root_m = root4(&f) + root4(&d);
+        let (f32w, d32w) = (weights32(&f, s.front.aligned), weights32(&d, s.side.aligned));
+        for j in 0..n {
+            // Normalising once at the end is enough: a product of unnormalised quaternions scales.
+            out.rot[j] = (blend4(&f, &f32w, j) * blend4(&d, &d32w, j)).normalize();
+        }
+    }
+
+    /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
+    pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut Pose) {
+        self.pose(q, out);
+        if w >= 1.0 || from == q.behaviour {
+            return;
+        }
+        let mut other = Pose::default();
+        self.pose(&QPoint { behaviour: from, ..*q }, &mut other);
+        let n = self.joints.len();
+        for j in 0..n {
+            out.rot[j] = nlerp2(other.rot[j], 1.0 - w as f32, out.rot[j], w as f32);
+        }
+        out.root_m = other.root_m * (1.0 - w as f32) + out.root_m * w as f32;
+    }
+
+    /// Planes (front and side of every behaviour) whose keyframes blend without sign tests.
+    pub fn aligned_planes(&self) -> (usize, usize) {
+        let planes = self.sub.iter().flat_map(|s| [&s.front, &s.side]).filter(|p| !p.rows.is_empty());
+        planes.fold((0, 0), |(a, n), p| (a + p.aligned as usize, n + 1))
+    }
+
+    pub fn behaviour_index(&self, name: &str) -> Option<u8> {
+        self.behaviours.iter().position(|b| b == name).map(|i| i as u8)
+    }
+}
+
+fn same_point(a: &QPoint, b: &QPoint) -> bool {
+    a.behaviour == b.behaviour
+        && (a.theta_x - b.theta_x).abs() < SAME
+        && (a.theta_z - b.theta_z).abs() < SAME
+        && (a.d_x - b.d_x).abs() < SAME
+        && (a.d_z - b.d_z).abs() < SAME
+}
+
+impl Plane {
+    /// Flips keyframe quaternions (q and -q are the same rotation) into the hemisphere of the
+    /// plane's first keyframe, joint by joint, and records whether that makes every blendable pair
+    /// (neighbours on a row, including across the wrap, and any two keyframes of adjacent rows)
+    /// agree in sign. Where it does not, posing keeps the sign test.
+    fn align(&mut self, n: usize) {
+        let Some(first) = self.rows.first().and_then(|r| r.keys.first()).map(|k| k.pose) else {
+            self.aligned = true;
+            return;
+        };
+        for row in &mut self.rows {
+            for k in &mut row.keys {
+                for j in 0..n {
+                    if k.pose.rot[j].dot(first.rot[j]) < 0.0 {
+                        k.pose.rot[j] = -k.pose.rot[j];
+                    }
+                }
+            }
+        }
+        let agree = |a: &Key, b: &Key| (0..n).all(|j| a.pose.rot[j].dot(b.pose.rot[j]) >= 0.0);
+        let mut ok = true;
+        for (r, row) in self.rows.iter().enumerate() {
+            let k = &row.keys;
+            for i in 0..k.len() {
+                ok &= agree(&k[i], &k[(i + 1) % k.len()]);
+            }
+            if let Some(next) = self.rows.get(r + 1) {
+                ok &= k.iter().all(|a| next.keys.iter().all(|b| agree(a, b)));
+            }
+        }
+        self.aligned = ok;
+    }
+
+    fn insert(&mut self, lean: f64, phase: f64, pose: Pose) {
+        let r = match self.rows.iter().position(|r| (r.lean - lean).abs() < SAME) {
+            Some(r) => r,
+            None => {
+                let at = self.rows.partition_point(|r| r.lean < lean);
+                self.rows.insert(at, Row { lean, keys: Vec::new() });
+                at
+            }
+        };
+        let keys = &mut self.rows[r].keys;
+        let at = keys.partition_point(|k| k.phase < phase);
+        keys.insert(at, Key { phase, pose });
+    }
+
+    /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
+    #[inline]
+    fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
+        let rows = &self.rows;
+        let hi = rows.partition_point(|r| r.lean <= lean);
+        if hi == 0 || hi == rows.len() {
+            let r = &rows[if hi == 0 { 0 } else { rows.len() - 1 }];
+            let (k0, k1, t) = r.bracket(phase);
+            return [(&k0.pose, 1.0 - t), (&k1.pose, t), (&k0.pose, 0.0), (&k0.pose, 0.0)];
+        }
+        let (r0, r1) = (&rows[hi - 1], &rows[hi]);
+        let u = (lean - r0.lean) / (r1.lean - r0.lean);
+        let (a0, a1, ta) = r0.bracket(phase);
+        let (b0, b1, tb) = r1.bracket(phase);
+        [
+            (&a0.pose, (1.0 - u) * (1.0 - ta)),
+            (&a1.pose, (1.0 - u) * ta),
+            (&b0.pose, u * (1.0 - tb)),
+            (&b1.pose, u * tb),
+        ]
+    }
+}
+
+impl Row {
+    /// The two keyframes around `phase` on the closed loop [0, 1) and the weight of the second.
+    #[inline]
+    fn bracket(&self, phase: f64) -> (&Key, &Key, f64) {
+        let k = &self.keys;
+        if k.len() == 1 {
+            return (&k[0], &k[0], 0.0);
+        }
+        let p = phase - phase.floor();
+        let i = k.partition_point(|x| x.phase <= p);
+        let (a, b) = if i == 0 || i == k.len() { (k.len() - 1, 0) } else { (i - 1, i) };
+        let (pa, mut pb) = (k[a].phase, k[b].phase);
+        if pb <= pa {
+            pb += 1.0;
+        }
+        let pp = if p < pa { p + 1.0 } else { p };
+        (&k[a], &k[b], ((pp - pa) / (pb - pa)).clamp(0.0, 1.0))
+    }
+}
+
+/// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
+/// when the plane is pre-aligned and no sign test is needed).
+#[inline]
+fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
+    let w32 = [w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32];
+    if aligned {
+        return (w32, usize::MAX);
+    }
+    let mut heavy = 0;
+    for i in 1..4 {
+        if w[i].1 > w[heavy].1 {
+            heavy = i;
+        }
+    }
+    (w32, heavy)
+}
+
+/// Weighted sum of one joint's rotations (signs aligned with the heaviest), not normalised.
+#[inline]
+fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
+    if *heavy == usize::MAX {
+        let q = |i: usize| w[i].0.rot[j] * wt[i];
+        return q(0) + q(1) + q(2) + q(3);
+    }
+    let r = w[*heavy].0.rot[j];
+    let mut acc = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0);
+    for i in 0..4 {
+        let q = w[i].0.rot[j];
+        let s = if q.dot(r) < 0.0 { -wt[i] } else { wt[i] };
+        acc += q * s;
+    }
+    acc
+}
+
+#[inline]
+fn root4(w: &[(&Pose, f64); 4]) -> Vec3 {
+    let r = |i: usize| w[i].0.root_m * w[i].1 as f32;
+    r(0) + r(1) + r(2) + r(3)
+}
+
+#[inline]
+fn nlerp2(a: Quat, wa: f32, b: Quat, wb: f32) -> Quat {
+    let b = if a.dot(b) < 0.0 { -b } else { b };
+    (a * wa + b * wb).normalize()
+}
