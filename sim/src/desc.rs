@@ -77,7 +77,8 @@ pub enum ShapeDesc {
 }
 
 impl ShapeDesc {
-    fn to_shape(self) -> Shape {
+    /// The collision shape this describes (box sizes are full sizes here, half extents there).
+    pub fn to_shape(self) -> Shape {
         match self {
             ShapeDesc::Sphere { radius_m } => Shape::Sphere { radius_m },
             ShapeDesc::Capsule { half_length_m, radius_m } => Shape::Capsule { half_length_m, radius_m },

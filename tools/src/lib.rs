@@ -4,7 +4,7 @@
 
 pub mod bench;
 pub mod calib;
-pub mod hardware;
 pub mod eval_impacts;
+pub mod hardware;
 pub mod scene;
 pub mod session;

@@ -173,6 +173,8 @@ pub struct Summary {
     pub scene_steps: u64,
     pub scene_late: u64,
     pub models_dropped: u64,
+    /// The scene's own status at the end (`Scene::status`).
+    pub scene_status: String,
     pub final_state: Lifecycle,
     pub faults_seen: Vec<String>,
     pub clean_stop: bool,
@@ -231,6 +233,9 @@ impl std::fmt::Display for Summary {
             "  scene        {} steps ({} late), {} models received, {} dropped",
             self.scene_steps, self.scene_late, c.models, self.models_dropped
         )?;
+        if !self.scene_status.is_empty() {
+            writeln!(f, "               {}", self.scene_status)?;
+        }
         writeln!(
             f,
             "  dropped      telemetry {}, samples {}, events {}",
@@ -339,8 +344,14 @@ pub fn run_live<D: Device + 'static>(
         if let Some(every) = status_every {
             if last_status.elapsed() >= every {
                 last_status = Instant::now();
-                let line =
+                let mut line =
                     status_line(&stats, faults_seen.len(), scene_counters.steps.load(Ordering::Relaxed));
+                if let Ok(s) = scene_counters.status.lock() {
+                    if !s.is_empty() {
+                        line.push_str("  | ");
+                        line.push_str(&s);
+                    }
+                }
                 let mut err = std::io::stderr().lock();
                 let _ = write!(err, "\r{line}\x1b[K");
                 let _ = err.flush();
@@ -358,8 +369,9 @@ pub fn run_live<D: Device + 'static>(
         stats.add(&r);
     }
     scene_stop.store(true, Ordering::Relaxed);
-    scene_handle.join().map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
+    let scene = scene_handle.join().map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
     Ok(Summary {
+        scene_status: scene.status(),
         device: device_name,
         scene: opts.scene_name,
         script: opts.script_name,

@@ -14,8 +14,8 @@ use super::ai::Goal;
 use super::crowd::{Crowd, CrowdBody, CrowdWorld};
 use super::keyframe::{KeyframeSet, KEYFRAMES_HUMANOID_RON};
 use super::CharacterParams;
-use crate::collide::{Pose, Shape};
-use crate::desc::{parse_body, ContactDesc, ShapeDesc, ShapeFile};
+use crate::collide::Pose;
+use crate::desc::{parse_body, ContactDesc, ShapeFile};
 use crate::spatial::quat_exp;
 use crate::SimError;
 
@@ -135,12 +135,7 @@ pub fn build_crowd(
     let world = CrowdWorld::new(f.dt_s, f.gravity_m_per_s2, &f.contact, body.mass_kg);
     let mut c = Crowd::new(body, world, f.character, set);
     for s in &f.statics {
-        let shape = match s.shape {
-            ShapeDesc::Sphere { radius_m } => Shape::Sphere { radius_m },
-            ShapeDesc::Capsule { half_length_m, radius_m } => Shape::Capsule { half_length_m, radius_m },
-            ShapeDesc::Box { size_m } => Shape::Box { half_extents_m: size_m * 0.5 },
-            ShapeDesc::Plane => Shape::Plane,
-        };
+        let shape = s.shape.to_shape();
         let rot = DMat3::from_quat(quat_exp(s.rot_deg * (std::f64::consts::PI / 180.0)));
         c.statics.push((shape, Pose { pos_m: s.pos_m, rot }));
     }

@@ -38,7 +38,14 @@ pub struct SceneCounters {
     pub models_dropped: AtomicU64,
     /// Steps that started more than one step period late.
     pub late_steps: AtomicU64,
+    /// The scene's own status (`Scene::status`), refreshed by the scene thread every 0.25 s. A
+    /// mutex is fine here: only the scene thread and the printing thread touch it, never the
+    /// real-time loop.
+    pub status: std::sync::Mutex<String>,
 }
+
+/// How often (in scene steps) the scene thread refreshes `SceneCounters::status`.
+const STATUS_EVERY_STEPS: u64 = 83;
 
 /// Runs `scene` on its own thread every `step_s` on `clock` (shared epoch with the loop) until
 /// `stop` is set. It polls the sample channel (never blocks on it: see `spidar_rt::runner`).
@@ -65,7 +72,12 @@ pub fn spawn(
             if let Err(TrySendError::Full(_)) = models.try_send(m) {
                 counters.models_dropped.fetch_add(1, Ordering::Relaxed);
             }
-            counters.steps.fetch_add(1, Ordering::Relaxed);
+            let steps = counters.steps.fetch_add(1, Ordering::Relaxed);
+            if steps.is_multiple_of(STATUS_EVERY_STEPS) {
+                if let Ok(mut s) = counters.status.lock() {
+                    *s = scene.status();
+                }
+            }
             deadline += step_ns;
             if clock.now_ns() > deadline + 10 * step_ns {
                 deadline = clock.now_ns(); // stalled: do not run a burst of catch-up steps
