@@ -176,11 +176,13 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `walls` (the rig check) or a scene file (.ron).
-    #[arg(long, default_value = "walls")]
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
+    /// (its cognitive model off), `walls` (the rig check) or a scene file (.ron).
+    #[arg(long, default_value = "boxing")]
     scene: String,
-    /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
-    #[arg(long, default_value = "tour")]
+    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
+    /// tour (for `walls`), or a script file (.ron).
+    #[arg(long, default_value = "box")]
     script: String,
     /// Stop after this many seconds (default: run until Ctrl-C).
     #[arg(long)]
@@ -416,6 +418,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             seconds / wall
         );
         println!("  compute      {}", v.stats.compute.percentiles());
+        if let Some(s) = v.scene.as_ref() {
+            println!("  scene        {}", s.status());
+        }
         println!(
             "  max force    left {:.2} N, right {:.2} N",
             v.stats.max_force_n[0], v.stats.max_force_n[1]

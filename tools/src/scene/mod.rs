@@ -7,6 +7,7 @@
 //! A scene runs on its own thread on the real clock ([`spawn`]) or interleaved with the loop on
 //! the virtual clock (`session::run_virtual`).
 
+pub mod boxing;
 pub mod walls;
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -78,9 +79,14 @@ pub fn spawn(
 pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
     match name_or_path {
         "walls" => Ok(Box::new(walls::WallsScene::builtin())),
+        "boxing" => Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
+        "boxing-passive" => Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
+            active: false,
+            ..Default::default()
+        })?)),
         p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
         other => anyhow::bail!(
-            "unknown scene '{other}': use 'walls' or a scene file (.ron) like configs/scene-walls.ron"
+            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls' or a scene file (.ron) like configs/scene-walls.ron"
         ),
     }
 }
