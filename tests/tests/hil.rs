@@ -666,3 +666,6 @@ fn homing_makes_each_grip_read_its_home_point() {
 
 #[path = "hil/uart_pty.rs"]
 mod uart_pty;
+
+#[path = "hil/boxing.rs"]
+mod boxing;
