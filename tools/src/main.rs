@@ -46,10 +46,32 @@ enum Cmd {
         #[arg(long)]
         port: Vec<String>,
     },
+    /// The boxing paper's evaluations (seed 000): timing during a bout, the reaction experiment.
+    Eval {
+        #[command(subcommand)]
+        what: EvalCmd,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
         what: BenchCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum EvalCmd {
+    /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
+    /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
+    Reactions {
+        /// Jabs per target and mode (active, passive).
+        #[arg(long, default_value_t = 24)]
+        trials: usize,
+        /// Seed of the jabs (aim, hand, speed) and of the bout.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Length of the timed bout (s of rig time, virtual clock); 0 skips it.
+        #[arg(long, default_value_t = 60.0)]
+        bout_seconds: f64,
     },
 }
 
@@ -255,6 +277,26 @@ fn main() -> anyhow::Result<()> {
         Cmd::Run(a) => run(a),
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
+        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+            use spidar_tools::eval;
+            if bout_seconds > 0.0 {
+                eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
+                let b = eval::bout_timing(bout_seconds, seed)?;
+                println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                println!("  world step   {}", b.step);
+                println!("  prediction   {}", b.prediction);
+                println!("  rt misses    {}", b.misses);
+                println!("  scene        {}\n", b.status);
+            }
+            let r = eval::reactions(trials, seed, |done, total| {
+                if done % 16 == 0 || done == total {
+                    eprint!("\rjabs {done}/{total}\x1b[K");
+                }
+            })?;
+            eprintln!();
+            println!("{r}");
+            Ok(())
+        }
         Cmd::Devices { probe, port } => {
             print!("{}", hardware::devices_report(&port, probe));
             Ok(())

@@ -96,6 +96,10 @@ pub struct BoxerParams {
     pub active: bool,
     /// Seed of the attack generator (target and duration).
     pub seed: u64,
+    /// Let the avatar's hands collide with the virtual human in the world simulation. Only for
+    /// running the world without a rig (`spidar eval reactions`, as in the lab's simulation):
+    /// behind the rt-loop these contacts come from its rendering and would count twice.
+    pub avatar_hands_collide: bool,
 }
 
 impl Default for BoxerParams {
@@ -115,6 +119,7 @@ impl Default for BoxerParams {
             reach_body_d_n_s_per_m: 1200.0,
             active: true,
             seed: 0,
+            avatar_hands_collide: false,
         }
     }
 }
@@ -191,8 +196,10 @@ impl BoxingWorld {
             .iter()
             .map(|p| !((is_avatar_hand(p.a) && is_vh(p.b)) || (is_avatar_hand(p.b) && is_vh(p.a))))
             .collect();
-        let mut it = keep.iter();
-        model.pairs.retain(|_| *it.next().unwrap_or(&true));
+        if !params.avatar_hands_collide {
+            let mut it = keep.iter();
+            model.pairs.retain(|_| *it.next().unwrap_or(&true));
+        }
         let state = State::new(&model);
         let mut ws = Workspace::new(&model);
         kinematics(&model, &state, &mut ws);
