@@ -342,8 +342,14 @@ pub fn run_live<D: Device + 'static>(
         if let Some(every) = status_every {
             if last_status.elapsed() >= every {
                 last_status = Instant::now();
-                let line =
+                let mut line =
                     status_line(&stats, faults_seen.len(), scene_counters.steps.load(Ordering::Relaxed));
+                if let Ok(st) = scene_counters.status.lock() {
+                    if !st.is_empty() {
+                        line.push_str("  | ");
+                        line.push_str(&st);
+                    }
+                }
                 let mut err = std::io::stderr().lock();
                 let _ = write!(err, "\r{line}\x1b[K");
                 let _ = err.flush();

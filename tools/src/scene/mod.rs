@@ -38,6 +38,9 @@ pub struct SceneCounters {
     pub models_dropped: AtomicU64,
     /// Steps that started more than one step period late.
     pub late_steps: AtomicU64,
+    /// The scene's own status (`Scene::status`), refreshed every 100 steps for the status line;
+    /// the scene thread only `try_lock`s it, so a slow reader never holds a step up.
+    pub status: std::sync::Mutex<String>,
 }
 
 /// Runs `scene` on its own thread every `step_s` on `clock` (shared epoch with the loop) until
@@ -65,7 +68,11 @@ pub fn spawn(
             if let Err(TrySendError::Full(_)) = models.try_send(m) {
                 counters.models_dropped.fetch_add(1, Ordering::Relaxed);
             }
-            counters.steps.fetch_add(1, Ordering::Relaxed);
+            if counters.steps.fetch_add(1, Ordering::Relaxed) % 100 == 0 {
+                if let Ok(mut st) = counters.status.try_lock() {
+                    *st = scene.status();
+                }
+            }
             deadline += step_ns;
             if clock.now_ns() > deadline + 10 * step_ns {
                 deadline = clock.now_ns(); // stalled: do not run a burst of catch-up steps
