@@ -134,3 +134,56 @@ fn attacks_use_one_hand_at_a_time() {
     assert!(attacks_seen > 10, "only {attacks_seen} attacks in 20 s");
     eprintln!("hits given {}", w.mind.hits_given);
 }
+
+/// A hook: the avatar's hand swung wide of the guard, then straight at the head from the side.
+/// The prediction finds the head contact (Table I class 1), the body avoids, and the head ends
+/// farther from the fist's path than a passive one.
+#[test]
+fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
+    fn hook(params: BoxerParams) -> (BoxingWorld, f64) {
+        let mut w = settled(params);
+        let head = w.com(w.vh.head);
+        let guard = w.com(w.avatar.hand[0]);
+        // The avatar's left hand wide of the virtual human's guard (its right side is -x, its
+        // guard hands at x = +-0.08), above head height (the avatar's hand lags its target).
+        let wide = DVec3::new(head.x - 0.35, head.y + 0.12, head.z + 0.25);
+        for k in 0..500 {
+            let s = min_jerk(k as f64 / 400.0);
+            let t = guard_targets(
+                &w,
+                0,
+                HandTarget { pos_m: guard + (wide - guard) * s, vel_m_per_s: DVec3::ZERO },
+            );
+            w.step(&t);
+            w.begin_step();
+        }
+        assert_eq!(w.mind.predictions, 0);
+        let from = w.com(w.avatar.hand[0]);
+        let to = head + DVec3::new(0.05, 0.05, 0.0);
+        let mut closest = f64::INFINITY;
+        let out_s = 0.3;
+        // Out in 0.3 s, back in 0.3 s, as a boxer's hook.
+        for k in 0..((0.6 / w.dt_s()) as usize) {
+            let t = k as f64 * w.dt_s();
+            let (a, b, tau) =
+                if t < out_s { (from, to, t / out_s) } else { (to, from, ((t - out_s) / out_s).min(1.0)) };
+            let pos = a + (b - a) * min_jerk(tau);
+            let vel = (b - a) * (spidar_sim::boxer::reach::min_jerk_rate(tau) / out_s);
+            let t = guard_targets(&w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
+            w.step(&t);
+            w.begin_step();
+            closest = closest.min((pos - w.com(w.vh.head)).length());
+        }
+        (w, closest)
+    }
+    let (_, passive) = hook(BoxerParams { active: false, ..Default::default() });
+    let (w, active) = hook(BoxerParams::default());
+    assert!(w.mind.avoidances >= 1, "a predicted hit on the head must start an avoidance");
+    // The fist (4 cm) reaches into the passive head (capsule radius 9 cm); the active head is
+    // clear of it.
+    assert!(passive < 0.13, "the hook should reach a passive head: {passive:.3} m");
+    assert!(
+        active > 0.13 && active > passive + 0.05,
+        "the head kept {active:.3} m from the fist (passive {passive:.3} m)"
+    );
+}

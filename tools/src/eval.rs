@@ -291,8 +291,8 @@ impl fmt::Display for Reactions {
             writeln!(f)?;
             for t in 0..4 {
                 write!(f, "  {:<12}", TARGETS[t])?;
-                for a in 0..4 {
-                    write!(f, "      {:.2} | {:.2}", c.rate(t, a), PAPER[m][t][a])?;
+                for (a, paper) in PAPER[m][t].iter().enumerate() {
+                    write!(f, "      {:.2} | {:.2}", c.rate(t, a), paper)?;
                 }
                 writeln!(f)?;
             }

@@ -130,7 +130,7 @@ impl Default for MindParams {
         MindParams {
             trigger_m_per_s: 1.0,
             horizon_s: 0.5,
-            middle_grace_s: 0.06,
+            middle_grace_s: 0.15,
             predict_every_s: 0.03,
             avoid_extend: 1.5,
             avoid_clearance_m: 0.2,
@@ -229,7 +229,21 @@ impl Mind {
         let mut middle_at: Option<usize> = None;
         let mut hand_start = [DVec3::ZERO; 2];
         let mut n = 0usize;
+        // Pairs already touching when the prediction starts (guards resting on each other) are
+        // the present, not a prediction: skip them. Fixed capacity; more are simply not skipped.
+        let mut present = [(usize::MAX, usize::MAX); 16];
+        let mut n_present = 0;
         self.predictor.run(model, state, steps, |m, s, ws| {
+            if n == 1 {
+                for c in &ws.contacts {
+                    if let (Some(a), Some(b)) = (c.body_a, c.body_b) {
+                        if n_present < present.len() {
+                            present[n_present] = (a as usize, b as usize);
+                            n_present += 1;
+                        }
+                    }
+                }
+            }
             if n == 0 {
                 for h in 0..2 {
                     hand_start[h] = ws.com_world(m, av.hand[h]);
@@ -239,6 +253,9 @@ impl Mind {
             for c in &ws.contacts {
                 let (Some(a), Some(b)) = (c.body_a, c.body_b) else { continue };
                 let (a, b) = (a as usize, b as usize);
+                if n == 1 || present[..n_present].contains(&(a, b)) {
+                    continue;
+                }
                 let (vb, ab) = match (m.bodies[a].articulation, m.bodies[b].articulation) {
                     (BOXER, AVATAR) => (a, b),
                     (AVATAR, BOXER) => (b, a),
@@ -259,6 +276,44 @@ impl Mind {
                     });
                     if class.priority() == Priority::Middle && middle_at.is_none() {
                         middle_at = Some(n);
+                    }
+                }
+            }
+            // The user's fists as the rt-loop renders them: the extrapolated hand points against
+            // the virtual human's parts. The avatar's arm may not reach where the user's hand
+            // does (its joints and length hold it back), so its own contacts are not enough.
+            if n > 0 {
+                let ahead = s.t_s - t0 - m.dt_s;
+                for (h, t) in targets.iter().enumerate() {
+                    let Some(t) = t else { continue };
+                    let fist = t.pos_m + t.vel_m_per_s * ahead;
+                    for (k, sh) in m.shapes.iter().enumerate() {
+                        let Some(vb) = sh.body else { continue };
+                        if m.bodies[vb].articulation != BOXER {
+                            continue;
+                        }
+                        let pose = ws.shape_pose[k];
+                        let Some(shape) = super::proxy_shape(&sh.shape, pose.pos_m, pose.rot) else {
+                            continue;
+                        };
+                        if crate::impulse::dist(&shape, fist) > bp.grip_radius_m {
+                            continue;
+                        }
+                        let class = ContactClass::of(m.bodies[vb].part, Part::Hand);
+                        if best.is_none_or(|d| class.priority() > d.class.priority()) {
+                            best = Some(Decision {
+                                class,
+                                vh_body: vb,
+                                av_body: av.hand[h],
+                                point_m: crate::impulse::nearest_on_surface(&shape, fist),
+                                at_s: s.t_s,
+                                hand_start_m: t.pos_m,
+                                hand_at_contact_m: fist,
+                            });
+                            if class.priority() == Priority::Middle && middle_at.is_none() {
+                                middle_at = Some(n);
+                            }
+                        }
                     }
                 }
             }

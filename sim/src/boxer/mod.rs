@@ -19,7 +19,10 @@
 pub mod mind;
 pub mod reach;
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
+use spidar_msg::ProxyShape;
+
+use crate::collide::Shape;
 
 use crate::desc::boxing_scene;
 use crate::model::{Model, Part, Side};
@@ -94,6 +97,10 @@ pub struct BoxerParams {
     pub reach_body_d_n_s_per_m: f64,
     /// The virtual human's cognitive model on (active) or off (passive, section 4.2).
     pub active: bool,
+    /// Radius of the sphere that stands for the user's fist (the rig file's `grip_radius_m`):
+    /// the prediction tests the extrapolated hands with it against the virtual human's parts,
+    /// as the rt-loop will render them.
+    pub grip_radius_m: f64,
     /// Seed of the attack generator (target and duration).
     pub seed: u64,
     /// Let the avatar's hands collide with the virtual human in the world simulation. Only for
@@ -115,9 +122,10 @@ impl Default for BoxerParams {
             proxy_range_m: 0.35,
             reach_arm_k_n_per_m: 40000.0,
             reach_arm_d_n_s_per_m: 200.0,
-            reach_body_k_n_per_m: 60000.0,
+            reach_body_k_n_per_m: 150000.0,
             reach_body_d_n_s_per_m: 1200.0,
             active: true,
+            grip_radius_m: 0.04,
             seed: 0,
             avatar_hands_collide: false,
         }
@@ -305,5 +313,30 @@ pub fn coupling_force(model: &Model, ws: &Workspace, hand: usize, t: &HandTarget
         f
     } else {
         DVec3::ZERO
+    }
+}
+
+/// A proxy for a collision shape at a world pose: spheres and capsules as they are, a box as the
+/// capsule along its longest axis with the radius of its thinnest half extent (the chest).
+pub fn proxy_shape(s: &Shape, pos: DVec3, rot: DMat3) -> Option<ProxyShape> {
+    match *s {
+        Shape::Sphere { radius_m } => Some(ProxyShape::Sphere { centre_m: pos, radius_m }),
+        Shape::Capsule { half_length_m, radius_m } => {
+            let ax = rot * DVec3::Y * half_length_m;
+            Some(ProxyShape::Capsule { a_m: pos - ax, b_m: pos + ax, radius_m })
+        }
+        Shape::Box { half_extents_m: e } => {
+            let (axis, long) = if e.x >= e.y && e.x >= e.z {
+                (DVec3::X, e.x)
+            } else if e.y >= e.z {
+                (DVec3::Y, e.y)
+            } else {
+                (DVec3::Z, e.z)
+            };
+            let r = e.min_element();
+            let ax = rot * axis * (long - r).max(0.0);
+            Some(ProxyShape::Capsule { a_m: pos - ax, b_m: pos + ax, radius_m: r })
+        }
+        Shape::Plane => None,
     }
 }

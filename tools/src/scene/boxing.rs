@@ -11,10 +11,9 @@
 //! Must never: send the coupling spring to the user, or publish a proxy without the id of the body
 //! it stands for (the impulse would be lost).
 
-use glam::{DMat3, DVec3};
-use spidar_msg::{ContactModel, HandSample, Proxy, ProxyShape, HANDS};
-use spidar_sim::boxer::{BoxerParams, BoxingWorld, HandTarget, BOXER};
-use spidar_sim::collide::Shape;
+use glam::DVec3;
+use spidar_msg::{ContactModel, HandSample, Proxy, HANDS};
+use spidar_sim::boxer::{proxy_shape, BoxerParams, BoxingWorld, HandTarget, BOXER};
 use spidar_sim::impulse::{body_of, dist, nearest_on_surface, proxy_id};
 
 use super::Scene;
@@ -124,31 +123,6 @@ impl BoxingScene {
             m.predictions,
             m.last_predict_ns as f64 * 1e-6,
         )
-    }
-}
-
-/// A proxy for a collision shape at a world pose: spheres and capsules as they are, a box as the
-/// capsule along its longest axis with the radius of its thinnest half extent (the chest).
-fn proxy_shape(s: &Shape, pos: DVec3, rot: DMat3) -> Option<ProxyShape> {
-    match *s {
-        Shape::Sphere { radius_m } => Some(ProxyShape::Sphere { centre_m: pos, radius_m }),
-        Shape::Capsule { half_length_m, radius_m } => {
-            let ax = rot * DVec3::Y * half_length_m;
-            Some(ProxyShape::Capsule { a_m: pos - ax, b_m: pos + ax, radius_m })
-        }
-        Shape::Box { half_extents_m: e } => {
-            let (axis, long) = if e.x >= e.y && e.x >= e.z {
-                (DVec3::X, e.x)
-            } else if e.y >= e.z {
-                (DVec3::Y, e.y)
-            } else {
-                (DVec3::Z, e.z)
-            };
-            let r = e.min_element();
-            let ax = rot * axis * (long - r).max(0.0);
-            Some(ProxyShape::Capsule { a_m: pos - ax, b_m: pos + ax, radius_m: r })
-        }
-        Shape::Plane => None,
     }
 }
 

@@ -57,6 +57,7 @@ pub fn spawn(
         let step_ns = (scene.step_s() * 1e9).round() as u64;
         let mut buf: Vec<HandSample> = Vec::with_capacity(256);
         let mut deadline = clock.now_ns();
+        let mut since_status = 100u32;
         while !stop.load(Ordering::Relaxed) {
             let wake = clock.sleep_until(deadline);
             if wake > deadline + step_ns {
@@ -68,9 +69,12 @@ pub fn spawn(
             if let Err(TrySendError::Full(_)) = models.try_send(m) {
                 counters.models_dropped.fetch_add(1, Ordering::Relaxed);
             }
-            if counters.steps.fetch_add(1, Ordering::Relaxed) % 100 == 0 {
+            counters.steps.fetch_add(1, Ordering::Relaxed);
+            since_status += 1;
+            if since_status >= 100 {
                 if let Ok(mut st) = counters.status.try_lock() {
                     *st = scene.status();
+                    since_status = 0;
                 }
             }
             deadline += step_ns;
