@@ -1,6 +1,9 @@
 //! The virtual boxer (seed 000): reaching follows the minimum-jerk timing, the cognitive model
 //! triggers only on a fast hand, avoids a jab at the head, and attacks with one hand at a time.
 
+#[path = "alloc_count/mod.rs"]
+mod alloc_count;
+
 use glam::DVec3;
 use spidar_sim::boxer::{min_jerk, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget, Reach};
 
@@ -186,4 +189,31 @@ fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
         active > 0.13 && active > passive + 0.05,
         "the head kept {active:.3} m from the fist (passive {passive:.3} m)"
     );
+}
+
+/// After warm-up a boxing step allocates nothing, predictions, reaches and decisions included.
+#[test]
+fn boxing_steps_with_predictions_do_not_allocate() {
+    let mut w = settled(BoxerParams::default());
+    w.mind.params.attack_per_step = 0.05;
+    let guard = w.com(w.avatar.hand[0]);
+    let head = w.com(w.vh.head);
+    let mut run = |w: &mut BoxingWorld, steps: usize| {
+        for k in 0..steps {
+            // Jabs at the head, one every 0.6 s: predictions, blocks, avoidances, attacks.
+            let t = (k % 200) as f64 * w.dt_s();
+            let tau = (t / 0.25).min(1.0);
+            let pos = guard + (head - guard) * min_jerk(tau);
+            let vel = (head - guard) * (spidar_sim::boxer::reach::min_jerk_rate(tau) / 0.25);
+            let targets = guard_targets(w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
+            w.step(&targets);
+            w.begin_step();
+        }
+    };
+    run(&mut w, 400);
+    let before = w.mind.predictions;
+    let n = alloc_count::count(|| run(&mut w, 1000));
+    assert!(w.mind.predictions > before + 3, "the jabs must trigger predictions");
+    assert_eq!(n, 0, "{n} allocations in 1000 boxing steps");
+    assert!(alloc_count::count(|| drop(vec![1u8; 10])) > 0);
 }
