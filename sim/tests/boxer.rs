@@ -198,7 +198,7 @@ fn boxing_steps_with_predictions_do_not_allocate() {
     w.mind.params.attack_per_step = 0.05;
     let guard = w.com(w.avatar.hand[0]);
     let head = w.com(w.vh.head);
-    let mut run = |w: &mut BoxingWorld, steps: usize| {
+    let run = |w: &mut BoxingWorld, steps: usize| {
         for k in 0..steps {
             // Jabs at the head, one every 0.6 s: predictions, blocks, avoidances, attacks.
             let t = (k % 200) as f64 * w.dt_s();

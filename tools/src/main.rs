@@ -199,7 +199,8 @@ struct RunArgs {
     #[command(flatten)]
     hw: HardwareArgs,
     /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
-    /// (its cognitive model off), `walls` (the rig check) or a scene file (.ron).
+    /// (its cognitive model off), a boxer file like configs/boxer.ron, `walls` (the rig check) or
+    /// a walls scene file (.ron).
     #[arg(long, default_value = "boxing")]
     scene: String,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,

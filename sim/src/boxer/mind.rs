@@ -101,7 +101,7 @@ pub struct Decision {
     pub hand_at_contact_m: DVec3,
 }
 
-/// Tunables of the cognitive model.
+/// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MindParams {
     /// An avatar hand moving toward the virtual human faster than this triggers a prediction.
@@ -126,19 +126,9 @@ pub struct MindParams {
 }
 
 impl Default for MindParams {
+    /// The values of the built-in `configs/boxer.ron`.
     fn default() -> Self {
-        MindParams {
-            trigger_m_per_s: 1.0,
-            horizon_s: 0.5,
-            middle_grace_s: 0.15,
-            predict_every_s: 0.03,
-            avoid_extend: 1.5,
-            avoid_clearance_m: 0.2,
-            block_time_fraction: 0.8,
-            attack_per_step: 0.004,
-            attack_s: (0.3, 0.6),
-            hold_s: 0.25,
-        }
+        BoxerParams::default().mind
     }
 }
 
@@ -173,7 +163,7 @@ pub struct Mind {
 impl Mind {
     pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
         Mind {
-            params: MindParams::default(),
+            params: p.mind,
             active: p.active,
             hands: [Behaviour::Standby; 2],
             body: BodyBehaviour::Standby,

@@ -16,6 +16,7 @@
 //! Must never: feed the coupling spring back to the user (it is the avatar's dynamics, not a
 //! contact), or allocate in a step after construction.
 
+pub mod config;
 pub mod mind;
 pub mod reach;
 
@@ -30,7 +31,8 @@ use crate::state::{kinematics, State, Workspace};
 use crate::step::{forward, integrate};
 use crate::SimError;
 
-pub use mind::{Behaviour, BodyBehaviour, ContactClass, Mind, Priority};
+pub use config::{load_boxer, parse_boxer, BOXER_RON};
+pub use mind::{Behaviour, BodyBehaviour, ContactClass, Mind, MindParams, Priority};
 pub use reach::{min_jerk, Reach};
 
 /// Index of the avatar and of the virtual human in the boxing scene.
@@ -101,6 +103,8 @@ pub struct BoxerParams {
     /// the prediction tests the extrapolated hands with it against the virtual human's parts,
     /// as the rt-loop will render them.
     pub grip_radius_m: f64,
+    /// The cognitive model's tunables.
+    pub mind: MindParams,
     /// Seed of the attack generator (target and duration).
     pub seed: u64,
     /// Let the avatar's hands collide with the virtual human in the world simulation. Only for
@@ -110,25 +114,10 @@ pub struct BoxerParams {
 }
 
 impl Default for BoxerParams {
+    /// The built-in `configs/boxer.ron` (a test checks it loads).
     fn default() -> Self {
-        BoxerParams {
-            user_offset_m: DVec3::new(0.0, 0.3, -0.3),
-            coupling_k_n_per_m: 3000.0,
-            coupling_d_n_s_per_m: 60.0,
-            avatar_joint_scale: 0.3,
-            damage_attenuation: 0.1,
-            proxy_k_n_per_m: 3000.0,
-            proxy_d_n_s_per_m: 5.0,
-            proxy_range_m: 0.35,
-            reach_arm_k_n_per_m: 40000.0,
-            reach_arm_d_n_s_per_m: 200.0,
-            reach_body_k_n_per_m: 150000.0,
-            reach_body_d_n_s_per_m: 1200.0,
-            active: true,
-            grip_radius_m: 0.04,
-            seed: 0,
-            avatar_hands_collide: false,
-        }
+        parse_boxer(BOXER_RON, "configs/boxer.ron (built in)")
+            .expect("the built-in boxer file is valid (tested)")
     }
 }
 

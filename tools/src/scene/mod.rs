@@ -95,9 +95,14 @@ pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
             active: false,
             ..Default::default()
         })?)),
+        // A boxer file (configs/boxer.ron): the boxing scene with those parameters.
+        p if p.ends_with("boxer.ron") => {
+            let params = spidar_sim::boxer::load_boxer(std::path::Path::new(p))?;
+            Ok(Box::new(boxing::BoxingScene::new(params)?))
+        }
         p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
         other => anyhow::bail!(
-            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls' or a scene file (.ron) like configs/scene-walls.ron"
+            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', a boxer file (*boxer.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
         ),
     }
 }
