@@ -70,12 +70,13 @@ fn centre(s: &ProxyShape) -> DVec3 {
     }
 }
 
-fn dist(s: &ProxyShape, p: DVec3) -> f64 {
+/// Distance from `p` to the shape's surface.
+pub fn dist(s: &ProxyShape, p: DVec3) -> f64 {
     (nearest_on_surface(s, p) - p).length()
 }
 
 /// Nearest point of the shape's surface to `p`.
-fn nearest_on_surface(s: &ProxyShape, p: DVec3) -> DVec3 {
+pub fn nearest_on_surface(s: &ProxyShape, p: DVec3) -> DVec3 {
     let on_sphere = |c: DVec3, r: f64| {
         let d = p - c;
         let l = d.length();

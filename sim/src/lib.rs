@@ -13,6 +13,7 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod aba;
+pub mod boxer;
 pub mod character;
 pub mod collide;
 pub mod contact;

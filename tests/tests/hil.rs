@@ -626,6 +626,8 @@ fn every_default_config_loads() {
         } else if name.starts_with("body-") {
             let text = std::fs::read_to_string(&p).unwrap();
             spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}"));
+        } else if name.starts_with("boxer") {
+            spidar_sim::boxer::load_boxer(&p).unwrap_or_else(|e| panic!("{e}"));
         } else if name.starts_with("script-") {
             ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"));
         } else {
@@ -673,3 +675,6 @@ fn homing_makes_each_grip_read_its_home_point() {
 
 #[path = "hil/uart_pty.rs"]
 mod uart_pty;
+
+#[path = "hil/boxing.rs"]
+mod boxing;

@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod calib;
+pub mod eval;
 pub mod eval_impacts;
 pub mod hardware;
 pub mod scene;

@@ -49,7 +49,8 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
-    /// Evaluations of the simulation against the papers.
+    /// Evaluations against the papers: `reactions` (seed 000: timing during a bout and the
+    /// reaction experiment), `impacts` (seed 002: impact-force estimation).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -70,6 +71,19 @@ enum EvalCmd {
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+    },
+    /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
+    /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
+    Reactions {
+        /// Jabs per target and mode (active, passive).
+        #[arg(long, default_value_t = 24)]
+        trials: usize,
+        /// Seed of the jabs (aim, hand, speed) and of the bout.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Length of the timed bout (s of rig time, virtual clock); 0 skips it.
+        #[arg(long, default_value_t = 60.0)]
+        bout_seconds: f64,
     },
 }
 
@@ -135,12 +149,14 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `walls` (the rig check), `crowd` (keyframe characters to push) or a
-    /// scene file (.ron).
-    #[arg(long, default_value = "walls")]
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
+    /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
+    /// characters to push, seed 002), `walls` (the rig check) or a walls scene file (.ron).
+    #[arg(long, default_value = "boxing")]
     scene: String,
-    /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
-    #[arg(long, default_value = "tour")]
+    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
+    /// tour (for `walls`), or a script file (.ron).
+    #[arg(long, default_value = "box")]
     script: String,
     /// Stop after this many seconds (default: run until Ctrl-C).
     #[arg(long)]
@@ -213,6 +229,26 @@ fn main() -> anyhow::Result<()> {
         Cmd::Run(a) => run(a),
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
+        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+            use spidar_tools::eval;
+            if bout_seconds > 0.0 {
+                eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
+                let b = eval::bout_timing(bout_seconds, seed)?;
+                println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                println!("  world step   {}", b.step);
+                println!("  prediction   {}", b.prediction);
+                println!("  rt misses    {}", b.misses);
+                println!("  scene        {}\n", b.status);
+            }
+            let r = eval::reactions(trials, seed, |done, total| {
+                if done % 16 == 0 || done == total {
+                    eprint!("\rjabs {done}/{total}\x1b[K");
+                }
+            })?;
+            eprintln!();
+            println!("{r}");
+            Ok(())
+        }
         Cmd::Devices { probe, port } => {
             print!("{}", hardware::devices_report(&port, probe));
             Ok(())
@@ -391,6 +427,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             seconds / wall
         );
         println!("  compute      {}", v.stats.compute.percentiles());
+        if let Some(s) = v.scene.as_ref() {
+            println!("  scene        {}", s.status());
+        }
         println!(
             "  max force    left {:.2} N, right {:.2} N",
             v.stats.max_force_n[0], v.stats.max_force_n[1]

@@ -31,14 +31,17 @@ pub const HOLD_AT_HOME_S: f64 = 0.3;
 /// The simulated user's scripts by built-in name or RON file, each starting with a hold at home.
 pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<[Script; 2]> {
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
-    let scripts = if let Some(s) = builtin_script(name_or_path, home, seed) {
+    let scripts = if name_or_path == "box" {
+        // Jabs and hooks at the boxing scene's virtual human (tools/src/scene/boxing.rs).
+        crate::scene::boxing::boxing_scripts(rig, &Default::default(), seed, 2000, None)?
+    } else if let Some(s) = builtin_script(name_or_path, home, seed) {
         s
     } else if name_or_path.ends_with(".ron") {
         let path = std::path::Path::new(name_or_path);
         ScriptFile::load(path).with_context(|| format!("loading the script file {name_or_path}"))?.hands
     } else {
         bail!(
-            "unknown script '{name_or_path}': use one of {} or a script file (.ron)",
+            "unknown script '{name_or_path}': use box, one of {} or a script file (.ron)",
             BUILTIN_SCRIPTS.join(", ")
         )
     };
@@ -346,10 +349,10 @@ pub fn run_live<D: Device + 'static>(
                 last_status = Instant::now();
                 let mut line =
                     status_line(&stats, faults_seen.len(), scene_counters.steps.load(Ordering::Relaxed));
-                if let Ok(s) = scene_counters.status.lock() {
-                    if !s.is_empty() {
+                if let Ok(st) = scene_counters.status.lock() {
+                    if !st.is_empty() {
                         line.push_str("  | ");
-                        line.push_str(&s);
+                        line.push_str(&st);
                     }
                 }
                 let mut err = std::io::stderr().lock();

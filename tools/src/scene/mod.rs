@@ -7,6 +7,7 @@
 //! A scene runs on its own thread on the real clock ([`spawn`]) or interleaved with the loop on
 //! the virtual clock (`session::run_virtual`).
 
+pub mod boxing;
 pub mod crowd;
 pub mod walls;
 
@@ -38,14 +39,10 @@ pub struct SceneCounters {
     pub models_dropped: AtomicU64,
     /// Steps that started more than one step period late.
     pub late_steps: AtomicU64,
-    /// The scene's own status (`Scene::status`), refreshed by the scene thread every 0.25 s. A
-    /// mutex is fine here: only the scene thread and the printing thread touch it, never the
-    /// real-time loop.
+    /// The scene's own status (`Scene::status`), refreshed every 100 steps for the status line;
+    /// the scene thread only `try_lock`s it, so a slow reader never holds a step up.
     pub status: std::sync::Mutex<String>,
 }
-
-/// How often (in scene steps) the scene thread refreshes `SceneCounters::status`.
-const STATUS_EVERY_STEPS: u64 = 83;
 
 /// Runs `scene` on its own thread every `step_s` on `clock` (shared epoch with the loop) until
 /// `stop` is set. It polls the sample channel (never blocks on it: see `spidar_rt::runner`).
@@ -61,6 +58,7 @@ pub fn spawn(
         let step_ns = (scene.step_s() * 1e9).round() as u64;
         let mut buf: Vec<HandSample> = Vec::with_capacity(256);
         let mut deadline = clock.now_ns();
+        let mut since_status = 100u32;
         while !stop.load(Ordering::Relaxed) {
             let wake = clock.sleep_until(deadline);
             if wake > deadline + step_ns {
@@ -72,10 +70,12 @@ pub fn spawn(
             if let Err(TrySendError::Full(_)) = models.try_send(m) {
                 counters.models_dropped.fetch_add(1, Ordering::Relaxed);
             }
-            let steps = counters.steps.fetch_add(1, Ordering::Relaxed);
-            if steps.is_multiple_of(STATUS_EVERY_STEPS) {
-                if let Ok(mut s) = counters.status.lock() {
-                    *s = scene.status();
+            counters.steps.fetch_add(1, Ordering::Relaxed);
+            since_status += 1;
+            if since_status >= 100 {
+                if let Ok(mut st) = counters.status.try_lock() {
+                    *st = scene.status();
+                    since_status = 0;
                 }
             }
             deadline += step_ns;
@@ -92,9 +92,19 @@ pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
     match name_or_path {
         "walls" => Ok(Box::new(walls::WallsScene::builtin())),
         "crowd" => Ok(Box::new(crowd::CrowdScene::builtin()?)),
+        "boxing" => Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
+        "boxing-passive" => Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
+            active: false,
+            ..Default::default()
+        })?)),
+        // A boxer file (configs/boxer.ron): the boxing scene with those parameters.
+        p if p.ends_with("boxer.ron") => {
+            let params = spidar_sim::boxer::load_boxer(std::path::Path::new(p))?;
+            Ok(Box::new(boxing::BoxingScene::new(params)?))
+        }
         p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
         other => anyhow::bail!(
-            "unknown scene '{other}': use 'walls', 'crowd' or a scene file (.ron) like configs/scene-walls.ron"
+            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', 'crowd', a boxer file (*boxer.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
         ),
     }
 }

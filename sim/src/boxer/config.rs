@@ -1,0 +1,177 @@
+//! The boxer's parameters from RON (`configs/boxer.ron`), validated once into `BoxerParams`.
+//!
+//! Must never: accept a value that makes the world unstable or meaningless without saying which
+//! field, where, and what range it needs.
+
+use std::path::Path;
+
+use glam::DVec3;
+use serde::Deserialize;
+use spidar_config as config;
+
+use super::mind::MindParams;
+use super::BoxerParams;
+use crate::SimError;
+
+/// The built-in boxer file.
+pub const BOXER_RON: &str = include_str!("../../../configs/boxer.ron");
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxerFile {
+    pub version: u32,
+    pub user_offset_m: (f64, f64, f64),
+    pub coupling_k_n_per_m: f64,
+    pub coupling_d_n_s_per_m: f64,
+    pub avatar_joint_scale: f64,
+    pub damage_attenuation: f64,
+    pub proxy_k_n_per_m: f64,
+    pub proxy_d_n_s_per_m: f64,
+    pub proxy_range_m: f64,
+    pub grip_radius_m: f64,
+    pub reach_arm_k_n_per_m: f64,
+    pub reach_arm_d_n_s_per_m: f64,
+    pub reach_body_k_n_per_m: f64,
+    pub reach_body_d_n_s_per_m: f64,
+    pub mind: MindFile,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MindFile {
+    pub trigger_m_per_s: f64,
+    pub horizon_s: f64,
+    pub middle_grace_s: f64,
+    pub predict_every_s: f64,
+    pub avoid_extend: f64,
+    pub avoid_clearance_m: f64,
+    pub block_time_fraction: f64,
+    pub attack_per_step: f64,
+    pub attack_min_s: f64,
+    pub attack_max_s: f64,
+    pub hold_s: f64,
+}
+
+/// Parses and validates boxer text; `origin` names it in errors.
+pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
+    let f: BoxerFile = config::parse(text, origin)?;
+    let err = |field: &str, msg: String| {
+        let key = field.rsplit('.').next().unwrap_or(field);
+        SimError::Config(config::invalid(text, origin, field, key, 0, msg))
+    };
+    if f.version != 1 {
+        return Err(err("version", format!("version {} is not supported; use 1", f.version)));
+    }
+    let o = f.user_offset_m;
+    if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
+        return Err(err("user_offset_m", "must be finite".into()));
+    }
+    let m = &f.mind;
+    // (field, value, low, high): every number must lie in [low, high].
+    let ranges: [(&str, f64, f64, f64); 24] = [
+        ("coupling_k_n_per_m", f.coupling_k_n_per_m, 1.0, 20_000.0),
+        ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
+        ("avatar_joint_scale", f.avatar_joint_scale, 0.01, 1.0),
+        ("damage_attenuation", f.damage_attenuation, 0.0, 1.0),
+        ("proxy_k_n_per_m", f.proxy_k_n_per_m, 0.0, 1e5),
+        ("proxy_d_n_s_per_m", f.proxy_d_n_s_per_m, 0.0, 1e3),
+        ("proxy_range_m", f.proxy_range_m, 0.0, 2.0),
+        ("grip_radius_m", f.grip_radius_m, 0.0, 0.2),
+        ("reach_arm_k_n_per_m", f.reach_arm_k_n_per_m, 0.0, 60_000.0),
+        ("reach_arm_d_n_s_per_m", f.reach_arm_d_n_s_per_m, 0.0, 400.0),
+        ("reach_body_k_n_per_m", f.reach_body_k_n_per_m, 0.0, 400_000.0),
+        ("reach_body_d_n_s_per_m", f.reach_body_d_n_s_per_m, 0.0, 2_500.0),
+        ("mind.trigger_m_per_s", m.trigger_m_per_s, 0.0, 20.0),
+        ("mind.horizon_s", m.horizon_s, 0.003, 2.0),
+        ("mind.middle_grace_s", m.middle_grace_s, 0.0, 2.0),
+        ("mind.predict_every_s", m.predict_every_s, 0.0, 2.0),
+        ("mind.avoid_extend", m.avoid_extend, 1.0, 5.0),
+        ("mind.avoid_clearance_m", m.avoid_clearance_m, 0.0, 1.0),
+        ("mind.block_time_fraction", m.block_time_fraction, 0.1, 1.0),
+        ("mind.attack_per_step", m.attack_per_step, 0.0, 1.0),
+        ("mind.attack_min_s", m.attack_min_s, 0.05, 5.0),
+        ("mind.attack_max_s", m.attack_max_s, 0.05, 5.0),
+        ("mind.hold_s", m.hold_s, 0.0, 5.0),
+        ("mind.attack_max_s", m.attack_max_s - m.attack_min_s, 1e-6, 5.0),
+    ];
+    for (field, v, lo, hi) in ranges {
+        if !(v >= lo && v <= hi) {
+            let why = if field == "mind.attack_max_s" && f.mind.attack_max_s >= 0.05 {
+                "must be more than attack_min_s".to_string()
+            } else {
+                // The stability bounds: explicit springs on a 0.6 kg hand at 3 ms need
+                // k dt^2 / m well under 4, and d dt / m under 2.
+                format!("{v} is outside {lo} ..= {hi}")
+            };
+            return Err(err(field, why));
+        }
+    }
+    Ok(BoxerParams {
+        user_offset_m: DVec3::new(o.0, o.1, o.2),
+        coupling_k_n_per_m: f.coupling_k_n_per_m,
+        coupling_d_n_s_per_m: f.coupling_d_n_s_per_m,
+        avatar_joint_scale: f.avatar_joint_scale,
+        damage_attenuation: f.damage_attenuation,
+        proxy_k_n_per_m: f.proxy_k_n_per_m,
+        proxy_d_n_s_per_m: f.proxy_d_n_s_per_m,
+        proxy_range_m: f.proxy_range_m,
+        grip_radius_m: f.grip_radius_m,
+        reach_arm_k_n_per_m: f.reach_arm_k_n_per_m,
+        reach_arm_d_n_s_per_m: f.reach_arm_d_n_s_per_m,
+        reach_body_k_n_per_m: f.reach_body_k_n_per_m,
+        reach_body_d_n_s_per_m: f.reach_body_d_n_s_per_m,
+        mind: MindParams {
+            trigger_m_per_s: m.trigger_m_per_s,
+            horizon_s: m.horizon_s,
+            middle_grace_s: m.middle_grace_s,
+            predict_every_s: m.predict_every_s,
+            avoid_extend: m.avoid_extend,
+            avoid_clearance_m: m.avoid_clearance_m,
+            block_time_fraction: m.block_time_fraction,
+            attack_per_step: m.attack_per_step,
+            attack_s: (m.attack_min_s, m.attack_max_s),
+            hold_s: m.hold_s,
+        },
+        active: true,
+        seed: 0,
+        avatar_hands_collide: false,
+    })
+}
+
+/// Loads a boxer file.
+pub fn load_boxer(path: &Path) -> Result<BoxerParams, SimError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SimError::Io { path: path.display().to_string(), message: e.to_string() })?;
+    parse_boxer(&text, &path.display().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builtin_boxer_file_is_the_default() {
+        let p = parse_boxer(BOXER_RON, "configs/boxer.ron").unwrap();
+        assert_eq!(p, BoxerParams::default());
+        assert_eq!(p.user_offset_m, DVec3::new(0.0, 0.3, -0.3));
+    }
+
+    #[test]
+    fn a_bad_value_names_the_file_line_and_field() {
+        let text = BOXER_RON.replacen("reach_arm_k_n_per_m: 40000.0", "reach_arm_k_n_per_m: 900000.0", 1);
+        let SimError::Config(e) = parse_boxer(&text, "b.ron").unwrap_err() else {
+            panic!("not a config error")
+        };
+        assert_eq!(e.field, "reach_arm_k_n_per_m");
+        assert_eq!(e.origin, "b.ron");
+        assert!(e.line > 0 && text.lines().nth(e.line - 1).unwrap().contains("900000"));
+        let text = BOXER_RON.replacen("attack_max_s: 0.6", "attack_max_s: 0.2", 1);
+        let SimError::Config(e) = parse_boxer(&text, "b.ron").unwrap_err() else {
+            panic!("not a config error")
+        };
+        assert_eq!(e.field, "mind.attack_max_s");
+        assert!(e.message.contains("attack_min_s"));
+        let text = BOXER_RON.replacen("hold_s:", "holding_s:", 1);
+        assert!(parse_boxer(&text, "b.ron").is_err(), "unknown fields are refused");
+    }
+}

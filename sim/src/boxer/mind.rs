@@ -1,0 +1,525 @@
+//! The virtual human's cognitive model (seed 000, sections 3.5 and 3.7-3.10): when an avatar
+//! hand comes toward it fast enough, copy the world state into a prediction workspace and run it
+//! ahead with the user's hands linearly extrapolated and its own reaches continuing; classify the
+//! predicted contacts by Table I; the highest-priority, earliest one drives the behaviour state
+//! machines of Fig. 5 (hands: standby / attack / block; body: standby / avoidance), whose actions
+//! (Table II) are reaching motions: avoidance by the geometry of Fig. 6, block by Fig. 7, attack
+//! at the avatar's head or chest with a seeded random duration.
+//!
+//! Passive mode (section 4.2) switches all of it off: the body then only yields to contacts.
+//!
+//! Must never: read the world's workspace after the step begins to change it, allocate once built
+//! (the predictor is sized at construction), or let two hands attack at once.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+use super::reach::Reach;
+use super::{coupling_force, BoxerParams, HandTarget, Parts, StepReport, AVATAR, BOXER};
+use crate::model::{Model, Part};
+use crate::state::{State, Workspace};
+use crate::step::Predictor;
+
+/// Table I: what a predicted contact between a virtual-human part and an avatar part means.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ContactClass {
+    /// 1. (head, hand), (chest, hand): the avatar's attack lands.
+    AvatarAttack,
+    /// 2. (hand, head), (hand, chest): the virtual human's attack lands.
+    BoxerAttack,
+    /// 3. (hand, hand), (arm, hand): the virtual human blocked.
+    BoxerBlocked,
+    /// 4. (hand, arm): the avatar blocked.
+    AvatarBlocked,
+    /// 5. Any other pair.
+    Other,
+}
+
+/// Table I priorities, ordered: `High > Middle > Low`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Priority {
+    Low,
+    Middle,
+    High,
+}
+
+impl ContactClass {
+    /// Classifies a contact by the virtual human's part and the avatar's part.
+    pub fn of(vh: Part, av: Part) -> ContactClass {
+        use Part::*;
+        let arm = |p| matches!(p, Forearm | UpperArm);
+        match (vh, av) {
+            (Head | Chest, Hand) => ContactClass::AvatarAttack,
+            (Hand, Head | Chest) => ContactClass::BoxerAttack,
+            (Hand, Hand) => ContactClass::BoxerBlocked,
+            (p, Hand) if arm(p) => ContactClass::BoxerBlocked,
+            (Hand, p) if arm(p) => ContactClass::AvatarBlocked,
+            _ => ContactClass::Other,
+        }
+    }
+
+    pub fn priority(self) -> Priority {
+        match self {
+            ContactClass::AvatarAttack | ContactClass::BoxerAttack => Priority::High,
+            ContactClass::BoxerBlocked | ContactClass::AvatarBlocked => Priority::Middle,
+            ContactClass::Other => Priority::Low,
+        }
+    }
+}
+
+/// A hand's behaviour (Fig. 5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Behaviour {
+    Standby,
+    Attack,
+    Block,
+}
+
+/// The body's (head and chest) behaviour (Fig. 5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BodyBehaviour {
+    Standby,
+    Avoidance,
+}
+
+/// The contact that decided a prediction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Decision {
+    pub class: ContactClass,
+    pub vh_body: usize,
+    pub av_body: usize,
+    /// Predicted contact point (world) and when, in simulated time.
+    pub point_m: DVec3,
+    pub at_s: f64,
+    /// The avatar hand's centre when the prediction started (A in Figs. 6 and 7), when an
+    /// avatar hand is involved.
+    pub hand_start_m: DVec3,
+    /// The avatar hand's centre at the contact in the prediction.
+    pub hand_at_contact_m: DVec3,
+}
+
+/// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MindParams {
+    /// An avatar hand moving toward the virtual human faster than this triggers a prediction.
+    pub trigger_m_per_s: f64,
+    /// How far ahead a prediction runs.
+    pub horizon_s: f64,
+    /// After a middle-priority contact, keep predicting this long for a high one.
+    pub middle_grace_s: f64,
+    /// Do not start another prediction sooner than this after one.
+    pub predict_every_s: f64,
+    /// Avoidance: P' extends AP by this factor; R lies this far from the trajectory beyond B.
+    pub avoid_extend: f64,
+    pub avoid_clearance_m: f64,
+    /// Block reaches finish this fraction of the time to contact.
+    pub block_time_fraction: f64,
+    /// Attack decision probability per step while both hands stand by (the lab's 0.004).
+    pub attack_per_step: f64,
+    /// Attack reach duration range (s).
+    pub attack_s: (f64, f64),
+    /// A finished reach is held this long before the part returns to standby.
+    pub hold_s: f64,
+}
+
+impl Default for MindParams {
+    /// The values of the built-in `configs/boxer.ron`.
+    fn default() -> Self {
+        BoxerParams::default().mind
+    }
+}
+
+/// The cognitive model and the reaches it commands.
+pub struct Mind {
+    pub params: MindParams,
+    pub active: bool,
+    pub hands: [Behaviour; 2],
+    pub body: BodyBehaviour,
+    /// Current reaches: hands [left, right], then the body (head or chest).
+    pub reaches: [Option<Reach>; 3],
+    pub predictor: Predictor,
+    pub last_decision: Option<Decision>,
+    /// Counters: predictions run, their last and total wall time (ns), behaviours entered.
+    pub predictions: u64,
+    pub last_predict_ns: u64,
+    pub predict_ns_total: u64,
+    pub avoidances: u64,
+    pub blocks: u64,
+    pub attacks: u64,
+    /// Hits taken (the user's hand on head or chest) and given (its hand on the avatar's).
+    pub hits_taken: u64,
+    pub hits_given: u64,
+    was_hit: bool,
+    was_hitting: bool,
+    next_predict_s: f64,
+    vh: Parts,
+    av: Parts,
+    rng: Pcg64Mcg,
+}
+
+impl Mind {
+    pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
+        Mind {
+            params: p.mind,
+            active: p.active,
+            hands: [Behaviour::Standby; 2],
+            body: BodyBehaviour::Standby,
+            reaches: [None; 3],
+            predictor: Predictor::new(model),
+            last_decision: None,
+            predictions: 0,
+            last_predict_ns: 0,
+            predict_ns_total: 0,
+            avoidances: 0,
+            blocks: 0,
+            attacks: 0,
+            hits_taken: 0,
+            hits_given: 0,
+            was_hit: false,
+            was_hitting: false,
+            next_predict_s: 0.0,
+            vh: *vh,
+            av: *av,
+            rng: Pcg64Mcg::seed_from_u64(p.seed),
+        }
+    }
+
+    /// Is an avatar hand coming at the virtual human fast enough to predict (section 3.7)?
+    pub fn triggered(&self, model: &Model, ws: &Workspace) -> bool {
+        let me = ws.com_world(model, self.vh.chest);
+        self.av.hand.iter().any(|&h| {
+            let p = ws.com_world(model, h);
+            let v = ws.point_velocity(h, model.bodies[h].com_m);
+            let to_me = me - p;
+            let d = to_me.length();
+            d > 1e-6 && v.dot(to_me / d) > self.params.trigger_m_per_s
+        })
+    }
+
+    /// Runs a prediction from `state` with the user's hands at `targets` extrapolated linearly
+    /// and the current reaches continuing; returns the deciding contact (highest priority,
+    /// earliest), following Table I's stopping rules.
+    pub fn predict(
+        &mut self,
+        model: &Model,
+        state: &State,
+        targets: &[Option<HandTarget>; 2],
+        bp: &BoxerParams,
+    ) -> Option<Decision> {
+        let started = Instant::now();
+        let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
+        let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
+        let t0 = state.t_s;
+        let reaches = self.reaches;
+        let (vh, av) = (self.vh, self.av);
+        let mut best: Option<Decision> = None;
+        let mut middle_at: Option<usize> = None;
+        let mut hand_start = [DVec3::ZERO; 2];
+        let mut n = 0usize;
+        // Pairs already touching when the prediction starts (guards resting on each other) are
+        // the present, not a prediction: skip them. Fixed capacity; more are simply not skipped.
+        let mut present = [(usize::MAX, usize::MAX); 16];
+        let mut n_present = 0;
+        self.predictor.run(model, state, steps, |m, s, ws| {
+            if n == 1 {
+                for c in &ws.contacts {
+                    if let (Some(a), Some(b)) = (c.body_a, c.body_b) {
+                        if n_present < present.len() {
+                            present[n_present] = (a as usize, b as usize);
+                            n_present += 1;
+                        }
+                    }
+                }
+            }
+            if n == 0 {
+                for h in 0..2 {
+                    hand_start[h] = ws.com_world(m, av.hand[h]);
+                }
+            }
+            // Contacts of the previous predicted step, classified by Table I.
+            for c in &ws.contacts {
+                let (Some(a), Some(b)) = (c.body_a, c.body_b) else { continue };
+                let (a, b) = (a as usize, b as usize);
+                if n == 1 || present[..n_present].contains(&(a, b)) {
+                    continue;
+                }
+                let (vb, ab) = match (m.bodies[a].articulation, m.bodies[b].articulation) {
+                    (BOXER, AVATAR) => (a, b),
+                    (AVATAR, BOXER) => (b, a),
+                    _ => continue,
+                };
+                let class = ContactClass::of(m.bodies[vb].part, m.bodies[ab].part);
+                let better = best.is_none_or(|d| class.priority() > d.class.priority());
+                if better {
+                    let hand = av.hand.iter().position(|&h| h == ab);
+                    best = Some(Decision {
+                        class,
+                        vh_body: vb,
+                        av_body: ab,
+                        point_m: c.point_m,
+                        at_s: s.t_s,
+                        hand_start_m: hand.map_or(DVec3::ZERO, |h| hand_start[h]),
+                        hand_at_contact_m: ws.com_world(m, ab),
+                    });
+                    if class.priority() == Priority::Middle && middle_at.is_none() {
+                        middle_at = Some(n);
+                    }
+                }
+            }
+            // The user's fists as the rt-loop renders them: the extrapolated hand points against
+            // the virtual human's parts. The avatar's arm may not reach where the user's hand
+            // does (its joints and length hold it back), so its own contacts are not enough.
+            if n > 0 {
+                let ahead = s.t_s - t0 - m.dt_s;
+                for (h, t) in targets.iter().enumerate() {
+                    let Some(t) = t else { continue };
+                    let fist = t.pos_m + t.vel_m_per_s * ahead;
+                    for (k, sh) in m.shapes.iter().enumerate() {
+                        let Some(vb) = sh.body else { continue };
+                        if m.bodies[vb].articulation != BOXER {
+                            continue;
+                        }
+                        let pose = ws.shape_pose[k];
+                        let Some(shape) = super::proxy_shape(&sh.shape, pose.pos_m, pose.rot) else {
+                            continue;
+                        };
+                        if crate::impulse::dist(&shape, fist) > bp.grip_radius_m {
+                            continue;
+                        }
+                        let class = ContactClass::of(m.bodies[vb].part, Part::Hand);
+                        if best.is_none_or(|d| class.priority() > d.class.priority()) {
+                            best = Some(Decision {
+                                class,
+                                vh_body: vb,
+                                av_body: av.hand[h],
+                                point_m: crate::impulse::nearest_on_surface(&shape, fist),
+                                at_s: s.t_s,
+                                hand_start_m: t.pos_m,
+                                hand_at_contact_m: fist,
+                            });
+                            if class.priority() == Priority::Middle && middle_at.is_none() {
+                                middle_at = Some(n);
+                            }
+                        }
+                    }
+                }
+            }
+            match best.map(|d| d.class.priority()) {
+                Some(Priority::High) => return false,
+                Some(Priority::Middle) if middle_at.is_some_and(|k| n >= k + grace) => return false,
+                _ => {}
+            }
+            let dt_ahead = s.t_s - t0;
+            for (h, t) in targets.iter().enumerate() {
+                if let Some(t) = t {
+                    let ext =
+                        HandTarget { pos_m: t.pos_m + t.vel_m_per_s * dt_ahead, vel_m_per_s: t.vel_m_per_s };
+                    let f = coupling_force(m, ws, av.hand[h], &ext, bp);
+                    let c = ws.com_world(m, av.hand[h]);
+                    ws.add_force_at(av.hand[h], c, f);
+                }
+            }
+            for r in reaches.iter().flatten() {
+                r.apply(m, ws, s.t_s);
+            }
+            let _ = vh;
+            n += 1;
+            true
+        });
+        self.predictions += 1;
+        self.last_predict_ns = started.elapsed().as_nanos() as u64;
+        self.predict_ns_total += self.last_predict_ns;
+        best
+    }
+
+    /// Section 3.9: behaviour from the deciding contact, and the reaches of Table II.
+    pub fn decide(&mut self, model: &Model, ws: &Workspace, now_s: f64, d: &Decision, bp: &BoxerParams) {
+        self.last_decision = Some(*d);
+        if d.class != ContactClass::AvatarAttack {
+            return;
+        }
+        let left = (d.at_s - now_s).max(0.08);
+        // Avoidance (Fig. 6): the part that would be hit moves away from the hand's path.
+        let part = if d.vh_body == self.vh.head { self.vh.head } else { self.vh.chest };
+        let a = d.hand_start_m;
+        let p_ext = a + (d.point_m - a) * self.params.avoid_extend;
+        let b = ws.com_world(model, part);
+        let q = nearest_on_segment(a, p_ext, b);
+        let mut away = b - q;
+        away.z = away.z.min(0.0); // never toward the avatar
+        let dir = if away.length() > 1e-6 { away.normalize() } else { DVec3::X };
+        let r = b + dir * self.params.avoid_clearance_m;
+        self.reaches[2] = Some(Reach::start(
+            model,
+            ws,
+            part,
+            r,
+            now_s,
+            left,
+            bp.reach_body_k_n_per_m,
+            bp.reach_body_d_n_s_per_m,
+        ));
+        if self.body != BodyBehaviour::Avoidance {
+            self.avoidances += 1;
+        }
+        self.body = BodyBehaviour::Avoidance;
+        // Block (Fig. 7) with the hand nearer the predicted contact; an attack by it stops.
+        let h = (0..2)
+            .min_by(|&i, &j| {
+                let di = (ws.com_world(model, self.vh.hand[i]) - d.point_m).length();
+                let dj = (ws.com_world(model, self.vh.hand[j]) - d.point_m).length();
+                di.total_cmp(&dj)
+            })
+            .unwrap_or(0);
+        let hb = ws.com_world(model, self.vh.hand[h]);
+        let target = nearest_on_segment(a, d.hand_at_contact_m, hb);
+        let dur = (left * self.params.block_time_fraction).max(0.06);
+        self.reaches[h] = Some(Reach::start(
+            model,
+            ws,
+            self.vh.hand[h],
+            target,
+            now_s,
+            dur,
+            bp.reach_arm_k_n_per_m,
+            bp.reach_arm_d_n_s_per_m,
+        ));
+        if self.hands[h] != Behaviour::Block {
+            self.blocks += 1;
+        }
+        self.hands[h] = Behaviour::Block;
+    }
+
+    /// Called before the world step: trigger, predict, decide, start attacks, end finished reaches.
+    pub fn think(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &Workspace,
+        targets: &[Option<HandTarget>; 2],
+        bp: &BoxerParams,
+    ) {
+        let now = state.t_s;
+        // Finished reaches are held a little, then the part returns to standby.
+        for i in 0..3 {
+            if let Some(r) = self.reaches[i] {
+                if now > r.start_s + r.duration_s + self.params.hold_s {
+                    self.reaches[i] = None;
+                    if i < 2 {
+                        self.hands[i] = Behaviour::Standby;
+                    } else {
+                        self.body = BodyBehaviour::Standby;
+                    }
+                }
+            }
+        }
+        if !self.active {
+            return;
+        }
+        if now >= self.next_predict_s && self.triggered(model, ws) {
+            self.next_predict_s = now + self.params.predict_every_s;
+            if let Some(d) = self.predict(model, state, targets, bp) {
+                self.decide(model, ws, now, &d, bp);
+            }
+        }
+        // Attack: one hand at a time, only while both stand by and the body is not avoiding.
+        let idle = self.hands.iter().all(|&b| b == Behaviour::Standby) && self.body == BodyBehaviour::Standby;
+        if idle && self.rng.random::<f64>() < self.params.attack_per_step {
+            let h = if self.rng.random::<f64>() < 0.7 { 1 } else { 0 };
+            let hand = self.vh.hand[h];
+            let hp = ws.com_world(model, hand);
+            let (head, chest) = (ws.com_world(model, self.av.head), ws.com_world(model, self.av.chest));
+            // Nearer target favoured (section 4.4.3): weight by the other one's distance.
+            let (dh, dc) = ((head - hp).length(), (chest - hp).length());
+            let target = if self.rng.random::<f64>() < dc / (dh + dc) { head } else { chest };
+            let (lo, hi) = self.params.attack_s;
+            let dur = self.rng.random_range(lo..hi);
+            self.reaches[h] = Some(Reach::start(
+                model,
+                ws,
+                hand,
+                target,
+                now,
+                dur,
+                bp.reach_arm_k_n_per_m,
+                bp.reach_arm_d_n_s_per_m,
+            ));
+            self.hands[h] = Behaviour::Attack;
+            self.attacks += 1;
+        }
+    }
+
+    /// Applies the current reaches for this step.
+    pub fn act(&self, model: &Model, ws: &mut Workspace, now_s: f64) {
+        for r in self.reaches.iter().flatten() {
+            r.apply(model, ws, now_s);
+        }
+    }
+
+    /// Counts hits (rising edges) after a world step.
+    pub fn after_step(&mut self, rep: &StepReport) {
+        if rep.vh_hit && !self.was_hit {
+            self.hits_taken += 1;
+        }
+        if rep.avatar_hit && !self.was_hitting {
+            self.hits_given += 1;
+        }
+        self.was_hit = rep.vh_hit;
+        self.was_hitting = rep.avatar_hit;
+    }
+
+    /// Number of hands attacking now (never more than one).
+    pub fn attacking(&self) -> usize {
+        self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
+    }
+}
+
+/// Nearest point to `p` on the segment `a`..`b`.
+pub fn nearest_on_segment(a: DVec3, b: DVec3, p: DVec3) -> DVec3 {
+    let ab = b - a;
+    let l2 = ab.length_squared();
+    if l2 <= 0.0 {
+        return a;
+    }
+    a + ab * ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_table_one_class_gets_its_priority() {
+        use Part::*;
+        let cases = [
+            (Head, Hand, ContactClass::AvatarAttack, Priority::High),
+            (Chest, Hand, ContactClass::AvatarAttack, Priority::High),
+            (Hand, Head, ContactClass::BoxerAttack, Priority::High),
+            (Hand, Chest, ContactClass::BoxerAttack, Priority::High),
+            (Hand, Hand, ContactClass::BoxerBlocked, Priority::Middle),
+            (Forearm, Hand, ContactClass::BoxerBlocked, Priority::Middle),
+            (UpperArm, Hand, ContactClass::BoxerBlocked, Priority::Middle),
+            (Hand, Forearm, ContactClass::AvatarBlocked, Priority::Middle),
+            (Hand, UpperArm, ContactClass::AvatarBlocked, Priority::Middle),
+            (Forearm, Forearm, ContactClass::Other, Priority::Low),
+            (Head, Head, ContactClass::Other, Priority::Low),
+            (Waist, Hand, ContactClass::Other, Priority::Low),
+        ];
+        for (vh, av, class, prio) in cases {
+            assert_eq!(ContactClass::of(vh, av), class, "({vh:?}, {av:?})");
+            assert_eq!(class.priority(), prio, "{class:?}");
+        }
+        assert!(Priority::High > Priority::Middle && Priority::Middle > Priority::Low);
+    }
+
+    #[test]
+    fn nearest_point_is_clamped_to_the_segment() {
+        let (a, b) = (DVec3::ZERO, DVec3::X);
+        assert_eq!(nearest_on_segment(a, b, DVec3::new(0.5, 1.0, 0.0)), DVec3::new(0.5, 0.0, 0.0));
+        assert_eq!(nearest_on_segment(a, b, DVec3::new(-2.0, 1.0, 0.0)), a);
+        assert_eq!(nearest_on_segment(a, b, DVec3::new(3.0, 0.0, 0.0)), b);
+    }
+}

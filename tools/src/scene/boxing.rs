@@ -1,0 +1,235 @@
+//! The boxing scene (seed 000): the physics world of `spidar_sim::boxer` behind the rt-loop.
+//!
+//! Every 3 ms step: the user's hands (newest sample, world frame of the rt-loop) plus the boxer's
+//! `user_offset_m` become the avatar's hand targets; the impulses the rt-loop applied to the
+//! proxies of the last models are given to the virtual human's parts they name, and their
+//! reaction to the avatar's hands; the world steps (the virtual human thinks and reaches); and
+//! the scene publishes proxies of the virtual human's parts near the user's hands, in the
+//! rt-loop's frame, with the avatar's damage (contacts on its other parts, attenuated) as the
+//! extra force on both hands.
+//!
+//! Must never: send the coupling spring to the user, or publish a proxy without the id of the body
+//! it stands for (the impulse would be lost).
+
+use glam::DVec3;
+use spidar_msg::{ContactModel, HandSample, Proxy, HANDS};
+use spidar_sim::boxer::{proxy_shape, BoxerParams, BoxingWorld, HandTarget, BOXER};
+use spidar_sim::impulse::{body_of, dist, nearest_on_surface, proxy_id};
+
+use super::Scene;
+
+/// Contact models kept to match the impulses of late samples (a sample names its model's seq).
+const KEPT_MODELS: usize = 8;
+
+pub struct BoxingScene {
+    pub world: BoxingWorld,
+    seq: u64,
+    sent: [ContactModel; KEPT_MODELS],
+    targets: [Option<HandTarget>; HANDS],
+    /// Newest user hand positions (rt-loop frame), for attributing impulses to hands.
+    user_hands: [Option<DVec3>; HANDS],
+    /// Wall time of each world step (ns), the newest last; read by `spidar eval` and the status.
+    pub last_step_ns: u64,
+}
+
+impl BoxingScene {
+    pub fn new(params: BoxerParams) -> anyhow::Result<BoxingScene> {
+        let world = BoxingWorld::new(params)?;
+        Ok(BoxingScene {
+            world,
+            seq: 0,
+            sent: [ContactModel::default(); KEPT_MODELS],
+            targets: [None; HANDS],
+            user_hands: [None; HANDS],
+            last_step_ns: 0,
+        })
+    }
+
+    /// Applies the impulses of one sample to the world.
+    fn take_impulses(&mut self, s: &HandSample) {
+        if s.model_seq == 0 {
+            return;
+        }
+        let Some(m) = self.sent.iter().find(|m| m.seq == s.model_seq) else { return };
+        let m = *m;
+        let off = self.world.params.user_offset_m;
+        for (p, imp) in m.proxies().iter().zip(s.proxy_impulse_n_s.iter()) {
+            if *imp == DVec3::ZERO {
+                continue;
+            }
+            let Some(body) = body_of(&self.world.model, p.id) else { continue };
+            // The hand that touched it: the valid one nearer the proxy's surface.
+            let hand = (0..HANDS).filter(|&h| s.hands[h].valid).min_by(|&a, &b| {
+                dist(&p.shape, s.hands[a].pos_m).total_cmp(&dist(&p.shape, s.hands[b].pos_m))
+            });
+            let Some(hand) = hand else { continue };
+            let point = nearest_on_surface(&p.shape, s.hands[hand].pos_m) + off;
+            self.world.apply_user_impulse(hand, body, point, *imp);
+        }
+    }
+
+    /// The proxies of the virtual human's parts near the user's hands, in the rt-loop's frame.
+    fn model_at(&mut self, t_s: f64) -> ContactModel {
+        self.seq += 1;
+        let w = &self.world;
+        let p = &w.params;
+        let mut cm = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
+        for (k, s) in w.model.shapes.iter().enumerate() {
+            let Some(body) = s.body else { continue };
+            if w.model.bodies[body].articulation != BOXER {
+                continue;
+            }
+            let pose = w.ws.shape_pose[k];
+            let Some(shape) = proxy_shape(&s.shape, pose.pos_m - p.user_offset_m, pose.rot) else { continue };
+            let near = self.user_hands.iter().flatten().any(|&h| dist(&shape, h) < p.proxy_range_m);
+            if !near {
+                continue;
+            }
+            let com_b = w.model.bodies[body].com_m;
+            let vel = w.ws.point_velocity(body, com_b)
+                + w.ws.angular_velocity(body).cross(pose.pos_m - w.ws.point_world(body, com_b));
+            let ok = cm.push(Proxy {
+                id: proxy_id(&w.model, body),
+                shape,
+                k_n_per_m: p.proxy_k_n_per_m,
+                d_n_s_per_m: p.proxy_d_n_s_per_m,
+                vel_m_per_s: vel,
+                hand_mask: Proxy::BOTH_HANDS,
+            });
+            if !ok {
+                break;
+            }
+        }
+        let damage = w.last.damage_force_n * p.damage_attenuation;
+        cm.extra_force_n = [damage; HANDS];
+        self.sent[(self.seq as usize) % KEPT_MODELS] = cm;
+        cm
+    }
+
+    pub fn status_text(&self) -> String {
+        let m = &self.world.mind;
+        let b = |x: spidar_sim::boxer::Behaviour| format!("{x:?}").to_lowercase();
+        format!(
+            "{} body {:?} hands {}/{} | attacks {} avoid {} block {} | hits taken {} given {} | predictions {} last {:.2} ms",
+            if m.active { "active" } else { "passive" },
+            m.body,
+            b(m.hands[0]),
+            b(m.hands[1]),
+            m.attacks,
+            m.avoidances,
+            m.blocks,
+            m.hits_taken,
+            m.hits_given,
+            m.predictions,
+            m.last_predict_ns as f64 * 1e-6,
+        )
+    }
+}
+
+impl Scene for BoxingScene {
+    fn name(&self) -> &str {
+        "boxing"
+    }
+
+    fn step_s(&self) -> f64 {
+        self.world.dt_s()
+    }
+
+    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
+        let started = std::time::Instant::now();
+        self.world.begin_step();
+        for s in samples {
+            self.take_impulses(s);
+        }
+        if let Some(s) = samples.last() {
+            let off = self.world.params.user_offset_m;
+            for h in 0..HANDS {
+                let hs = s.hands[h];
+                self.user_hands[h] = hs.valid.then_some(hs.pos_m);
+                self.targets[h] =
+                    hs.valid.then_some(HandTarget { pos_m: hs.pos_m + off, vel_m_per_s: hs.vel_m_per_s });
+            }
+        }
+        self.world.step(&self.targets);
+        // The proxies need the kinematics of the new state.
+        self.world.begin_step();
+        let m = self.model_at(t_s);
+        self.last_step_ns = started.elapsed().as_nanos() as u64;
+        m
+    }
+
+    fn status(&self) -> String {
+        self.status_text()
+    }
+}
+
+/// Targets of the scripted boxer, rig frame: where the virtual human's head, chest, left hand and
+/// right hand are in its guard, mapped back through `user_offset_m` and the rig's transform.
+pub fn punch_targets_rig(rig: &spidar_rt::Rig, params: &BoxerParams) -> anyhow::Result<[DVec3; 4]> {
+    let mut w = BoxingWorld::new(params.clone())?;
+    // Settle into the guard first (the default pose is not yet balanced under gravity).
+    for _ in 0..200 {
+        w.begin_step();
+        w.step(&[None, None]);
+    }
+    w.begin_step();
+    let vh = w.vh;
+    // Aim at the front surface: a few cm in front of the centres (the VH faces +z).
+    let front = |b: usize, dz: f64| w.com(b) + DVec3::new(0.0, 0.0, dz);
+    let to_rig = |p: DVec3| rig.rig_to_world.point_to_rig(p - params.user_offset_m);
+    Ok([
+        to_rig(front(vh.head, 0.06)),
+        to_rig(front(vh.chest, 0.10)),
+        to_rig(front(vh.hand[0], 0.03)),
+        to_rig(front(vh.hand[1], 0.03)),
+    ])
+}
+
+/// The scripted user of the boxing scene (`--script box`): jabs and hooks at the virtual human's
+/// head, chest and hands, one hand at a time, with random pauses; seeded, so a run repeats.
+/// `target` limits every punch to one of the four targets (head, chest, left hand, right hand).
+pub fn boxing_scripts(
+    rig: &spidar_rt::Rig,
+    params: &BoxerParams,
+    seed: u64,
+    punches: usize,
+    target: Option<usize>,
+) -> anyhow::Result<[spidar_device::sim::Script; 2]> {
+    use rand::{Rng, SeedableRng};
+    use spidar_device::sim::{Script, Segment};
+    let targets = punch_targets_rig(rig, params)?;
+    let home = [rig.hands[0].home_m, rig.hands[1].home_m];
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ 0xB0C5);
+    let mut segs: [Vec<Segment>; 2] = [Vec::new(), Vec::new()];
+    let hold = |at: DVec3, for_s: f64| Segment::Hold { at_m: at.to_array(), for_s };
+    for _ in 0..punches {
+        let hand = rng.random_range(0..2usize);
+        let t = target.unwrap_or_else(|| rng.random_range(0..4usize));
+        let mut to = targets[t];
+        // Aim a little through the target, as a boxer does.
+        to.z -= 0.05;
+        let hook = rng.random::<f64>() < 0.3;
+        let out_s = rng.random_range(0.2..0.32);
+        let pause = rng.random_range(0.5..1.2);
+        let mut dur = 0.0;
+        if hook {
+            // Swing out to the side first, then in.
+            let side = if hand == 0 { -0.2 } else { 0.2 };
+            let wind = home[hand] + DVec3::new(side, 0.05, -0.1);
+            segs[hand].push(Segment::Reach { to_m: wind.to_array(), duration_s: 0.2 });
+            segs[hand].push(Segment::Reach { to_m: to.to_array(), duration_s: out_s });
+            segs[hand].push(Segment::Reach { to_m: home[hand].to_array(), duration_s: 0.35 });
+            dur += 0.2 + out_s + 0.35;
+        } else {
+            segs[hand].push(Segment::Jab { to_m: to.to_array(), out_s, back_s: 0.35 });
+            dur += out_s + 0.35;
+        }
+        segs[hand].push(hold(home[hand], pause));
+        segs[1 - hand].push(hold(home[1 - hand], dur + pause));
+    }
+    Ok([0, 1].map(|h| {
+        let mut s = std::mem::take(&mut segs[h]);
+        s.push(hold(home[h], 1e6));
+        Script::from_segments(s, false)
+    }))
+}
