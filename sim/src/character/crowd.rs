@@ -434,42 +434,55 @@ impl Crowd {
     }
 
     /// Contacts of character `i` with the scenery (its caches must be filled).
+    // Borrows the shapes, the scenery and the hit buffer in place: copying them per character (a
+    // few hundred bytes each) cost more than the narrow phase itself.
     #[inline]
     fn scenery_contacts(&mut self, i: usize) {
         let h = self.world.dt_s;
-        let mut hits = self.hits;
+        let inv_mass_kg = 1.0 / self.body.mass_kg;
         let ns = self.body.shapes.len();
-        for k in 0..ns {
-            let (shape, _, bound) = self.body.shapes[k];
-            let pose = self.shape_pose[i * ns + k];
-            for si in 0..self.statics.len() {
-                let (ss, sp) = self.statics[si];
+        let (com, inv_i, w_world) = (self.com_world[i], self.inv_i_world[i], self.w_world[i]);
+        let (pos, vel) = (self.bodies[i].pos_m, self.bodies[i].vel_m_per_s);
+        let (mut force, mut torque) = (self.force[i], self.torque[i]);
+        let (mut ground_n, mut ground_moment) = (self.ground_n[i], self.ground_moment[i]);
+        let mut points = 0;
+        for ((shape, _, bound), pose) in self.body.shapes.iter().zip(&self.shape_pose[i * ns..(i + 1) * ns]) {
+            for (ss, sp) in &self.statics {
                 let far = match ss {
-                    Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > bound,
-                    _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2),
+                    Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
+                    _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
                 };
                 if far {
                     continue;
                 }
-                let nh = collide(&shape, &pose, &ss, &sp, &mut hits);
+                let nh = collide(shape, pose, ss, sp, &mut self.hits);
                 if nh == 0 {
                     continue;
                 }
                 let share = 1.0 / nh as f64;
-                for hit in hits.iter().take(nh) {
-                    let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal);
-                    let vrel = self.vel_at(i, hit.point_m);
+                for hit in self.hits.iter().take(nh) {
+                    // `inv_mass_along`, `vel_at` and `apply_hit` on the values held above.
+                    let arm = hit.point_m - com;
+                    let w = arm.cross(hit.normal);
+                    let inv_m = inv_mass_kg + w.dot(inv_i * w);
+                    let vrel = vel + w_world.cross(hit.point_m - pos);
                     let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
-                    self.apply_hit(i, hit, f);
+                    force += f;
+                    torque += arm.cross(f);
                     if hit.normal.y >= 0.7 {
                         let fn_ = f.dot(hit.normal).max(0.0);
-                        self.ground_n[i] += fn_;
-                        self.ground_moment[i] += hit.point_m * fn_;
+                        ground_n += fn_;
+                        ground_moment += hit.point_m * fn_;
                     }
-                    self.stats.scenery_points += 1;
+                    points += 1;
                 }
             }
         }
+        self.force[i] = force;
+        self.torque[i] = torque;
+        self.ground_n[i] = ground_n;
+        self.ground_moment[i] = ground_moment;
+        self.stats.scenery_points += points;
     }
 
     /// Cell size: two bounding radii, so touching characters are in the same or adjacent cells.
