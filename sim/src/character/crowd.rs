@@ -179,12 +179,13 @@ pub struct Crowd {
     cell_pos: Vec<DVec3>,
     grid_dims: (usize, usize),
     // Per character for the current step: rotation matrix, world angular velocity, world inverse
-    // inertia, centre of mass, and every shape's world pose (`shapes.len()` per character).
+    // inertia and centre of mass. Shape poses are not stored: computing one from `rotm` where it is
+    // needed (the scenery pass and near pairs) is cheaper than writing and reading them back for
+    // every character (a few hundred bytes each, megabytes per step).
     rotm: Vec<DMat3>,
     w_world: Vec<DVec3>,
     inv_i_world: Vec<DMat3>,
     com_world: Vec<DVec3>,
-    shape_pose: Vec<ShapePose>,
     hits: [Hit; MAX_HITS],
 }
 
@@ -219,7 +220,6 @@ impl Crowd {
             w_world: Vec::new(),
             inv_i_world: Vec::new(),
             com_world: Vec::new(),
-            shape_pose: Vec::new(),
             hits: [Hit::ZERO; MAX_HITS],
         }
     }
@@ -263,9 +263,6 @@ impl Crowd {
         self.w_world.push(DVec3::ZERO);
         self.inv_i_world.push(DMat3::IDENTITY);
         self.com_world.push(DVec3::ZERO);
-        for _ in 0..self.body.shapes.len() {
-            self.shape_pose.push(ShapePose::IDENTITY);
-        }
         self.bodies.len() - 1
     }
 
@@ -391,10 +388,6 @@ impl Crowd {
         self.w_world[i] = r * s.w_body;
         self.inv_i_world[i] = r * self.body.inv_i_com * r.transpose();
         self.com_world[i] = b.r_m;
-        let ns = self.body.shapes.len();
-        for (k, (_, local, _)) in self.body.shapes.iter().enumerate() {
-            self.shape_pose[i * ns + k] = ShapePose { pos_m: s.pos_m + r * local.pos_m, rot: r * local.rot };
-        }
     }
 
     fn wander_goal(&mut self, i: usize, area: [f64; 4]) {
@@ -440,22 +433,25 @@ impl Crowd {
     fn scenery_contacts(&mut self, i: usize) {
         let h = self.world.dt_s;
         let inv_mass_kg = 1.0 / self.body.mass_kg;
-        let ns = self.body.shapes.len();
         let (com, inv_i, w_world) = (self.com_world[i], self.inv_i_world[i], self.w_world[i]);
         let (pos, vel) = (self.bodies[i].pos_m, self.bodies[i].vel_m_per_s);
         let (mut force, mut torque) = (self.force[i], self.torque[i]);
         let (mut ground_n, mut ground_moment) = (self.ground_n[i], self.ground_moment[i]);
         let mut points = 0;
-        for ((shape, _, bound), pose) in self.body.shapes.iter().zip(&self.shape_pose[i * ns..(i + 1) * ns]) {
+        let r = self.rotm[i];
+        for (shape, local, bound) in &self.body.shapes {
+            let pos_m = pos + r * local.pos_m;
+            let mut rot = None;
             for (ss, sp) in &self.statics {
                 let far = match ss {
-                    Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
-                    _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
+                    Shape::Plane => (pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
+                    _ => (pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
                 };
                 if far {
                     continue;
                 }
-                let nh = collide(shape, pose, ss, sp, &mut self.hits);
+                let pose = ShapePose { pos_m, rot: *rot.get_or_insert_with(|| r * local.rot) };
+                let nh = collide(shape, &pose, ss, sp, &mut self.hits);
                 if nh == 0 {
                     continue;
                 }
@@ -598,20 +594,24 @@ impl Crowd {
     fn pair(&mut self, i: usize, j: usize) {
         let h = self.world.dt_s;
         let ns = self.body.shapes.len();
+        let (ri, rj) = (self.rotm[i], self.rotm[j]);
+        let (pos_i, pos_j) = (self.bodies[i].pos_m, self.bodies[j].pos_m);
         for ka in 0..ns {
-            let (sa, _, ra) = self.body.shapes[ka];
-            let pa = self.shape_pose[i * ns + ka];
+            let (sa, la, ra) = self.body.shapes[ka];
+            let pa_m = pos_i + ri * la.pos_m;
             // Most shapes of a near pair are nowhere near the other body at all.
             let reach_j = ra + self.body.bound_m;
-            if (pa.pos_m - self.bodies[j].pos_m).length_squared() > reach_j * reach_j {
+            if (pa_m - pos_j).length_squared() > reach_j * reach_j {
                 continue;
             }
+            let pa = ShapePose { pos_m: pa_m, rot: ri * la.rot };
             for kb in 0..ns {
-                let (sb, _, rb) = self.body.shapes[kb];
-                let pb = self.shape_pose[j * ns + kb];
-                if (pa.pos_m - pb.pos_m).length_squared() > (ra + rb) * (ra + rb) {
+                let (sb, lb, rb) = self.body.shapes[kb];
+                let pb_m = pos_j + rj * lb.pos_m;
+                if (pa.pos_m - pb_m).length_squared() > (ra + rb) * (ra + rb) {
                     continue;
                 }
+                let pb = ShapePose { pos_m: pb_m, rot: rj * lb.rot };
                 let nh = collide(&sa, &pa, &sb, &pb, &mut self.hits);
                 if nh == 0 {
                     continue;
