@@ -26,7 +26,9 @@ use super::controller::Ground;
 use super::keyframe::{KeyframeSet, Pose};
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
-use crate::collide::{bounding_radius, collide, Hit, Pose as ShapePose, Shape, MAX_HITS};
+use crate::collide::{
+    bounding_radius, box_on_plane, collide, plane_normal, Hit, Pose as ShapePose, Shape, MAX_HITS,
+};
 use crate::contact::{penalty_force, Penalty};
 use crate::desc::{BodyFile, ContactDesc, MassDesc};
 use crate::spatial::quat_exp;
@@ -187,6 +189,8 @@ pub struct Crowd {
     inv_i_world: Vec<DMat3>,
     com_world: Vec<DVec3>,
     hits: [Hit; MAX_HITS],
+    /// `plane_normal` of each static shape (unused for non-planes), refreshed every step.
+    static_normal: Vec<DVec3>,
 }
 
 impl Crowd {
@@ -221,6 +225,7 @@ impl Crowd {
             inv_i_world: Vec::new(),
             com_world: Vec::new(),
             hits: [Hit::ZERO; MAX_HITS],
+            static_normal: Vec::new(),
         }
     }
 
@@ -330,6 +335,9 @@ impl Crowd {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
+        // Scenery is a handful of shapes: this grows only when scenery is added.
+        self.static_normal.clear();
+        self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
         for i in 0..self.len() {
             let b = self.body_space(i);
             self.spaces[i] = b;
@@ -442,7 +450,7 @@ impl Crowd {
         for (shape, local, bound) in &self.body.shapes {
             let pos_m = pos + r * local.pos_m;
             let mut rot = None;
-            for (ss, sp) in &self.statics {
+            for ((ss, sp), &normal) in self.statics.iter().zip(&self.static_normal) {
                 let far = match ss {
                     Shape::Plane => (pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
                     _ => (pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
@@ -451,7 +459,12 @@ impl Crowd {
                     continue;
                 }
                 let pose = ShapePose { pos_m, rot: *rot.get_or_insert_with(|| r * local.rot) };
-                let nh = collide(shape, &pose, ss, sp, &mut self.hits);
+                let nh = match (shape, ss) {
+                    (Shape::Box { half_extents_m }, Shape::Plane) => {
+                        box_on_plane(*half_extents_m, &pose, normal, sp.pos_m, &mut self.hits)
+                    }
+                    _ => collide(shape, &pose, ss, sp, &mut self.hits),
+                };
                 if nh == 0 {
                     continue;
                 }

@@ -24,7 +24,7 @@
 
 use std::collections::BTreeMap;
 
-use glam::{DVec3, Quat, Vec3};
+use glam::{DVec3, Mat4, Quat, Vec3, Vec4};
 use serde::Deserialize;
 use spidar_config as config;
 
@@ -489,8 +489,9 @@ impl KeyframeSet {
             out.root_m = root4(&w);
             let w32 = weights32(&w, if s.side.rows.is_empty() { s.front.aligned } else { s.side.aligned });
             for j in 0..n {
-                out.rot[j] = blend4(&w, &w32, j).normalize();
+                out.rot[j] = blend4(&w, &w32, j);
             }
+            normalize_joints(&mut out.rot, n);
             return;
         }
         let f = s.front.weights(q.theta_x, q.d_z);
@@ -499,8 +500,9 @@ impl KeyframeSet {
         let (f32w, d32w) = (weights32(&f, s.front.aligned), weights32(&d, s.side.aligned));
         for j in 0..n {
             // Normalising once at the end is enough: a product of unnormalised quaternions scales.
-            out.rot[j] = (blend4(&f, &f32w, j) * blend4(&d, &d32w, j)).normalize();
+            out.rot[j] = blend4(&f, &f32w, j) * blend4(&d, &d32w, j);
         }
+        normalize_joints(&mut out.rot, n);
     }
 
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
@@ -673,6 +675,22 @@ fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Q
         acc += q * s;
     }
     acc
+}
+
+/// Normalises the first `n` joint rotations four at a time: one square root and one division
+/// for four joints (one joint at a time, their latency was most of the cost of posing).
+#[inline]
+fn normalize_joints(rot: &mut [Quat; MAX_JOINTS], n: usize) {
+    for c in (0..n.min(MAX_JOINTS)).step_by(4) {
+        let q = |j: usize| Vec4::from(rot[j]);
+        // Rows are the joints' x, y, z, w: the sum of the squared rows is the four lengths squared.
+        let m = Mat4::from_cols(q(c), q(c + 1), q(c + 2), q(c + 3)).transpose();
+        let len2 = m.x_axis * m.x_axis + m.y_axis * m.y_axis + m.z_axis * m.z_axis + m.w_axis * m.w_axis;
+        let inv = Vec4::ONE / Vec4::from_array(len2.to_array().map(f32::sqrt));
+        for k in 0..4.min(n - c) {
+            rot[c + k] = Quat::from_vec4(Vec4::from(rot[c + k]) * inv[k]);
+        }
+    }
 }
 
 #[inline]
