@@ -924,6 +924,22 @@ pub fn box_on_plane(
 
 #[inline]
 fn box_plane_n(sink: &mut Sink, pa: &Pose, h: DVec3, n: DVec3, plane_m: DVec3) {
+    if h.x > 0.0 && h.y > 0.0 && h.z > 0.0 {
+        // The usual box: the eight corners in the order of the general loop below, unrolled, and
+        // a corner above the plane (which the sink would drop) skipped before its point is made.
+        for ix in [-1.0, 1.0] {
+            for iy in [-1.0, 1.0] {
+                for iz in [-1.0, 1.0] {
+                    let v = pa.world_point(DVec3::new(ix * h.x, iy * h.y, iz * h.z));
+                    let height = n.dot(v - plane_m);
+                    if height < 0.0 {
+                        sink.push(v - n * (0.5 * height), n, -height);
+                    }
+                }
+            }
+        }
+        return;
+    }
     // Zero extents give coincident vertices: visit each distinct vertex once.
     let signs = |x: f64| if x > 0.0 { [-1.0, 1.0, 0.0] } else { [1.0, 0.0, 0.0] };
     let count = |x: f64| if x > 0.0 { 2 } else { 1 };
