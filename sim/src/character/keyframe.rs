@@ -603,7 +603,7 @@ impl Plane {
     }
 
     /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
-    #[inline]
+    #[inline(always)]
     fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
         let rows = &self.rows;
         let hi = self.leans.partition_point(|&l| l <= lean);
@@ -627,7 +627,7 @@ impl Plane {
 
 impl Row {
     /// The two keyframes around `phase` on the closed loop [0, 1) and the weight of the second.
-    #[inline]
+    #[inline(always)]
     fn bracket(&self, phase: f64) -> (&Key, &Key, f64) {
         let k = &self.keys;
         if k.len() == 1 {
