@@ -606,7 +606,7 @@ impl Plane {
     #[inline(always)]
     fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
         let rows = &self.rows;
-        let hi = self.leans.partition_point(|&l| l <= lean);
+        let hi = count_le(&self.leans, lean);
         if hi == 0 || hi == rows.len() {
             let r = &rows[if hi == 0 { 0 } else { rows.len() - 1 }];
             let (k0, k1, t) = r.bracket(phase);
@@ -635,12 +635,19 @@ impl Row {
         }
         // Phases from the correspondence are already in [0, 1): no floor (a libm call) for them.
         let p = if (0.0..1.0).contains(&phase) { phase } else { phase - phase.floor() };
-        let i = self.phases.partition_point(|&x| x <= p);
+        let i = count_le(&self.phases, p);
         let (a, b) = if i == 0 || i == k.len() { (k.len() - 1, 0) } else { (i - 1, i) };
         let pa = self.phases[a];
         let pp = if p < pa { p + 1.0 } else { p };
         (&k[a], &k[b], ((pp - pa) * self.inv_span[a]).clamp(0.0, 1.0))
     }
+}
+
+/// How many of the sorted `xs` are `<= x` (`partition_point(|v| v <= x)`): the lists are a few
+/// keys long, and independent comparisons beat a binary search's chain of dependent loads.
+#[inline(always)]
+fn count_le(xs: &[f64], x: f64) -> usize {
+    xs.iter().map(|&v| (v <= x) as usize).sum()
 }
 
 /// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
