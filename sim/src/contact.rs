@@ -121,9 +121,20 @@ pub fn penalty_force(p: &Penalty, hit: &Hit, inv_m: f64, share: f64, h: f64, vre
     let fn_ = (ks * hit.depth_m - ds * vn).max(0.0);
     let vt = vrel - hit.normal * vn;
     let mu_fn = p.friction * fn_;
-    let slip = p.slip_m_per_s.max(mu_fn * h / m_eff);
     let vt_len = vt.length();
-    let ft = if vt_len > 0.0 { -vt * (mu_fn / vt_len.max(slip)) } else { DVec3::ZERO };
+    let ft = if vt_len > 0.0 {
+        // Without friction (the characters' floor: their legs make the friction) the ratio is
+        // that zero itself (0 / x for x > 0, sign included): skipping two divisions changes no bit.
+        let ratio = if mu_fn == 0.0 {
+            mu_fn
+        } else {
+            let slip = p.slip_m_per_s.max(mu_fn * h / m_eff);
+            mu_fn / vt_len.max(slip)
+        };
+        -vt * ratio
+    } else {
+        DVec3::ZERO
+    };
     (hit.normal * fn_ + ft, softened)
 }
 

@@ -64,7 +64,7 @@ fn standing_still_is_stable_for_60_s() {
     assert!(b.tilt() < 1e-3, "tilt {}", b.tilt());
     let moved = (b.r_m - start.r_m).length();
     assert!(moved < 0.01, "drifted {moved} m");
-    assert!((b.theta_y - 0.4).abs() < 1e-3, "heading {}", b.theta_y);
+    assert!((b.theta_y() - 0.4).abs() < 1e-3, "heading {}", b.theta_y());
     assert!(b.r_dot_m_per_s.length() < 1e-3);
 }
 
@@ -106,7 +106,7 @@ fn an_off_centre_push_turns_the_body() {
         assert_eq!(seen, vec![Policy::Balance]);
         let after = c.body_space(0);
         assert!(upright(&c, 0) && after.theta_y_dot.abs() < 0.01);
-        turns.push(after.theta_y);
+        turns.push(after.theta_y());
     }
     // Pushed forward on its left (+x) side, it turns to its right (negative heading), and back.
     assert!(turns[0] < -3f64.to_radians() && turns[1] > 3f64.to_radians(), "turns {turns:?}");
@@ -328,7 +328,9 @@ fn the_same_seed_gives_the_same_crowd_motion() {
     assert_eq!(a, run(2).0);
     assert_ne!(a, run(3).0);
     assert!(falls > 0, "the pushes should topple someone");
-    assert_eq!(a, 0xadb3_353d_f435_d73f, "digest changed: {a:#018x}");
+    // Re-pinned when the controller took its heading error and lean sines from vectors instead
+    // of angles (the same quantities, rounded differently); every behaviour test passed unchanged.
+    assert_eq!(a, 0x282b_c409_eafc_79d7, "digest changed: {a:#018x}");
 }
 
 // ---- the crowd scene file ----

@@ -54,7 +54,7 @@ pub fn decide(p: &AiParams, goal: &Goal, b: &BodySpace, policy: Policy) -> (Targ
     let mut t = Targets::default();
     match *goal {
         Goal::Stand => {}
-        Goal::Face { heading_rad } => t.heading = Some(heading_rad),
+        Goal::Face { heading_rad } => t.heading = Some(super::space::Heading::from_angle(heading_rad).e_zc),
         Goal::WalkTo { point_m, speed_m_per_s } => {
             let mut d = point_m - b.r_m;
             d.y = 0.0;
@@ -62,13 +62,13 @@ pub fn decide(p: &AiParams, goal: &Goal, b: &BodySpace, policy: Policy) -> (Targ
             if dist > p.arrive_m {
                 let speed = speed_m_per_s * (dist / p.slow_down_m.max(1e-3)).min(1.0);
                 t.velocity_m_per_s = d * (speed / dist);
-                t.heading = Some(d.x.atan2(d.z));
+                t.heading = Some(d);
             }
         }
         Goal::Walk { velocity_m_per_s } => {
             t.velocity_m_per_s = DVec3::new(velocity_m_per_s.x, 0.0, velocity_m_per_s.z);
             if t.velocity_m_per_s.length_squared() > 1e-6 {
-                t.heading = Some(velocity_m_per_s.x.atan2(velocity_m_per_s.z));
+                t.heading = Some(t.velocity_m_per_s);
             }
         }
     }

@@ -209,8 +209,10 @@ pub struct Targets {
     pub theta_z0: f64,
     /// Target horizontal velocity (world, m/s).
     pub velocity_m_per_s: DVec3,
-    /// Target heading (rad); `None`: only damp turning (a push that turns the body is kept).
-    pub heading: Option<f64>,
+    /// Horizontal direction (world, any non-zero length) to face; `None`: only damp turning (a
+    /// push that turns the body is kept). A direction, not an angle: the controller needs only the
+    /// angle between it and the body's heading, one `atan2`.
+    pub heading: Option<DVec3>,
     /// May a fallen character stand up now (the AI's decision, section 6.1)?
     pub may_stand_up: bool,
 }
@@ -335,6 +337,7 @@ impl ControllerState {
                 };
                 (f_front, tau_x) = balance_axis(
                     b.theta_x,
+                    b.sin_cos_x,
                     b.theta_x_dot,
                     t.theta_x0,
                     acc(v0_front, v_front) * mass_kg,
@@ -343,6 +346,7 @@ impl ControllerState {
                 );
                 (f_side, tau_z) = balance_axis(
                     b.theta_z,
+                    b.sin_cos_z,
                     b.theta_z_dot,
                     t.theta_z0,
                     acc(v0_side, v_side) * mass_kg,
@@ -360,12 +364,12 @@ impl ControllerState {
                 let (kp, kd) = (p.stand_omega_rad_per_s.powi(2), 2.0 * p.stand_omega_rad_per_s);
                 f_front = -p.brake_rate_per_s * mass_kg * v_front;
                 f_side = -p.brake_rate_per_s * mass_kg * v_side;
-                let up = |th: f64, th_dot: f64| {
-                    (i * (-kp * th - kd * th_dot) - mass_kg * g_m_per_s2 * l * th.sin())
+                let up = |th: f64, sin_th: f64, th_dot: f64| {
+                    (i * (-kp * th - kd * th_dot) - mass_kg * g_m_per_s2 * l * sin_th)
                         .clamp(-p.stand_torque_max_n_m, p.stand_torque_max_n_m)
                 };
-                tau_x = up(b.theta_x, b.theta_x_dot);
-                tau_z = up(b.theta_z, b.theta_z_dot);
+                tau_x = up(b.theta_x, b.sin_cos_x.0, b.theta_x_dot);
+                tau_z = up(b.theta_z, b.sin_cos_z.0, b.theta_z_dot);
             }
         }
         // |f_F| within [f_F_min, f_F_max]: below the minimum the legs do not react.
@@ -379,7 +383,7 @@ impl ControllerState {
         // Turning: toward the AI's heading, or only damped; the feet's twist is friction-limited.
         let (wy, ky) = (p.yaw_omega_rad_per_s, p.yaw_omega_rad_per_s.powi(2));
         let yaw_acc = match (self.policy, t.heading) {
-            (Policy::Balance, Some(h)) => ky * wrap_pi(h - b.theta_y) - 2.0 * wy * b.theta_y_dot,
+            (Policy::Balance, Some(dir)) => ky * b.heading.angle_to(dir) - 2.0 * wy * b.theta_y_dot,
             _ => -2.0 * wy * b.theta_y_dot,
         };
         let yaw_max = n * p.yaw_arm_m.max(0.0);
@@ -395,6 +399,7 @@ impl ControllerState {
 #[inline]
 fn balance_axis(
     theta: f64,
+    (s, c): (f64, f64),
     theta_dot: f64,
     theta0: f64,
     f_want: f64,
@@ -402,7 +407,6 @@ fn balance_axis(
     (tau_min, tau_max): (f64, f64),
 ) -> (f64, f64) {
     let acc = -kp * (theta - theta0) - kd * theta_dot;
-    let (s, c) = theta.sin_cos();
     // Equation 3 solved for the torque that gives `acc` with the wanted force.
     let tau = i * acc - l * s * n + l * c * f_want;
     if tau >= tau_min && tau <= tau_max {

@@ -26,7 +26,9 @@ use super::controller::Ground;
 use super::keyframe::{KeyframeSet, Pose};
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
-use crate::collide::{bounding_radius, collide, Hit, Pose as ShapePose, Shape, MAX_HITS};
+use crate::collide::{
+    bounding_radius, box_on_plane, collide, plane_normal, Hit, Pose as ShapePose, Shape, MAX_HITS,
+};
 use crate::contact::{penalty_force, Penalty};
 use crate::desc::{BodyFile, ContactDesc, MassDesc};
 use crate::spatial::quat_exp;
@@ -179,13 +181,16 @@ pub struct Crowd {
     cell_pos: Vec<DVec3>,
     grid_dims: (usize, usize),
     // Per character for the current step: rotation matrix, world angular velocity, world inverse
-    // inertia, centre of mass, and every shape's world pose (`shapes.len()` per character).
+    // inertia and centre of mass. Shape poses are not stored: computing one from `rotm` where it is
+    // needed (the scenery pass and near pairs) is cheaper than writing and reading them back for
+    // every character (a few hundred bytes each, megabytes per step).
     rotm: Vec<DMat3>,
     w_world: Vec<DVec3>,
     inv_i_world: Vec<DMat3>,
     com_world: Vec<DVec3>,
-    shape_pose: Vec<ShapePose>,
     hits: [Hit; MAX_HITS],
+    /// `plane_normal` of each static shape (unused for non-planes), refreshed every step.
+    static_normal: Vec<DVec3>,
 }
 
 impl Crowd {
@@ -219,8 +224,8 @@ impl Crowd {
             w_world: Vec::new(),
             inv_i_world: Vec::new(),
             com_world: Vec::new(),
-            shape_pose: Vec::new(),
             hits: [Hit::ZERO; MAX_HITS],
+            static_normal: Vec::new(),
         }
     }
 
@@ -263,9 +268,6 @@ impl Crowd {
         self.w_world.push(DVec3::ZERO);
         self.inv_i_world.push(DMat3::IDENTITY);
         self.com_world.push(DVec3::ZERO);
-        for _ in 0..self.body.shapes.len() {
-            self.shape_pose.push(ShapePose::IDENTITY);
-        }
         self.bodies.len() - 1
     }
 
@@ -333,6 +335,9 @@ impl Crowd {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
+        // Scenery is a handful of shapes: this grows only when scenery is added.
+        self.static_normal.clear();
+        self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
         for i in 0..self.len() {
             let b = self.body_space(i);
             self.spaces[i] = b;
@@ -391,10 +396,6 @@ impl Crowd {
         self.w_world[i] = r * s.w_body;
         self.inv_i_world[i] = r * self.body.inv_i_com * r.transpose();
         self.com_world[i] = b.r_m;
-        let ns = self.body.shapes.len();
-        for (k, (_, local, _)) in self.body.shapes.iter().enumerate() {
-            self.shape_pose[i * ns + k] = ShapePose { pos_m: s.pos_m + r * local.pos_m, rot: r * local.rot };
-        }
     }
 
     fn wander_goal(&mut self, i: usize, area: [f64; 4]) {
@@ -434,42 +435,63 @@ impl Crowd {
     }
 
     /// Contacts of character `i` with the scenery (its caches must be filled).
+    // Borrows the shapes, the scenery and the hit buffer in place: copying them per character (a
+    // few hundred bytes each) cost more than the narrow phase itself.
     #[inline]
     fn scenery_contacts(&mut self, i: usize) {
         let h = self.world.dt_s;
-        let mut hits = self.hits;
-        let ns = self.body.shapes.len();
-        for k in 0..ns {
-            let (shape, _, bound) = self.body.shapes[k];
-            let pose = self.shape_pose[i * ns + k];
-            for si in 0..self.statics.len() {
-                let (ss, sp) = self.statics[si];
+        let inv_mass_kg = 1.0 / self.body.mass_kg;
+        let (com, inv_i, w_world) = (self.com_world[i], self.inv_i_world[i], self.w_world[i]);
+        let (pos, vel) = (self.bodies[i].pos_m, self.bodies[i].vel_m_per_s);
+        let (mut force, mut torque) = (self.force[i], self.torque[i]);
+        let (mut ground_n, mut ground_moment) = (self.ground_n[i], self.ground_moment[i]);
+        let mut points = 0;
+        let r = self.rotm[i];
+        for (shape, local, bound) in &self.body.shapes {
+            let pos_m = pos + r * local.pos_m;
+            let mut rot = None;
+            for ((ss, sp), &normal) in self.statics.iter().zip(&self.static_normal) {
                 let far = match ss {
-                    Shape::Plane => (pose.pos_m - sp.pos_m).dot(sp.rot.y_axis) > bound,
-                    _ => (pose.pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(&ss)).powi(2),
+                    Shape::Plane => (pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
+                    _ => (pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
                 };
                 if far {
                     continue;
                 }
-                let nh = collide(&shape, &pose, &ss, &sp, &mut hits);
+                let pose = ShapePose { pos_m, rot: *rot.get_or_insert_with(|| r * local.rot) };
+                let nh = match (shape, ss) {
+                    (Shape::Box { half_extents_m }, Shape::Plane) => {
+                        box_on_plane(*half_extents_m, &pose, normal, sp.pos_m, &mut self.hits)
+                    }
+                    _ => collide(shape, &pose, ss, sp, &mut self.hits),
+                };
                 if nh == 0 {
                     continue;
                 }
                 let share = 1.0 / nh as f64;
-                for hit in hits.iter().take(nh) {
-                    let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal);
-                    let vrel = self.vel_at(i, hit.point_m);
+                for hit in self.hits.iter().take(nh) {
+                    // `inv_mass_along`, `vel_at` and `apply_hit` on the values held above.
+                    let arm = hit.point_m - com;
+                    let w = arm.cross(hit.normal);
+                    let inv_m = inv_mass_kg + w.dot(inv_i * w);
+                    let vrel = vel + w_world.cross(hit.point_m - pos);
                     let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
-                    self.apply_hit(i, hit, f);
+                    force += f;
+                    torque += arm.cross(f);
                     if hit.normal.y >= 0.7 {
                         let fn_ = f.dot(hit.normal).max(0.0);
-                        self.ground_n[i] += fn_;
-                        self.ground_moment[i] += hit.point_m * fn_;
+                        ground_n += fn_;
+                        ground_moment += hit.point_m * fn_;
                     }
-                    self.stats.scenery_points += 1;
+                    points += 1;
                 }
             }
         }
+        self.force[i] = force;
+        self.torque[i] = torque;
+        self.ground_n[i] = ground_n;
+        self.ground_moment[i] = ground_moment;
+        self.stats.scenery_points += points;
     }
 
     /// Cell size: two bounding radii, so touching characters are in the same or adjacent cells.
@@ -585,20 +607,24 @@ impl Crowd {
     fn pair(&mut self, i: usize, j: usize) {
         let h = self.world.dt_s;
         let ns = self.body.shapes.len();
+        let (ri, rj) = (self.rotm[i], self.rotm[j]);
+        let (pos_i, pos_j) = (self.bodies[i].pos_m, self.bodies[j].pos_m);
         for ka in 0..ns {
-            let (sa, _, ra) = self.body.shapes[ka];
-            let pa = self.shape_pose[i * ns + ka];
+            let (sa, la, ra) = self.body.shapes[ka];
+            let pa_m = pos_i + ri * la.pos_m;
             // Most shapes of a near pair are nowhere near the other body at all.
             let reach_j = ra + self.body.bound_m;
-            if (pa.pos_m - self.bodies[j].pos_m).length_squared() > reach_j * reach_j {
+            if (pa_m - pos_j).length_squared() > reach_j * reach_j {
                 continue;
             }
+            let pa = ShapePose { pos_m: pa_m, rot: ri * la.rot };
             for kb in 0..ns {
-                let (sb, _, rb) = self.body.shapes[kb];
-                let pb = self.shape_pose[j * ns + kb];
-                if (pa.pos_m - pb.pos_m).length_squared() > (ra + rb) * (ra + rb) {
+                let (sb, lb, rb) = self.body.shapes[kb];
+                let pb_m = pos_j + rj * lb.pos_m;
+                if (pa.pos_m - pb_m).length_squared() > (ra + rb) * (ra + rb) {
                     continue;
                 }
+                let pb = ShapePose { pos_m: pb_m, rot: rj * lb.rot };
                 let nh = collide(&sa, &pa, &sb, &pb, &mut self.hits);
                 if nh == 0 {
                     continue;

@@ -24,7 +24,7 @@
 
 use std::collections::BTreeMap;
 
-use glam::{DVec3, Quat, Vec3};
+use glam::{DVec3, Mat4, Quat, Vec3, Vec4};
 use serde::Deserialize;
 use spidar_config as config;
 
@@ -172,11 +172,21 @@ struct Key {
 struct Row {
     lean: f64,
     keys: Vec<Key>,
+    /// `keys[i].phase`, contiguous: posing searches these every step, and searching them inside
+    /// the (large) keys touched a cache line per probe.
+    phases: Vec<f64>,
+    /// `1 / (phase of the next key - phase of key i)` around the loop: posing multiplies instead
+    /// of dividing (filled by `Plane::align`).
+    inv_span: Vec<f64>,
 }
 
 #[derive(Clone, Debug, Default)]
 struct Plane {
     rows: Vec<Row>,
+    /// `rows[i].lean`, contiguous (as `Row::phases`).
+    leans: Vec<f64>,
+    /// `1 / (leans[i + 1] - leans[i])` (filled by `Plane::align`).
+    inv_lean_gap: Vec<f64>,
     /// Every pair of keyframes that can be blended together has its quaternions in the same
     /// hemisphere for every joint, so blending needs no per-step sign test (see `align`).
     aligned: bool,
@@ -479,8 +489,9 @@ impl KeyframeSet {
             out.root_m = root4(&w);
             let w32 = weights32(&w, if s.side.rows.is_empty() { s.front.aligned } else { s.side.aligned });
             for j in 0..n {
-                out.rot[j] = blend4(&w, &w32, j).normalize();
+                out.rot[j] = blend4(&w, &w32, j);
             }
+            normalize_joints(&mut out.rot, n);
             return;
         }
         let f = s.front.weights(q.theta_x, q.d_z);
@@ -489,8 +500,9 @@ impl KeyframeSet {
         let (f32w, d32w) = (weights32(&f, s.front.aligned), weights32(&d, s.side.aligned));
         for j in 0..n {
             // Normalising once at the end is enough: a product of unnormalised quaternions scales.
-            out.rot[j] = (blend4(&f, &f32w, j) * blend4(&d, &d32w, j)).normalize();
+            out.rot[j] = blend4(&f, &f32w, j) * blend4(&d, &d32w, j);
         }
+        normalize_joints(&mut out.rot, n);
     }
 
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
@@ -533,6 +545,19 @@ impl Plane {
     /// (neighbours on a row, including across the wrap, and any two keyframes of adjacent rows)
     /// agree in sign. Where it does not, posing keeps the sign test.
     fn align(&mut self, n: usize) {
+        self.inv_lean_gap = self.leans.windows(2).map(|w| 1.0 / (w[1] - w[0])).collect();
+        for row in &mut self.rows {
+            let k = row.phases.len();
+            row.inv_span = (0..k)
+                .map(|i| {
+                    let (pa, mut pb) = (row.phases[i], row.phases[(i + 1) % k]);
+                    if pb <= pa {
+                        pb += 1.0;
+                    }
+                    1.0 / (pb - pa)
+                })
+                .collect();
+        }
         let Some(first) = self.rows.first().and_then(|r| r.keys.first()).map(|k| k.pose) else {
             self.aligned = true;
             return;
@@ -565,27 +590,30 @@ impl Plane {
             Some(r) => r,
             None => {
                 let at = self.rows.partition_point(|r| r.lean < lean);
-                self.rows.insert(at, Row { lean, keys: Vec::new() });
+                self.rows
+                    .insert(at, Row { lean, keys: Vec::new(), phases: Vec::new(), inv_span: Vec::new() });
+                self.leans.insert(at, lean);
                 at
             }
         };
-        let keys = &mut self.rows[r].keys;
-        let at = keys.partition_point(|k| k.phase < phase);
-        keys.insert(at, Key { phase, pose });
+        let row = &mut self.rows[r];
+        let at = row.keys.partition_point(|k| k.phase < phase);
+        row.keys.insert(at, Key { phase, pose });
+        row.phases.insert(at, phase);
     }
 
     /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
-    #[inline]
+    #[inline(always)]
     fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
         let rows = &self.rows;
-        let hi = rows.partition_point(|r| r.lean <= lean);
+        let hi = count_le(&self.leans, lean);
         if hi == 0 || hi == rows.len() {
             let r = &rows[if hi == 0 { 0 } else { rows.len() - 1 }];
             let (k0, k1, t) = r.bracket(phase);
             return [(&k0.pose, 1.0 - t), (&k1.pose, t), (&k0.pose, 0.0), (&k0.pose, 0.0)];
         }
         let (r0, r1) = (&rows[hi - 1], &rows[hi]);
-        let u = (lean - r0.lean) / (r1.lean - r0.lean);
+        let u = (lean - r0.lean) * self.inv_lean_gap[hi - 1];
         let (a0, a1, ta) = r0.bracket(phase);
         let (b0, b1, tb) = r1.bracket(phase);
         [
@@ -599,22 +627,27 @@ impl Plane {
 
 impl Row {
     /// The two keyframes around `phase` on the closed loop [0, 1) and the weight of the second.
-    #[inline]
+    #[inline(always)]
     fn bracket(&self, phase: f64) -> (&Key, &Key, f64) {
         let k = &self.keys;
         if k.len() == 1 {
             return (&k[0], &k[0], 0.0);
         }
-        let p = phase - phase.floor();
-        let i = k.partition_point(|x| x.phase <= p);
+        // Phases from the correspondence are already in [0, 1): no floor (a libm call) for them.
+        let p = if (0.0..1.0).contains(&phase) { phase } else { phase - phase.floor() };
+        let i = count_le(&self.phases, p);
         let (a, b) = if i == 0 || i == k.len() { (k.len() - 1, 0) } else { (i - 1, i) };
-        let (pa, mut pb) = (k[a].phase, k[b].phase);
-        if pb <= pa {
-            pb += 1.0;
-        }
+        let pa = self.phases[a];
         let pp = if p < pa { p + 1.0 } else { p };
-        (&k[a], &k[b], ((pp - pa) / (pb - pa)).clamp(0.0, 1.0))
+        (&k[a], &k[b], ((pp - pa) * self.inv_span[a]).clamp(0.0, 1.0))
     }
+}
+
+/// How many of the sorted `xs` are `<= x` (`partition_point(|v| v <= x)`): the lists are a few
+/// keys long, and independent comparisons beat a binary search's chain of dependent loads.
+#[inline(always)]
+fn count_le(xs: &[f64], x: f64) -> usize {
+    xs.iter().map(|&v| (v <= x) as usize).sum()
 }
 
 /// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
@@ -649,6 +682,22 @@ fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Q
         acc += q * s;
     }
     acc
+}
+
+/// Normalises the first `n` joint rotations four at a time: one square root and one division
+/// for four joints (one joint at a time, their latency was most of the cost of posing).
+#[inline]
+fn normalize_joints(rot: &mut [Quat; MAX_JOINTS], n: usize) {
+    for c in (0..n.min(MAX_JOINTS)).step_by(4) {
+        let q = |j: usize| Vec4::from(rot[j]);
+        // Rows are the joints' x, y, z, w: the sum of the squared rows is the four lengths squared.
+        let m = Mat4::from_cols(q(c), q(c + 1), q(c + 2), q(c + 3)).transpose();
+        let len2 = m.x_axis * m.x_axis + m.y_axis * m.y_axis + m.z_axis * m.z_axis + m.w_axis * m.w_axis;
+        let inv = Vec4::ONE / Vec4::from_array(len2.to_array().map(f32::sqrt));
+        for k in 0..4.min(n - c) {
+            rot[c + k] = Quat::from_vec4(Vec4::from(rot[c + k]) * inv[k]);
+        }
+    }
 }
 
 #[inline]
