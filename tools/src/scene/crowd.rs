@@ -10,6 +10,7 @@
 //! Must never: apply an impulse computed against a contact model it no longer knows, or run more
 //! than a few catch-up steps in one call (a stalled thread must not burst).
 
+use spidar_sim::impulse::{dist, nearest_on_surface};
 use std::path::Path;
 
 use glam::DVec3;
@@ -196,32 +197,5 @@ fn centre(s: &ProxyShape) -> DVec3 {
         ProxyShape::Plane { point_m, .. } => point_m,
         ProxyShape::Sphere { centre_m, .. } => centre_m,
         ProxyShape::Capsule { a_m, b_m, .. } => (a_m + b_m) * 0.5,
-    }
-}
-
-fn dist(s: &ProxyShape, p: DVec3) -> f64 {
-    (nearest_on_surface(s, p) - p).length()
-}
-
-/// Nearest point of a proxy's surface to `p`.
-fn nearest_on_surface(s: &ProxyShape, p: DVec3) -> DVec3 {
-    let on_sphere = |c: DVec3, r: f64| {
-        let d = p - c;
-        let l = d.length();
-        if l > 1e-12 {
-            c + d * (r / l)
-        } else {
-            c + DVec3::Y * r
-        }
-    };
-    match *s {
-        ProxyShape::Plane { point_m, normal } => p - normal * (p - point_m).dot(normal),
-        ProxyShape::Sphere { centre_m, radius_m } => on_sphere(centre_m, radius_m),
-        ProxyShape::Capsule { a_m, b_m, radius_m } => {
-            let ab = b_m - a_m;
-            let l2 = ab.length_squared();
-            let t = if l2 > 0.0 { ((p - a_m).dot(ab) / l2).clamp(0.0, 1.0) } else { 0.0 };
-            on_sphere(a_m + ab * t, radius_m)
-        }
     }
 }
