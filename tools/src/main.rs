@@ -151,7 +151,8 @@ struct RunArgs {
     hw: HardwareArgs,
     /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
     /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
-    /// characters to push, seed 002), `walls` (the rig check) or a walls scene file (.ron).
+    /// characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the rig check)
+    /// or a walls scene file (.ron).
     #[arg(long, default_value = "boxing")]
     scene: String,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,

@@ -102,9 +102,17 @@ pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
             let params = spidar_sim::boxer::load_boxer(std::path::Path::new(p))?;
             Ok(Box::new(boxing::BoxingScene::new(params)?))
         }
+        // A crowd scene file (configs/scene-crowd.ron and copies of it).
+        p if p.ends_with(".ron") && file_name(p).contains("crowd") => {
+            Ok(Box::new(crowd::CrowdScene::load(std::path::Path::new(p))?))
+        }
         p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
         other => anyhow::bail!(
-            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', 'crowd', a boxer file (*boxer.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
+            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', 'crowd', a boxer file (*boxer.ron), a crowd scene file (*crowd*.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
         ),
     }
+}
+
+fn file_name(p: &str) -> String {
+    std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()
 }
