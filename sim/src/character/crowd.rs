@@ -335,6 +335,7 @@ impl Crowd {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
+        let cos = self.params.controller.tilt_cosines();
         // Scenery is a handful of shapes: this grows only when scenery is added.
         self.static_normal.clear();
         self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
@@ -350,7 +351,7 @@ impl Crowd {
             } else {
                 Ground::default()
             };
-            let d = ch.think(&self.params, self.body.mass_kg, g, h, blend_s, &b);
+            let d = ch.think_with(&self.params, &cos, self.body.mass_kg, g, h, blend_s, &b);
             self.force[i] += d.force_n;
             self.torque[i] += (d.at_m - b.r_m).cross(d.force_n) + d.torque_n_m;
             self.ground_n[i] = 0.0;
