@@ -201,6 +201,24 @@ impl ControllerParams {
     }
 }
 
+/// Cosines of the lean thresholds, `fall_angle_deg` and `stand_done_deg`: the state machine compares
+/// the trunk axis's height with them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TiltCosines {
+    pub fall: f64,
+    pub stand_done: f64,
+}
+
+impl ControllerParams {
+    #[inline]
+    pub fn tilt_cosines(&self) -> TiltCosines {
+        TiltCosines {
+            fall: self.fall_angle_deg.to_radians().cos(),
+            stand_done: self.stand_done_deg.to_radians().cos(),
+        }
+    }
+}
+
 /// What the AI asks of the controller this step (section 3: "goal of attitude and locomotion").
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Targets {
@@ -283,6 +301,24 @@ impl ControllerState {
         ground: &Ground,
         t: &Targets,
     ) -> Drive {
+        self.control_with(p, &p.tilt_cosines(), mass_kg, g_m_per_s2, dt_s, b, ground, t)
+    }
+
+    /// [`ControllerState::control`] with the threshold cosines computed by the caller (once per
+    /// step for a whole crowd: a libm `cos` per character was a percent of a crowd step).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn control_with(
+        &mut self,
+        p: &ControllerParams,
+        cos: &TiltCosines,
+        mass_kg: f64,
+        g_m_per_s2: f64,
+        dt_s: f64,
+        b: &BodySpace,
+        ground: &Ground,
+        t: &Targets,
+    ) -> Drive {
         self.in_policy_s += dt_s;
         // Lean from the vertical compared by its cosine (the trunk axis's height), no acos.
         let cos_tilt = b.e_yr.y;
@@ -291,7 +327,7 @@ impl ControllerState {
         let spin = DVec3::new(b.theta_x_dot, b.theta_y_dot, b.theta_z_dot).length();
         // Fig. 3 transitions.
         match self.policy {
-            Policy::Balance if cos_tilt < p.fall_angle_deg.to_radians().cos() => self.enter(Policy::Fall),
+            Policy::Balance if cos_tilt < cos.fall => self.enter(Policy::Fall),
             Policy::Fall | Policy::Down => {
                 if speed < p.stop_speed_m_per_s && spin < p.stop_spin_rad_per_s && ground.normal_n > 0.0 {
                     self.still_s += dt_s;
@@ -309,7 +345,7 @@ impl ControllerState {
             }
             Policy::StandUp => {
                 let rates = (b.theta_x_dot * b.theta_x_dot + b.theta_z_dot * b.theta_z_dot).sqrt();
-                if cos_tilt > p.stand_done_deg.to_radians().cos() && rates < 1.0 {
+                if cos_tilt > cos.stand_done && rates < 1.0 {
                     self.enter(Policy::Balance);
                 } else if self.in_policy_s > p.stand_timeout_s || !t.may_stand_up {
                     self.enter(Policy::Fall);

@@ -34,6 +34,26 @@ use crate::desc::{BodyFile, ContactDesc, MassDesc};
 use crate::spatial::quat_exp;
 use crate::SimError;
 
+/// Boxes in the world axes are compared with this much slack (m), far above the rounding of the
+/// narrow phase, so a pair they keep apart cannot have a hit of positive depth.
+const AABB_MARGIN_M: f64 = 1e-6;
+
+/// Half extents (m) of the box in the world axes around a shape turned by `rot`; a plane has none.
+#[inline]
+fn aabb_half_m(s: &Shape, rot: &DMat3) -> DVec3 {
+    match *s {
+        Shape::Sphere { radius_m } => DVec3::splat(radius_m.max(0.0)),
+        Shape::Capsule { half_length_m, radius_m } => {
+            rot.y_axis.abs() * half_length_m.max(0.0) + DVec3::splat(radius_m.max(0.0))
+        }
+        Shape::Box { half_extents_m: e } => {
+            let e = e.max(DVec3::ZERO);
+            rot.x_axis.abs() * e.x + rot.y_axis.abs() * e.y + rot.z_axis.abs() * e.z
+        }
+        Shape::Plane => DVec3::splat(f64::INFINITY),
+    }
+}
+
 /// The rigid body of one crowd character: the free-joint coordinates of the engine.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyState {
@@ -191,6 +211,11 @@ pub struct Crowd {
     hits: [Hit; MAX_HITS],
     /// `plane_normal` of each static shape (unused for non-planes), refreshed every step.
     static_normal: Vec<DVec3>,
+    /// The box around all of the body's shapes in the body frame (centre, half extents), refreshed
+    /// every step, and each character's box in the world axes around it (centre, half extents).
+    local_box_m: (DVec3, DVec3),
+    box_c: Vec<DVec3>,
+    box_e: Vec<DVec3>,
 }
 
 impl Crowd {
@@ -226,6 +251,9 @@ impl Crowd {
             com_world: Vec::new(),
             hits: [Hit::ZERO; MAX_HITS],
             static_normal: Vec::new(),
+            local_box_m: (DVec3::ZERO, DVec3::ZERO),
+            box_c: Vec::new(),
+            box_e: Vec::new(),
         }
     }
 
@@ -268,6 +296,8 @@ impl Crowd {
         self.w_world.push(DVec3::ZERO);
         self.inv_i_world.push(DMat3::IDENTITY);
         self.com_world.push(DVec3::ZERO);
+        self.box_c.push(DVec3::ZERO);
+        self.box_e.push(DVec3::ZERO);
         self.bodies.len() - 1
     }
 
@@ -335,9 +365,17 @@ impl Crowd {
         let h = self.world.dt_s;
         let g = -self.world.gravity_m_per_s2.y;
         let blend_s = self.set.behaviour_blend_s;
+        let cos = self.params.controller.tilt_cosines();
         // Scenery is a handful of shapes: this grows only when scenery is added.
         self.static_normal.clear();
         self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for (shape, local, _) in &self.body.shapes {
+            let e = aabb_half_m(shape, &local.rot);
+            lo = lo.min(local.pos_m - e);
+            hi = hi.max(local.pos_m + e);
+        }
+        self.local_box_m = ((lo + hi) * 0.5, (hi - lo) * 0.5);
         for i in 0..self.len() {
             let b = self.body_space(i);
             self.spaces[i] = b;
@@ -350,7 +388,7 @@ impl Crowd {
             } else {
                 Ground::default()
             };
-            let d = ch.think(&self.params, self.body.mass_kg, g, h, blend_s, &b);
+            let d = ch.think_with(&self.params, &cos, self.body.mass_kg, g, h, blend_s, &b);
             self.force[i] += d.force_n;
             self.torque[i] += (d.at_m - b.r_m).cross(d.force_n) + d.torque_n_m;
             self.ground_n[i] = 0.0;
@@ -396,6 +434,10 @@ impl Crowd {
         self.w_world[i] = r * s.w_body;
         self.inv_i_world[i] = r * self.body.inv_i_com * r.transpose();
         self.com_world[i] = b.r_m;
+        // The body-frame box turned into the world holds the turned shapes.
+        let (c, e) = self.local_box_m;
+        self.box_c[i] = s.pos_m + r * c;
+        self.box_e[i] = r.x_axis.abs() * e.x + r.y_axis.abs() * e.y + r.z_axis.abs() * e.z;
     }
 
     fn wander_goal(&mut self, i: usize, area: [f64; 4]) {
@@ -601,6 +643,12 @@ impl Crowd {
     fn near(&mut self, k: usize, k2: usize) {
         let (i, j) = (self.cell_items[k] as usize, self.cell_items[k2] as usize);
         self.stats.near_pairs += 1;
+        // Bounding spheres reach from the feet to the head; upright neighbours' boxes in the world
+        // axes are far narrower, and bodies whose boxes are apart have no shapes that touch.
+        let gap = (self.box_c[i] - self.box_c[j]).abs() - self.box_e[i] - self.box_e[j];
+        if gap.max_element() > AABB_MARGIN_M {
+            return;
+        }
         self.pair(i.min(j), i.max(j));
     }
 
@@ -625,6 +673,13 @@ impl Crowd {
                     continue;
                 }
                 let pb = ShapePose { pos_m: pb_m, rot: rj * lb.rot };
+                // Bounding spheres of the trunk's capsules overlap for upright neighbours a body
+                // apart; their boxes in the world axes mostly do not, and shapes whose boxes are
+                // apart have no hit, so skipping `collide` for them changes nothing.
+                let gap = (pa.pos_m - pb.pos_m).abs() - aabb_half_m(&sa, &pa.rot) - aabb_half_m(&sb, &pb.rot);
+                if gap.max_element() > AABB_MARGIN_M {
+                    continue;
+                }
                 let nh = collide(&sa, &pa, &sb, &pb, &mut self.hits);
                 if nh == 0 {
                     continue;

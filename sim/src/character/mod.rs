@@ -28,7 +28,7 @@ use serde::Deserialize;
 use crate::model::Model;
 use crate::state::Workspace;
 use ai::{AiParams, Goal};
-use controller::{ControllerParams, ControllerState, Drive, Ground};
+use controller::{ControllerParams, ControllerState, Drive, Ground, TiltCosines};
 use keyframe::{KeyframeSet, Pose, QPoint};
 use space::BodySpace;
 
@@ -135,8 +135,25 @@ impl Character {
         blend_s: f64,
         b: &BodySpace,
     ) -> Drive {
+        self.think_with(p, &p.controller.tilt_cosines(), mass_kg, g, dt_s, blend_s, b)
+    }
+
+    /// [`Character::think`] with the controller's threshold cosines given (a crowd computes them
+    /// once per step).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn think_with(
+        &mut self,
+        p: &CharacterParams,
+        cos: &TiltCosines,
+        mass_kg: f64,
+        g: f64,
+        dt_s: f64,
+        blend_s: f64,
+        b: &BodySpace,
+    ) -> Drive {
         let (targets, behaviour) = ai::decide(&p.ai, &self.goal, b, self.control.policy);
-        let d = self.control.control(&p.controller, mass_kg, g, dt_s, b, &self.ground, &targets);
+        let d = self.control.control_with(&p.controller, cos, mass_kg, g, dt_s, b, &self.ground, &targets);
         self.anim.advance(b, behaviour, blend_s, dt_s);
         self.drive = d;
         d
