@@ -78,6 +78,22 @@ pub fn invalid(
     ConfigError { origin: origin.to_string(), line, column, field: field.to_string(), message }
 }
 
+/// Checks a file's `version` field against the one version this build reads, locating the
+/// field in errors.
+pub fn check_version(text: &str, origin: &str, found: u32, supported: u32) -> Result<(), ConfigError> {
+    if found == supported {
+        return Ok(());
+    }
+    Err(invalid(
+        text,
+        origin,
+        "version",
+        "version",
+        0,
+        format!("version {found} is not supported; this build reads version {supported}"),
+    ))
+}
+
 /// 1-based line and column of the `occurrence`-th `key:` (outside comments) in RON text.
 pub fn locate(text: &str, key: &str, occurrence: usize) -> Option<(usize, usize)> {
     let mut seen = 0;

@@ -244,13 +244,6 @@ struct Src<'a> {
 }
 
 impl Src<'_> {
-    fn check_version(&self, version: u32) -> Result<(), SimError> {
-        if version == 1 {
-            return Ok(());
-        }
-        Err(self.err("version", "version", 0, format!("version {version} is not supported; use 1")))
-    }
-
     fn err(&self, field: &str, key: &str, occurrence: usize, message: String) -> SimError {
         SimError::Config(config::invalid(self.text, self.origin, field, key, occurrence, message))
     }
@@ -260,7 +253,7 @@ impl Src<'_> {
 pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
     let f: BodyFile = config::parse(text, origin)?;
     let src = Src { text, origin };
-    src.check_version(f.version)?;
+    config::check_version(text, origin, f.version, 1)?;
     if !(f.gain_dt_s > 0.0) {
         return Err(src.err("gain_dt_s", "gain_dt_s", 0, "must be > 0 (seconds)".into()));
     }
@@ -400,7 +393,7 @@ fn count_before(_text: &str, key: &str, i: usize, f: &BodyFile) -> usize {
 pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
     let f: SceneFile = config::parse(text, origin)?;
     let src = Src { text, origin };
-    src.check_version(f.version)?;
+    config::check_version(text, origin, f.version, 1)?;
     if !(f.dt_s > 0.0 && f.dt_s <= 0.02) {
         return Err(src.err("dt_s", "dt_s", 0, "the step must be in (0, 0.02] seconds".into()));
     }

@@ -59,9 +59,7 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         let key = field.rsplit('.').next().unwrap_or(field);
         SimError::Config(config::invalid(text, origin, field, key, 0, msg))
     };
-    if f.version != 1 {
-        return Err(err("version", format!("version {} is not supported; use 1", f.version)));
-    }
+    config::check_version(text, origin, f.version, 1)?;
     let o = f.user_offset_m;
     if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
         return Err(err("user_offset_m", "must be finite".into()));

@@ -242,16 +242,7 @@ impl KeyframeSet {
     /// Parses and validates a keyframe-set file; errors name the file, line, column and field.
     pub fn parse(text: &str, origin: &str) -> Result<KeyframeSet, SimError> {
         let f: KeyframeFile = config::parse(text, origin)?;
-        if f.version != 1 {
-            return Err(err(
-                text,
-                origin,
-                "version",
-                "version",
-                0,
-                format!("version {} is not supported; use 1", f.version),
-            ));
-        }
+        config::check_version(text, origin, f.version, 1)?;
         for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
             if !(v > 0.0 && v.is_finite()) {
                 return Err(err(

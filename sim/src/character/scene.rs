@@ -84,15 +84,7 @@ pub fn build_crowd(
     mut resolve: impl FnMut(&str) -> Result<(String, String), SimError>,
 ) -> Result<Crowd, SimError> {
     let f: CrowdSceneFile = config::parse(text, origin)?;
-    if f.version != 1 {
-        return Err(err(
-            text,
-            origin,
-            "version",
-            "version",
-            format!("version {} is not supported; use 1", f.version),
-        ));
-    }
+    config::check_version(text, origin, f.version, 1)?;
     if !(f.dt_s > 0.0 && f.dt_s <= 0.01) {
         return Err(err(text, origin, "dt_s", "dt_s", format!("must be in (0, 0.01] s, got {}", f.dt_s)));
     }
