@@ -5,7 +5,12 @@
 mod alloc_count;
 
 use glam::DVec3;
-use spidar_sim::boxer::{min_jerk, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget, Reach};
+use spidar_msg::ProxyShape;
+use spidar_sim::boxer::mind::nearest_on_segment;
+use spidar_sim::boxer::reach::min_jerk_rate;
+use spidar_sim::boxer::{
+    min_jerk, proxy_shape, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget, Reach,
+};
 
 fn settled(params: BoxerParams) -> BoxingWorld {
     let mut w = BoxingWorld::new(params).unwrap();
@@ -54,71 +59,118 @@ fn reaching_follows_the_minimum_jerk_timing() {
     assert!(end_err < 0.03, "the hand ended {end_err:.3} m from the target");
 }
 
-/// A jab from the avatar's left hand, raised over the virtual human's guard, to its head in
-/// `out_s`.
-fn jab_at_head(params: BoxerParams, out_s: f64) -> (BoxingWorld, f64) {
-    let mut w = settled(params);
-    let head = w.com(w.vh.head);
-    let guard = w.com(w.avatar.hand[0]);
-    // The avatar's hand lags its target by about 10 cm when raised this far: aim above the head.
-    let from = DVec3::new(guard.x, head.y + 0.12, guard.z);
-    // Raise the hand slowly (under the trigger speed) and let it settle.
-    for k in 0..400 {
-        let s = min_jerk(k as f64 / 300.0);
-        let targets =
-            guard_targets(&w, 0, HandTarget { pos_m: guard + (from - guard) * s, vel_m_per_s: DVec3::ZERO });
-        w.step(&targets);
-        w.begin_step();
+/// How far the user's fist (a sphere of the grip radius at the hand target) is outside the
+/// virtual human's head, measured on the head's proxy, the shape the rt-loop renders against:
+/// negative when the fist is in the head (a hit).
+fn fist_gap_to_head(w: &BoxingWorld, fist: DVec3) -> f64 {
+    let mut gap = f64::INFINITY;
+    for (k, sh) in w.model.shapes.iter().enumerate() {
+        if sh.body != Some(w.vh.head) {
+            continue;
+        }
+        let pose = w.ws.shape_pose[k];
+        let surface = match proxy_shape(&sh.shape, pose.pos_m, pose.rot) {
+            Some(ProxyShape::Sphere { centre_m, radius_m }) => (fist - centre_m).length() - radius_m,
+            Some(ProxyShape::Capsule { a_m, b_m, radius_m }) => {
+                (fist - nearest_on_segment(a_m, b_m, fist)).length() - radius_m
+            }
+            _ => continue,
+        };
+        gap = gap.min(surface - w.params.grip_radius_m);
     }
-    assert_eq!(w.mind.predictions, 0, "raising the guard slowly must not trigger a prediction");
-    let to = head + DVec3::new(0.0, 0.08, 0.05);
-    let mut closest = f64::INFINITY;
-    let steps = (1.0 / w.dt_s()) as usize;
-    for k in 0..steps {
+    gap
+}
+
+/// What one jab did.
+struct Jab {
+    w: BoxingWorld,
+    /// The smallest gap between the user's fist and the head over the jab (negative: a hit).
+    gap_m: f64,
+    /// Simulated time the mind first decided the jab would hit its head, and whether its body
+    /// was then in avoidance.
+    head_decision_s: Option<f64>,
+    avoiding_after_decision: bool,
+}
+
+/// A jab of the user's hand `hand` from the avatar's guard at the virtual human's head (its
+/// centre moved by `aim_m`), out in `out_s` and back in `out_s` along a minimum-jerk path.
+fn jab(params: BoxerParams, hand: usize, aim_m: DVec3, out_s: f64) -> Jab {
+    let w = settled(params);
+    let from = w.com(w.avatar.hand[hand]);
+    let to = w.com(w.vh.head) + aim_m;
+    let mut run = Jab { w, gap_m: f64::INFINITY, head_decision_s: None, avoiding_after_decision: false };
+    let w = &mut run.w;
+    for k in 0..((1.0 / w.dt_s()) as usize) {
         let t = k as f64 * w.dt_s();
-        let tau = (t / out_s).min(1.0);
-        let pos = from + (to - from) * min_jerk(tau);
-        let vel = (to - from) * (spidar_sim::boxer::reach::min_jerk_rate(tau) / out_s);
-        let targets = guard_targets(&w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
+        let (a, b, tau) = if t < out_s { (from, to, t / out_s) } else { (to, from, (t - out_s) / out_s) };
+        let pos = a + (b - a) * min_jerk(tau);
+        let vel = (b - a) * (min_jerk_rate(tau) / out_s);
+        let targets = guard_targets(w, hand, HandTarget { pos_m: pos, vel_m_per_s: vel });
         w.step(&targets);
         w.begin_step();
-        // Distance from the user's fist (4 cm) to the head's centre.
-        closest = closest.min((pos - w.com(w.vh.head)).length());
+        run.gap_m = run.gap_m.min(fist_gap_to_head(w, pos));
+        let on_head = w
+            .mind
+            .last_decision
+            .is_some_and(|d| d.class == ContactClass::AvatarAttack && d.vh_body == w.vh.head);
+        if on_head && run.head_decision_s.is_none() {
+            run.head_decision_s = Some(w.state.t_s);
+            run.avoiding_after_decision = w.mind.body == BodyBehaviour::Avoidance;
+        }
     }
-    (w, closest)
+    run
 }
 
 /// Issue 6: a jab predicted to hit the head changes the body to avoidance and the head is not
-/// hit, or the block lands on the guard. In the default guard the virtual human's hands cover its
-/// face, so the prediction finds the guard first (Table I class 3, middle priority) and no
-/// head contact within the grace time: the jab is blocked.
+/// hit. Jabs of either hand, out in 0.3 s (peak 4 m/s) or 0.25 s (5 m/s), at the head's centre
+/// and 5 cm off it each way, and one from above the guard: every one of them lands in a passive
+/// head, is predicted by the active mind as a hit on the head (Table I class 1), switches the
+/// body to avoidance (Fig. 5) and misses the head by at least 2 cm, measured on the proxy the
+/// rt-loop renders. (A 0.2 s jab, 6 m/s, still hits a centred head: the head cannot move far
+/// enough in the 0.09 s left after the prediction; see `configs/boxer.ron`.)
 #[test]
-fn a_jab_at_the_head_is_avoided_or_lands_on_the_guard() {
-    let (passive, _) = jab_at_head(BoxerParams { active: false, ..Default::default() }, 0.3);
-    let (active, _) = jab_at_head(BoxerParams::default(), 0.3);
-    assert_eq!(passive.mind.predictions, 0, "the passive virtual human never predicts");
-    assert!(active.mind.predictions > 0, "a 1 m/s+ jab toward the virtual human triggers a prediction");
-    let d = active.mind.last_decision.expect("the prediction found the jab's contact");
-    let guard = [active.vh.hand[0], active.vh.hand[1], active.vh.forearm[0], active.vh.forearm[1]];
-    match d.class {
-        ContactClass::AvatarAttack => {
-            assert_eq!(d.vh_body, active.vh.head);
-            assert!(active.mind.avoidances >= 1, "a predicted hit on the head must start an avoidance");
-        }
-        ContactClass::BoxerBlocked => {
-            assert!(guard.contains(&d.vh_body), "blocked by {}", active.model.bodies[d.vh_body].name);
-            assert!(active.avatar.hand.contains(&d.av_body));
-        }
-        other => panic!("a jab at the head was predicted as {other:?}"),
+fn a_jab_predicted_to_hit_the_head_changes_the_body_to_avoidance_and_misses() {
+    let aims = [
+        (0, DVec3::ZERO, 0.3),
+        (1, DVec3::ZERO, 0.3),
+        (0, DVec3::ZERO, 0.25),
+        (1, DVec3::new(0.0, 0.05, 0.0), 0.3),
+        (0, DVec3::new(0.05, 0.0, 0.0), 0.3),
+        (1, DVec3::new(-0.05, 0.0, 0.0), 0.25),
+        (0, DVec3::new(0.0, 0.0, -0.05), 0.3),
+        (1, DVec3::new(0.0, 0.08, -0.05), 0.3),
+    ];
+    for (hand, aim, out_s) in aims {
+        let what = format!("hand {hand}, aim {aim:.2?} from the head's centre, out in {out_s} s");
+        let passive = jab(BoxerParams { active: false, ..Default::default() }, hand, aim, out_s);
+        assert_eq!(passive.w.mind.predictions, 0, "the passive virtual human never predicts");
+        assert!(
+            passive.gap_m < -0.05,
+            "{what}: the jab must land in a passive head: gap {:.3} m",
+            passive.gap_m
+        );
+        let active = jab(BoxerParams::default(), hand, aim, out_s);
+        let m = &active.w.mind;
+        assert!(m.predictions > 0, "{what}: a fast jab triggers a prediction");
+        let at =
+            active.head_decision_s.unwrap_or_else(|| panic!("{what}: no prediction of a hit on the head"));
+        assert!(active.avoiding_after_decision, "{what}: the body did not switch to avoidance at {at:.3} s");
+        assert!(m.avoidances >= 1);
+        assert!(
+            active.gap_m > 0.02,
+            "{what}: the head was hit or grazed: gap {:.3} m (passive {:.3} m)",
+            active.gap_m,
+            passive.gap_m
+        );
     }
 }
 
 #[test]
 fn a_slow_hand_triggers_no_prediction() {
-    // The same path at a third of the speed: well under the 1 m/s trigger.
-    let (w, _) = jab_at_head(BoxerParams { seed: 3, ..Default::default() }, 2.5);
-    assert_eq!(w.mind.predictions, 0, "{:?}", w.mind.last_decision);
-    assert_eq!(w.mind.body, BodyBehaviour::Standby);
+    // A jab out and back in 2.5 s each way: peak 0.5 m/s, under the 1 m/s trigger.
+    let j = jab(BoxerParams { seed: 3, ..Default::default() }, 0, DVec3::ZERO, 2.5);
+    assert_eq!(j.w.mind.predictions, 0, "{:?}", j.w.mind.last_decision);
+    assert_eq!(j.w.mind.body, BodyBehaviour::Standby);
 }
 
 #[test]
@@ -171,7 +223,7 @@ fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
             let (a, b, tau) =
                 if t < out_s { (from, to, t / out_s) } else { (to, from, ((t - out_s) / out_s).min(1.0)) };
             let pos = a + (b - a) * min_jerk(tau);
-            let vel = (b - a) * (spidar_sim::boxer::reach::min_jerk_rate(tau) / out_s);
+            let vel = (b - a) * (min_jerk_rate(tau) / out_s);
             let t = guard_targets(&w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
             w.step(&t);
             w.begin_step();
@@ -204,7 +256,7 @@ fn boxing_steps_with_predictions_do_not_allocate() {
             let t = (k % 200) as f64 * w.dt_s();
             let tau = (t / 0.25).min(1.0);
             let pos = guard + (head - guard) * min_jerk(tau);
-            let vel = (head - guard) * (spidar_sim::boxer::reach::min_jerk_rate(tau) / 0.25);
+            let vel = (head - guard) * (min_jerk_rate(tau) / 0.25);
             let targets = guard_targets(w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
             w.step(&targets);
             w.begin_step();

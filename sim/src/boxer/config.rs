@@ -45,10 +45,13 @@ pub struct MindFile {
     pub predict_every_s: f64,
     pub avoid_extend: f64,
     pub avoid_clearance_m: f64,
+    pub avoid_time_fraction: f64,
+    pub avoid_duck_cost: f64,
     pub block_time_fraction: f64,
     pub attack_per_step: f64,
     pub attack_min_s: f64,
     pub attack_max_s: f64,
+    pub attack_scatter_m: f64,
     pub hold_s: f64,
 }
 
@@ -66,7 +69,7 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     }
     let m = &f.mind;
     // (field, value, low, high): every number must lie in [low, high].
-    let ranges: [(&str, f64, f64, f64); 24] = [
+    let ranges: [(&str, f64, f64, f64); 27] = [
         ("coupling_k_n_per_m", f.coupling_k_n_per_m, 1.0, 20_000.0),
         ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
         ("avatar_joint_scale", f.avatar_joint_scale, 0.01, 1.0),
@@ -85,10 +88,13 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         ("mind.predict_every_s", m.predict_every_s, 0.0, 2.0),
         ("mind.avoid_extend", m.avoid_extend, 1.0, 5.0),
         ("mind.avoid_clearance_m", m.avoid_clearance_m, 0.0, 1.0),
+        ("mind.avoid_time_fraction", m.avoid_time_fraction, 0.1, 1.0),
+        ("mind.avoid_duck_cost", m.avoid_duck_cost, 0.1, 100.0),
         ("mind.block_time_fraction", m.block_time_fraction, 0.1, 1.0),
         ("mind.attack_per_step", m.attack_per_step, 0.0, 1.0),
         ("mind.attack_min_s", m.attack_min_s, 0.05, 5.0),
         ("mind.attack_max_s", m.attack_max_s, 0.05, 5.0),
+        ("mind.attack_scatter_m", m.attack_scatter_m, 0.0, 0.3),
         ("mind.hold_s", m.hold_s, 0.0, 5.0),
         ("mind.attack_max_s", m.attack_max_s - m.attack_min_s, 1e-6, 5.0),
     ];
@@ -125,9 +131,12 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
             predict_every_s: m.predict_every_s,
             avoid_extend: m.avoid_extend,
             avoid_clearance_m: m.avoid_clearance_m,
+            avoid_time_fraction: m.avoid_time_fraction,
+            avoid_duck_cost: m.avoid_duck_cost,
             block_time_fraction: m.block_time_fraction,
             attack_per_step: m.attack_per_step,
             attack_s: (m.attack_min_s, m.attack_max_s),
+            attack_scatter_m: m.attack_scatter_m,
             hold_s: m.hold_s,
         },
         active: true,

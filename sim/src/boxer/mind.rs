@@ -112,15 +112,25 @@ pub struct MindParams {
     pub middle_grace_s: f64,
     /// Do not start another prediction sooner than this after one.
     pub predict_every_s: f64,
-    /// Avoidance: P' extends AP by this factor; R lies this far from the trajectory beyond B.
+    /// Avoidance: P' extends AP by this factor; R lies this far from the trajectory (Q), on the
+    /// ray from Q through B.
     pub avoid_extend: f64,
     pub avoid_clearance_m: f64,
+    /// Avoidance: the cost of moving the part down or up relative to sideways (see
+    /// [`avoid_target`]).
+    pub avoid_duck_cost: f64,
+    /// Avoidance reaches finish this fraction of the predicted time to contact (the linear
+    /// extrapolation of an accelerating fist predicts the contact late).
+    pub avoid_time_fraction: f64,
     /// Block reaches finish this fraction of the time to contact.
     pub block_time_fraction: f64,
     /// Attack decision probability per step while both hands stand by (the lab's 0.004).
     pub attack_per_step: f64,
     /// Attack reach duration range (s).
     pub attack_s: (f64, f64),
+    /// The attack's target point is the centre of the avatar's head or chest moved by a random
+    /// offset up to this far in each axis (section 4.4.3: the target position is set randomly).
+    pub attack_scatter_m: f64,
     /// A finished reach is held this long before the part returns to standby.
     pub hold_s: f64,
 }
@@ -344,24 +354,34 @@ impl Mind {
         let left = (d.at_s - now_s).max(0.08);
         // Avoidance (Fig. 6): the part that would be hit moves away from the hand's path.
         let part = if d.vh_body == self.vh.head { self.vh.head } else { self.vh.chest };
-        let a = d.hand_start_m;
-        let p_ext = a + (d.point_m - a) * self.params.avoid_extend;
         let b = ws.com_world(model, part);
-        let q = nearest_on_segment(a, p_ext, b);
-        let mut away = b - q;
-        away.z = away.z.min(0.0); // never toward the avatar
-        let dir = if away.length() > 1e-6 { away.normalize() } else { DVec3::X };
-        let r = b + dir * self.params.avoid_clearance_m;
-        self.reaches[2] = Some(Reach::start(
-            model,
-            ws,
-            part,
-            r,
-            now_s,
-            left,
-            bp.reach_body_k_n_per_m,
-            bp.reach_body_d_n_s_per_m,
-        ));
+        // The path is the avatar hand's centre, from A through its centre at the contact.
+        let (a, p) = (d.hand_start_m, d.hand_at_contact_m);
+        // A dodge under way is kept while its target is still clear of the newly predicted
+        // path: restarting it would throw away the motion already gained (a fresh reach starts
+        // from rest) and, for a punch aimed dead at the part, could flip the side.
+        let keep = match self.reaches[2] {
+            Some(r) if self.body == BodyBehaviour::Avoidance && r.body == part && !r.done(now_s) => {
+                let p_ext = a + (p - a) * self.params.avoid_extend;
+                (r.target_m - nearest_on_segment(a, p_ext, r.target_m)).length()
+                    >= 0.8 * self.params.avoid_clearance_m
+            }
+            _ => false,
+        };
+        if !keep {
+            let r = avoid_target(a, p, b, &self.params);
+            let dur = (left * self.params.avoid_time_fraction).max(0.06);
+            self.reaches[2] = Some(Reach::start(
+                model,
+                ws,
+                part,
+                r,
+                now_s,
+                dur,
+                bp.reach_body_k_n_per_m,
+                bp.reach_body_d_n_s_per_m,
+            ));
+        }
         if self.body != BodyBehaviour::Avoidance {
             self.avoidances += 1;
         }
@@ -375,18 +395,26 @@ impl Mind {
             })
             .unwrap_or(0);
         let hb = ws.com_world(model, self.vh.hand[h]);
-        let target = nearest_on_segment(a, d.hand_at_contact_m, hb);
+        // The block ends slightly before the contact; P' is where the avatar's hand will be then
+        // (on the linear path the prediction assumed), R the nearest point of AP' to the hand.
         let dur = (left * self.params.block_time_fraction).max(0.06);
-        self.reaches[h] = Some(Reach::start(
-            model,
-            ws,
-            self.vh.hand[h],
-            target,
-            now_s,
-            dur,
-            bp.reach_arm_k_n_per_m,
-            bp.reach_arm_d_n_s_per_m,
-        ));
+        let p_end = a + (d.hand_at_contact_m - a) * (dur / left).min(1.0);
+        let target = nearest_on_segment(a, p_end, hb);
+        let running = self.reaches[h].filter(|r| self.hands[h] == Behaviour::Block && !r.done(now_s));
+        if running.is_some_and(|r| (r.target_m - target).length() < 0.05) {
+            // The block under way already goes there (see the dodge above).
+        } else {
+            self.reaches[h] = Some(Reach::start(
+                model,
+                ws,
+                self.vh.hand[h],
+                target,
+                now_s,
+                dur,
+                bp.reach_arm_k_n_per_m,
+                bp.reach_arm_d_n_s_per_m,
+            ));
+        }
         if self.hands[h] != Behaviour::Block {
             self.blocks += 1;
         }
@@ -434,7 +462,13 @@ impl Mind {
             let (head, chest) = (ws.com_world(model, self.av.head), ws.com_world(model, self.av.chest));
             // Nearer target favoured (section 4.4.3): weight by the other one's distance.
             let (dh, dc) = ((head - hp).length(), (chest - hp).length());
-            let target = if self.rng.random::<f64>() < dc / (dh + dc) { head } else { chest };
+            let centre = if self.rng.random::<f64>() < dc / (dh + dc) { head } else { chest };
+            let sc = self.params.attack_scatter_m;
+            let mut off = [0.0; 3];
+            for o in &mut off {
+                *o = if sc > 0.0 { self.rng.random_range(-sc..sc) } else { 0.0 };
+            }
+            let target = centre + DVec3::from_array(off);
             let (lo, hi) = self.params.attack_s;
             let dur = self.rng.random_range(lo..hi);
             self.reaches[h] = Some(Reach::start(
@@ -475,6 +509,49 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// The avoidance target of Fig. 6. A is the avatar's hand when the prediction started, P its
+/// predicted centre at the contact, B the centre of the part to move. The hand's path AP' is AP
+/// extended by `avoid_extend`; Q is its point nearest B. The paper puts R on the ray from Q
+/// through B at a set distance from Q (`avoid_clearance_m`): that is the point of the circle of
+/// that radius around the path (in the plane across it at Q) nearest to B. Here "nearest" weighs
+/// a vertical move `avoid_duck_cost` times a horizontal one, because the waist lets the upper
+/// body slip sideways far more easily than duck (measured: asked for 0.2 m, the head slips
+/// 0.18-0.22 m sideways but ducks 0.10 m); with a cost of 1 this is exactly the paper's R. A
+/// point toward the avatar (+z) is not taken, and a part already clear of the path stays.
+/// A punch aimed dead at B leaves a tie: the part slips away from the side the punch comes from.
+pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
+    let p_ext = a + (p - a) * mp.avoid_extend;
+    let q = nearest_on_segment(a, p_ext, b);
+    let c = mp.avoid_clearance_m;
+    if (b - q).length() >= c {
+        return b;
+    }
+    let path = (p_ext - a).normalize_or(DVec3::NEG_Z);
+    let e1 = DVec3::Y.cross(path).normalize_or(DVec3::X);
+    let e2 = path.cross(e1);
+    // Away from A's side on a tie: e1 pointing from A's side to B's first.
+    let e1 = if (b - a).dot(e1) >= 0.0 { e1 } else { -e1 };
+    let cost = |r: DVec3| {
+        let d = r - b;
+        d.x * d.x + d.z * d.z + mp.avoid_duck_cost * d.y * d.y
+    };
+    const N: usize = 72;
+    let mut best = (f64::INFINITY, b);
+    for k in 0..N {
+        let th = k as f64 * std::f64::consts::TAU / N as f64;
+        let r = q + (e1 * th.cos() + e2 * th.sin()) * c;
+        if r.z - b.z > 0.02 {
+            continue;
+        }
+        let e = cost(r);
+        // Strictly better only: on a tie the earlier angle (from +e1) stays.
+        if e < best.0 - 1e-12 {
+            best = (e, r);
+        }
+    }
+    best.1
 }
 
 /// Nearest point to `p` on the segment `a`..`b`.
