@@ -9,7 +9,8 @@ use spidar_msg::ProxyShape;
 use spidar_sim::boxer::mind::nearest_on_segment;
 use spidar_sim::boxer::reach::min_jerk_rate;
 use spidar_sim::boxer::{
-    min_jerk, proxy_shape, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget, Reach,
+    min_jerk, proxy_shape, Behaviour, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget,
+    Reach,
 };
 
 fn settled(params: BoxerParams) -> BoxingWorld {
@@ -178,21 +179,38 @@ fn attacks_use_one_hand_at_a_time() {
     let mut w = settled(BoxerParams { seed: 11, ..Default::default() });
     w.mind.params.attack_per_step = 0.05;
     let mut attacks_seen = 0;
+    // Each attack's target (section 4.4.3: a random position on the avatar's head or chest).
+    let mut off_centre: Vec<f64> = Vec::new();
+    let scatter = w.mind.params.attack_scatter_m;
     for _ in 0..((20.0 / w.dt_s()) as usize) {
         let targets =
             [0, 1].map(|h| Some(HandTarget { pos_m: w.com(w.avatar.hand[h]), vel_m_per_s: DVec3::ZERO }));
+        let (head, chest) = (w.com(w.avatar.head), w.com(w.avatar.chest));
         w.step(&targets);
         w.begin_step();
         assert!(w.mind.attacking() <= 1, "two hands attacking at once");
+        if w.mind.attacks > attacks_seen {
+            let h = w.mind.hands.iter().position(|&b| b == Behaviour::Attack).expect("the attacking hand");
+            let t = w.mind.reaches[h].expect("an attack is a reach").target_m;
+            let d = (t - head).length().min((t - chest).length());
+            assert!(
+                d <= scatter * 3f64.sqrt() + 1e-9,
+                "attack aimed {d:.3} m from the head and chest centres"
+            );
+            off_centre.push(d);
+        }
         attacks_seen = w.mind.attacks;
     }
     assert!(attacks_seen > 10, "only {attacks_seen} attacks in 20 s");
+    // Random, not the centre: the offsets spread over the scatter.
+    let mean = off_centre.iter().sum::<f64>() / off_centre.len() as f64;
+    assert!(mean > 0.3 * scatter && off_centre.iter().all(|&d| d > 1e-6), "targets {off_centre:?}");
     eprintln!("hits given {}", w.mind.hits_given);
 }
 
-/// A hook: the avatar's hand swung wide of the guard, then straight at the head from the side.
-/// The prediction finds the head contact (Table I class 1), the body avoids, and the head ends
-/// farther from the fist's path than a passive one.
+/// A hook: the avatar's hand swung wide of the guard, then at the head from the side. The
+/// prediction finds the head contact (Table I class 1), the body avoids, and the fist that lands
+/// in a passive head misses the active one.
 #[test]
 fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
     fn hook(params: BoxerParams) -> (BoxingWorld, f64) {
@@ -215,7 +233,7 @@ fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
         assert_eq!(w.mind.predictions, 0);
         let from = w.com(w.avatar.hand[0]);
         let to = head + DVec3::new(0.05, 0.05, 0.0);
-        let mut closest = f64::INFINITY;
+        let mut gap = f64::INFINITY;
         let out_s = 0.3;
         // Out in 0.3 s, back in 0.3 s, as a boxer's hook.
         for k in 0..((0.6 / w.dt_s()) as usize) {
@@ -227,20 +245,17 @@ fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
             let t = guard_targets(&w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel });
             w.step(&t);
             w.begin_step();
-            closest = closest.min((pos - w.com(w.vh.head)).length());
+            gap = gap.min(fist_gap_to_head(&w, pos));
         }
-        (w, closest)
+        (w, gap)
     }
     let (_, passive) = hook(BoxerParams { active: false, ..Default::default() });
     let (w, active) = hook(BoxerParams::default());
     assert!(w.mind.avoidances >= 1, "a predicted hit on the head must start an avoidance");
-    // The fist (4 cm) reaches into the passive head (capsule radius 9 cm); the active head is
-    // clear of it.
-    assert!(passive < 0.13, "the hook should reach a passive head: {passive:.3} m");
-    assert!(
-        active > 0.13 && active > passive + 0.05,
-        "the head kept {active:.3} m from the fist (passive {passive:.3} m)"
-    );
+    // Measured on the head's proxy, as the rt-loop renders it: the hook lands in a passive head
+    // and misses the active one.
+    assert!(passive < -0.03, "the hook should reach a passive head: gap {passive:.3} m");
+    assert!(active > 0.02, "the head was hit or grazed: gap {active:.3} m (passive {passive:.3} m)");
 }
 
 /// After warm-up a boxing step allocates nothing, predictions, reaches and decisions included.

@@ -519,7 +519,8 @@ impl Mind {
 /// a vertical move `avoid_duck_cost` times a horizontal one, because the waist lets the upper
 /// body slip sideways far more easily than duck (measured: asked for 0.2 m, the head slips
 /// 0.18-0.22 m sideways but ducks 0.10 m); with a cost of 1 this is exactly the paper's R. A
-/// point toward the avatar (+z) is not taken, and a part already clear of the path stays.
+/// point toward the avatar (+z) keeps B's depth instead, and a part already clear of the path
+/// stays.
 /// A punch aimed dead at B leaves a tie: the part slips away from the side the punch comes from.
 pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     let p_ext = a + (p - a) * mp.avoid_extend;
@@ -531,8 +532,9 @@ pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     let path = (p_ext - a).normalize_or(DVec3::NEG_Z);
     let e1 = DVec3::Y.cross(path).normalize_or(DVec3::X);
     let e2 = path.cross(e1);
-    // Away from A's side on a tie: e1 pointing from A's side to B's first.
-    let e1 = if (b - a).dot(e1) >= 0.0 { e1 } else { -e1 };
+    // On a tie, away from the side the punch comes from: e1 pointing the way B lies from A
+    // across the virtual human's front (x), tried first.
+    let e1 = if e1.x * (b.x - a.x) >= 0.0 { e1 } else { -e1 };
     let cost = |r: DVec3| {
         let d = r - b;
         d.x * d.x + d.z * d.z + mp.avoid_duck_cost * d.y * d.y
@@ -541,10 +543,9 @@ pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     let mut best = (f64::INFINITY, b);
     for k in 0..N {
         let th = k as f64 * std::f64::consts::TAU / N as f64;
-        let r = q + (e1 * th.cos() + e2 * th.sin()) * c;
-        if r.z - b.z > 0.02 {
-            continue;
-        }
+        let mut r = q + (e1 * th.cos() + e2 * th.sin()) * c;
+        // Never toward the avatar: such a point keeps B's depth instead.
+        r.z = r.z.min(b.z);
         let e = cost(r);
         // Strictly better only: on a tie the earlier angle (from +e1) stays.
         if e < best.0 - 1e-12 {
@@ -590,6 +591,53 @@ mod tests {
             assert_eq!(class.priority(), prio, "{class:?}");
         }
         assert!(Priority::High > Priority::Middle && Priority::Middle > Priority::Low);
+    }
+
+    fn mind_params(duck: f64) -> MindParams {
+        MindParams {
+            avoid_extend: 1.5,
+            avoid_clearance_m: 0.2,
+            avoid_duck_cost: duck,
+            ..MindParams::default()
+        }
+    }
+
+    #[test]
+    fn avoidance_with_equal_costs_is_the_papers_fig_6() {
+        // A punch along -z passing 5 cm beside and 3 cm under B: Q is abreast of B on the path,
+        // R on the ray QB at the clearance.
+        let (a, p) = (DVec3::new(0.05, 1.47, 0.0), DVec3::new(0.05, 1.47, -0.8));
+        let b = DVec3::new(0.0, 1.5, -0.85);
+        let r = avoid_target(a, p, b, &mind_params(1.0));
+        let q = DVec3::new(0.05, 1.47, -0.85);
+        let want = q + (b - q).normalize() * 0.2;
+        assert!((r - want).length() < 0.01, "{r} vs the paper's {want}");
+    }
+
+    #[test]
+    fn avoidance_prefers_a_slip_to_a_duck_and_never_comes_forward() {
+        let mp = mind_params(4.0);
+        // A punch passing 5 cm over B: ducking 15 cm costs more than slipping 19 cm sideways.
+        let (a, p) = (DVec3::new(0.0, 1.55, 0.0), DVec3::new(0.0, 1.55, -0.8));
+        let b = DVec3::new(0.0, 1.5, -0.85);
+        let r = avoid_target(a, p, b, &mp);
+        assert!((r - b).x.abs() > 0.15 && (r - b).y.abs() < 0.1, "slip expected, got {:?}", r - b);
+        // Dead at B from the left (x < 0): the part slips to the right, clear of the path.
+        let a = DVec3::new(-0.1, 1.5, 0.0);
+        let r = avoid_target(a, b, b, &mp);
+        assert!(r.x > b.x + 0.1, "{:?}", r - b);
+        let q = nearest_on_segment(a, a + (b - a) * 1.5, r);
+        assert!((r - q).length() > 0.19);
+        // Never toward the avatar (who is at +z), whatever the geometry.
+        for k in 0..50 {
+            let th = k as f64 * 0.37;
+            let a = b + DVec3::new(th.cos() * 0.3, th.sin() * 0.3, 0.6);
+            assert!(avoid_target(a, b, b, &mp).z <= b.z);
+        }
+        // Already clear of the path: stay.
+        let a = DVec3::new(0.4, 1.5, 0.0);
+        let p = DVec3::new(0.4, 1.5, -0.8);
+        assert_eq!(avoid_target(a, p, b, &mp), b);
     }
 
     #[test]
