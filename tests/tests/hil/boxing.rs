@@ -135,3 +135,27 @@ fn a_boxing_bout_is_bit_identical_for_a_seed() {
     assert_eq!(a, digest(5).0);
     assert_ne!(a, digest(6).0);
 }
+
+/// The head's path (centre of mass, world) at every scene step of `ticks` ticks of a passive bout.
+fn head_path(punches: usize, ticks: usize) -> Vec<DVec3> {
+    let params = BoxerParams { active: false, ..Default::default() };
+    let mut b = Bout::new(params, 7, punches, Some(0));
+    let mut path = Vec::new();
+    for _ in 0..ticks {
+        if b.tick().1 {
+            path.push(b.scene.world.com(b.scene.world.vh.head));
+        }
+    }
+    path
+}
+
+#[test]
+fn the_users_jabs_move_a_passive_virtual_humans_head() {
+    // The same bout with and without jabs: the head's largest departure from where it would have
+    // been is what the punches did (the virtual human also settles and sways on its own).
+    let ticks = 12_000;
+    let still = head_path(0, ticks);
+    let jabbed = head_path(12, ticks);
+    let moved = still.iter().zip(&jabbed).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    eprintln!("head moved {:.1} mm by the jabs", moved * 1e3);
+}
