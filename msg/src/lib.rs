@@ -145,10 +145,24 @@ pub struct HandSample {
     pub hands: [HandState; HANDS],
     /// `seq` of the contact model the impulses below were computed against (0: none).
     pub model_seq: u64,
-    /// Impulse this tick applied to each proxy of that model (index as in `proxies`), summed over
-    /// both hands: the reaction of the force on the hands times the tick period. The scene
-    /// applies it to the body the proxy names, so momentum is consistent.
+    /// Impulse the rig really applied to the user's hands through each proxy of that model this
+    /// tick (index as in `proxies`), summed over both hands: minus the rendered penalty force
+    /// after the ramp, the stale-model fade, the rig's force clamp and the tension allocation's
+    /// scaling, times the tick period. It is what the physical hand received, so a scene whose
+    /// proxies stand for things the *user* touches directly (walls, a crowd pushed by the hands)
+    /// applies this one: the body gets exactly the reaction of what the user felt, and momentum
+    /// between the person and the world is consistent. Bounded by the rig's force limit.
     pub proxy_impulse_n_s: [DVec3; MAX_PROXIES],
+    /// Impulse of the virtual contact itself through each proxy this tick (index as in
+    /// `proxies`), summed over both hands: minus the rendered penalty force (stiffness already
+    /// limited by the renderer) times the tick period, scaled by the loop's gain (ramp x
+    /// stale-model fade; zero when not active, so a stale or faded model acts on nothing) but
+    /// NOT by the rig's force clamp or the allocation's scaling. A scene where a simulated body
+    /// stands between the user and the world (the boxing avatar's hand, coupled to the user's
+    /// hand by a spring) applies this one: the virtual human receives the full contact force of
+    /// the avatar's hand, while the user feels it only as far as the rig can display it (seed
+    /// 000, sections 3.4 and 3.12). Equals `proxy_impulse_n_s` whenever nothing was clamped.
+    pub proxy_contact_impulse_n_s: [DVec3; MAX_PROXIES],
 }
 
 impl Default for HandSample {
@@ -159,6 +173,7 @@ impl Default for HandSample {
             hands: [HandState::default(); HANDS],
             model_seq: 0,
             proxy_impulse_n_s: [DVec3::ZERO; MAX_PROXIES],
+            proxy_contact_impulse_n_s: [DVec3::ZERO; MAX_PROXIES],
         }
     }
 }

@@ -45,7 +45,8 @@ pub fn distance(shape: &ProxyShape, p: DVec3) -> (f64, DVec3) {
 /// Renders the force on one hand (sphere at `pos_m`, radius `radius_m`, velocity `vel_m_per_s`)
 /// against every proxy of `model` that this hand may touch, extrapolated by `age_s`. Adds the
 /// reaction impulse (`-force * dt_s`) of each contact into `impulses`, as rendered: the caller
-/// scales it by the part of the force the hand really received.
+/// scales it by the loop's gain for the virtual contact, and by the part of the force the hand
+/// really received for the applied impulse.
 #[allow(clippy::too_many_arguments)]
 pub fn render_hand(
     hand: usize,

@@ -516,6 +516,7 @@ impl TickCore {
         let gain = if active { ramp_gain * stale_gain } else { 0.0 };
         let xf = self.rig.rig_to_world;
         let mut impulses = [DVec3::ZERO; MAX_PROXIES];
+        let mut contact_impulses = [DVec3::ZERO; MAX_PROXIES];
         *out = Output::default();
         rec.tick = tick;
         rec.t_s = now_s;
@@ -559,14 +560,24 @@ impl TickCore {
             // Directions from the current pose, or from the last good one when it is not trusted.
             let dir_pos = if pose_ok { h.pose.pos_m } else { h.safe_pos_m };
             let alloc: Allocation = h.alloc.allocate(&h.kin.directions(dir_pos), g.force_n);
-            // The proxies get back only what the user's hand really received: the rendered force
-            // after the ramp, fade, clamp and allocation scaling (all along its own direction).
+            // Two impulses go back per proxy (see `HandSample`). The applied one is only what the
+            // user's hand really received: the rendered force after the ramp, fade, clamp and
+            // allocation scaling (all along its own direction).
             let want_sq = want_rig.length_squared();
             let applied =
                 if want_sq > 0.0 { (alloc.force_n.dot(want_rig) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+            // The virtual contact itself acts with the loop's gain only (a stale or ramped-out
+            // model must not push the world either), never limited by what the rig can display.
+            // `render_hand` already dropped non-finite contacts; the check keeps a NaN gain out.
             if rendered.contacts > 0 {
-                for (acc, imp) in impulses.iter_mut().zip(hand_impulses.iter()) {
+                for ((acc, acc_contact), imp) in
+                    impulses.iter_mut().zip(contact_impulses.iter_mut()).zip(hand_impulses.iter())
+                {
                     *acc += *imp * applied;
+                    let c = *imp * gain;
+                    if c.is_finite() {
+                        *acc_contact += c;
+                    }
                 }
             }
             match alloc.method {
@@ -605,6 +616,7 @@ impl TickCore {
         sample.t_s = now_s;
         sample.model_seq = self.model.as_ref().map_or(0, |m| m.seq);
         sample.proxy_impulse_n_s = impulses;
+        sample.proxy_contact_impulse_n_s = contact_impulses;
     }
 }
 
@@ -728,6 +740,65 @@ mod tests {
         c.command(Command::Activate);
         assert_eq!(c.state(), Lifecycle::Inactive);
         assert_eq!(c.counters().reopens, 1);
+    }
+
+    /// One tick with a fresh `m` (stamped now); returns the sample and the record.
+    fn tick_with(c: &mut TickCore, m: Option<ContactModel>) -> (HandSample, TickRecord) {
+        let (mut out, mut rec, mut s) = (Output::default(), TickRecord::default(), HandSample::default());
+        let t = c.counters.ticks as f64 * 0.001;
+        if let Some(mut m) = m {
+            m.stamp_s = t;
+            c.set_contact_model(m);
+        }
+        c.step(t, Ok(()), &Input::default(), &mut out, &mut s, &mut rec);
+        (s, rec)
+    }
+
+    #[test]
+    fn contact_impulse_is_the_rendered_force_with_the_gain_but_without_the_clamp() {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let mut c = core();
+        home_and_activate(&mut c);
+        // Hand 0 sits at home (counts stay zero); a wall 1 cm in front of its centre, 3 cm deep
+        // into the 4 cm fist: 2000 N/m x 0.03 m = 60 N, far above the 4 N clamp.
+        let xf = c.rig().rig_to_world;
+        let home = xf.point(c.rig().hands[0].home_m);
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Z * 0.01, normal: DVec3::Z },
+            k_n_per_m: 2000.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        let dt = c.rig().period_s;
+        let limit = c.rig().hands[0].force_limit_n;
+        // While ramping in (gain about 0.2, still 12 N), then at full gain.
+        run(&mut c, 100, Ok(()));
+        for _ in 0..2 {
+            let (s, rec) = tick_with(&mut c, Some(m));
+            assert!(rec.gain > 0.0 && rec.hands[0].clamped, "{rec:?}");
+            let contact = s.proxy_contact_impulse_n_s[0];
+            let want = -DVec3::Z * 60.0 * rec.gain * dt;
+            assert!((contact - want).length() < 1e-12, "{contact} vs {want}");
+            let applied = s.proxy_impulse_n_s[0].length() / dt;
+            assert!(applied <= limit + 1e-9 && applied > 0.9 * limit, "{applied} N applied");
+            assert!(s.proxy_contact_impulse_n_s[1..].iter().all(|i| *i == DVec3::ZERO));
+            run(&mut c, 600, Ok(()));
+        }
+        // The model goes stale and fades: the contact fades with it, to exactly zero.
+        let fade = c.rig().safety.contact_stale_after_s + c.rig().safety.contact_fade_s;
+        let mut last = f64::INFINITY;
+        for _ in 0..(fade / dt).round() as usize + 1 {
+            let (s, rec) = tick_with(&mut c, None);
+            let contact = s.proxy_contact_impulse_n_s[0].length() / dt;
+            assert!((contact - 60.0 * rec.gain).abs() < 1e-9 && contact <= last, "{contact} N");
+            last = contact;
+        }
+        let (s, _) = tick_with(&mut c, None);
+        assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+        assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO);
     }
 
     #[test]

@@ -203,10 +203,52 @@ fn clamped_contact_hands_back_only_the_applied_impulse() {
         "{rec:?}"
     );
     v.stop_scene();
-    v.tick();
+    let rec = v.tick();
     let s = v.last_sample.unwrap();
+    assert_eq!(s.tick, rec.tick);
     let back = s.proxy_impulse_n_s[0].length() / r.period_s;
     assert!((back - r.hands[0].force_limit_n).abs() < 1e-6, "{back} N handed back");
+    // The virtual contact itself is the whole rendered force (record: rig frame; sample: world).
+    assert_eq!(rec.gain, 1.0);
+    let rendered_world = r.rig_to_world.vector(rec.hands[0].rendered_n);
+    let contact = s.proxy_contact_impulse_n_s[0];
+    assert!(
+        (contact + rendered_world * r.period_s).length() < 1e-12,
+        "contact impulse {contact} vs rendered {rendered_world} N"
+    );
+    assert!(contact.length() / r.period_s > r.hands[0].force_limit_n + 0.5);
+}
+
+#[test]
+fn contact_impulse_fades_to_zero_with_the_applied_one_when_the_scene_stops() {
+    // The same clamped press; then the scene stops sending models: the stale model fades, and the
+    // virtual contact must fade with the loop's gain (it acts on the world with the same model).
+    let r = rig();
+    let mut v = left_hand_pressing_the_wall_by(2000.0, 0.04);
+    v.run_ticks(4000);
+    v.stop_scene();
+    let fade_s = r.safety.contact_stale_after_s + r.safety.contact_fade_s;
+    let (mut last, mut fading) = (f64::INFINITY, 0);
+    for _ in 0..(fade_s / r.period_s).round() as usize + 5 {
+        let rec = v.tick();
+        let s = v.last_sample.unwrap();
+        let rendered = r.rig_to_world.vector(rec.hands[0].rendered_n);
+        let contact = s.proxy_contact_impulse_n_s[0];
+        assert!((contact + rendered * rec.gain * r.period_s).length() < 1e-12, "{contact} vs {rendered}");
+        let applied = s.proxy_impulse_n_s[0].length();
+        assert!(applied <= contact.length() + 1e-15, "applied {applied} above the contact {contact}");
+        if rec.gain > 0.0 && rec.gain < 1.0 {
+            fading += 1;
+            // Fading while the hand stays in the wall: the contact falls tick by tick.
+            assert!(contact.length() <= last + 1e-12, "tick {}: {contact}", rec.tick);
+        }
+        last = contact.length();
+    }
+    assert!(fading > 50, "the model faded over {fading} ticks");
+    let s = v.last_sample.unwrap();
+    assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO, "faded out: no virtual contact either");
+    assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO);
+    assert_eq!(v.counters().faults, 0);
 }
 
 #[test]

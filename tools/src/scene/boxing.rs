@@ -1,9 +1,11 @@
 //! The boxing scene (seed 000): the physics world of `spidar_sim::boxer` behind the rt-loop.
 //!
 //! Every 3 ms step: the user's hands (newest sample, world frame of the rt-loop) plus the boxer's
-//! `user_offset_m` become the avatar's hand targets; the impulses the rt-loop applied to the
-//! proxies of the last models are given to the virtual human's parts they name, and their
-//! reaction to the avatar's hands; the world steps (the virtual human thinks and reaches); and
+//! `user_offset_m` become the avatar's hand targets; the impulses of the virtual contacts the
+//! rt-loop rendered against the proxies of the last models (`proxy_contact_impulse_n_s`: the
+//! full penalty force, not limited by the rig's force clamp) are given to the virtual human's
+//! parts they name, and their reaction to the avatar's hands; the world steps (the virtual human
+//! thinks and reaches); and
 //! the scene publishes proxies of the virtual human's parts near the user's hands, in the
 //! rt-loop's frame, with the avatar's damage (contacts on its other parts, attenuated) as the
 //! extra force on both hands.
@@ -45,7 +47,14 @@ impl BoxingScene {
         })
     }
 
-    /// Applies the impulses of one sample to the world.
+    /// Applies the virtual contact impulses of one sample to the world.
+    ///
+    /// The contact is between the avatar's hand and the virtual human, both simulated (seed 000,
+    /// section 3.4): the virtual human receives the whole contact, as rendered at 1 kHz with the
+    /// loop's ramp and stale-model fade, so a punch moves it as hard as it lands in the world.
+    /// The user's hand feels the same contact only up to the rig's force limit; the difference is
+    /// carried by the avatar's hand (it gets the reaction) and its coupling spring, not lost. The
+    /// applied impulse (`proxy_impulse_n_s`, at most 4 N worth) would make every punch a push.
     fn take_impulses(&mut self, s: &HandSample) {
         if s.model_seq == 0 {
             return;
@@ -53,7 +62,7 @@ impl BoxingScene {
         let Some(m) = self.sent.iter().find(|m| m.seq == s.model_seq) else { return };
         let m = *m;
         let off = self.world.params.user_offset_m;
-        for (p, imp) in m.proxies().iter().zip(s.proxy_impulse_n_s.iter()) {
+        for (p, imp) in m.proxies().iter().zip(s.proxy_contact_impulse_n_s.iter()) {
             if *imp == DVec3::ZERO {
                 continue;
             }
