@@ -7,9 +7,10 @@
 //! model that predicts on a copy of the state and picks avoid / block / attack ([`mind`]).
 //!
 //! Force feedback (sections 3.4, 3.12): the user's hands touch the virtual human through the
-//! rt-loop's 1 kHz rendering against proxies of the virtual human's parts; the impulses it applied
-//! come back and are given to those parts here, and their reaction to the avatar's hands. So the
-//! avatar's hand shapes must not also collide with the virtual human in the world simulation
+//! rt-loop's 1 kHz rendering against proxies of the virtual human's parts; the impulses of those
+//! virtual contacts (before the rig's force clamp: the user feels them only as far as the rig can
+//! show them) come back and are given to those parts here, and their reaction to the avatar's
+//! hands. So the avatar's hand shapes must not also collide with the virtual human in the world simulation
 //! (that would count each contact twice): those pairs are removed from the world model. The
 //! prediction model keeps them: there is no rt-loop inside a prediction.
 //!
@@ -225,9 +226,11 @@ impl BoxingWorld {
         kinematics(&self.model, &self.state, &mut self.ws);
     }
 
-    /// An impulse the rt-loop applied through user hand `hand` to virtual-human body `body` at
-    /// `point_m` (simulation frame): given to that body now, and its reaction to the avatar's
-    /// hand, so the avatar feels what the user felt.
+    /// The impulse of a virtual contact the rt-loop rendered between user hand `hand` and
+    /// virtual-human body `body` at `point_m` (simulation frame), not limited by the rig's force
+    /// clamp: given to that body now, and its reaction to the avatar's hand, which carries the
+    /// contact the user's hand feels only up to the rig's limit (the lab's avatar hand collided
+    /// in the simulation the same way).
     pub fn apply_user_impulse(&mut self, hand: usize, body: usize, point_m: DVec3, impulse_n_s: DVec3) {
         if !impulse_n_s.is_finite() || !self.model.articulations[BOXER].bodies.contains(&body) {
             return;
