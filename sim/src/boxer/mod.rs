@@ -10,9 +10,9 @@
 //! rt-loop's 1 kHz rendering against proxies of the virtual human's parts; the impulses of those
 //! virtual contacts (before the rig's force clamp: the user feels them only as far as the rig can
 //! show them) come back and are given to those parts here, and their reaction to the avatar's
-//! hands. So the avatar's hand shapes must not also collide with the virtual human in the world simulation
-//! (that would count each contact twice): those pairs are removed from the world model. The
-//! prediction model keeps them: there is no rt-loop inside a prediction.
+//! hands. So the avatar's hand shapes must not also collide with the virtual human in the world
+//! simulation (that would count each contact twice): those pairs are removed from the world
+//! model. The prediction model keeps them: there is no rt-loop inside a prediction.
 //!
 //! Must never: feed the coupling spring back to the user (it is the avatar's dynamics, not a
 //! contact), or allocate in a step after construction.
