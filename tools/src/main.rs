@@ -238,6 +238,7 @@ fn main() -> anyhow::Result<()> {
                 println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
                 println!("  world step   {}", b.step);
                 println!("  prediction   {}", b.prediction);
+                println!("  step+predict {}", b.step_with_prediction);
                 println!("  rt misses    {}", b.misses);
                 println!("  scene        {}\n", b.status);
             }
