@@ -182,6 +182,9 @@ fn bench_bout_step(c: &mut Criterion) {
             started.elapsed() / CYCLE_STEPS as u32
         })
     });
+    if k == k0 {
+        return; // skipped by a name filter on the command line
+    }
     let cycles = ((k - k0) / CYCLE_STEPS) as f64;
     eprintln!(
         "boxer/bout_step: jabs peak {peak:.1} m/s; {:.1} predictions per 0.6 s cycle over {cycles} cycles; \
