@@ -1,7 +1,8 @@
 //! `spidar eval`: the boxing paper's evaluations, automated.
 //!
 //! - The cost of the world step and of the prediction during a bout on the simulated rig (the
-//!   paper's Table III), measured per step on the virtual clock.
+//!   paper's Table III), measured per step on the virtual clock: steps without a prediction,
+//!   predictions alone, and the whole steps that ran one (what the sim thread's 3 ms must hold).
 //! - The reaction experiment of section 4.3 (Table IV): the scripted user jabs each of four
 //!   targets of the virtual human many times; an observer that sees only the virtual human's
 //!   motion guesses the target. The observer is a leave-one-out nearest-centroid classifier over
@@ -63,6 +64,12 @@ pub struct BoutTiming {
     pub step: Spread,
     /// Predictions alone.
     pub prediction: Spread,
+    /// World steps with a prediction in them, whole (the sim thread's worst 3 ms).
+    pub step_with_prediction: Spread,
+    /// Steps each prediction ran (median, p99, max) and the horizon's steps: Table I's stopping
+    /// rules end most predictions early, and the longest ones make the tail.
+    pub prediction_steps: [u64; 3],
+    pub horizon_steps: u64,
     pub misses: u64,
     pub status: String,
 }
@@ -80,7 +87,8 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
     v.home_and_activate();
     let mut scene = BoxingScene::new(params)?;
     let mut samples: Vec<HandSample> = Vec::with_capacity(16);
-    let (mut steps, mut preds) = (Vec::new(), Vec::new());
+    let (mut steps, mut preds, mut predicting) = (Vec::new(), Vec::new(), Vec::new());
+    let mut pred_steps = Vec::new();
     let mut next_ns = 0u64;
     let ticks = (seconds / rig.period_s).round() as u64;
     for _ in 0..ticks {
@@ -95,6 +103,10 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
             next_ns = now + (scene.step_s() * 1e9).round() as u64;
             if scene.world.mind.predictions > before {
                 preds.push(scene.world.mind.last_predict_ns);
+                predicting.push(scene.last_step_ns);
+                // The predictor's copy started from the state before this step.
+                let w = &scene.world;
+                pred_steps.push((w.mind.predictor.state.steps + 1).saturating_sub(w.state.steps));
             } else {
                 steps.push(scene.last_step_ns);
             }
@@ -104,6 +116,13 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
         seconds,
         step: Spread::of(steps),
         prediction: Spread::of(preds),
+        step_with_prediction: Spread::of(predicting),
+        prediction_steps: {
+            pred_steps.sort_unstable();
+            let at = |q: f64| pred_steps.get(((pred_steps.len().max(1) - 1) as f64 * q).round() as usize);
+            [0.5, 0.99, 1.0].map(|q| at(q).copied().unwrap_or(0))
+        },
+        horizon_steps: (scene.world.mind.params.horizon_s / scene.world.dt_s()).ceil() as u64,
         misses: v.counters().misses,
         status: scene.status_text(),
     })

@@ -238,6 +238,9 @@ fn main() -> anyhow::Result<()> {
                 println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
                 println!("  world step   {}", b.step);
                 println!("  prediction   {}", b.prediction);
+                println!("  step+predict {}", b.step_with_prediction);
+                let [med, p99, max] = b.prediction_steps;
+                println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
                 println!("  rt misses    {}", b.misses);
                 println!("  scene        {}\n", b.status);
             }
