@@ -1,5 +1,6 @@
 //! The virtual boxer (seed 000): reaching follows the minimum-jerk timing, the cognitive model
-//! triggers only on a fast hand, avoids a jab at the head, and attacks with one hand at a time.
+//! triggers only on a fast hand, stops its predictions by Table I, dodges jabs and hooks at the head,
+//! and attacks with one hand at a time, at random points.
 
 #[path = "alloc_count/mod.rs"]
 mod alloc_count;
@@ -10,7 +11,7 @@ use spidar_sim::boxer::mind::nearest_on_segment;
 use spidar_sim::boxer::reach::min_jerk_rate;
 use spidar_sim::boxer::{
     min_jerk, proxy_shape, Behaviour, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget,
-    Reach,
+    Priority, Reach,
 };
 
 fn settled(params: BoxerParams) -> BoxingWorld {
@@ -283,4 +284,49 @@ fn boxing_steps_with_predictions_do_not_allocate() {
     assert!(w.mind.predictions > before + 3, "the jabs must trigger predictions");
     assert_eq!(n, 0, "{n} allocations in 1000 boxing steps");
     assert!(alloc_count::count(|| drop(vec![1u8; 10])) > 0);
+}
+
+/// Table I's stopping rules, seen from how many steps a prediction ran: a high-priority contact
+/// (the fist on the head) stops it at that step; a middle one (the fist on the guard hand, the
+/// path then passing wide of the body) lets it run the 150 ms grace after it and stop; a hand going
+/// nowhere near runs the whole 0.5 s horizon.
+#[test]
+fn predictions_stop_by_table_one_priority() {
+    let mut w = settled(BoxerParams::default());
+    let dt = w.dt_s();
+    let horizon = (w.mind.params.horizon_s / dt).ceil() as u64;
+    let grace = (w.mind.params.middle_grace_s / dt).ceil() as u64;
+    // The user's left fist 12 cm in front of `at` (the virtual human faces +z) moving at `vel`;
+    // the right hand still at its guard.
+    fn run(w: &mut BoxingWorld, at: DVec3, vel: DVec3) -> (Option<spidar_sim::boxer::mind::Decision>, u64) {
+        let fist = at + DVec3::new(0.0, 0.0, 0.12);
+        let targets = guard_targets(w, 0, HandTarget { pos_m: fist, vel_m_per_s: vel });
+        let (model, state, params) = (w.predict_model.clone(), w.state.clone(), w.params.clone());
+        let d = w.mind.predict(&model, &state, &targets, &params);
+        (d, w.mind.predictor.state.steps - state.steps)
+    }
+    let (head, hand_l) = (w.com(w.vh.head), w.com(w.vh.hand[0]));
+    let (d, steps) = run(&mut w, head, DVec3::new(0.0, 0.0, -2.0));
+    let d = d.expect("a fist at the head is predicted");
+    assert_eq!((d.class, d.class.priority()), (ContactClass::AvatarAttack, Priority::High));
+    let contact_step = ((d.at_s - w.state.t_s) / dt).round() as u64;
+    assert!(steps <= contact_step + 1, "a high contact at step {contact_step} must stop it; ran {steps}");
+    assert!(steps < horizon / 2);
+
+    // The virtual human's left hand is at +x: a fist going out sideways (+x) past it.
+    let (d, steps) = run(&mut w, hand_l + DVec3::new(-0.03, 0.0, 0.0), DVec3::new(1.5, 0.0, -2.0));
+    let d = d.expect("a fist at the guard hand is predicted");
+    assert_eq!((d.class, d.class.priority()), (ContactClass::BoxerBlocked, Priority::Middle), "{d:?}");
+    let contact_step = ((d.at_s - w.state.t_s) / dt).round() as u64;
+    assert!(
+        steps + 2 >= contact_step + grace && steps <= contact_step + grace + 2 && steps < horizon,
+        "middle contact at step {contact_step}: must run the {grace}-step grace and stop; ran {steps}"
+    );
+
+    // The fist at the avatar's guard moving back toward the user: nothing to find, so the
+    // prediction runs the whole horizon.
+    let guard = w.com(w.avatar.hand[0]);
+    let (d, steps) = run(&mut w, guard - DVec3::new(0.0, 0.0, 0.12), DVec3::new(0.0, 0.0, 2.0));
+    assert!(d.is_none_or(|d| d.class.priority() == Priority::Low), "{d:?}");
+    assert_eq!(steps, horizon, "no deciding contact: the whole horizon");
 }
