@@ -11,7 +11,7 @@ use spidar_sim::boxer::mind::nearest_on_segment;
 use spidar_sim::boxer::reach::min_jerk_rate;
 use spidar_sim::boxer::{
     min_jerk, proxy_shape, Behaviour, BodyBehaviour, BoxerParams, BoxingWorld, ContactClass, HandTarget,
-    Priority, Reach,
+    Priority, Reach, StepReport,
 };
 
 fn settled(params: BoxerParams) -> BoxingWorld {
@@ -329,4 +329,22 @@ fn predictions_stop_by_table_one_priority() {
     let (d, steps) = run(&mut w, guard - DVec3::new(0.0, 0.0, 0.12), DVec3::new(0.0, 0.0, 2.0));
     assert!(d.is_none_or(|d| d.class.priority() == Priority::Low), "{d:?}");
     assert_eq!(steps, horizon, "no deciding contact: the whole horizon");
+}
+
+/// A chattering contact (touch, bounce, touch within a few steps) is one hit; contacts 0.1 s
+/// apart or more are two.
+#[test]
+fn a_chattering_contact_counts_as_one_hit() {
+    let mut w = BoxingWorld::new(BoxerParams::default()).unwrap();
+    let hit = StepReport { vh_hit: true, avatar_hit: true, ..Default::default() };
+    let none = StepReport::default();
+    let dt = w.dt_s();
+    // Steps 0-2 touch, 3-4 apart, 5-6 touch again (chatter): one hit each way.
+    for (k, r) in [hit, hit, hit, none, none, hit, hit].iter().enumerate() {
+        w.mind.after_step(r, k as f64 * dt);
+    }
+    assert_eq!((w.mind.hits_taken, w.mind.hits_given), (1, 1));
+    // 0.15 s later, a new contact: a second hit.
+    w.mind.after_step(&hit, 6.0 * dt + 0.15);
+    assert_eq!((w.mind.hits_taken, w.mind.hits_given), (2, 2));
 }

@@ -23,6 +23,9 @@ use crate::model::{Model, Part};
 use crate::state::{State, Workspace};
 use crate::step::Predictor;
 
+/// Contacts of one kind closer together than this are one hit (s).
+pub const HIT_GAP_S: f64 = 0.1;
+
 /// Table I: what a predicted contact between a virtual-human part and an avatar part means.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ContactClass {
@@ -162,8 +165,10 @@ pub struct Mind {
     /// Hits taken (the user's hand on head or chest) and given (its hand on the avatar's).
     pub hits_taken: u64,
     pub hits_given: u64,
-    was_hit: bool,
-    was_hitting: bool,
+    /// Simulated time of the last step with the user's hand on the head or chest, and with its
+    /// hand on the avatar's.
+    last_hit_s: f64,
+    last_hitting_s: f64,
     next_predict_s: f64,
     vh: Parts,
     av: Parts,
@@ -188,8 +193,8 @@ impl Mind {
             attacks: 0,
             hits_taken: 0,
             hits_given: 0,
-            was_hit: false,
-            was_hitting: false,
+            last_hit_s: f64::NEG_INFINITY,
+            last_hitting_s: f64::NEG_INFINITY,
             next_predict_s: 0.0,
             vh: *vh,
             av: *av,
@@ -493,16 +498,22 @@ impl Mind {
         }
     }
 
-    /// Counts hits (rising edges) after a world step.
-    pub fn after_step(&mut self, rep: &StepReport) {
-        if rep.vh_hit && !self.was_hit {
-            self.hits_taken += 1;
+    /// Counts hits after the world step at `t_s`: a hit is a contact of the kind that begins at
+    /// least [`HIT_GAP_S`] after the previous one, so a punch whose contact chatters (a penalty
+    /// contact may touch, bounce and touch again within a few steps) counts once.
+    pub fn after_step(&mut self, rep: &StepReport, t_s: f64) {
+        if rep.vh_hit {
+            if t_s - self.last_hit_s > HIT_GAP_S {
+                self.hits_taken += 1;
+            }
+            self.last_hit_s = t_s;
         }
-        if rep.avatar_hit && !self.was_hitting {
-            self.hits_given += 1;
+        if rep.avatar_hit {
+            if t_s - self.last_hitting_s > HIT_GAP_S {
+                self.hits_given += 1;
+            }
+            self.last_hitting_s = t_s;
         }
-        self.was_hit = rep.vh_hit;
-        self.was_hitting = rep.avatar_hit;
     }
 
     /// Number of hands attacking now (never more than one).

@@ -284,7 +284,7 @@ impl BoxingWorld {
             }
         }
         integrate(m, &mut self.state, &mut self.ws);
-        self.mind.after_step(&rep);
+        self.mind.after_step(&rep, self.state.t_s);
         self.last = rep;
         rep
     }
