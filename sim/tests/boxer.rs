@@ -329,7 +329,9 @@ fn boxing_bout_with_the_mind_on_is_pinned() {
                     eat(d.av_body as u64);
                     eat(d.at_s.to_bits());
                     for x in [d.point_m, d.hand_start_m, d.hand_at_contact_m] {
-                        x.to_array().map(|c| eat(c.to_bits()));
+                        for c in x.to_array() {
+                            eat(c.to_bits());
+                        }
                     }
                 }
             }
