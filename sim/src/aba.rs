@@ -17,10 +17,11 @@ use crate::state::{State, Workspace};
 /// Computes `ws.qdd` from `ws.tau + ws.tau_passive`, `ws.armature`, `ws.f_ext` and gravity.
 /// Requires `kinematics` to have run for `state`.
 ///
-/// Each joint kind runs its own instance of the passes (`backward::<N>`, `forward::<N>` with `N`
-/// its degrees of freedom): with the sizes known at compile time the small loops unroll and the
-/// 6x6 scratch blocks shrink to `N x N`. The arithmetic and its order are those of one general
-/// `nv`-sized pass, so results are bit-for-bit the same (the pinned digests check it).
+/// Each joint kind runs its own instance of the passes (`backward::<N, SUB>`, `forward::<N, SUB>`
+/// with `N` its degrees of freedom and `SUB` the shape of its subspace): with the sizes known at
+/// compile time the small loops unroll, the 6x6 scratch blocks shrink to `N x N`, and products
+/// with the subspace skip its known zeros. The arithmetic and its order are otherwise those of
+/// one general `nv`-sized pass, so results are bit-for-bit the same (the pinned digests check it).
 pub fn aba(model: &Model, _state: &State, ws: &mut Workspace) {
     let n = model.bodies.len();
     // Articulated inertias and bias forces start as the rigid ones.
@@ -34,10 +35,10 @@ pub fn aba(model: &Model, _state: &State, ws: &mut Workspace) {
     for i in (0..n).rev() {
         match model.bodies[i].joint {
             JointKind::Ball => ball_backward(model, ws, i),
-            JointKind::Free => backward::<6>(model, ws, i),
-            JointKind::Universal { .. } => backward::<2>(model, ws, i),
-            JointKind::Revolute { .. } => backward::<1>(model, ws, i),
-            JointKind::Fixed => backward::<0>(model, ws, i),
+            JointKind::Free => backward::<6, FREE>(model, ws, i),
+            JointKind::Universal { .. } => backward::<2, ANGULAR>(model, ws, i),
+            JointKind::Revolute { .. } => backward::<1, ANGULAR>(model, ws, i),
+            JointKind::Fixed => backward::<0, GENERAL>(model, ws, i),
         }
     }
     // Forward: accelerations from the root out. The world accelerates upward at -g, which puts
@@ -45,18 +46,63 @@ pub fn aba(model: &Model, _state: &State, ws: &mut Workspace) {
     let a_world = SVec::new(glam::DVec3::ZERO, -model.gravity_m_per_s2);
     for i in 0..n {
         match model.bodies[i].joint {
-            JointKind::Ball => forward::<3>(model, ws, i, a_world),
-            JointKind::Free => forward::<6>(model, ws, i, a_world),
-            JointKind::Universal { .. } => forward::<2>(model, ws, i, a_world),
-            JointKind::Revolute { .. } => forward::<1>(model, ws, i, a_world),
-            JointKind::Fixed => forward::<0>(model, ws, i, a_world),
+            JointKind::Ball => forward::<3, ANGULAR>(model, ws, i, a_world),
+            JointKind::Free => forward::<6, FREE>(model, ws, i, a_world),
+            JointKind::Universal { .. } => forward::<2, ANGULAR>(model, ws, i, a_world),
+            JointKind::Revolute { .. } => forward::<1, ANGULAR>(model, ws, i, a_world),
+            JointKind::Fixed => forward::<0, GENERAL>(model, ws, i, a_world),
         }
     }
 }
 
-/// The backward step for a joint of `N` degrees of freedom (the body's `nv`), general subspace.
+/// Subspace shapes the passes are specialised for. `GENERAL`: any `S`. `ANGULAR`: every column is
+/// `(s, 0)` (ball, universal, revolute). `FREE`: the free joint's `S = [1 0; 0 R^T]` as
+/// `joint_motion` lays it out (columns 0-2 unit angular, 3-5 `(0, R^T e_k)`).
+///
+/// The specialised products leave out only terms that are products by an exact 0 (or by 1), and
+/// glam sums a product's terms in order, so each equals the general product to the bit (up to
+/// the sign of an exact zero, which no later operation here turns into a different value).
+const GENERAL: u8 = 0;
+const ANGULAR: u8 = 1;
+const FREE: u8 = 2;
+
+/// `I s` for column `k` of a subspace of shape `SUB`.
+#[inline(always)]
+fn inertia_times_s<const SUB: u8>(ia: &SInertia, s: SVec, k: usize) -> SVec {
+    match SUB {
+        ANGULAR => SVec::new(ia.a * s.ang, ia.b.transpose() * s.ang),
+        FREE if k < 3 => SVec::new(ia.a.col(k), ia.b.row(k)),
+        FREE => SVec::new(ia.b * s.lin, ia.c * s.lin),
+        _ => ia.mul_motion(s),
+    }
+}
+
+/// `s . x` for column `k` of a subspace of shape `SUB`.
+#[inline(always)]
+fn s_dot<const SUB: u8>(s: SVec, k: usize, x: SVec) -> f64 {
+    match SUB {
+        ANGULAR => s.ang.dot(x.ang),
+        FREE if k < 3 => x.ang[k],
+        FREE => s.lin.dot(x.lin),
+        _ => s.dot(x),
+    }
+}
+
+/// `a += s q` for column `k` of a subspace of shape `SUB`.
+#[inline(always)]
+fn add_s_times<const SUB: u8>(a: &mut SVec, s: SVec, k: usize, q: f64) {
+    match SUB {
+        ANGULAR => a.ang += s.ang * q,
+        FREE if k < 3 => a.ang[k] += q,
+        FREE => a.lin += s.lin * q,
+        _ => *a += s * q,
+    }
+}
+
+/// The backward step for a joint of `N` degrees of freedom (the body's `nv`) whose subspace has
+/// the shape `SUB`.
 #[inline]
-fn backward<const N: usize>(model: &Model, ws: &mut Workspace, i: usize) {
+fn backward<const N: usize, const SUB: u8>(model: &Model, ws: &mut Workspace, i: usize) {
     let b = &model.bodies[i];
     let va = b.v_at;
     let ia = ws.ia[i];
@@ -66,14 +112,14 @@ fn backward<const N: usize>(model: &Model, ws: &mut Workspace, i: usize) {
     let mut d = [[0.0; N]; N];
     let mut uu = [0.0; N];
     for k in 0..N {
-        u[k] = ia.mul_motion(s[k]);
+        u[k] = inertia_times_s::<SUB>(&ia, s[k], k);
     }
     for r in 0..N {
         for c in 0..N {
-            d[r][c] = s[r].dot(u[c]);
+            d[r][c] = s_dot::<SUB>(s[r], r, u[c]);
         }
         d[r][r] += arm[r];
-        uu[r] = tau[r] + tau_p[r] - s[r].dot(ws.pa[i]);
+        uu[r] = tau[r] + tau_p[r] - s_dot::<SUB>(s[r], r, ws.pa[i]);
     }
     let dinv = invert_spd_n::<N>(&d);
     ws.u[i][..N].copy_from_slice(&u);
@@ -100,9 +146,10 @@ fn backward<const N: usize>(model: &Model, ws: &mut Workspace, i: usize) {
     }
 }
 
-/// The forward step for a joint of `N` degrees of freedom: its accelerations and the body's.
+/// The forward step for a joint of `N` degrees of freedom and subspace shape `SUB`: its
+/// accelerations and the body's.
 #[inline]
-fn forward<const N: usize>(model: &Model, ws: &mut Workspace, i: usize, a_world: SVec) {
+fn forward<const N: usize, const SUB: u8>(model: &Model, ws: &mut Workspace, i: usize, a_world: SVec) {
     let b = &model.bodies[i];
     let a_parent = match b.parent {
         Some(p) => ws.acc[p],
@@ -121,7 +168,7 @@ fn forward<const N: usize>(model: &Model, ws: &mut Workspace, i: usize, a_world:
             s += dinv[r][c] * rhs[c];
         }
         qdd[r] = s;
-        a += ws.jm[i].s[r] * s;
+        add_s_times::<SUB>(&mut a, ws.jm[i].s[r], r, s);
     }
     ws.acc[i] = a;
 }
