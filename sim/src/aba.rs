@@ -27,9 +27,11 @@ pub fn aba(model: &Model, _state: &State, ws: &mut Workspace) {
     // Articulated inertias and bias forces start as the rigid ones.
     for (i, b) in model.bodies.iter().enumerate() {
         let v = ws.vel[i];
-        let fe = ws.x0[i].apply_force(ws.f_ext[i]);
+        let pv = v.cross_force(b.inertia.mul_motion(v));
         ws.ia[i] = b.inertia;
-        ws.pa[i] = v.cross_force(b.inertia.mul_motion(v)) - fe;
+        // Most bodies have no external force: subtracting its transform (exact zeros) would
+        // change no bit, so it is left out.
+        ws.pa[i] = if ws.f_ext[i] == SVec::ZERO { pv } else { pv - ws.x0[i].apply_force(ws.f_ext[i]) };
     }
     // Backward: fold each body's articulated inertia into its parent.
     for i in (0..n).rev() {
