@@ -31,9 +31,9 @@ pub fn contacts(model: &Model, ws: &mut Workspace) -> usize {
     for pair in &model.pairs {
         let (ia, ib) = (pair.a as usize, pair.b as usize);
         let (sa, sb) = (&model.shapes[ia], &model.shapes[ib]);
-        let (pa, pb) = (ws.shape_pose[ia], ws.shape_pose[ib]);
+        let (pa, pb) = (&ws.shape_pose[ia], &ws.shape_pose[ib]);
         // Broad phase: bounding spheres, or the other shape's distance from a plane.
-        let far = match (sa.shape, sb.shape) {
+        let far = match (&sa.shape, &sb.shape) {
             (Shape::Plane, _) => (pb.pos_m - pa.pos_m).dot(pa.rot.y_axis) > sb.bound_m,
             (_, Shape::Plane) => (pa.pos_m - pb.pos_m).dot(pb.rot.y_axis) > sa.bound_m,
             _ => (pa.pos_m - pb.pos_m).length_squared() > (sa.bound_m + sb.bound_m).powi(2),
@@ -41,6 +41,7 @@ pub fn contacts(model: &Model, ws: &mut Workspace) -> usize {
         if far {
             continue;
         }
+        let (pa, pb) = (*pa, *pb);
         let n = collide(&sa.shape, &pa, &sb.shape, &pb, &mut ws.hits);
         if n == 0 {
             continue;

@@ -31,7 +31,7 @@ pub mod step;
 pub use desc::{boxing_scene, load_scene};
 pub use model::{Model, Part, Side};
 pub use state::{Contact, State, Workspace};
-pub use step::{forward, integrate, step, Predictor};
+pub use step::{forward, forward_dynamics, integrate, step, Predictor};
 
 /// Errors building a world.
 #[derive(Debug, thiserror::Error)]

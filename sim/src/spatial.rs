@@ -244,9 +244,10 @@ impl SInertia {
         let a1 = et * self.a * x.e;
         let b1 = et * self.b * x.e;
         let c1 = et * self.c * x.e;
-        let rx = skew(x.r);
+        let r = x.r;
         let b1t = b1.transpose();
-        SInertia { a: a1 - b1 * rx + rx * b1t - rx * c1 * rx, b: b1 + rx * c1, c: c1 }
+        let rx_c1 = skew_mul(r, &c1);
+        SInertia { a: a1 - mul_skew(&b1, r) + skew_mul(r, &b1t) - mul_skew(&rx_c1, r), b: b1 + rx_c1, c: c1 }
     }
 
     /// `self -= x y^T` by blocks (callers keep the total symmetric, e.g. `sum_k (U D^-1)_k U_k^T`).
@@ -272,6 +273,24 @@ impl AddAssign for SInertia {
         self.b += o.b;
         self.c += o.c;
     }
+}
+
+/// `m * skew(r)` without the products by the skew matrix's zeros. glam's product sums the three
+/// column terms in order; dropping a term that is `x * 0 = ±0` leaves every nonzero sum's bits
+/// unchanged, so this is `m * skew(r)` to the bit (up to the sign of an exact zero).
+#[inline]
+fn mul_skew(m: &DMat3, r: DVec3) -> DMat3 {
+    let (x, y, z) = (m.x_axis, m.y_axis, m.z_axis);
+    // skew(r) columns: (0, rz, -ry), (-rz, 0, rx), (ry, -rx, 0).
+    DMat3::from_cols(y * r.z + z * (-r.y), x * (-r.z) + z * r.x, x * r.y + y * (-r.x))
+}
+
+/// `skew(r) * m` without the products by the skew matrix's zeros (same argument as `mul_skew`).
+#[inline]
+fn skew_mul(r: DVec3, m: &DMat3) -> DMat3 {
+    let col =
+        |c: DVec3| DVec3::new((-r.z) * c.y + r.y * c.z, r.z * c.x + (-r.x) * c.z, (-r.y) * c.x + r.x * c.y);
+    DMat3::from_cols(col(m.x_axis), col(m.y_axis), col(m.z_axis))
 }
 
 /// `x y^T`.
@@ -369,6 +388,19 @@ mod tests {
             let back = quat_exp(quat_log(q));
             prop_assert!(back.dot(q).abs() > 1.0 - 1e-12);
         }
+    }
+
+    /// The skew products drop only products by zero: they equal glam's full products to the bit.
+    #[test]
+    fn skew_products_are_the_full_products_to_the_bit() {
+        let m = DMat3::from_cols(
+            DVec3::new(0.31, -1.7, 2.9),
+            DVec3::new(1.1e-3, 0.77, -0.4),
+            DVec3::new(-5.5, 0.123, 3.3e2),
+        );
+        let r = DVec3::new(0.137, -0.291, 0.0833);
+        assert_eq!(mul_skew(&m, r), m * skew(r));
+        assert_eq!(skew_mul(r, &m), skew(r) * m);
     }
 
     #[test]

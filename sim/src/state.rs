@@ -4,7 +4,7 @@
 //! Must never: allocate after `Workspace::new` (every buffer is sized from the model there), or
 //! keep anything in the workspace that a prediction would need from the state.
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 use crate::collide::{Pose, MAX_HITS};
 use crate::joint::{joint_motion, JointMotion, MAX_JOINT_DOF};
@@ -198,7 +198,14 @@ pub fn kinematics(model: &Model, state: &State, ws: &mut Workspace) {
         let q = &state.q[b.q_at..b.q_at + b.nq()];
         let qd = &state.v[b.v_at..b.v_at + b.nv()];
         let jm = joint_motion(&b.joint, q, qd);
-        let xup = jm.xj.compose(&b.x_tree);
+        // A child's tree transform is a pure translation (`desc.rs`): the product by its identity
+        // rotation is then left out, which changes no bit (glam sums the products in order, and the
+        // ones left out are by exact zeros and ones).
+        let xup = if b.x_tree.e == DMat3::IDENTITY {
+            Xform { e: jm.xj.e, r: b.x_tree.r + jm.xj.r }
+        } else {
+            jm.xj.compose(&b.x_tree)
+        };
         let (x0, v) = match b.parent {
             Some(p) => (xup.compose(&ws.x0[p]), xup.apply_motion(ws.vel[p]) + jm.vj),
             None => (xup, jm.vj),
@@ -211,7 +218,14 @@ pub fn kinematics(model: &Model, state: &State, ws: &mut Workspace) {
     }
     for (k, s) in model.shapes.iter().enumerate() {
         if let Some(b) = s.body {
-            ws.shape_pose[k] = place(&s.local, &ws.x0[b]);
+            ws.shape_pose[k] = if s.local.rot == DMat3::IDENTITY {
+                // `place` without its product by the identity (the same bits, as above).
+                let x0 = &ws.x0[b];
+                let rot_body = x0.e.transpose();
+                Pose { pos_m: x0.r + rot_body * s.local.pos_m, rot: rot_body }
+            } else {
+                place(&s.local, &ws.x0[b])
+            };
         }
     }
 }

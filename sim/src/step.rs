@@ -20,6 +20,13 @@ use crate::state::{kinematics, State, Workspace};
 /// forces the caller put into `ws.f_ext` / `ws.tau` are included.
 pub fn forward(model: &Model, state: &State, ws: &mut Workspace) {
     kinematics(model, state, ws);
+    forward_dynamics(model, state, ws);
+}
+
+/// `forward` without its kinematics pass, for a caller whose workspace already holds the
+/// kinematics of exactly this `state` (it ran `kinematics(model, state, ws)` and has not changed
+/// the state since): contacts, joint forces and accelerations.
+pub fn forward_dynamics(model: &Model, state: &State, ws: &mut Workspace) {
     contacts(model, ws);
     passive_forces(model, state, ws);
     aba(model, state, ws);

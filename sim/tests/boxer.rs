@@ -348,3 +348,64 @@ fn a_chattering_contact_counts_as_one_hit() {
     w.mind.after_step(&hit, 6.0 * dt + 0.15);
     assert_eq!((w.mind.hits_taken, w.mind.hits_given), (2, 2));
 }
+
+/// A 10 s bout with the mind fully on (jabs at the head and the chest from alternating hands,
+/// predictions, blocks, avoidances, seeded spontaneous attacks) is bit-for-bit repeatable, and a
+/// digest of its end state and of every decision the mind took is pinned: a change to the engine's
+/// arithmetic or to what a prediction finds shows up here (the engine's own digest in
+/// `engine.rs` does not run the mind).
+#[test]
+fn boxing_bout_with_the_mind_on_is_pinned() {
+    fn bout() -> (u64, u64, u64) {
+        let mut w = settled(BoxerParams::default());
+        w.mind.params.attack_per_step = 0.02;
+        let guard = [0, 1].map(|h| w.com(w.avatar.hand[h]));
+        let aims = [w.com(w.vh.head), w.com(w.vh.chest)];
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |x: u64| {
+            for b in x.to_le_bytes() {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        let mut last = None;
+        for k in 0..3334 {
+            // A 0.25 s jab out and back every 0.6 s, hands and aims alternating.
+            let cycle = k / 200;
+            let hand = cycle % 2;
+            let to = aims[(cycle / 2) % 2];
+            let t = (k % 200) as f64 * w.dt_s();
+            let (a, b, tau) = if t < 0.25 {
+                (guard[hand], to, t / 0.25)
+            } else {
+                (to, guard[hand], ((t - 0.25) / 0.25).min(1.0))
+            };
+            let vel = (b - a) * (min_jerk_rate(tau) / 0.25);
+            let at = HandTarget { pos_m: a + (b - a) * min_jerk(tau), vel_m_per_s: vel };
+            let targets = guard_targets(&w, hand, at);
+            w.step(&targets);
+            w.begin_step();
+            if w.mind.last_decision != last {
+                last = w.mind.last_decision;
+                if let Some(d) = last {
+                    eat(d.class as u64);
+                    eat(d.vh_body as u64);
+                    eat(d.av_body as u64);
+                    eat(d.at_s.to_bits());
+                    for x in [d.point_m, d.hand_start_m, d.hand_at_contact_m] {
+                        for c in x.to_array() {
+                            eat(c.to_bits());
+                        }
+                    }
+                }
+            }
+        }
+        eat(w.state.digest());
+        (h, w.mind.predictions, w.mind.attacks)
+    }
+    let (a, predictions, attacks) = bout();
+    assert_eq!(bout().0, a, "two identical bouts differ");
+    assert!(predictions > 30 && attacks > 0, "the bout must predict and attack: {predictions}, {attacks}");
+    eprintln!("digest {a:#018x}, {predictions} predictions, {attacks} attacks");
+    assert_eq!(a, 0x8600_d0cf_9d4e_4922, "digest changed: {a:#018x}");
+}

@@ -297,7 +297,15 @@ impl Mind {
                         if m.bodies[vb].articulation != BOXER {
                             continue;
                         }
-                        let pose = ws.shape_pose[k];
+                        let pose = &ws.shape_pose[k];
+                        // The proxy lies inside the shape's bounding sphere, so a fist farther than
+                        // bound + grip from its centre is out of grip without building the proxy
+                        // (most shapes, most steps). The 1 nm margin keeps rounding from ever
+                        // skipping a fist the full test below would count.
+                        let reach_m = sh.bound_m + bp.grip_radius_m + 1e-9;
+                        if (fist - pose.pos_m).length_squared() > reach_m * reach_m {
+                            continue;
+                        }
                         let Some(shape) = super::proxy_shape(&sh.shape, pose.pos_m, pose.rot) else {
                             continue;
                         };

@@ -29,7 +29,7 @@ use crate::collide::Shape;
 use crate::desc::boxing_scene;
 use crate::model::{Model, Part, Side};
 use crate::state::{kinematics, State, Workspace};
-use crate::step::{forward, integrate};
+use crate::step::{forward, forward_dynamics, integrate};
 use crate::SimError;
 
 pub use config::{load_boxer, parse_boxer, BOXER_RON};
@@ -161,6 +161,9 @@ pub struct BoxingWorld {
     /// Impulses from the user's hands gathered for the coming step, per avatar hand.
     pending_hand_impulse_n_s: [DVec3; 2],
     pending_vh_hit: bool,
+    /// The state whose kinematics `ws` holds (copied by `begin_step`), so `step` can skip a
+    /// second kinematics pass of the same state and still never use stale kinematics.
+    kin_state: State,
 }
 
 impl BoxingWorld {
@@ -203,6 +206,7 @@ impl BoxingWorld {
         kinematics(&model, &state, &mut ws);
         let mind = Mind::new(&predict_model, &params, &vh, &avatar);
         Ok(BoxingWorld {
+            kin_state: state.clone(),
             model,
             predict_model,
             state,
@@ -224,6 +228,7 @@ impl BoxingWorld {
     /// Kinematics of the current state; call before [`BoxingWorld::apply_user_impulse`].
     pub fn begin_step(&mut self) {
         kinematics(&self.model, &self.state, &mut self.ws);
+        self.kin_state.copy_from(&self.state);
     }
 
     /// The impulse of a virtual contact the rt-loop rendered between user hand `hand` and
@@ -267,7 +272,13 @@ impl BoxingWorld {
         // The virtual human thinks (prediction on a copy) and acts (its reaches).
         self.mind.think(&self.predict_model, &self.state, &self.ws, targets, &self.params);
         self.mind.act(m, &mut self.ws, self.state.t_s);
-        forward(m, &self.state, &mut self.ws);
+        // `begin_step` normally ran the kinematics of this very state: then only the dynamics
+        // remain (the same bits either way; the full pass when the state changed since).
+        if same_bits(&self.kin_state, &self.state) {
+            forward_dynamics(m, &self.state, &mut self.ws);
+        } else {
+            forward(m, &self.state, &mut self.ws);
+        }
         let avatar_bodies = m.articulations[AVATAR].bodies.clone();
         for c in &self.ws.contacts {
             for (b, f, other) in [(c.body_a, c.force_n, c.body_b), (c.body_b, -c.force_n, c.body_a)] {
@@ -293,6 +304,13 @@ impl BoxingWorld {
     pub fn com(&self, body: usize) -> DVec3 {
         self.ws.com_world(&self.model, body)
     }
+}
+
+/// The two states are the same to the bit (so their kinematics are).
+fn same_bits(a: &State, b: &State) -> bool {
+    let eq =
+        |x: &[f64], y: &[f64]| x.len() == y.len() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits());
+    a.steps == b.steps && a.t_s.to_bits() == b.t_s.to_bits() && eq(&a.q, &b.q) && eq(&a.v, &b.v)
 }
 
 /// The coupling spring-damper on an avatar hand toward the user's hand.
