@@ -169,6 +169,8 @@ pub struct Mind {
     /// hand on the avatar's.
     last_hit_s: f64,
     last_hitting_s: f64,
+    /// Where the dodging part was when the dodge began: it returns there.
+    body_home_m: DVec3,
     next_predict_s: f64,
     vh: Parts,
     av: Parts,
@@ -195,6 +197,7 @@ impl Mind {
             hits_given: 0,
             last_hit_s: f64::NEG_INFINITY,
             last_hitting_s: f64::NEG_INFINITY,
+            body_home_m: DVec3::splat(f64::INFINITY),
             next_predict_s: 0.0,
             vh: *vh,
             av: *av,
@@ -397,6 +400,7 @@ impl Mind {
         }
         if self.body != BodyBehaviour::Avoidance {
             self.avoidances += 1;
+            self.body_home_m = b;
         }
         self.body = BodyBehaviour::Avoidance;
         // Block (Fig. 7) with the hand nearer the predicted contact; an attack by it stops.
@@ -444,10 +448,15 @@ impl Mind {
         bp: &BoxerParams,
     ) {
         let now = state.t_s;
-        // Finished reaches are held a little, then the part returns to standby.
+        // Finished reaches are held a little, then the part returns to standby; a dodged part
+        // stays out while a user's fist is still where it would return to.
+        let fist_in_the_way = targets
+            .iter()
+            .flatten()
+            .any(|t| (t.pos_m - self.body_home_m).length() < self.params.avoid_clearance_m);
         for i in 0..3 {
             if let Some(r) = self.reaches[i] {
-                if now > r.start_s + r.duration_s + self.params.hold_s {
+                if now > r.start_s + r.duration_s + self.params.hold_s && !(i == 2 && fist_in_the_way) {
                     self.reaches[i] = None;
                     if i < 2 {
                         self.hands[i] = Behaviour::Standby;
