@@ -175,7 +175,9 @@ impl Scene for BoxingScene {
 /// Targets of the scripted boxer, rig frame: where the virtual human's head, chest, left hand and
 /// right hand are in its guard, mapped back through `user_offset_m` and the rig's transform.
 pub fn punch_targets_rig(rig: &spidar_rt::Rig, params: &BoxerParams) -> anyhow::Result<[DVec3; 4]> {
-    let mut w = BoxingWorld::new(params.clone())?;
+    // A passive copy: an active one might start a spontaneous attack while it settles, and the
+    // targets would be where its parts were mid-punch.
+    let mut w = BoxingWorld::new(BoxerParams { active: false, ..params.clone() })?;
     // Settle into the guard first (the default pose is not yet balanced under gravity).
     for _ in 0..200 {
         w.begin_step();
