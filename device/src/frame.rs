@@ -32,6 +32,17 @@ impl FrameError {
     }
 }
 
+/// Checks that a reply has exactly the `len` bytes its frame has.
+pub fn exact_len(bytes: &[u8], len: usize) -> Result<(), FrameError> {
+    if bytes.len() < len {
+        Err(FrameError::Short { need: len, got: bytes.len() })
+    } else if bytes.len() > len {
+        Err(FrameError::Long { want: len, got: bytes.len() })
+    } else {
+        Ok(())
+    }
+}
+
 /// Extends a wrapping counter of `BITS` bits (16 for UART and SH-4, 24 for USB Simple) to i64 by
 /// adding the wrapped difference to the previous reading, and rejects steps no string can make
 /// (a corrupt payload the protocol has no checksum for).

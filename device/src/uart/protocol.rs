@@ -9,6 +9,7 @@
 
 /// Link speed: 2 Mbaud, 8N1, no flow control.
 pub const BAUD: u32 = 2_000_000;
+use crate::frame::exact_len;
 pub use crate::frame::FrameError;
 
 /// Boards on one link have ids 0..7.
@@ -288,16 +289,6 @@ pub fn encode_current_reply(
         put(2 * m + i, reply.currents[i]);
     }
     Ok(len)
-}
-
-fn exact_len(bytes: &[u8], len: usize) -> Result<(), FrameError> {
-    if bytes.len() < len {
-        Err(FrameError::Short { need: len, got: bytes.len() })
-    } else if bytes.len() > len {
-        Err(FrameError::Long { want: len, got: bytes.len() })
-    } else {
-        Ok(())
-    }
 }
 
 /// What a board's parser made of the host's byte stream.

@@ -6,6 +6,7 @@
 //! is rejected; the protocols have no header or checksum in their replies, so that is the only
 //! malformed frame a decoder can see (counter plausibility is the driver's check).
 
+use crate::frame::exact_len;
 pub use crate::frame::FrameError;
 
 /// Vendor id of both boards.
@@ -196,14 +197,4 @@ pub fn sh4_encode_in(r: &Sh4In, buf: &mut [u8; SH4_LEN]) {
     }
     buf[48..50].copy_from_slice(&r.pio.to_le_bytes());
     buf[50..54].copy_from_slice(&r.unknown.to_le_bytes());
-}
-
-fn exact_len(bytes: &[u8], len: usize) -> Result<(), FrameError> {
-    if bytes.len() < len {
-        Err(FrameError::Short { need: len, got: bytes.len() })
-    } else if bytes.len() > len {
-        Err(FrameError::Long { want: len, got: bytes.len() })
-    } else {
-        Ok(())
-    }
 }
