@@ -232,7 +232,7 @@ impl Mind {
         let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
         let t0 = state.t_s;
         let reaches = self.reaches;
-        let (vh, av) = (self.vh, self.av);
+        let av = self.av;
         let mut best: Option<Decision> = None;
         let mut middle_at: Option<usize> = None;
         let mut hand_start = [DVec3::ZERO; 2];
@@ -270,21 +270,22 @@ impl Mind {
                     _ => continue,
                 };
                 let class = ContactClass::of(m.bodies[vb].part, m.bodies[ab].part);
-                let better = best.is_none_or(|d| class.priority() > d.class.priority());
-                if better {
+                if outranks(class, &best) {
                     let hand = av.hand.iter().position(|&h| h == ab);
-                    best = Some(Decision {
-                        class,
-                        vh_body: vb,
-                        av_body: ab,
-                        point_m: c.point_m,
-                        at_s: s.t_s,
-                        hand_start_m: hand.map_or(DVec3::ZERO, |h| hand_start[h]),
-                        hand_at_contact_m: ws.com_world(m, ab),
-                    });
-                    if class.priority() == Priority::Middle && middle_at.is_none() {
-                        middle_at = Some(n);
-                    }
+                    offer(
+                        &mut best,
+                        &mut middle_at,
+                        n,
+                        Decision {
+                            class,
+                            vh_body: vb,
+                            av_body: ab,
+                            point_m: c.point_m,
+                            at_s: s.t_s,
+                            hand_start_m: hand.map_or(DVec3::ZERO, |h| hand_start[h]),
+                            hand_at_contact_m: ws.com_world(m, ab),
+                        },
+                    );
                 }
             }
             // The user's fists as the rt-loop renders them: the extrapolated hand points against
@@ -316,19 +317,21 @@ impl Mind {
                             continue;
                         }
                         let class = ContactClass::of(m.bodies[vb].part, Part::Hand);
-                        if best.is_none_or(|d| class.priority() > d.class.priority()) {
-                            best = Some(Decision {
-                                class,
-                                vh_body: vb,
-                                av_body: av.hand[h],
-                                point_m: crate::impulse::nearest_on_surface(&shape, fist),
-                                at_s: s.t_s,
-                                hand_start_m: t.pos_m,
-                                hand_at_contact_m: fist,
-                            });
-                            if class.priority() == Priority::Middle && middle_at.is_none() {
-                                middle_at = Some(n);
-                            }
+                        if outranks(class, &best) {
+                            offer(
+                                &mut best,
+                                &mut middle_at,
+                                n,
+                                Decision {
+                                    class,
+                                    vh_body: vb,
+                                    av_body: av.hand[h],
+                                    point_m: crate::impulse::nearest_on_surface(&shape, fist),
+                                    at_s: s.t_s,
+                                    hand_start_m: t.pos_m,
+                                    hand_at_contact_m: fist,
+                                },
+                            );
                         }
                     }
                 }
@@ -351,7 +354,6 @@ impl Mind {
             for r in reaches.iter().flatten() {
                 r.apply(m, ws, s.t_s);
             }
-            let _ = vh;
             n += 1;
             true
         });
@@ -415,12 +417,11 @@ impl Mind {
         // The block ends slightly before the contact; P' is where the avatar's hand will be then
         // (on the linear path the prediction assumed), R the nearest point of AP' to the hand.
         let dur = (left * self.params.block_time_fraction).max(0.06);
-        let p_end = a + (d.hand_at_contact_m - a) * (dur / left).min(1.0);
+        let p_end = a + (p - a) * (dur / left).min(1.0);
         let target = nearest_on_segment(a, p_end, hb);
+        // A block under way that already goes there is kept (see the dodge above).
         let running = self.reaches[h].filter(|r| self.hands[h] == Behaviour::Block && !r.done(now_s));
-        if running.is_some_and(|r| (r.target_m - target).length() < 0.05) {
-            // The block under way already goes there (see the dodge above).
-        } else {
+        if !running.is_some_and(|r| (r.target_m - target).length() < 0.05) {
             self.reaches[h] = Some(Reach::start(
                 model,
                 ws,
@@ -537,6 +538,21 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A contact of `class` replaces the best so far only with a strictly higher priority, so among
+/// equals the earliest stands (section 3.8: "the highest and earliest contact decides").
+fn outranks(class: ContactClass, best: &Option<Decision>) -> bool {
+    best.is_none_or(|d| class.priority() > d.class.priority())
+}
+
+/// Takes `d` as the best contact at predicted step `n`; the first middle-priority one starts the
+/// grace during which the prediction goes on looking for a high one.
+fn offer(best: &mut Option<Decision>, middle_at: &mut Option<usize>, n: usize, d: Decision) {
+    if d.class.priority() == Priority::Middle && middle_at.is_none() {
+        *middle_at = Some(n);
+    }
+    *best = Some(d);
 }
 
 /// The avoidance target of Fig. 6. A is the avatar's hand when the prediction started, P its
