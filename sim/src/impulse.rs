@@ -3,7 +3,9 @@
 //! The rt-loop renders the hands' force at 1 kHz against proxies the sim published, and returns
 //! with every `HandSample` the impulse it applied to each proxy. Applying the same impulse,
 //! opposite to the hands' force, to the body that proxy stands for keeps momentum consistent
-//! between the user's hands and the world (DESIGN.md section 1).
+//! between the user's hands and the world (DESIGN.md section 1). (The sample also carries the
+//! virtual contact's own, unclamped impulse, for scenes with a simulated hand between the user
+//! and the world: the boxing scene.)
 //!
 //! Proxy ids name a body as `ProxyId { body: articulation index, part: link index within it }`.
 //!
@@ -46,14 +48,8 @@ pub fn apply_hand_impulses(
             continue;
         }
         let Some(body) = body_of(model, p.id) else { continue };
-        let hand = sample
-            .hands
-            .iter()
-            .filter(|h| h.valid)
-            .map(|h| h.pos_m)
-            .min_by(|a, b| dist(&p.shape, *a).total_cmp(&dist(&p.shape, *b)));
-        let point = match hand {
-            Some(h) => nearest_on_surface(&p.shape, h),
+        let point = match touching_hand(&p.shape, sample) {
+            Some(h) => nearest_on_surface(&p.shape, sample.hands[h].pos_m),
             None => centre(&p.shape),
         };
         ws.add_impulse_at(body, point, *imp, model.dt_s);
@@ -62,7 +58,15 @@ pub fn apply_hand_impulses(
     total
 }
 
-fn centre(s: &ProxyShape) -> DVec3 {
+/// The valid hand of `sample` nearest the surface of `shape`: the one whose contact with that
+/// proxy the impulse came from (on a tie, the first).
+pub fn touching_hand(shape: &ProxyShape, sample: &HandSample) -> Option<usize> {
+    let d = |h: usize| dist(shape, sample.hands[h].pos_m);
+    (0..sample.hands.len()).filter(|&h| sample.hands[h].valid).min_by(|&a, &b| d(a).total_cmp(&d(b)))
+}
+
+/// The centre of a proxy shape.
+pub fn centre(s: &ProxyShape) -> DVec3 {
     match *s {
         ProxyShape::Plane { point_m, .. } => point_m,
         ProxyShape::Sphere { centre_m, .. } => centre_m,

@@ -16,7 +16,7 @@
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandSample, Proxy, HANDS};
 use spidar_sim::boxer::{proxy_shape, BoxerParams, BoxingWorld, HandTarget, BOXER};
-use spidar_sim::impulse::{body_of, dist, nearest_on_surface, proxy_id};
+use spidar_sim::impulse::{body_of, dist, nearest_on_surface, proxy_id, touching_hand};
 
 use super::Scene;
 
@@ -68,10 +68,7 @@ impl BoxingScene {
             }
             let Some(body) = body_of(&self.world.model, p.id) else { continue };
             // The hand that touched it: the valid one nearer the proxy's surface.
-            let hand = (0..HANDS).filter(|&h| s.hands[h].valid).min_by(|&a, &b| {
-                dist(&p.shape, s.hands[a].pos_m).total_cmp(&dist(&p.shape, s.hands[b].pos_m))
-            });
-            let Some(hand) = hand else { continue };
+            let Some(hand) = touching_hand(&p.shape, s) else { continue };
             let point = nearest_on_surface(&p.shape, s.hands[hand].pos_m) + off;
             self.world.apply_user_impulse(hand, body, point, *imp);
         }

@@ -10,7 +10,7 @@
 //! Must never: apply an impulse computed against a contact model it no longer knows, or run more
 //! than a few catch-up steps in one call (a stalled thread must not burst).
 
-use spidar_sim::impulse::{dist, nearest_on_surface};
+use spidar_sim::impulse::{centre, nearest_on_surface, touching_hand};
 use std::path::Path;
 
 use glam::DVec3;
@@ -82,13 +82,8 @@ impl CrowdScene {
             if *imp == DVec3::ZERO || i >= self.crowd.len() {
                 continue;
             }
-            let hand = s
-                .hands
-                .iter()
-                .filter(|h| h.valid)
-                .map(|h| h.pos_m)
-                .min_by(|a, b| dist(&p.shape, *a).total_cmp(&dist(&p.shape, *b)));
-            let at = hand.map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, h));
+            let at = touching_hand(&p.shape, s)
+                .map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, s.hands[h].pos_m));
             self.crowd.add_impulse_at(i, at, *imp);
             self.impulse_total_n_s += *imp;
         }
@@ -189,13 +184,5 @@ impl Scene for CrowdScene {
             fallen,
             self.impulse_total_n_s.length()
         )
-    }
-}
-
-fn centre(s: &ProxyShape) -> DVec3 {
-    match *s {
-        ProxyShape::Plane { point_m, .. } => point_m,
-        ProxyShape::Sphere { centre_m, .. } => centre_m,
-        ProxyShape::Capsule { a_m, b_m, .. } => (a_m + b_m) * 0.5,
     }
 }
