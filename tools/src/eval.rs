@@ -37,14 +37,21 @@ pub struct Spread {
 }
 
 impl Spread {
-    pub fn of(mut ns: Vec<u64>) -> Spread {
+    pub fn of(ns: Vec<u64>) -> Spread {
         if ns.is_empty() {
             return Spread::default();
         }
-        ns.sort_unstable();
-        let at = |q: f64| ns[((ns.len() - 1) as f64 * q).round() as usize] as f64 * 1e-6;
-        Spread { n: ns.len(), median_ms: at(0.5), p99_ms: at(0.99), max_ms: at(1.0) }
+        let n = ns.len();
+        let [median, p99, max] = quantiles(ns).map(|x| x as f64 * 1e-6);
+        Spread { n, median_ms: median, p99_ms: p99, max_ms: max }
     }
+}
+
+/// Median, 99th percentile and maximum (nearest rank); zeros when empty.
+fn quantiles(mut v: Vec<u64>) -> [u64; 3] {
+    v.sort_unstable();
+    let at = |q: f64| v.get(((v.len().max(1) - 1) as f64 * q).round() as usize).copied().unwrap_or(0);
+    [at(0.5), at(0.99), at(1.0)]
 }
 
 impl fmt::Display for Spread {
@@ -117,11 +124,7 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
         step: Spread::of(steps),
         prediction: Spread::of(preds),
         step_with_prediction: Spread::of(predicting),
-        prediction_steps: {
-            pred_steps.sort_unstable();
-            let at = |q: f64| pred_steps.get(((pred_steps.len().max(1) - 1) as f64 * q).round() as usize);
-            [0.5, 0.99, 1.0].map(|q| at(q).copied().unwrap_or(0))
-        },
+        prediction_steps: quantiles(pred_steps),
         horizon_steps: (scene.world.mind.params.horizon_s / scene.world.dt_s()).ceil() as u64,
         misses: v.counters().misses,
         status: scene.status_text(),
