@@ -97,11 +97,18 @@ struct Jab {
 /// A jab of the user's hand `hand` from the avatar's guard at the virtual human's head (its
 /// centre moved by `aim_m`), out in `out_s` and back in `out_s` along a minimum-jerk path.
 fn jab(params: BoxerParams, hand: usize, aim_m: DVec3, out_s: f64) -> Jab {
-    jab_held(params, hand, aim_m, out_s, 0.0, 1.0)
+    jab_held(params, hand, aim_m, (out_s, 0.0, 1.0), &mut |_, _| {})
 }
 
-/// [`jab`] with the fist held out for `hold_s` before it comes back; runs for `run_s`.
-fn jab_held(params: BoxerParams, hand: usize, aim_m: DVec3, out_s: f64, hold_s: f64, run_s: f64) -> Jab {
+/// [`jab`] with the fist held out for `hold_s` before it comes back; runs for `run_s` and shows
+/// `each` the world and the time after every step.
+fn jab_held(
+    params: BoxerParams,
+    hand: usize,
+    aim_m: DVec3,
+    (out_s, hold_s, run_s): (f64, f64, f64),
+    each: &mut dyn FnMut(&BoxingWorld, f64),
+) -> Jab {
     let w = settled(params);
     let from = w.com(w.avatar.hand[hand]);
     let to = w.com(w.vh.head) + aim_m;
@@ -125,6 +132,7 @@ fn jab_held(params: BoxerParams, hand: usize, aim_m: DVec3, out_s: f64, hold_s: 
             run.head_decision_s = Some(w.state.t_s);
             run.avoiding_after_decision = w.mind.body == BodyBehaviour::Avoidance;
         }
+        each(w, t);
     }
     run
 }
@@ -180,34 +188,29 @@ fn a_jab_predicted_to_hit_the_head_changes_the_body_to_avoidance_and_misses() {
 fn a_dodged_head_stays_out_while_the_fist_is_held_there() {
     // Out in 0.3 s, held 1 s, back in 0.3 s; 1.5 s more to settle.
     let (out_s, hold_s) = (0.3, 1.0);
-    let passive =
-        jab_held(BoxerParams { active: false, ..Default::default() }, 0, DVec3::ZERO, out_s, hold_s, 2.0);
+    let passive = jab_held(
+        BoxerParams { active: false, ..Default::default() },
+        0,
+        DVec3::ZERO,
+        (out_s, hold_s, 2.0),
+        &mut |_, _| {},
+    );
     assert!(passive.gap_m < -0.05, "the held jab must land in a passive head: {:.3} m", passive.gap_m);
 
-    let mut w = settled(BoxerParams::default());
-    let home = w.com(w.vh.head);
-    let from = w.com(w.avatar.hand[0]);
-    let mut gap = f64::INFINITY;
+    let home = {
+        let w = settled(BoxerParams::default());
+        w.com(w.vh.head)
+    };
     let (mut avoiding_through_hold, mut back_at) = (true, None);
-    for k in 0..((3.1 / w.dt_s()) as usize) {
-        let t = k as f64 * w.dt_s();
-        let (a, b, tau) = if t < out_s {
-            (from, home, t / out_s)
-        } else {
-            (home, from, (t - out_s - hold_s).max(0.0) / out_s)
-        };
-        let pos = a + (b - a) * min_jerk(tau);
-        let vel = (b - a) * (min_jerk_rate(tau) / out_s);
-        w.step(&guard_targets(&w, 0, HandTarget { pos_m: pos, vel_m_per_s: vel }));
-        w.begin_step();
-        gap = gap.min(fist_gap_to_head(&w, pos));
+    let active = jab_held(BoxerParams::default(), 0, DVec3::ZERO, (out_s, hold_s, 3.1), &mut |w, t| {
         if (out_s..out_s + hold_s).contains(&t) {
             avoiding_through_hold &= w.mind.body == BodyBehaviour::Avoidance;
         }
         if t > out_s + hold_s && back_at.is_none() && w.mind.body == BodyBehaviour::Standby {
             back_at = Some(t);
         }
-    }
+    });
+    let (w, gap) = (&active.w, active.gap_m);
     assert!(gap > 0.02, "the head met the held fist: gap {gap:.3} m");
     assert!(avoiding_through_hold, "the body left avoidance while the fist was still there");
     let back = back_at.expect("the body returns to standby once the fist has gone");
