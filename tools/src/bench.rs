@@ -10,8 +10,8 @@ use spidar_rt::rt_thread::{self, RtOptions, RtReport};
 use spidar_rt::telemetry::{DurationHist, Percentiles};
 use spidar_rt::{Clock, Command, Endpoints, MonotonicClock, Rig, RtLoop};
 
-use crate::scene::{walls::WallsScene, Scene};
 use crate::session::{load_scripts, sim_device, SimOptions};
+use spidar_world::{walls::WallsScene, Scene};
 
 pub struct RtBenchOptions {
     /// Total seconds for each loop.

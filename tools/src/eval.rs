@@ -23,9 +23,10 @@ use spidar_msg::HandSample;
 use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{min_jerk, BoxerParams, BoxingWorld, HandTarget};
 
-use crate::scene::boxing::{boxing_scripts, BoxingScene};
-use crate::scene::Scene;
+use crate::scripts::boxing_scripts;
 use crate::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+use spidar_world::boxing::BoxingScene;
+use spidar_world::Scene;
 
 /// Median and 99th percentile of a set of durations (ns), in ms.
 #[derive(Clone, Copy, Debug, Default)]

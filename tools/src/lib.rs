@@ -1,5 +1,5 @@
-//! The library behind the `spidar` binary: scenes on the far side of the rt-loop's channels,
-//! sessions that wire a device, the loop, a scene and telemetry together, and the benchmarks.
+//! The library behind the `spidar` binary: sessions that wire a device, the loop, a scene and
+//! telemetry together, the simulated user's scripts, the evaluations and the benchmarks.
 //! The binary (`main.rs`) only parses arguments and calls into here.
 
 pub mod bench;
@@ -7,5 +7,6 @@ pub mod calib;
 pub mod eval;
 pub mod eval_impacts;
 pub mod hardware;
-pub mod scene;
+pub mod scene_thread;
+pub mod scripts;
 pub mod session;

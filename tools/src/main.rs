@@ -14,7 +14,6 @@ use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_rt, RtBenchOptions};
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::scene;
 use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
 
 #[derive(Parser)]
@@ -379,7 +378,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         bail!("--noise-counts must be >= 0");
     }
     let rig = load_rig(&a.rig)?;
-    let scene = scene::load(&a.scene)?;
+    let scene = spidar_world::load(&a.scene)?;
     let scene_name = format!("{} ({})", a.scene, scene.name());
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
     let sim_opts = SimOptions {

@@ -22,7 +22,8 @@ use spidar_rt::{
     Clock, Command, Counters, Endpoints, Event, FarEnds, Lifecycle, MonotonicClock, Rig, RtLoop, VirtualClock,
 };
 
-use crate::scene::{self, Scene, SceneCounters};
+use crate::scene_thread::{self, SceneCounters};
+use spidar_world::Scene;
 
 /// How long the simulated user holds the grips still at their home points before a script
 /// starts, as an operator does while the rig homes (`spidar_rt::tick::HOMING_SETTLE_S` plus margin).
@@ -32,8 +33,8 @@ pub const HOLD_AT_HOME_S: f64 = 0.3;
 pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<[Script; 2]> {
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
     let scripts = if name_or_path == "box" {
-        // Jabs and hooks at the boxing scene's virtual human (tools/src/scene/boxing.rs).
-        crate::scene::boxing::boxing_scripts(rig, &Default::default(), seed, 2000, None)?
+        // Jabs and hooks at the boxing scene's virtual human (tools/src/scripts.rs).
+        crate::scripts::boxing_scripts(rig, &Default::default(), seed, 2000, None)?
     } else if let Some(s) = builtin_script(name_or_path, home, seed) {
         s
     } else if name_or_path.ends_with(".ron") {
@@ -288,7 +289,7 @@ pub fn run_live<D: Device + 'static>(
     let scene_counters = Arc::new(SceneCounters::default());
     let FarEnds { commands, events, models, samples, telemetry } = far;
     let scene_handle =
-        scene::spawn(scene, clock, samples, models, scene_stop.clone(), scene_counters.clone())
+        scene_thread::spawn(scene, clock, samples, models, scene_stop.clone(), scene_counters.clone())
             .context("starting the scene thread")?;
 
     let rt_opts = opts.rt.clone();

@@ -5,7 +5,8 @@ use super::*;
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::Clock;
 use spidar_sim::boxer::BoxerParams;
-use spidar_tools::scene::boxing::{boxing_scripts, BoxingScene};
+use spidar_tools::scripts::boxing_scripts;
+use spidar_world::boxing::BoxingScene;
 
 /// A loop and a boxing scene driven tick by tick (the scene is kept typed so the test can read
 /// the world after each step). The scripts jab `target` (0 head, 1 chest, 2/3 the hands).

@@ -6,9 +6,9 @@ use spidar_rt::Clock;
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::crowd::Crowd;
-use spidar_tools::scene::crowd::CrowdScene;
-use spidar_tools::scene::Scene;
 use spidar_tools::session::SimOptions;
+use spidar_world::crowd::CrowdScene;
+use spidar_world::Scene;
 
 use super::{reach_and_hold, rig, session, truth};
 

@@ -9,12 +9,12 @@ use std::path::Path;
 
 use glam::DVec3;
 use serde::Deserialize;
+use spidar_config::{self as config, ConfigError};
 use spidar_msg::{ContactModel, HandSample, Proxy, ProxyId, ProxyShape};
-use spidar_rt::config::{self, ConfigError};
 
-use super::Scene;
+use crate::Scene;
 
-pub const DEFAULT_SCENE_RON: &str = include_str!("../../../configs/scene-walls.ron");
+pub const DEFAULT_SCENE_RON: &str = include_str!("../../configs/scene-walls.ron");
 pub const DEFAULT_SCENE_NAME: &str = "configs/scene-walls.ron (built in)";
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]

@@ -19,7 +19,7 @@ use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::scene::{builtin_crowd, load_crowd};
 use spidar_sim::collide::Shape;
 
-use super::Scene;
+use crate::Scene;
 
 /// Penalty gains of the character proxies the hands render against (as the rig-check walls).
 pub const PROXY_K_N_PER_M: f64 = 1500.0;

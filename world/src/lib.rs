@@ -1,0 +1,58 @@
+//! The world side of the rig-world link: the scenes that produce contact models for the rt-loop
+//! at the simulation's rate (3 ms) and consume the hand samples it sends back.
+//!
+//! The built-in rig-check scene ([`walls`]) is the template the physics simulation follows: it
+//! receives every `HandSample` (positions, velocities, and the impulses the rt-loop applied to
+//! each proxy), steps, and sends one `ContactModel` stamped with the loop-clock time it is valid at.
+//! The boxing scene ([`boxing`]) runs the reactive virtual human, the crowd scene ([`crowd`]) the
+//! keyframe characters. A scene runs on its own thread on the real clock or interleaved with the
+//! loop on the virtual clock (both wired in `spidar_tools::session`).
+
+pub mod boxing;
+pub mod crowd;
+pub mod walls;
+
+use spidar_msg::{ContactModel, HandSample};
+
+pub trait Scene: Send {
+    fn name(&self) -> &str;
+    /// Time between two steps.
+    fn step_s(&self) -> f64;
+    /// Advances the scene to loop-clock time `t_s`, given the samples received since the last
+    /// step (oldest first), and returns the contact model valid at `t_s`.
+    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel;
+    /// A short live status for the status line.
+    fn status(&self) -> String {
+        String::new()
+    }
+}
+
+/// Builds a scene by name or RON file path.
+pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
+    match name_or_path {
+        "walls" => Ok(Box::new(walls::WallsScene::builtin())),
+        "crowd" => Ok(Box::new(crowd::CrowdScene::builtin()?)),
+        "boxing" => Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
+        "boxing-passive" => Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
+            active: false,
+            ..Default::default()
+        })?)),
+        // A boxer file (configs/boxer.ron): the boxing scene with those parameters.
+        p if p.ends_with("boxer.ron") => {
+            let params = spidar_sim::boxer::load_boxer(std::path::Path::new(p))?;
+            Ok(Box::new(boxing::BoxingScene::new(params)?))
+        }
+        // A crowd scene file (configs/scene-crowd.ron and copies of it).
+        p if p.ends_with(".ron") && file_name(p).contains("crowd") => {
+            Ok(Box::new(crowd::CrowdScene::load(std::path::Path::new(p))?))
+        }
+        p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
+        other => anyhow::bail!(
+            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', 'crowd', a boxer file (*boxer.ron), a crowd scene file (*crowd*.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
+        ),
+    }
+}
+
+fn file_name(p: &str) -> String {
+    std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()
+}
