@@ -10,3 +10,4 @@ pub mod hardware;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;
+pub mod signals;
