@@ -178,6 +178,74 @@ impl Default for HandSample {
     }
 }
 
+/// Strings per hand.
+pub const STRINGS: usize = 4;
+
+/// What the world needs to know of the rig to show it: sent once when the link connects.
+/// World frame, like everything here.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigInfo {
+    /// Tick period of the loop.
+    pub period_s: f64,
+    /// Where each string leaves the frame, per hand (world frame).
+    pub anchors_m: [[DVec3; STRINGS]; HANDS],
+    /// Each hand's home point (world frame).
+    pub home_m: [DVec3; HANDS],
+    /// The range of commanded tension, per hand (for colouring strings by tension).
+    pub tension_min_n: [f64; HANDS],
+    pub tension_max_n: [f64; HANDS],
+    /// The largest force the rig renders on a hand.
+    pub force_limit_n: [f64; HANDS],
+}
+
+impl Default for RigInfo {
+    fn default() -> Self {
+        RigInfo {
+            period_s: 0.001,
+            anchors_m: [[DVec3::ZERO; STRINGS]; HANDS],
+            home_m: [DVec3::ZERO; HANDS],
+            tension_min_n: [0.0; HANDS],
+            tension_max_n: [0.0; HANDS],
+            force_limit_n: [0.0; HANDS],
+        }
+    }
+}
+
+/// The rig's lifecycle as the world sees it (`spidar_rt::Lifecycle`, plus a stop under way).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum RigState {
+    #[default]
+    Unconfigured = 0,
+    Inactive = 1,
+    Active = 2,
+    Faulted = 3,
+    Stopping = 4,
+}
+
+/// A low-rate summary of the rig for the world's viewers and recorder (a few tens of hertz): what
+/// a heads-up display shows and what the strings are doing.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RigStatus {
+    /// Tick index and loop-clock time of the newest tick it summarises.
+    pub tick: u64,
+    pub t_s: f64,
+    pub state: RigState,
+    /// Achieved tick rate and wake-up lateness p99 over the last window.
+    pub rate_hz: f64,
+    pub lateness_p99_s: f64,
+    /// Force the rig applied to each hand on the newest tick (world frame).
+    pub force_n: [DVec3; HANDS],
+    /// Commanded tension of every string on the newest tick, per hand.
+    pub tensions_n: [[f64; STRINGS]; HANDS],
+    /// Running counts since the rig started.
+    pub faults: u64,
+    pub device_errors: u64,
+    pub stale_ticks: u64,
+    pub clamped_ticks: u64,
+    pub misses: u64,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -12,7 +12,7 @@ pub mod boxing;
 pub mod crowd;
 pub mod walls;
 
-use spidar_msg::{ContactModel, HandSample};
+use spidar_msg::{ContactModel, HandSample, RigInfo, RigStatus};
 
 pub trait Scene: Send {
     fn name(&self) -> &str;
@@ -25,6 +25,28 @@ pub trait Scene: Send {
     fn status(&self) -> String {
         String::new()
     }
+}
+
+/// What a world step shows an [`Observer`].
+pub struct StepView<'a> {
+    /// Loop-clock time of the step.
+    pub t_s: f64,
+    pub scene: &'a dyn Scene,
+    /// The hand samples the step consumed (oldest first).
+    pub samples: &'a [HandSample],
+    /// The contact model the step produced.
+    pub model: &'a ContactModel,
+    /// The rig's geometry and newest status, when a rig is connected and has sent them.
+    pub rig_info: Option<&'a RigInfo>,
+    pub rig_status: Option<&'a RigStatus>,
+}
+
+/// Something that watches the world step by step (the live view, the recorder). Whatever hosts a
+/// scene (the world process, the in-process scene thread) calls every observer after every step,
+/// on the stepping thread: an observer copies what it needs and hands it to its own threads. It
+/// must never block or do slow work here, so the 3 ms step does not notice it.
+pub trait Observer: Send {
+    fn after_step(&mut self, step: &StepView<'_>);
 }
 
 /// Builds a scene by name or RON file path.
