@@ -30,6 +30,10 @@ pub struct HandRecord {
     pub method: Method,
     pub contacts: u8,
     pub clamped: bool,
+    /// Energy reserve of the avatar-hand contact (J) and whether the command was scaled down
+    /// to stay within it this tick (`local.rs`).
+    pub reserve_j: f64,
+    pub passivity_limited: bool,
 }
 
 impl Default for HandRecord {
@@ -47,6 +51,8 @@ impl Default for HandRecord {
             method: Method::Exact,
             contacts: 0,
             clamped: false,
+            reserve_j: 0.0,
+            passivity_limited: false,
         }
     }
 }

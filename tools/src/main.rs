@@ -71,12 +71,18 @@ enum EvalCmd {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
-    /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
-    /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
+    /// On the path of `spidar run` (simulated rig, rt-loop, boxing world, virtual clock): sim step
+    /// and prediction cost during a bout, what punches of every kind did to an active and a
+    /// passive virtual human, then the section 4.3 experiment: straights at four targets, an
+    /// observer guesses each from the virtual human's motion.
     Reactions {
-        /// Jabs per target and mode (active, passive).
+        /// Straights per target and mode (active, passive).
         #[arg(long, default_value_t = 24)]
         trials: usize,
+        /// Punches of the punch experiment (each thrown at an active and a passive virtual
+        /// human); 0 skips it.
+        #[arg(long, default_value_t = 400)]
+        punches: usize,
         /// Seed of the jabs (aim, hand, speed) and of the bout.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -154,7 +160,8 @@ struct RunArgs {
     /// or a walls scene file (.ron).
     #[arg(long, default_value = "boxing")]
     scene: String,
-    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
+    /// The simulated user's hands: box (straights, hooks, uppercuts and feints at the virtual
+    /// human), hold, circle, spar,
     /// tour (for `walls`), or a script file (.ron).
     #[arg(long, default_value = "box")]
     script: String,
@@ -229,8 +236,9 @@ fn main() -> anyhow::Result<()> {
         Cmd::Run(a) => run(a),
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+        Cmd::Eval { what: EvalCmd::Reactions { trials, punches, seed, bout_seconds } } => {
             use spidar_tools::eval;
+            println!("measured on {}\n", eval::PATH);
             if bout_seconds > 0.0 {
                 eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
@@ -242,6 +250,10 @@ fn main() -> anyhow::Result<()> {
                 println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
                 println!("  rt misses    {}", b.misses);
                 println!("  scene        {}\n", b.status);
+            }
+            if punches > 0 {
+                eprintln!("throwing {punches} punches at an active and a passive virtual human ...");
+                println!("{}\n", eval::punch_report(punches, seed)?);
             }
             let r = eval::reactions(trials, seed, |done, total| {
                 if done % 16 == 0 || done == total {

@@ -25,10 +25,6 @@ pub struct BoxerFile {
     pub coupling_d_n_s_per_m: f64,
     pub avatar_joint_scale: f64,
     pub damage_attenuation: f64,
-    pub proxy_k_n_per_m: f64,
-    pub proxy_d_n_s_per_m: f64,
-    pub proxy_range_m: f64,
-    pub grip_radius_m: f64,
     pub reach_arm_k_n_per_m: f64,
     pub reach_arm_d_n_s_per_m: f64,
     pub reach_body_k_n_per_m: f64,
@@ -43,11 +39,15 @@ pub struct MindFile {
     pub horizon_s: f64,
     pub middle_grace_s: f64,
     pub predict_every_s: f64,
+    pub decel_m_per_s2: f64,
     pub avoid_extend: f64,
     pub avoid_clearance_m: f64,
     pub avoid_time_fraction: f64,
     pub avoid_duck_cost: f64,
+    pub avoid_lead_s: f64,
+    pub lean_max_m: f64,
     pub block_time_fraction: f64,
+    pub block_speed_m_per_s: f64,
     pub attack_per_step: f64,
     pub attack_min_s: f64,
     pub attack_max_s: f64,
@@ -62,7 +62,7 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         let key = field.rsplit('.').next().unwrap_or(field);
         SimError::Config(config::invalid(text, origin, field, key, 0, msg))
     };
-    config::check_version(text, origin, f.version, 1)?;
+    config::check_version(text, origin, f.version, 2)?;
     let o = f.user_offset_m;
     if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
         return Err(err("user_offset_m", "must be finite".into()));
@@ -74,10 +74,6 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
         ("avatar_joint_scale", f.avatar_joint_scale, 0.01, 1.0),
         ("damage_attenuation", f.damage_attenuation, 0.0, 1.0),
-        ("proxy_k_n_per_m", f.proxy_k_n_per_m, 0.0, 1e5),
-        ("proxy_d_n_s_per_m", f.proxy_d_n_s_per_m, 0.0, 1e3),
-        ("proxy_range_m", f.proxy_range_m, 0.0, 2.0),
-        ("grip_radius_m", f.grip_radius_m, 0.0, 0.2),
         ("reach_arm_k_n_per_m", f.reach_arm_k_n_per_m, 0.0, 60_000.0),
         ("reach_arm_d_n_s_per_m", f.reach_arm_d_n_s_per_m, 0.0, 400.0),
         ("reach_body_k_n_per_m", f.reach_body_k_n_per_m, 0.0, 400_000.0),
@@ -86,11 +82,15 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         ("mind.horizon_s", m.horizon_s, 0.003, 2.0),
         ("mind.middle_grace_s", m.middle_grace_s, 0.0, 2.0),
         ("mind.predict_every_s", m.predict_every_s, 0.0, 2.0),
+        ("mind.decel_m_per_s2", m.decel_m_per_s2, 0.0, 1000.0),
         ("mind.avoid_extend", m.avoid_extend, 1.0, 5.0),
         ("mind.avoid_clearance_m", m.avoid_clearance_m, 0.0, 1.0),
         ("mind.avoid_time_fraction", m.avoid_time_fraction, 0.1, 1.0),
         ("mind.avoid_duck_cost", m.avoid_duck_cost, 0.1, 100.0),
+        ("mind.avoid_lead_s", m.avoid_lead_s, 0.0, 2.0),
+        ("mind.lean_max_m", m.lean_max_m, 0.0, 0.5),
         ("mind.block_time_fraction", m.block_time_fraction, 0.1, 1.0),
+        ("mind.block_speed_m_per_s", m.block_speed_m_per_s, 0.0, 20.0),
         ("mind.attack_per_step", m.attack_per_step, 0.0, 1.0),
         ("mind.attack_min_s", m.attack_min_s, 0.05, 5.0),
         ("mind.attack_max_s", m.attack_max_s, 0.05, 5.0),
@@ -116,10 +116,6 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         coupling_d_n_s_per_m: f.coupling_d_n_s_per_m,
         avatar_joint_scale: f.avatar_joint_scale,
         damage_attenuation: f.damage_attenuation,
-        proxy_k_n_per_m: f.proxy_k_n_per_m,
-        proxy_d_n_s_per_m: f.proxy_d_n_s_per_m,
-        proxy_range_m: f.proxy_range_m,
-        grip_radius_m: f.grip_radius_m,
         reach_arm_k_n_per_m: f.reach_arm_k_n_per_m,
         reach_arm_d_n_s_per_m: f.reach_arm_d_n_s_per_m,
         reach_body_k_n_per_m: f.reach_body_k_n_per_m,
@@ -129,11 +125,15 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
             horizon_s: m.horizon_s,
             middle_grace_s: m.middle_grace_s,
             predict_every_s: m.predict_every_s,
+            decel_m_per_s2: m.decel_m_per_s2,
             avoid_extend: m.avoid_extend,
             avoid_clearance_m: m.avoid_clearance_m,
             avoid_time_fraction: m.avoid_time_fraction,
             avoid_duck_cost: m.avoid_duck_cost,
+            avoid_lead_s: m.avoid_lead_s,
+            lean_max_m: m.lean_max_m,
             block_time_fraction: m.block_time_fraction,
+            block_speed_m_per_s: m.block_speed_m_per_s,
             attack_per_step: m.attack_per_step,
             attack_s: (m.attack_min_s, m.attack_max_s),
             attack_scatter_m: m.attack_scatter_m,
@@ -141,7 +141,6 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         },
         active: true,
         seed: 0,
-        avatar_hands_collide: false,
     })
 }
 
