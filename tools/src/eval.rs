@@ -220,8 +220,10 @@ pub struct PunchOutcome {
     /// over 1 cm (s); and whether that came before the fist touched it.
     pub reaction_s: Option<f64>,
     pub reacted_before_contact: bool,
-    /// The farthest the head or chest moved toward the punching fist during the punch (m).
+    /// The farthest the head or chest moved toward the punching fist during the punch and the
+    /// tail of its window, and while the fist was on its way out (m).
     pub toward_fist_m: f64,
+    pub toward_fist_out_m: f64,
     /// A block met the fist: the largest force the user's hand felt on the first tick of that
     /// contact, the contact force the world had then (N), and whether the fist then got to the
     /// part it was aimed at.
@@ -348,12 +350,14 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
         reaction_s: None,
         reacted_before_contact: false,
         toward_fist_m: 0.0,
+        toward_fist_out_m: 0.0,
         block_felt_n: None,
         landed_after_block: false,
     };
     let Some(first) = win.first() else { return o };
     o.from_rest = first.body == BodyBehaviour::Standby && first.hands == [Behaviour::Standby; 2];
     let start = first.vh;
+    let mut reference = [start[0], start[1]];
     let mut touched = false;
     for (k, f) in win.iter().enumerate() {
         o.peak_m_per_s = o.peak_m_per_s.max(f.speed[h]);
@@ -367,12 +371,6 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
         o.chest |= f.chest[h];
         o.avoidance |= f.body == BodyBehaviour::Avoidance && first.body != BodyBehaviour::Avoidance;
         o.block |= f.hands.contains(&Behaviour::Block) && !first.hands.contains(&Behaviour::Block);
-        // Head and chest toward the fist: their motion since the start along the direction from
-        // where they started to where the fist is now.
-        for i in 0..2 {
-            let to_fist = (f.fist[h] - start[i]).normalize_or_zero();
-            o.toward_fist_m = o.toward_fist_m.max((f.vh[i] - start[i]).dot(to_fist));
-        }
         if f.blocked[h] && !o.blocked {
             o.blocked = true;
             // The model of this step reaches the loop for the ticks the next step consumes.
@@ -381,6 +379,22 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
             }
         } else if o.blocked && (f.head[h] || f.chest[h]) {
             o.landed_after_block = true;
+        }
+        // Head and chest toward the fist: their motion since the punch started, along the
+        // direction from where they are now to where the fist is now. Its own attack leans the
+        // trunk into the punch it throws: that is not a reaction, so attacks are left out (the
+        // motion counts from where the part was when the attack ended).
+        if f.hands.contains(&Behaviour::Attack) {
+            reference = [f.vh[0], f.vh[1]];
+            continue;
+        }
+        for i in 0..2 {
+            let to_fist = (f.fist[h] - f.vh[i]).normalize_or_zero();
+            let toward = (f.vh[i] - reference[i]).dot(to_fist);
+            o.toward_fist_m = o.toward_fist_m.max(toward);
+            if f.t_s <= p.start_s + p.out_s {
+                o.toward_fist_out_m = o.toward_fist_out_m.max(toward);
+            }
         }
     }
     o
@@ -445,8 +459,11 @@ impl BoutOutcome {
         v.get(v.len() / 2).copied()
     }
 
-    pub fn toward_fist_max_m(&self) -> f64 {
-        self.punches.iter().map(|o| o.toward_fist_m).fold(0.0, f64::max)
+    /// The farthest the head or chest moved toward a fist: over whole punches, and while the
+    /// fists were on their way out.
+    pub fn toward_fist_max_m(&self) -> (f64, f64) {
+        let max = |f: fn(&PunchOutcome) -> f64| self.punches.iter().map(f).fold(0.0, f64::max);
+        (max(|o| o.toward_fist_m), max(|o| o.toward_fist_out_m))
     }
 }
 
@@ -534,7 +551,11 @@ impl fmt::Display for PunchReport {
             a.reaction_median_s().map_or("-".into(), |s| format!("{s:.3} s")),
             react.len()
         )?;
-        writeln!(f, "  head or chest toward the fist: at most {:.3} m (active), {:.3} m (passive)", a.toward_fist_max_m(), p.toward_fist_max_m())?;
+        let ((aw, ao), (pw, po)) = (a.toward_fist_max_m(), p.toward_fist_max_m());
+        writeln!(
+            f,
+            "  head or chest toward the fist, at most: {ao:.3} m while it came out, {aw:.3} m over the whole punch (active); {po:.3} / {pw:.3} m (passive)"
+        )?;
         let blocks: Vec<&PunchOutcome> = a.punches.iter().filter(|o| o.block_felt_n.is_some()).collect();
         let felt = blocks.iter().filter(|o| o.block_felt_n.is_some_and(|(felt, _)| felt > 0.0)).count();
         let through = blocks.iter().filter(|o| o.landed_after_block).count();

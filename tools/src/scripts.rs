@@ -67,7 +67,7 @@ pub struct Punch {
     pub hand: usize,
     pub kind: PunchKind,
     pub aim: Aim,
-    /// Slows and stops short of the target (0.15-0.25 m), then goes back.
+    /// Slows and stops short of the target (0.22-0.32 m short of the aim point, 10-20 cm before the part's surface), then goes back.
     pub feint: bool,
     /// Planned peak speed of the hand along its path (the simulated arm follows with some lag).
     pub speed_m_per_s: f64,
@@ -261,7 +261,7 @@ pub fn box_plan(
         let scatter = DVec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), 0.0);
         let target = aims[aim_index(aim)] + scatter;
         let from = home[hand];
-        let s_end = if feint { feint_end(kind, hand, from, target, rng.random_range(0.15..0.25)) } else { 1.0 };
+        let s_end = if feint { feint_end(kind, hand, from, target, rng.random_range(0.22..0.32)) } else { 1.0 };
         let len = path_length(kind, hand, from, target, s_end);
         // Minimum-jerk peak speed is 1.875 x the mean.
         let out_s = (1.875 * len / speed).max(0.05);

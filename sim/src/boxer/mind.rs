@@ -143,6 +143,9 @@ pub struct MindParams {
     /// An avatar hand closing on any part of the virtual human faster than this triggers a
     /// prediction.
     pub trigger_m_per_s: f64,
+    /// While an avatar hand closes on it faster than this, the body does not go back to its
+    /// guard (toward the fist) and no attack starts.
+    pub approach_m_per_s: f64,
     /// How far ahead a prediction runs.
     pub horizon_s: f64,
     /// After a middle-priority contact, keep predicting this long for a high one.
@@ -165,8 +168,9 @@ pub struct MindParams {
     /// The body moves as well as the block when the predicted contact is this close (s), or
     /// when no hand can block in time.
     pub avoid_lead_s: f64,
-    /// How far the trunk's lean moves the chest at most (the waist's range).
-    pub lean_max_m: f64,
+    /// The trunk leans back from a punch at the chest by pulling the head back this far (m),
+    /// about what the waist's range allows.
+    pub lean_m: f64,
     /// Block reaches finish this fraction of the time to contact.
     pub block_time_fraction: f64,
     /// A hand can block where it gets in time at this mean speed (m/s).
@@ -180,6 +184,8 @@ pub struct MindParams {
     pub attack_scatter_m: f64,
     /// A finished attack is held this long before the hand returns to standby.
     pub hold_s: f64,
+    /// After a defence the body goes back to its guard in a reach this long (s).
+    pub return_s: f64,
 }
 
 impl Default for MindParams {
@@ -265,6 +271,11 @@ impl Mind {
     /// faster than the trigger speed (section 3.7)? At any angle: a hook closes on the head from
     /// the side.
     pub fn triggered(&self, model: &Model, ws: &Workspace) -> bool {
+        self.closing_faster_than(model, ws, self.params.trigger_m_per_s)
+    }
+
+    /// Is an avatar hand closing on any part of the virtual human faster than `speed_m_per_s`?
+    pub fn closing_faster_than(&self, model: &Model, ws: &Workspace, speed_m_per_s: f64) -> bool {
         let vh = &self.vh;
         let parts = [vh.head, vh.chest, vh.hand[0], vh.hand[1], vh.forearm[0], vh.forearm[1]];
         self.av.hand.iter().any(|&h| {
@@ -274,7 +285,7 @@ impl Mind {
                 let to = ws.com_world(model, b) - p;
                 let d = to.length();
                 let closing = (v - ws.point_velocity(b, model.bodies[b].com_m)).dot(to / d);
-                d > 1e-6 && closing > self.params.trigger_m_per_s
+                d > 1e-6 && closing > speed_m_per_s
             })
         })
     }
@@ -448,33 +459,42 @@ impl Mind {
             }
         }
         if def.avoiding {
-            let b = ws.com_world(model, part);
+            // The body moves by its head, the top of the chain: a dodge slips the head, a lean
+            // pulls it back and the trunk with it. (A reach on the chest would swing the head
+            // about it, toward a hook.)
+            let head = self.vh.head;
+            let b = ws.com_world(model, head);
             // A dodge under way is kept while its target still clears the newly predicted path:
             // restarting it would throw away the motion already gained (a fresh reach starts from
             // rest) and, for a punch aimed dead at the part, could flip the side.
             let keep = match self.reaches[2] {
-                Some(r) if self.body == BodyBehaviour::Avoidance && r.body == part => {
+                Some(r) if self.body == BodyBehaviour::Avoidance && part == head => {
                     let p_ext = a + (p - a) * self.params.avoid_extend;
                     (r.target_m - nearest_on_segment(a, p_ext, r.target_m)).length()
                         >= 0.8 * self.params.avoid_clearance_m
                 }
+                Some(r) if self.body == BodyBehaviour::Avoidance => r.target_m.z < r.home_m.z,
                 _ => false,
             };
             if !keep {
-                let home = match self.reaches[2] {
-                    Some(r) if self.body == BodyBehaviour::Avoidance && r.body == part => r.home_m,
-                    _ => b,
+                // A dodge re-aimed, or one from a body on its way back, keeps its guard as home.
+                let home = self.reaches[2].map_or(b, |r| r.home_m);
+                // The head slips by Fig. 6, from where it is now (a dodge from an earlier punch
+                // may have taken it aside). The chest cannot slip that far: the trunk leans back
+                // from its guard, away from the fist, as far as the waist lets it.
+                let r = if part == self.vh.chest {
+                    let away = DVec3::new(b.x - a.x, 0.0, b.z - a.z).normalize_or(DVec3::NEG_Z);
+                    // Mostly back (the virtual human faces +z).
+                    let dir = DVec3::new(away.x * 0.5, 0.0, -1.0).normalize();
+                    home + dir * self.params.lean_m
+                } else {
+                    avoid_target(a, p, b, &self.params)
                 };
-                let mut r = avoid_target(a, p, home, &self.params);
-                if part == self.vh.chest {
-                    let d = r - home;
-                    r = home + d * (self.params.lean_max_m / d.length().max(self.params.lean_max_m));
-                }
                 let dur = (left * self.params.avoid_time_fraction).max(0.06);
                 let mut reach = Reach::start(
                     model,
                     ws,
-                    part,
+                    head,
                     r,
                     now_s,
                     dur,
@@ -540,9 +560,9 @@ impl Mind {
         }
     }
 
-    /// Ends the defence under way: the body and the blocking hand return to their guard (their
-    /// joints' springs take them there).
-    fn end_defence(&mut self) {
+    /// Ends the defence under way: the blocking hand returns to its guard (its joints' springs
+    /// take it there), the body in an unhurried reach back to where the dodge left from.
+    fn end_defence(&mut self, model: &Model, ws: &Workspace, now_s: f64, bp: &BoxerParams) {
         if self.defence.take().is_none() {
             return;
         }
@@ -553,10 +573,27 @@ impl Mind {
                 self.reaches[h] = None;
             }
         }
-        if self.body == BodyBehaviour::Avoidance {
-            self.body = BodyBehaviour::Standby;
-            self.reaches[2] = None;
+        // The body, dodged or held where it stopped on its way back, goes back to its guard.
+        self.body = BodyBehaviour::Standby;
+        if let Some(r) = self.reaches[2] {
+            self.reaches[2] = Some(self.return_reach(model, ws, &r, now_s, bp));
         }
+    }
+
+    /// An unhurried reach of the part `r` moves back to where it left its guard from.
+    fn return_reach(&self, model: &Model, ws: &Workspace, r: &Reach, now_s: f64, bp: &BoxerParams) -> Reach {
+        let mut back = Reach::start(
+            model,
+            ws,
+            r.body,
+            r.home_m,
+            now_s,
+            self.params.return_s,
+            bp.reach_body_k_n_per_m,
+            bp.reach_body_d_n_s_per_m,
+        );
+        back.home_m = r.home_m;
+        back
     }
 
     /// Called before the world step: trigger, predict, decide, start attacks, end finished reaches.
@@ -583,7 +620,8 @@ impl Mind {
             }
             self.prev_vel[h] = v;
         }
-        // A finished attack is held a little, then the hand returns to standby.
+        // A finished attack is held a little, then the hand returns to standby; the body's
+        // way back to its guard is let go of once done (its joints hold it there).
         for h in 0..2 {
             if let Some(r) = self.reaches[h] {
                 if self.hands[h] == Behaviour::Attack && now > r.start_s + r.duration_s + self.params.hold_s {
@@ -592,11 +630,18 @@ impl Mind {
                 }
             }
         }
+        if self.body == BodyBehaviour::Standby && self.reaches[2].is_some_and(|r| r.done(now)) {
+            self.reaches[2] = None;
+        }
         if !self.active {
             return;
         }
         let defending = self.defence.is_some();
-        if now >= self.next_predict_s && (defending || self.triggered(model, ws)) {
+        let closing = self.triggered(model, ws);
+        // A fist coming at it, even slowly: the body does not go back toward it, nor does an
+        // attack start.
+        let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
+        if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
             // gone, the body and the blocking hand left to their joints)? Otherwise as the paper
@@ -613,13 +658,38 @@ impl Mind {
                 Some(d) if d.class == ContactClass::AvatarAttack => self.decide(model, ws, now, &d, bp),
                 other => {
                     self.last_decision = other;
-                    // The newest prediction no longer finds the fist on the head or chest.
-                    self.end_defence();
+                    // The newest prediction no longer finds the fist on the head or chest: the
+                    // defence ends, and the body goes back to its guard once no fist is closing
+                    // on it any more (it does not step back into a punch on its way).
+                    if !defending || !closing {
+                        self.end_defence(model, ws, now, bp);
+                    }
                 }
             }
         }
-        // Attack: one hand at a time, only while both stand by and no defence is under way.
-        let idle = self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none();
+        // While a fist comes at it and it is not avoiding, the body holds still where it is: it
+        // neither goes back to its guard after a defence (that would be toward the fist) nor
+        // sways there on its joints; the head, its most mobile part, is held if nothing else
+        // is. Once no fist comes, it goes back to its guard.
+        if self.body == BodyBehaviour::Standby {
+            let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
+            if approaching && !held {
+                let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
+                let here = ws.com_world(model, body);
+                let mut hold =
+                    Reach::start(model, ws, body, here, now, 0.05, bp.reach_body_k_n_per_m, bp.reach_body_d_n_s_per_m);
+                hold.home_m = home.unwrap_or(here);
+                hold.duration_s = f64::INFINITY;
+                self.reaches[2] = Some(hold);
+            } else if !approaching && held && self.defence.is_none() {
+                self.reaches[2] = self.reaches[2].and_then(|r| {
+                    ((r.home_m - r.target_m).length() > 0.01).then(|| self.return_reach(model, ws, &r, now, bp))
+                });
+            }
+        }
+        // Attack: one hand at a time, only while both stand by, no defence is under way and no
+        // fist is closing on it.
+        let idle = self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none() && !approaching;
         if idle && self.rng.random::<f64>() < self.params.attack_per_step {
             let h = if self.rng.random::<f64>() < 0.7 { 1 } else { 0 };
             let hand = self.vh.hand[h];

@@ -83,6 +83,10 @@ pub struct BoxerParams {
     /// Coupling spring from the user's hand to the avatar's hand (N/m) and its damper (N s/m).
     pub coupling_k_n_per_m: f64,
     pub coupling_d_n_s_per_m: f64,
+    /// The coupling's force is limited to this (N): the avatar's arm pushes no harder than an
+    /// arm does, however far past a block or a part the user's real hand goes (the rig cannot
+    /// stop it).
+    pub coupling_max_n: f64,
     /// The avatar's joint springs and dampers as a fraction of the fighter's in body-upper.ron:
     /// the paper gives the avatar softer joints so its hands nearly reach the user's hands.
     pub avatar_joint_scale: f64,
@@ -337,7 +341,7 @@ pub fn coupling_force(model: &Model, ws: &Workspace, hand: usize, t: &HandTarget
     let v = ws.point_velocity(hand, com);
     let f = (t.pos_m - x) * p.coupling_k_n_per_m + (t.vel_m_per_s - v) * p.coupling_d_n_s_per_m;
     if f.is_finite() {
-        f
+        f.clamp_length_max(p.coupling_max_n)
     } else {
         DVec3::ZERO
     }
