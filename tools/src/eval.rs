@@ -400,8 +400,14 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
     o
 }
 
-/// Planned-speed bins of the report (m/s).
-pub const SPEED_BINS: [(f64, f64); 3] = [(2.0, 3.5), (3.5, 5.0), (5.0, 7.0)];
+/// Speed bins of the report (m/s): the user's hand's peak speed as the rig measured it (the
+/// simulated arm follows the script's path with some lag, so it is not the planned speed).
+pub const SPEED_BINS: [(f64, f64); 3] = [(0.0, 3.5), (3.5, 5.0), (5.0, f64::INFINITY)];
+
+/// The speed bin of a punch.
+pub fn speed_bin(o: &PunchOutcome) -> (f64, f64) {
+    SPEED_BINS.into_iter().find(|&(lo, hi)| o.peak_m_per_s >= lo && o.peak_m_per_s < hi).unwrap_or(SPEED_BINS[0])
+}
 
 /// Rates over a set of punches.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -498,15 +504,10 @@ impl fmt::Display for PunchReport {
             a.punches.len(),
             n_feints
         )?;
-        writeln!(f, "  {:<10} {:<10} {:>5} {:>8} {:>15} {:>15}", "kind", "speed m/s", "n", "peak", "head", "chest")?;
+        writeln!(f, "  {:<10} {:<10} {:>5} {:>8} {:>15} {:>15}", "kind", "peak m/s", "n", "mean", "head", "chest")?;
         for kind in PunchKind::ALL {
             for (lo, hi) in SPEED_BINS {
-                let sel = |o: &&PunchOutcome| {
-                    !o.punch.feint
-                        && o.punch.kind == kind
-                        && o.punch.speed_m_per_s >= lo
-                        && (o.punch.speed_m_per_s < hi || hi >= SPEED_BINS[2].1)
-                };
+                let sel = |o: &&PunchOutcome| !o.punch.feint && o.punch.kind == kind && speed_bin(o) == (lo, hi);
                 let rate = |b: &BoutOutcome, aim: Aim| {
                     Rates::of(b.punches.iter().filter(sel).filter(|o| o.punch.aim == aim))
                 };
@@ -515,7 +516,11 @@ impl fmt::Display for PunchReport {
                     f,
                     "  {:<10} {:<10} {:>5} {:>8.1} {:>6.2} | {:<6.2} {:>6.2} | {:<6.2}",
                     kind.name(),
-                    format!("{lo:.1}-{hi:.1}"),
+                    match (lo, hi) {
+                        (l, _) if l <= 0.0 => format!("< {hi:.1}"),
+                        (_, h) if h.is_infinite() => format!(">= {lo:.1}"),
+                        _ => format!("{lo:.1}-{hi:.1}"),
+                    },
                     ah.n + ac.n,
                     (ah.peak_m_per_s * ah.n as f64 + ac.peak_m_per_s * ac.n as f64) / (ah.n + ac.n).max(1) as f64,
                     ah.head,

@@ -111,8 +111,9 @@ pub struct PlanOptions {
 }
 
 impl Default for PlanOptions {
-    /// The `box` script: all kinds, head and chest, both hands, 2-7 m/s, a fifth of the punches
-    /// feints, a quarter starting a combination.
+    /// The `box` script: all kinds, head and chest, both hands, a fifth of the punches feints, a
+    /// quarter starting a combination; planned peak speeds 2-9 m/s, which the simulated arm
+    /// (following with some lag) turns into about 2-7 m/s.
     fn default() -> Self {
         PlanOptions {
             punches: 2000,
@@ -121,7 +122,7 @@ impl Default for PlanOptions {
             hands: vec![0, 1],
             feint_share: 0.2,
             combo_share: 0.25,
-            speed_m_per_s: (2.0, 7.0),
+            speed_m_per_s: (2.0, 9.0),
             pause_s: (0.6, 1.2),
         }
     }
@@ -178,7 +179,7 @@ fn path_point(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, s: f64) -> D
     let side = if hand == 0 { -1.0 } else { 1.0 };
     let c = match kind {
         PunchKind::Straight => return from + (to - from) * s,
-        PunchKind::Hook => DVec3::new(to.x + side * 0.32, mid.y + 0.05, to.z + 0.12),
+        PunchKind::Hook => DVec3::new(to.x + side * 0.26, mid.y + 0.05, to.z + 0.15),
         PunchKind::Uppercut => DVec3::new((mid.x + to.x) * 0.5, to.y - 0.32, to.z + 0.12),
     };
     let u = 1.0 - s;
