@@ -597,3 +597,76 @@ fn a_punch_at_the_chest_is_blocked_and_misses() {
         assert!(active > 0.0, "hand {hand}, {out_s} s: the chest was hit: gap {active:.3} m");
     }
 }
+
+/// Section 3.4 on the product path: each step reports the contact force acting on each avatar
+/// hand as a local model for the rt-loop. Pressing the avatar's fist slowly into a passive chest
+/// and out again: the model's force is the sum of the world's contact forces on that hand, its
+/// position the user's hand the world pulled toward (without the offset), its stiffness what the
+/// world's own response says (never above the contact's in series with the coupling spring, none
+/// while the coupling pulls at its limit, as a deeper hand then pulls no harder). On a slow press
+/// the force grows with the user's hand at the slope the model reports, within a factor of 1.5.
+#[test]
+fn each_step_reports_the_avatar_hands_contact_as_a_local_model() {
+    for (depth, want_saturated) in [(0.12, false), (0.3, true)] {
+        let mut w = settled(BoxerParams { active: false, ..Default::default() });
+        let (from, chest) = (w.com(w.avatar.hand[1]), w.com(w.vh.chest));
+        // The chest's front surface is 10 cm in front of its centre, the fist's 5.5 cm around its
+        // own: the user's hand in to `depth` past where the fist would touch in 2 s, and out.
+        let dir = (chest - from).normalize();
+        let to = from + dir * ((chest - from).length() - 0.155 + depth);
+        let off = w.params.user_offset_m;
+        let kc = w.params.coupling_k_n_per_m;
+        let dt = w.dt_s();
+        let mut saturated = false;
+        // (depth of the user's hand along the press, force along it, the model's stiffness)
+        let mut press: Vec<(f64, f64, f64)> = Vec::new();
+        for k in 0..((4.0 / dt) as usize) {
+            let t = k as f64 * dt;
+            let s = if t < 2.0 { min_jerk(t / 2.0) } else { 1.0 - min_jerk((t - 2.0) / 2.0) };
+            let pos = from + (to - from) * s;
+            let targets = [
+                Some(HandTarget { pos_m: w.com(w.avatar.hand[0]), vel_m_per_s: DVec3::ZERO }),
+                Some(HandTarget { pos_m: pos, vel_m_per_s: DVec3::ZERO }),
+            ];
+            let rep = w.step(&targets);
+            let c = rep.hand_contacts[1];
+            // The world's contact forces on the avatar's right hand, now.
+            let hand = w.avatar.hand[1] as u16;
+            let mut sum = DVec3::ZERO;
+            for ct in &w.ws.contacts {
+                if ct.body_a == Some(hand) {
+                    sum += ct.force_n;
+                } else if ct.body_b == Some(hand) {
+                    sum -= ct.force_n;
+                }
+            }
+            assert!((c.force_n - sum).length() <= 1e-9 * sum.length().max(1.0), "{} vs {sum}", c.force_n);
+            if c.touching() {
+                assert_eq!(c.at_m, pos - off);
+                assert!(c.normal.dot(c.force_n) > 0.0 && (c.normal.length() - 1.0).abs() < 1e-9);
+                assert!(c.k_n_per_m >= 0.0 && c.k_n_per_m < kc, "{} N/m", c.k_n_per_m);
+                // The coupling at its limit at the end of the step (as the report computed it).
+                let x = w.com(w.avatar.hand[1]);
+                if ((pos - x) * kc).length() >= w.params.coupling_max_n {
+                    saturated = true;
+                    assert_eq!(c.k_n_per_m, 0.0, "a coupling at its limit pulls no harder");
+                }
+                if (0.3..1.8).contains(&t) {
+                    press.push(((pos - from).dot(dir), -c.force_n.dot(dir), c.k_n_per_m));
+                }
+            }
+        }
+        assert_eq!(saturated, want_saturated, "{depth} m past contact");
+        if !want_saturated {
+            // Least-squares slope of the force over the user's hand's depth, mid-press.
+            let n = press.len() as f64;
+            let (mx, my) = press.iter().fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
+            let (sxy, sxx) = press.iter().fold((0.0, 0.0), |(a, b), p| (a + (p.0 - mx) * (p.1 - my), b + (p.0 - mx).powi(2)));
+            let slope = sxy / sxx;
+            let k = press.iter().map(|p| p.2).sum::<f64>() / n;
+            eprintln!("{} steps mid-press: the force grows at {slope:.0} N/m, the model says {k:.0} N/m on average", press.len());
+            assert!(press.len() > 100);
+            assert!(slope < 1.5 * k && k < 1.5 * slope, "{slope:.0} N/m against the model's {k:.0} N/m");
+        }
+    }
+}

@@ -950,6 +950,78 @@ mod tests {
     }
 
     #[test]
+    fn avoidance_never_comes_toward_the_fist() {
+        let mp = mind_params(1.0);
+        let b = DVec3::new(0.0, 1.5, -0.85);
+        // Fists coming from every side at and around the head, from where they are now.
+        for k in 0..40 {
+            let th = k as f64 * 0.41;
+            let a = b + DVec3::new(th.cos() * 0.3, th.sin() * 0.15, 0.2 + 0.1 * th.sin());
+            let r = avoid_target(a, b + (b - a) * 0.1, b, &mp);
+            assert!((r - b).dot((a - b).normalize()) <= 1e-9, "fist at {a}: R {r}");
+        }
+    }
+
+    fn hand(pos: DVec3, vel: DVec3) -> HandTarget {
+        HandTarget { pos_m: pos, vel_m_per_s: vel }
+    }
+
+    #[test]
+    fn a_steady_hand_is_extrapolated_on_a_straight_line() {
+        let t = hand(DVec3::new(0.1, 1.4, -0.3), DVec3::new(0.0, 0.0, -3.0));
+        for ahead in [0.0, 0.05, 0.3] {
+            let e = extrapolate(&t, DVec3::ZERO, ahead, 5.0);
+            assert!((e.pos_m - (t.pos_m + t.vel_m_per_s * ahead)).length() < 1e-12);
+            assert_eq!(e.vel_m_per_s, t.vel_m_per_s);
+        }
+        // A hand at rest stays.
+        assert_eq!(extrapolate(&hand(DVec3::ONE, DVec3::ZERO), DVec3::X, 0.2, 5.0).pos_m, DVec3::ONE);
+    }
+
+    #[test]
+    fn a_slowing_hand_stops_where_its_deceleration_brings_it_to_rest() {
+        // 3 m/s slowing at 30 m/s^2: stops after 0.1 s, 0.15 m on.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -3.0));
+        let acc = DVec3::new(0.0, 0.0, 30.0);
+        for ahead in [0.1, 0.2, 0.5] {
+            let e = extrapolate(&t, acc, ahead, 5.0);
+            assert!((e.pos_m - DVec3::new(0.0, 0.0, -0.15)).length() < 1e-9, "{ahead}: {}", e.pos_m);
+            assert!(e.vel_m_per_s.length() < 1e-9);
+        }
+        // Under the threshold it is not believed: a straight line.
+        let e = extrapolate(&t, DVec3::new(0.0, 0.0, 4.0), 0.1, 5.0);
+        assert!((e.pos_m.z + 0.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_hand_speeding_up_is_expected_to_reach_at_most_its_cap() {
+        // 1 m/s speeding up at 100 m/s^2: capped at 2.5 m/s after 15 ms.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -1.0));
+        let e = extrapolate(&t, DVec3::new(0.0, 0.0, -100.0), 0.2, 5.0);
+        let t_cap = 1.5 / 100.0;
+        let want = 1.0 * t_cap + 0.5 * 100.0 * t_cap * t_cap + 2.5 * (0.2 - t_cap);
+        assert!((e.pos_m.z + want).abs() < 1e-9, "{} vs {want}", e.pos_m.z);
+        assert!((e.vel_m_per_s.length() - SPEED_UP_MAX).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_curving_hand_is_extrapolated_along_its_arc_with_limits() {
+        // 2 m/s along -z bending toward +x at 20 m/s^2: radius v^2 / a = 0.2 m.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -2.0));
+        let acc = DVec3::new(20.0, 0.0, 0.0);
+        // A quarter turn takes pi/2 x 0.2 m = 0.314 m, 0.157 s.
+        let e = extrapolate(&t, acc, 0.157_079_632_679_489_66, 5.0);
+        assert!((e.pos_m - DVec3::new(0.2, 0.0, -0.2)).length() < 1e-6, "{}", e.pos_m);
+        // Then straight on, turned by no more than a quarter.
+        let e = extrapolate(&t, acc, 0.3, 5.0);
+        assert!(e.vel_m_per_s.normalize().dot(DVec3::X) > 1.0 - 1e-9, "{}", e.vel_m_per_s);
+        assert!((e.pos_m.z + 0.2).abs() < 1e-6 && e.pos_m.x > 0.2);
+        // A sharper bend than 0.15 m radius is taken as 0.15 m.
+        let e = extrapolate(&t, DVec3::new(400.0, 0.0, 0.0), 0.5, 5.0);
+        assert!((e.pos_m.z + RADIUS_MIN_M).abs() < 1e-6, "{}", e.pos_m);
+    }
+
+    #[test]
     fn nearest_point_is_clamped_to_the_segment() {
         let (a, b) = (DVec3::ZERO, DVec3::X);
         assert_eq!(nearest_on_segment(a, b, DVec3::new(0.5, 1.0, 0.0)), DVec3::new(0.5, 0.0, 0.0));

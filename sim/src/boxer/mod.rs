@@ -163,6 +163,8 @@ pub struct BoxingWorld {
     /// Per avatar hand, per shape of the model: the penalty stiffness of the pair the hand's
     /// shape forms with it (N/m; 0 for none).
     hand_pair_k: [Vec<f64>; 2],
+    /// Per avatar hand: the running estimate of how its contact force grows with the user's hand.
+    stiffness: [StiffnessEstimate; 2],
     /// The state whose kinematics and contacts `ws` holds (its contact forces are already in
     /// `ws.f_ext`), so a step never computes them twice and never uses stale ones.
     kin_state: State,
@@ -216,6 +218,7 @@ impl BoxingWorld {
             mind,
             last: StepReport::default(),
             hand_pair_k,
+            stiffness: [StiffnessEstimate::default(); 2],
             prepared: false,
         };
         w.begin_step();
@@ -271,7 +274,7 @@ impl BoxingWorld {
     }
 
     /// Fills the contact part of `rep` from the workspace's contacts (the new state's).
-    fn report_contacts(&self, targets: &[Option<HandTarget>; 2], rep: &mut StepReport) {
+    fn report_contacts(&mut self, targets: &[Option<HandTarget>; 2], rep: &mut StepReport) {
         let m = &self.model;
         let (av, vh) = (&self.avatar, &self.vh);
         let avatar_bodies = m.articulations[AVATAR].bodies.clone();
@@ -302,28 +305,82 @@ impl BoxingWorld {
                 }
             }
         }
-        let kc = self.params.coupling_k_n_per_m;
+        let p = &self.params;
+        let kc = p.coupling_k_n_per_m;
         for h in 0..2 {
             let (f, nk, k) = sums[h];
             let Some(t) = targets[h] else { continue };
             if f == DVec3::ZERO || !f.is_finite() {
                 continue;
             }
-            // The contact spring in series with the coupling spring (the avatar's joints and the
-            // touched body's give are softer still; the loop's linear update only has to hold
-            // for the 3 ms to the next step).
+            // How the force grows as the user's hand goes in: measured from the world's own
+            // response (the touched body and the avatar give as well as the springs), never more
+            // than the contact spring in series with the coupling spring, and nothing while the
+            // coupling pulls at its limit (a deeper hand then pulls no harder).
+            let hand = self.avatar.hand[h];
+            let x = self.ws.point_world(hand, m.bodies[hand].com_m);
+            let saturated = ((t.pos_m - x) * kc).length() >= p.coupling_max_n;
+            let normal = nk.normalize_or(f.normalize_or_zero());
+            let at = t.pos_m - p.user_offset_m;
+            let series = if k > 0.0 { kc * k / (kc + k) } else { 0.0 };
+            let est = self.stiffness[h].update(at, f, normal);
             rep.hand_contacts[h] = HandContact {
                 force_n: f,
-                normal: nk.normalize_or(f.normalize_or_zero()),
-                k_n_per_m: if k > 0.0 { kc * k / (kc + k) } else { 0.0 },
-                at_m: t.pos_m - self.params.user_offset_m,
+                normal,
+                k_n_per_m: if saturated { 0.0 } else { est.clamp(0.0, series) },
+                at_m: at,
             };
+        }
+        for h in 0..2 {
+            if !rep.hand_contacts[h].touching() {
+                self.stiffness[h] = StiffnessEstimate::default();
+            }
         }
     }
 
     /// World position of a body's centre of mass (after `begin_step` or `step`).
     pub fn com(&self, body: usize) -> DVec3 {
         self.ws.com_world(&self.model, body)
+    }
+}
+
+/// How fast an avatar hand's contact force grows as the user's hand goes in, from the world's own
+/// response: a least-squares slope of the force change over the user's hand's motion along the
+/// normal, step by step, weighted toward the last [`StiffnessEstimate::WINDOW_STEPS`] steps.
+/// The first steps of a contact (an impact, which says nothing of the slope) give none.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StiffnessEstimate {
+    last: Option<(DVec3, DVec3)>,
+    sxy: f64,
+    sxx: f64,
+    steps: u32,
+}
+
+impl StiffnessEstimate {
+    /// Steps the estimate mostly remembers (30 ms at 3 ms).
+    pub const WINDOW_STEPS: f64 = 10.0;
+    /// Motion below this over the window (m, rms per step) says nothing of the slope.
+    const MIN_MOTION_M: f64 = 1e-5;
+
+    /// Adds this step's user hand position `at_m` and force `f_n` (normal `n`); returns the slope
+    /// (N/m), 0 while it knows too little.
+    pub fn update(&mut self, at_m: DVec3, f_n: DVec3, n: DVec3) -> f64 {
+        if let Some((at0, f0)) = self.last {
+            // In: against the normal.
+            let dx = (at0 - at_m).dot(n);
+            let df = (f_n - f0).dot(n);
+            let a = 1.0 / Self::WINDOW_STEPS;
+            self.sxy += a * (dx * df - self.sxy);
+            self.sxx += a * (dx * dx - self.sxx);
+            self.steps += 1;
+        }
+        self.last = Some((at_m, f_n));
+        let enough = self.steps as f64 >= Self::WINDOW_STEPS && self.sxx > Self::MIN_MOTION_M.powi(2);
+        if enough && (self.sxy / self.sxx).is_finite() {
+            self.sxy / self.sxx
+        } else {
+            0.0
+        }
     }
 }
 
