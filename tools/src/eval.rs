@@ -23,7 +23,7 @@ use std::fmt;
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use spidar_device::sim::{Script, SimRig};
-use spidar_msg::HandSample;
+use spidar_msg::{ContactModel, HandSample};
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams};
@@ -85,8 +85,13 @@ pub struct Bout {
     pub consumed: Vec<HandSample>,
     pub consumed_recs: Vec<TickRecord>,
     recs: Vec<TickRecord>,
+    /// The last models sent, newest last (a sample names the one it rendered by `seq`).
+    sent: std::collections::VecDeque<ContactModel>,
     next_step_ns: u64,
 }
+
+/// Models a [`Bout`] keeps for looking up by `seq`.
+const KEPT_MODELS: usize = 8;
 
 impl Bout {
     /// Homed and activated, the user's hands following `scripts` after they hold the grips at
@@ -107,6 +112,7 @@ impl Bout {
             consumed: Vec::with_capacity(16),
             consumed_recs: Vec::with_capacity(16),
             recs: Vec::with_capacity(16),
+            sent: std::collections::VecDeque::with_capacity(KEPT_MODELS + 1),
             next_step_ns: 0,
         })
     }
@@ -122,6 +128,10 @@ impl Bout {
         if now >= self.next_step_ns {
             let m = self.scene.step(now as f64 * 1e-9, &self.samples);
             let _ = self.v.far.models.try_send(m);
+            if self.sent.len() == KEPT_MODELS {
+                self.sent.pop_front();
+            }
+            self.sent.push_back(m);
             self.next_step_ns = now + (self.scene.step_s() * 1e9).round() as u64;
             self.consumed.clear();
             self.consumed.append(&mut self.samples);
@@ -130,6 +140,11 @@ impl Bout {
             return (rec, true);
         }
         (rec, false)
+    }
+
+    /// One of the last models sent, by its `seq`.
+    pub fn model(&self, seq: u64) -> Option<&ContactModel> {
+        self.sent.iter().find(|m| m.seq == seq)
     }
 
     /// Time on the scripts' clock (their start hold excluded).
