@@ -91,6 +91,11 @@ pub struct HandContact {
     pub k_n_per_m: f64,
     /// The user's hand position (world frame) the world computed `force_n` for.
     pub at_m: DVec3,
+    /// Power the touched body puts into the contact (W): the force on the avatar's hand times
+    /// the velocity of the touched body's point. Positive when the virtual human pushes into the
+    /// avatar's hand (a block meeting it, a punch): the rt-loop may give the user's hand that
+    /// energy on top of what the hand itself put into the contact.
+    pub source_w: f64,
 }
 
 impl HandContact {

@@ -18,10 +18,15 @@
 //! put into the contact (the work it did against the force the rig really applied, tick by
 //! tick, from the measured motion) and never lets the rig give back more than that: when the
 //! force about to be commanded would do more work on a hand moving with it than the reserve
-//! holds, it is scaled down along its own direction ([`Passivity::limit`]). A contact that
+//! holds, it is scaled down along its own direction ([`Passivity::limit`]). What the world's
+//! own bodies put into the contact (the virtual human's block or punch driving into the avatar's
+//! hand, `HandContact::source_w`) is credited to the reserve as each model arrives
+//! ([`Passivity::credit`]): the loop adds no energy, the world may. A contact that
 //! appears with the hand already inside it is therefore felt at once while the hand goes in (the
-//! user pays for it), and not at all on the way out of it. Outside any contact the reserve drops
-//! its surplus (nothing is stored then), and keeps a deficit until the hand has paid it back.
+//! user pays for it), and not at all on the way out of it. The reserve counts only while the
+//! hand is in an avatar-hand contact, and starts from nothing at every new one: outside a
+//! contact nothing is stored, and the other forces a hand may feel (the avatar's damage) are not
+//! the contact's to pay for.
 //!
 //! Allocation-free; never panics; the force goes through the safety phase like the proxies'.
 
@@ -68,8 +73,8 @@ pub fn render_contact(c: &HandContact, pos_m: DVec3, stiffness_limit_n_per_m: f6
 /// The energy reserve of one hand: passivity observer and limiter.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Passivity {
-    /// Work the user's hand did against the force the rig applied, since the reserve last
-    /// dropped its surplus (J). Negative: the rig gave back more than it got, by that much.
+    /// Work the user's hand did against the force the rig applied since the contact began (J).
+    /// Negative: the rig gave back more than it got, by that much.
     reserve_j: f64,
     /// The forces commanded on the last two ticks (rig frame), newest first. The board applies a
     /// tick's command from the next exchange to the one after, so the force commanded two ticks
@@ -87,10 +92,10 @@ impl Passivity {
     /// Books the work of the force that acted while the hand moved from the last pose to `pos_m`
     /// (rig frame; None: no trusted pose this tick, the motion is not known and the next pose
     /// starts afresh). `engaged`: the hand is in a local-model contact; outside one the reserve
-    /// keeps only a deficit. Returns the work the user did on the rig this tick (J).
+    /// is empty. Returns the work the user did on the rig this tick (J).
     pub fn observe(&mut self, pos_m: Option<DVec3>, engaged: bool) -> f64 {
         let mut work = 0.0;
-        if let (Some(p), Some(last)) = (pos_m, self.last_pos_m) {
+        if let (true, Some(p), Some(last)) = (engaged, pos_m, self.last_pos_m) {
             // The force pushes the hand; the hand moving against it does work on the rig.
             work = -self.commanded_n[1].dot(p - last);
             if work.is_finite() {
@@ -101,7 +106,7 @@ impl Passivity {
         }
         self.last_pos_m = pos_m;
         if !engaged {
-            self.reserve_j = self.reserve_j.min(0.0);
+            self.reserve_j = 0.0;
         }
         work
     }
@@ -126,6 +131,13 @@ impl Passivity {
         (f_n * (available / out), true)
     }
 
+    /// Credits `energy_j` the world put into the contact (ignored unless positive and finite).
+    pub fn credit(&mut self, energy_j: f64) {
+        if energy_j > 0.0 && energy_j.is_finite() {
+            self.reserve_j += energy_j;
+        }
+    }
+
     /// Records the force really commanded this tick (rig frame, after the allocation).
     pub fn commanded(&mut self, f_n: DVec3) {
         self.commanded_n = [if f_n.is_finite() { f_n } else { DVec3::ZERO }, self.commanded_n[0]];
@@ -137,7 +149,7 @@ mod tests {
     use super::*;
 
     fn contact(f: DVec3, n: DVec3, k: f64, at: DVec3) -> HandContact {
-        HandContact { force_n: f, normal: n, k_n_per_m: k, at_m: at }
+        HandContact { force_n: f, normal: n, k_n_per_m: k, at_m: at, source_w: 0.0 }
     }
 
     #[test]
@@ -193,13 +205,14 @@ mod tests {
         // Now the 2 N acted while the hand went 1 mm in: 2 mJ into the reserve.
         let w = p.observe(Some(-DVec3::Z * 0.002), true);
         assert!((w - 0.002).abs() < 1e-12 && (p.reserve_j() - 0.002).abs() < 1e-12);
-        // Out of contact the surplus goes, a deficit stays.
-        p.observe(Some(-DVec3::Z * 0.002), false);
+        // A deficit stays while the contact lasts.
+        p.commanded(DVec3::Z);
+        p.commanded(DVec3::Z);
+        p.observe(Some(DVec3::Z * 0.002), true);
+        assert!((p.reserve_j() + 0.002).abs() < 1e-12, "{}", p.reserve_j());
+        // Out of contact the reserve is empty, and no work is booked there.
+        assert_eq!(p.observe(Some(DVec3::Z * 0.003), false), 0.0);
         assert_eq!(p.reserve_j(), 0.0);
-        p.commanded(DVec3::Z);
-        p.commanded(DVec3::Z);
-        p.observe(Some(DVec3::Z * 0.001), false);
-        assert!((p.reserve_j() + 0.003).abs() < 1e-12, "{}", p.reserve_j());
         // A pose that is not trusted breaks the chain: no work booked across it.
         assert_eq!(p.observe(None, false), 0.0);
         assert_eq!(p.observe(Some(DVec3::X), false), 0.0);
@@ -209,7 +222,7 @@ mod tests {
     fn the_limiter_gives_back_no_more_than_the_reserve() {
         let mut p = Passivity::default();
         let (dt, v) = (0.001, DVec3::Z * 0.5); // moving out with the force at 0.5 m/s
-        // Nothing in the reserve: a force pushing the hand out is cut to zero.
+                                               // Nothing in the reserve: a force pushing the hand out is cut to zero.
         let (f, limited) = p.limit(DVec3::Z * 4.0, v, dt, true);
         assert!(limited && f == DVec3::ZERO);
         // Moving in, or not engaged: untouched.
@@ -223,5 +236,12 @@ mod tests {
         p.commanded(DVec3::Z);
         let (f, _) = p.limit(DVec3::Z * 4.0, v, dt, true);
         assert!((f.z - 1.0).abs() < 1e-9, "{f}");
+        // What the world credits is given back too; nothing else is credited.
+        p.credit(0.0015);
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            p.credit(bad);
+        }
+        let (f, limited) = p.limit(DVec3::Z * 4.0, v, dt, true);
+        assert!(!limited && f.z == 4.0, "{f}");
     }
 }

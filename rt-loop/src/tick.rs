@@ -411,9 +411,15 @@ impl TickCore {
         self.homing_wait.is_some()
     }
 
-    /// Replaces the contact model (the loop keeps only the newest one it received).
+    /// Replaces the contact model (the loop keeps only the newest one it received). The energy
+    /// the world's bodies put into each avatar-hand contact over the step since the last model
+    /// is credited to that hand's reserve (`local.rs`).
     pub fn set_contact_model(&mut self, m: ContactModel) {
         self.counters.models += 1;
+        let since_s = self.model.as_ref().map_or(0.0, |old| (m.stamp_s - old.stamp_s).clamp(0.0, 0.01));
+        for (h, c) in self.hands.iter_mut().zip(m.hand_contacts.iter()) {
+            h.passivity.credit(c.source_w * since_s);
+        }
         self.model = Some(m);
     }
 

@@ -162,11 +162,16 @@ fn a_jab_predicted_to_hit_the_head_starts_a_defence_and_misses() {
         let passive = jab(BoxerParams { active: false, ..Default::default() }, hand, aim, out_s);
         assert_eq!(passive.w.mind.predictions, 0, "the passive virtual human never predicts");
         // A landed punch: the fist 5 mm into the head (a penalty contact of some 300 N).
-        assert!(passive.gap_m < -0.005, "{what}: the jab must land in a passive head: gap {:.3} m", passive.gap_m);
+        assert!(
+            passive.gap_m < -0.005,
+            "{what}: the jab must land in a passive head: gap {:.3} m",
+            passive.gap_m
+        );
         let active = jab(BoxerParams::default(), hand, aim, out_s);
         let m = &active.w.mind;
         assert!(m.predictions > 0, "{what}: a fast jab triggers a prediction");
-        let at = active.head_decision_s.unwrap_or_else(|| panic!("{what}: no prediction of a hit on the head"));
+        let at =
+            active.head_decision_s.unwrap_or_else(|| panic!("{what}: no prediction of a hit on the head"));
         assert!(active.defending_after_decision, "{what}: no defence began at {at:.3} s");
         eprintln!("{what}: gap passive {:.3} active {:.3} m", passive.gap_m, active.gap_m);
         assert!(
@@ -478,7 +483,8 @@ fn throw(
         let tau = (t / out_s).min(1.0);
         let s = min_jerk(tau);
         let pos = path(s);
-        let vel = (path((s + 1e-4).min(1.0)) - path((s - 1e-4).max(0.0))) / 2e-4 * (min_jerk_rate(tau) / out_s);
+        let vel =
+            (path((s + 1e-4).min(1.0)) - path((s - 1e-4).max(0.0))) / 2e-4 * (min_jerk_rate(tau) / out_s);
         let mut targets = [0, 1].map(|h| Some(HandTarget { pos_m: guard[h], vel_m_per_s: DVec3::ZERO }));
         targets[hand] = Some(HandTarget { pos_m: pos, vel_m_per_s: vel });
         w.step(&targets);
@@ -507,7 +513,8 @@ fn a_slow_hook_from_the_side_is_predicted_on_the_head() {
         throw(&mut w, 0, &path, out_s, out_s + 0.3, &mut |w, _| {
             gap = gap.min(fist_gap(w, 0, w.vh.head));
             if named.is_none() {
-                named = w.mind.last_decision.filter(|d| d.class == ContactClass::AvatarAttack).map(|d| d.vh_body);
+                named =
+                    w.mind.last_decision.filter(|d| d.class == ContactClass::AvatarAttack).map(|d| d.vh_body);
             }
         });
         (gap, named, w.vh.head, w.mind.predictions)
@@ -661,12 +668,64 @@ fn each_step_reports_the_avatar_hands_contact_as_a_local_model() {
             // Least-squares slope of the force over the user's hand's depth, mid-press.
             let n = press.len() as f64;
             let (mx, my) = press.iter().fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
-            let (sxy, sxx) = press.iter().fold((0.0, 0.0), |(a, b), p| (a + (p.0 - mx) * (p.1 - my), b + (p.0 - mx).powi(2)));
+            let (sxy, sxx) = press
+                .iter()
+                .fold((0.0, 0.0), |(a, b), p| (a + (p.0 - mx) * (p.1 - my), b + (p.0 - mx).powi(2)));
             let slope = sxy / sxx;
             let k = press.iter().map(|p| p.2).sum::<f64>() / n;
-            eprintln!("{} steps mid-press: the force grows at {slope:.0} N/m, the model says {k:.0} N/m on average", press.len());
+            eprintln!(
+                "{} steps mid-press: the force grows at {slope:.0} N/m, the model says {k:.0} N/m on average",
+                press.len()
+            );
             assert!(press.len() > 100);
             assert!(slope < 1.5 * k && k < 1.5 * slope, "{slope:.0} N/m against the model's {k:.0} N/m");
         }
     }
+}
+
+/// Geometry: at the scene's distance the avatar's fist lands on the virtual human's head and on
+/// its chest with a straight punch from its guard, the user's hand going no farther than 0.45 m
+/// from where it holds the avatar's guard (a person's straight punch, inside the rig's frame);
+/// and the virtual human's own attacks land on the avatar's head and chest.
+#[test]
+fn at_the_scenes_distance_both_reach_the_others_head_and_chest() {
+    for part in ["head", "chest"] {
+        for hand in 0..2 {
+            let mut w = settled(BoxerParams { active: false, ..Default::default() });
+            let b = if part == "head" { w.vh.head } else { w.vh.chest };
+            // 0.45 m toward the part's centre.
+            let from = w.com(w.avatar.hand[hand]);
+            let to = from + (w.com(b) - from).normalize() * 0.45;
+            let mut gap = f64::INFINITY;
+            throw(&mut w, hand, &|s| from + (to - from) * s, 0.3, 0.6, &mut |w, _| {
+                gap = gap.min(fist_gap(w, hand, b));
+            });
+            assert!(
+                gap < -0.002,
+                "{part}, hand {hand}: a straight from the guard does not land: gap {gap:.3} m"
+            );
+        }
+    }
+    // The virtual human's attacks: which of the avatar's parts its fists reach.
+    let mut w = settled(BoxerParams { seed: 9, ..Default::default() });
+    w.mind.params.attack_per_step = 0.02;
+    let guard = [0, 1].map(|h| Some(HandTarget { pos_m: w.com(w.avatar.hand[h]), vel_m_per_s: DVec3::ZERO }));
+    let (mut head, mut chest) = (0, 0);
+    for _ in 0..((20.0 / w.dt_s()) as usize) {
+        w.step(&guard);
+        for c in &w.ws.contacts {
+            let (a, b) = (c.body_a.map(usize::from), c.body_b.map(usize::from));
+            let pair = |x: usize, y: usize| (a == Some(x) && b == Some(y)) || (a == Some(y) && b == Some(x));
+            for f in w.vh.hand {
+                head += pair(f, w.avatar.head) as u32;
+                chest += pair(f, w.avatar.chest) as u32;
+            }
+        }
+    }
+    eprintln!("{} attacks: {head} steps on the avatar's head, {chest} on its chest", w.mind.attacks);
+    assert!(
+        w.mind.attacks > 10 && head > 0 && chest > 0,
+        "attacks {}, head {head}, chest {chest}",
+        w.mind.attacks
+    );
 }

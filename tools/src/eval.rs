@@ -34,7 +34,8 @@ use spidar_world::boxing::BoxingScene;
 use spidar_world::Scene;
 
 /// What every evaluation here says it measured.
-pub const PATH: &str = "the path of `spidar run`: scripted user -> simulated rig -> rt-loop -> boxing world, \
+pub const PATH: &str =
+    "the path of `spidar run`: scripted user -> simulated rig -> rt-loop -> boxing world, \
                         in-process on the virtual clock (1 ms ticks, a world step every 3 ms)";
 
 /// Median and 99th percentile of a set of durations (ns), in ms.
@@ -239,14 +240,26 @@ pub struct PunchOutcome {
     /// tail of its window, and while the fist was on its way out (m).
     pub toward_fist_m: f64,
     pub toward_fist_out_m: f64,
-    /// A block met the fist: the largest force the user's hand felt on the first tick of that
-    /// contact, the contact force the world had then (N), and whether the fist then got to the
-    /// part it was aimed at.
+    /// A block met the fist: the force the user's hand felt on the first tick that rendered that
+    /// contact and the contact force the world had then (N), when it met it (s after the punch's
+    /// start), and whether the fist then got to the part it was aimed at.
     pub block_felt_n: Option<(f64, f64)>,
+    pub block_at_s: f64,
     pub landed_after_block: bool,
 }
 
 impl PunchOutcome {
+    /// A block met the fist on its way out and the user's hand felt it on the first tick that
+    /// rendered it: at least half of the contact force, or of the rig's limit `limit_n`.
+    pub fn block_felt(&self, limit_n: f64) -> bool {
+        self.block_felt_n.is_some_and(|(felt, contact)| felt >= 0.5 * contact.min(limit_n))
+    }
+
+    /// A block met the fist while it was still on its way out.
+    pub fn blocked_on_the_way_out(&self) -> bool {
+        self.block_felt_n.is_some() && self.block_at_s <= self.punch.out_s
+    }
+
     /// Landed on the part it was aimed at (the head or the chest, or either for other aims).
     pub fn landed(&self) -> bool {
         match self.punch.aim {
@@ -367,6 +380,7 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
         toward_fist_m: 0.0,
         toward_fist_out_m: 0.0,
         block_felt_n: None,
+        block_at_s: 0.0,
         landed_after_block: false,
     };
     let Some(first) = win.first() else { return o };
@@ -388,6 +402,7 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
         o.block |= f.hands.contains(&Behaviour::Block) && !first.hands.contains(&Behaviour::Block);
         if f.blocked[h] && !o.blocked {
             o.blocked = true;
+            o.block_at_s = f.t_s - t0;
             // The model of this step reaches the loop for the ticks the next step consumes.
             if let Some(next) = win.get(k + 1) {
                 o.block_felt_n = Some((next.felt_n[h], next.contact_n[h].length()));
@@ -421,7 +436,10 @@ pub const SPEED_BINS: [(f64, f64); 3] = [(0.0, 3.5), (3.5, 5.0), (5.0, f64::INFI
 
 /// The speed bin of a punch.
 pub fn speed_bin(o: &PunchOutcome) -> (f64, f64) {
-    SPEED_BINS.into_iter().find(|&(lo, hi)| o.peak_m_per_s >= lo && o.peak_m_per_s < hi).unwrap_or(SPEED_BINS[0])
+    SPEED_BINS
+        .into_iter()
+        .find(|&(lo, hi)| o.peak_m_per_s >= lo && o.peak_m_per_s < hi)
+        .unwrap_or(SPEED_BINS[0])
 }
 
 /// Rates over a set of punches.
@@ -450,7 +468,14 @@ impl Rates {
         }
         if r.n > 0 {
             let n = r.n as f64;
-            for x in [&mut r.head, &mut r.chest, &mut r.landed, &mut r.blocked, &mut r.avoidance, &mut r.peak_m_per_s] {
+            for x in [
+                &mut r.head,
+                &mut r.chest,
+                &mut r.landed,
+                &mut r.blocked,
+                &mut r.avoidance,
+                &mut r.peak_m_per_s,
+            ] {
                 *x /= n;
             }
         }
@@ -503,9 +528,7 @@ pub struct PunchReport {
 
 pub fn punch_report(punches: usize, seed: u64) -> anyhow::Result<PunchReport> {
     let plan = punch_plan(punches, seed)?;
-    let run = |active: bool| {
-        punch_outcomes(BoxerParams { active, seed, ..Default::default() }, &plan, seed)
-    };
+    let run = |active: bool| punch_outcomes(BoxerParams { active, seed, ..Default::default() }, &plan, seed);
     Ok(PunchReport { active: run(true)?, passive: run(false)? })
 }
 
@@ -519,14 +542,20 @@ impl fmt::Display for PunchReport {
             a.punches.len(),
             n_feints
         )?;
-        writeln!(f, "  {:<10} {:<10} {:>5} {:>8} {:>15} {:>15}", "kind", "peak m/s", "n", "mean", "head", "chest")?;
+        writeln!(
+            f,
+            "  {:<10} {:<10} {:>5} {:>8} {:>15} {:>15}",
+            "kind", "peak m/s", "n", "mean", "head", "chest"
+        )?;
         for kind in PunchKind::ALL {
             for (lo, hi) in SPEED_BINS {
-                let sel = |o: &&PunchOutcome| !o.punch.feint && o.punch.kind == kind && speed_bin(o) == (lo, hi);
+                let sel =
+                    |o: &&PunchOutcome| !o.punch.feint && o.punch.kind == kind && speed_bin(o) == (lo, hi);
                 let rate = |b: &BoutOutcome, aim: Aim| {
                     Rates::of(b.punches.iter().filter(sel).filter(|o| o.punch.aim == aim))
                 };
-                let (ah, ph, ac, pc) = (rate(a, Aim::Head), rate(p, Aim::Head), rate(a, Aim::Chest), rate(p, Aim::Chest));
+                let (ah, ph, ac, pc) =
+                    (rate(a, Aim::Head), rate(p, Aim::Head), rate(a, Aim::Chest), rate(p, Aim::Chest));
                 writeln!(
                     f,
                     "  {:<10} {:<10} {:>5} {:>8.1} {:>6.2} | {:<6.2} {:>6.2} | {:<6.2}",
@@ -537,7 +566,8 @@ impl fmt::Display for PunchReport {
                         _ => format!("{lo:.1}-{hi:.1}"),
                     },
                     ah.n + ac.n,
-                    (ah.peak_m_per_s * ah.n as f64 + ac.peak_m_per_s * ac.n as f64) / (ah.n + ac.n).max(1) as f64,
+                    (ah.peak_m_per_s * ah.n as f64 + ac.peak_m_per_s * ac.n as f64)
+                        / (ah.n + ac.n).max(1) as f64,
                     ah.head,
                     ph.head,
                     ac.chest,
@@ -564,7 +594,8 @@ impl fmt::Display for PunchReport {
         )?;
         let fe = a.feints();
         writeln!(f, "  feints: {} started an avoidance ({:.2}), active", fe.n, fe.avoidance)?;
-        let react: Vec<f64> = a.punches.iter().filter(|o| !o.punch.feint && o.from_rest).filter_map(|o| o.reaction_s).collect();
+        let react: Vec<f64> =
+            a.punches.iter().filter(|o| !o.punch.feint && o.from_rest).filter_map(|o| o.reaction_s).collect();
         writeln!(
             f,
             "  reaction (first motion over 1 cm from the punch's start, punches at a virtual human at rest): median {} ({} punches)",
@@ -572,21 +603,31 @@ impl fmt::Display for PunchReport {
             react.len()
         )?;
         let ((aw, ao), (pw, po)) = (a.toward_fist_max_m(), p.toward_fist_max_m());
+        let over = |b: &BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
         writeln!(
             f,
-            "  head or chest toward the fist, at most: {ao:.3} m while it came out, {aw:.3} m over the whole punch (active); {po:.3} / {pw:.3} m (passive)"
+            "  head or chest toward the fist while it came out: at most {ao:.3} m, over 2 cm in {} of {} punches (active); \
+             at most {po:.3} m, over 2 cm in {} (passive); over the whole punch at most {aw:.3} / {pw:.3} m",
+            over(a),
+            a.punches.len(),
+            over(p)
         )?;
         let blocks: Vec<&PunchOutcome> = a.punches.iter().filter(|o| o.block_felt_n.is_some()).collect();
-        let felt = blocks.iter().filter(|o| o.block_felt_n.is_some_and(|(felt, _)| felt > 0.0)).count();
+        let felt = blocks.iter().filter(|o| o.block_felt(4.0)).count();
         let through = blocks.iter().filter(|o| o.landed_after_block).count();
+        let out = blocks.iter().filter(|o| o.blocked_on_the_way_out()).count();
+        let out_felt = blocks.iter().filter(|o| o.blocked_on_the_way_out() && o.block_felt(4.0)).count();
         writeln!(
             f,
-            "  blocks that met the fist: {}; felt on their first tick: {}; the fist got through after: {}",
+            "  blocks that met the fist: {} ({out} on its way out); felt on their first tick (at least half of the contact or of \
+             4 N): {felt} ({out_felt} of those on the way out); the fist got through after: {through}",
             blocks.len(),
-            felt,
-            through
         )?;
-        writeln!(f, "  steps with an attack under way during a defence: {} of {}", a.attack_during_defence_steps, a.steps)?;
+        writeln!(
+            f,
+            "  steps with an attack under way during a defence: {} of {}",
+            a.attack_during_defence_steps, a.steps
+        )?;
         write!(
             f,
             "  rig: passivity-limited ticks {}/{}, clamped {}/{} (left/right, active bout)\n  virtual human: {}",
@@ -751,7 +792,11 @@ const PAPER: [[[f64; 4]; 4]; 2] = [
 
 impl fmt::Display for Reactions {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "reaction experiment (seed 000, section 4.3): {} straights per target and mode", self.trials)?;
+        writeln!(
+            f,
+            "reaction experiment (seed 000, section 4.3): {} straights per target and mode",
+            self.trials
+        )?;
         writeln!(f, "  path: {PATH}")?;
         writeln!(
             f,

@@ -206,7 +206,14 @@ fn feint_end(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, short_m: f64)
 }
 
 /// Samples of the way out (rig frame, every 2 ms), minimum-jerk in time along the path to `s_end`.
-fn out_samples(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, s_end: f64, out_s: f64) -> Vec<TrajectorySample> {
+fn out_samples(
+    kind: PunchKind,
+    hand: usize,
+    from: DVec3,
+    to: DVec3,
+    s_end: f64,
+    out_s: f64,
+) -> Vec<TrajectorySample> {
     let n = ((out_s / 0.002).ceil() as usize).max(2);
     (0..=n)
         .map(|i| {
@@ -262,7 +269,8 @@ pub fn box_plan(
         let scatter = DVec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), 0.0);
         let target = aims[aim_index(aim)] + scatter;
         let from = home[hand];
-        let s_end = if feint { feint_end(kind, hand, from, target, rng.random_range(0.22..0.32)) } else { 1.0 };
+        let s_end =
+            if feint { feint_end(kind, hand, from, target, rng.random_range(0.22..0.32)) } else { 1.0 };
         let len = path_length(kind, hand, from, target, s_end);
         // Minimum-jerk peak speed is 1.875 x the mean.
         let out_s = (1.875 * len / speed).max(0.05);

@@ -676,20 +676,30 @@ impl Mind {
             if approaching && !held {
                 let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
                 let here = ws.com_world(model, body);
-                let mut hold =
-                    Reach::start(model, ws, body, here, now, 0.05, bp.reach_body_k_n_per_m, bp.reach_body_d_n_s_per_m);
+                let mut hold = Reach::start(
+                    model,
+                    ws,
+                    body,
+                    here,
+                    now,
+                    0.05,
+                    bp.reach_body_k_n_per_m,
+                    bp.reach_body_d_n_s_per_m,
+                );
                 hold.home_m = home.unwrap_or(here);
                 hold.duration_s = f64::INFINITY;
                 self.reaches[2] = Some(hold);
             } else if !approaching && held && self.defence.is_none() {
                 self.reaches[2] = self.reaches[2].and_then(|r| {
-                    ((r.home_m - r.target_m).length() > 0.01).then(|| self.return_reach(model, ws, &r, now, bp))
+                    ((r.home_m - r.target_m).length() > 0.01)
+                        .then(|| self.return_reach(model, ws, &r, now, bp))
                 });
             }
         }
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
-        let idle = self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none() && !approaching;
+        let idle =
+            self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none() && !approaching;
         if idle && self.rng.random::<f64>() < self.params.attack_per_step {
             let h = if self.rng.random::<f64>() < 0.7 { 1 } else { 0 };
             let hand = self.vh.hand[h];

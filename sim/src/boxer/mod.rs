@@ -278,8 +278,9 @@ impl BoxingWorld {
         let m = &self.model;
         let (av, vh) = (&self.avatar, &self.vh);
         let avatar_bodies = m.articulations[AVATAR].bodies.clone();
-        // Per hand: the summed force, the stiffness-weighted normal and the summed stiffness.
-        let mut sums = [(DVec3::ZERO, DVec3::ZERO, 0.0f64); 2];
+        // Per hand: the summed force, the stiffness-weighted normal, the summed stiffness and the
+        // power the touched bodies put in.
+        let mut sums = [(DVec3::ZERO, DVec3::ZERO, 0.0f64, 0.0f64); 2];
         for c in &self.ws.contacts {
             let (Some(a), Some(b)) = (c.body_a.map(usize::from), c.body_b.map(usize::from)) else {
                 continue;
@@ -294,6 +295,9 @@ impl BoxingWorld {
                     sums[h].0 += f;
                     sums[h].1 += n * k;
                     sums[h].2 += k;
+                    let x = &self.ws.x0[other];
+                    let v_other = self.ws.point_velocity(other, x.e * (c.point_m - x.r));
+                    sums[h].3 += f.dot(v_other);
                     rep.head_hit[h] |= other == vh.head;
                     rep.chest_hit[h] |= other == vh.chest;
                     rep.blocked[h] |= vh.hand.contains(&other) || vh.forearm.contains(&other);
@@ -308,7 +312,7 @@ impl BoxingWorld {
         let p = &self.params;
         let kc = p.coupling_k_n_per_m;
         for h in 0..2 {
-            let (f, nk, k) = sums[h];
+            let (f, nk, k, source) = sums[h];
             let Some(t) = targets[h] else { continue };
             if f == DVec3::ZERO || !f.is_finite() {
                 continue;
@@ -329,6 +333,7 @@ impl BoxingWorld {
                 normal,
                 k_n_per_m: if saturated { 0.0 } else { est.clamp(0.0, series) },
                 at_m: at,
+                source_w: if source.is_finite() { source } else { 0.0 },
             };
         }
         for h in 0..2 {
