@@ -52,18 +52,39 @@ impl BoxingScene {
         }
     }
 
+    /// The virtual human's behaviours (body and each hand), the newest decision (the Table I class
+    /// of the deciding predicted contact and the part it names), and its counters.
     pub fn status_text(&self) -> String {
-        let m = &self.world.mind;
+        let w = &self.world;
+        let m = &w.mind;
         let b = |x: spidar_sim::boxer::Behaviour| format!("{x:?}").to_lowercase();
+        let part = |body: usize| {
+            let p = &w.vh;
+            if body == p.head {
+                "head"
+            } else if body == p.chest {
+                "chest"
+            } else if p.hand.contains(&body) {
+                "hand"
+            } else if p.forearm.contains(&body) || p.upper_arm.contains(&body) {
+                "arm"
+            } else {
+                "body"
+            }
+        };
+        let decision = m
+            .last_decision
+            .map_or("none".to_string(), |d| format!("{} on its {}", d.class.name(), part(d.vh_body)));
         format!(
-            "{} body {:?} hands {}/{} | attacks {} avoid {} block {} | hits taken {} given {} | predictions {} last {:.2} ms",
+            "{} body {} hands {}/{} | decided: {decision} | attacks {} avoid {} block {} ended {} | hits taken {} given {} | predictions {} last {:.2} ms",
             if m.active { "active" } else { "passive" },
-            m.body,
+            format!("{:?}", m.body).to_lowercase(),
             b(m.hands[0]),
             b(m.hands[1]),
             m.attacks,
             m.avoidances,
             m.blocks,
+            m.defences_ended,
             m.hits_taken,
             m.hits_given,
             m.predictions,
