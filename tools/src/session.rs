@@ -226,6 +226,11 @@ impl std::fmt::Display for Summary {
         )?;
         writeln!(
             f,
+            "               passivity-limited {}/{} (avatar-hand contacts scaled to give back no more energy than put in)",
+            c.passivity_limited[0], c.passivity_limited[1]
+        )?;
+        writeln!(
+            f,
             "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
         )?;
