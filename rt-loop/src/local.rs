@@ -120,7 +120,8 @@ impl Passivity {
             return (f_n, false);
         }
         let out = f_n.dot(vel_m_per_s) * dt_s;
-        if !(out > 0.0) {
+        // Written so that NaN also leaves the force alone (the safety phase has guarded it).
+        if out.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return (f_n, false);
         }
         let committed = (self.commanded_n[0].dot(vel_m_per_s) * dt_s).max(0.0);

@@ -324,12 +324,8 @@ pub fn punch_outcomes(params: BoxerParams, plan: &BoxPlan, seed: u64) -> anyhow:
         // The force felt on the first tick that rendered the previous step's model.
         let first = b.consumed.iter().find(|s| s.model_seq == prev_seq);
         let felt = [0, 1].map(|h| first.map_or(0.0, |s| s.hands[h].force_n.length()));
-        let mut speed = [0.0f64; 2];
-        for s in &b.consumed {
-            for h in 0..2 {
-                speed[h] = speed[h].max(s.hands[h].vel_m_per_s.length());
-            }
-        }
+        let speed =
+            [0, 1].map(|h| b.consumed.iter().map(|s| s.hands[h].vel_m_per_s.length()).fold(0.0, f64::max));
         let vh = w.vh;
         frames.push(Frame {
             t_s: b.script_t_s(),
@@ -418,9 +414,9 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
             reference = [f.vh[0], f.vh[1]];
             continue;
         }
-        for i in 0..2 {
+        for (i, r) in reference.iter().enumerate() {
             let to_fist = (f.fist[h] - f.vh[i]).normalize_or_zero();
-            let toward = (f.vh[i] - reference[i]).dot(to_fist);
+            let toward = (f.vh[i] - *r).dot(to_fist);
             o.toward_fist_m = o.toward_fist_m.max(toward);
             if f.t_s <= p.start_s + p.out_s {
                 o.toward_fist_out_m = o.toward_fist_out_m.max(toward);
