@@ -18,7 +18,7 @@ use spidar_msg::{ContactModel, HandSample};
 
 use crate::clock::Clock;
 use crate::rig::Rig;
-use crate::telemetry::TickRecord;
+use crate::telemetry::{CommandLog, TickRecord};
 use crate::tick::{Command, Event, Lifecycle, TickCore};
 
 const MAX_BEHIND: u64 = 10;
@@ -90,6 +90,10 @@ pub struct RtLoop<D: Device, C: Clock> {
     last: TickRecord,
     /// The device reported a disconnect and has not been reopened yet.
     disconnected: bool,
+    /// Commands applied since the last tick, for its record.
+    pending_commands: CommandLog,
+    /// The device was reopened in this tick (for its record).
+    reopened_now: bool,
     /// Ticks between reopen attempts (0: never) and until the next one.
     reopen_every: u32,
     reopen_wait: u32,
@@ -115,6 +119,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             finished: false,
             last: TickRecord::default(),
             disconnected: false,
+            pending_commands: CommandLog::default(),
+            reopened_now: false,
             reopen_every: (rig.safety.device_reopen_s / rig.period_s).round() as u32,
             reopen_wait: 0,
             // Half a tick: the attempt, the compute and the sleep must all fit in the period.
@@ -167,6 +173,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if c == Command::Stop {
             self.stopping = true;
         }
+        self.pending_commands.push(c);
         self.core.command(c);
     }
 
@@ -189,6 +196,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if let Some(m) = newest {
             self.core.set_contact_model(m);
         }
+        self.reopened_now = false;
 
         let t_io = Instant::now();
         let io = if self.disconnected {
@@ -212,6 +220,14 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         rec.lateness_s = lateness_ns as f64 * 1e-9;
         rec.compute_s = compute_s;
         rec.io_s = io_s;
+        // What went in and came out, so a recording can re-run the core (see telemetry).
+        rec.commands = self.pending_commands.take();
+        rec.model = newest;
+        rec.reopened = self.reopened_now;
+        rec.io_error = io.err().map(|e| e.kind());
+        rec.input = self.inp;
+        rec.output = self.out;
+        rec.sample = sample;
         if lateness_ns > self.period_ns {
             self.core.counters_mut().misses += 1;
         }
@@ -220,13 +236,6 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 self.core.counters_mut().samples_dropped += 1;
             }
         }
-        if let Some(tx) = self.ep.telemetry.as_ref() {
-            if let Err(TrySendError::Full(_)) = tx.try_send(rec) {
-                self.core.counters_mut().telemetry_dropped += 1;
-            }
-        }
-        self.last = rec;
-
         if self.stopping && self.core.is_quiet() {
             self.stop_hold += 1;
             if self.stop_hold >= STOP_HOLD_TICKS {
@@ -234,11 +243,19 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 let _ = self.dev.deactivate();
                 self.finished = true;
                 self.core_event(Event::Stopped);
+                rec.events.push(Event::Stopped);
             }
         }
         while let Some(e) = self.core.pop_event() {
             self.core_event(e);
+            rec.events.push(e);
         }
+        if let Some(tx) = self.ep.telemetry.as_ref() {
+            if let Err(TrySendError::Full(_)) = tx.try_send(rec) {
+                self.core.counters_mut().telemetry_dropped += 1;
+            }
+        }
+        self.last = rec;
 
         self.deadline_ns += self.period_ns;
         let now = if self.clock.is_virtual() { wake } else { self.clock.now_ns() };
@@ -266,6 +283,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         match self.dev.reopen(self.reopen_budget) {
             Ok(()) => {
                 self.disconnected = false;
+                self.reopened_now = true;
                 self.core.device_reopened();
                 Err(DeviceError::Disconnected { what: "device reopened: exchanging from the next tick" })
             }
