@@ -10,6 +10,8 @@
 //! The channels, schemas and metadata are described in the repository's `docs/recording.md`.
 
 pub mod cdr;
+pub mod export;
+pub mod plot;
 pub mod schema;
 
 /// Format of the recordings this spidar writes and reads (in the `spidar` metadata record).
@@ -19,3 +21,37 @@ pub const FORMAT_VERSION: u32 = 1;
 pub const PROFILE: &str = "spidar";
 /// spidar's version, as written into recordings.
 pub const SPIDAR_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+pub mod reader;
+pub mod summary;
+pub mod verify;
+pub mod writer;
+
+use std::path::PathBuf;
+
+/// Errors of recording and reading recordings. Each says what to do.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("cannot create the recording {}: {source}; choose a path in a writable directory", path.display())]
+    Create {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("writing the recording {} failed: {why}", path.display())]
+    Write { path: PathBuf, why: String },
+    #[error("cannot read {}: {source}", path.display())]
+    Open {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{} is not a spidar recording: {what}", path.display())]
+    NotSpidar { path: PathBuf, what: String },
+    #[error("{} was recorded by another version of spidar ({found}); this spidar {} reads recording format {}: replay it with the spidar that wrote it", path.display(), SPIDAR_VERSION, FORMAT_VERSION)]
+    OtherVersion { path: PathBuf, found: String },
+    #[error("cannot replay {}: {why}", path.display())]
+    Replay { path: PathBuf, why: String },
+    #[error("{} is damaged: {what}", path.display())]
+    Corrupt { path: PathBuf, what: String },
+}

@@ -166,9 +166,14 @@ impl Field for Option<FaultReason> {
     }
     fn csv(&self, out: &mut String) {
         out.push(',');
-        match self {
+        match *self {
             None => out.push_str("none"),
-            Some(f) => out.push_str(&format!("\"{f}\"")),
+            Some(FaultReason::Device(e)) => {
+                out.push_str("device_");
+                out.push_str(Some(e).name());
+            }
+            Some(FaultReason::PoseInvalid { hand }) => out.push_str(&format!("pose_invalid_hand{hand}")),
+            Some(FaultReason::Residual { hand }) => out.push_str(&format!("residual_hand{hand}")),
         }
     }
 }

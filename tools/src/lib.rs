@@ -7,6 +7,8 @@ pub mod calib;
 pub mod eval;
 pub mod eval_impacts;
 pub mod hardware;
+pub mod recording;
+pub mod report;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

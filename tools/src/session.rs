@@ -182,6 +182,8 @@ pub struct Summary {
     pub final_state: Lifecycle,
     pub faults_seen: Vec<String>,
     pub clean_stop: bool,
+    /// The recorder fed with every tick record (`LiveOptions::recorder`), still to be finished.
+    pub recorder: Option<spidar_record::writer::RecorderThread>,
 }
 
 impl std::fmt::Display for Summary {
@@ -269,6 +271,8 @@ pub struct LiveOptions {
     pub stop: Arc<AtomicBool>,
     pub scene_name: String,
     pub script_name: String,
+    /// Records every tick (`spidar run --record`): fed from the telemetry channel here.
+    pub recorder: Option<spidar_record::writer::RecorderThread>,
 }
 
 /// Runs a session on the real clock until `seconds` pass or `stop` is set (Ctrl-C), then stops
@@ -316,10 +320,17 @@ pub fn run_live<D: Device + 'static>(
     let mut stop_deadline = None;
     let status_every = opts.status_every;
     let mut printed_status = false;
+    let mut recorder = opts.recorder;
+    let mut take = |stats: &mut Stats, r: &TickRecord| {
+        stats.add(r);
+        if let Some(rec) = recorder.as_mut() {
+            rec.push(r);
+        }
+    };
     loop {
         // Poll (never block on) the loop's channels: see spidar_rt::runner.
         for r in telemetry.try_iter() {
-            stats.add(&r);
+            take(&mut stats, &r);
         }
         for e in events.try_iter() {
             match e {
@@ -370,7 +381,7 @@ pub fn run_live<D: Device + 'static>(
     }
     let (report, rt) = rt_handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
     for r in telemetry.try_iter() {
-        stats.add(&r);
+        take(&mut stats, &r);
     }
     scene_stop.store(true, Ordering::Relaxed);
     let scene = scene_handle.join().map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
@@ -389,6 +400,7 @@ pub fn run_live<D: Device + 'static>(
         final_state: rt.state(),
         faults_seen,
         clean_stop: rt.is_finished(),
+        recorder,
     })
 }
 
