@@ -27,6 +27,9 @@ pub mod summary;
 pub mod verify;
 pub mod writer;
 
+#[cfg(test)]
+mod tests;
+
 use std::path::PathBuf;
 
 /// Errors of recording and reading recordings. Each says what to do.

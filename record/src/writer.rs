@@ -151,10 +151,12 @@ impl Recorder {
         if path.is_dir() {
             return Err(create(std::io::Error::other("it is a directory")));
         }
-        // Unbuffered: each finished chunk goes to the operating system at once, so a process
-        // killed outright leaves every chunk but the one being filled.
+        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
+        // placeholder header patched later), straight to the file (unbuffered): a process killed
+        // outright leaves every finished chunk intact and at most one partial record at the end.
         let file = File::create(path).map_err(create)?;
         let opts = WriteOptions::new()
+            .disable_seeking(true)
             .profile(PROFILE)
             .library(format!("spidar {SPIDAR_VERSION}"))
             .compression(Some(mcap::Compression::Zstd))

@@ -720,3 +720,6 @@ mod uart_pty;
 
 #[path = "hil/boxing.rs"]
 mod boxing;
+
+#[path = "hil/record.rs"]
+mod record;
