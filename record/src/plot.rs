@@ -249,11 +249,11 @@ fn timeline(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
         .map_err(|e| err(e.to_string()))?;
     c.configure_mesh()
         .x_desc("t (s)")
-        .y_labels(3)
-        .y_label_formatter(&|v: &f64| match v.floor() as i32 {
-            0 => "right hits".into(),
-            1 => "left hits".into(),
-            2 => "rig".into(),
+        .y_labels(7)
+        .y_label_formatter(&|v: &f64| match (v * 2.0).round() as i32 {
+            1 => "right hits".into(),
+            3 => "left hits".into(),
+            5 => "rig".into(),
             _ => String::new(),
         })
         .disable_y_mesh()
@@ -267,7 +267,7 @@ fn timeline(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
     c.draw_series(d.states.iter().map(|(a, b, s)| Rectangle::new([(*a, 2.2), (b.max(*a + 1e-3), 2.8)], state_col(*s).filled())))
         .map_err(|e| err(e.to_string()))?;
     for h in 0..2 {
-        let y = 1.5 - h as f64;
+        let y = 1.5 - h as f64; // left at 1.5, right at 0.5
         let col = HAND_COLOURS[h];
         c.draw_series(d.hits[h].iter().map(|t| PathElement::new(vec![(*t, y - 0.3), (*t, y + 0.3)], col.stroke_width(1))))
             .map_err(|e| err(e.to_string()))?;

@@ -235,6 +235,10 @@ impl DurationHist {
     pub fn clear(&mut self) {
         self.h.reset();
     }
+    /// Adds every value of `other` (benchmarks that pool blocks).
+    pub fn merge(&mut self, other: &DurationHist) {
+        let _ = self.h.add(&other.h);
+    }
 }
 
 /// Ticks per second of loop-clock time for `records` ticks between `first_t_s` and `last_t_s`.

@@ -210,6 +210,22 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10)]
         blocks: u32,
     },
+    /// Wake-up lateness of live sessions with and without --record (alternating blocks), and the
+    /// recording's size per hour.
+    Record {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of session for each arm.
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        /// Alternations between the two arms.
+        #[arg(long, default_value_t = 6)]
+        blocks: u32,
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        #[arg(long, default_value = "box")]
+        script: String,
+    },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
         #[command(flatten)]
@@ -321,6 +337,26 @@ fn main() -> anyhow::Result<()> {
             } else {
                 println!("{report}");
             }
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
+            let rep = spidar_tools::bench_record::bench_record(
+                &r,
+                &spidar_tools::bench_record::RecordBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    script,
+                    dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
+                },
+            )?;
+            println!("{rep}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
