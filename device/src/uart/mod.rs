@@ -369,14 +369,16 @@ impl<C: Connector> UartDevice<C> {
         for (bi, b) in found.iter().enumerate() {
             layouts[bi] = match measure_layout(&mut link, b, Instant::now() + self.opts.enumerate_timeout) {
                 Ok(l) => l,
-                Err(Measured::NoReply(e)) => return Err(OpenError::Device {
-                    what: format!(
+                Err(Measured::NoReply(e)) => {
+                    return Err(OpenError::Device {
+                        what: format!(
                         "{port}: board id {} ({}) answered the enumeration but not a zero current command",
                         b.id,
                         b.model_name()
                     ),
-                    source: e,
-                }),
+                        source: e,
+                    })
+                }
                 Err(Measured::Unknown { got }) => {
                     let known: Vec<String> = ReplyLayout::ALL
                         .iter()
