@@ -1,5 +1,5 @@
 //! The `usb_simple` and `usb_sh4` backends: the USB 2.0 amplifier boards of the original
-//! SPIDAR-H rigs (reference/boards.md sections 1 and 2), 8 DA channels and 8 counters each.
+//! SPIDAR-H rigs (`docs/protocols.md`), 8 DA channels and 8 counters each.
 //!
 //! Why it exists: labs still run rigs on these boards. The byte layouts are in [`protocol`]; this
 //! module identifies the board (by USB id and rotary switch), moves one OUT and one IN transfer

@@ -1,4 +1,4 @@
-//! The USB layouts byte by byte against reference/boards.md sections 1 and 2, and the drivers
+//! The USB layouts byte by byte (docs/protocols.md, the USB sections), and the drivers
 //! against fake boards that play the board's side of the bulk transfers.
 
 use std::time::Duration;
