@@ -19,8 +19,9 @@ pub const HEAT_RELEASE: f64 = 0.5;
 pub const HEAT_LIMIT: f64 = 20.0 * 10.0 * HEAT_RELEASE;
 /// Heat updates per second.
 pub const HEAT_RATE_HZ: f64 = 10.0;
-/// Speed (revolutions per second) below which a motor counts as fully stalled... scaled: the
-/// stall weight is `(v_max - 1.5 |v|) / v_max`, with `v_max` at least this.
+/// The smallest "fastest speed seen" (revolutions per second). How stalled a motor is weighs its
+/// heating: `(v_max - 1.5 |v|) / v_max`, clamped to 0..1 (1 when still, 0 from two thirds of
+/// `v_max` on).
 pub const STALL_SPEED_REV_S: f64 = 5.0;
 
 /// One motor's thermal state.

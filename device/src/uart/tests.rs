@@ -769,6 +769,24 @@ fn boards_locked_by_a_zero_length_do_not_answer_and_the_open_says_to_power_cycle
 }
 
 #[test]
+fn the_probe_report_names_each_boards_model_layout_lengths_and_what_will_not_work() {
+    let r = rigged(vec![5], ReplyLayout::Currents);
+    let mut d = r.dev;
+    d.open().unwrap();
+    let rep = crate::discover::probe_report(&d);
+    for want in [
+        "UART boards: 1, 4 channels",
+        "id 0 B3M: 4 motors (current target), 4 current sensors, 0 force sensors",
+        "2020-21 (currents in the reply), reply 25 bytes",
+        "ids 0..11: 1 1 13 21 1 17 9 12 12 18 3 2",
+        "port: not a serial port",
+        "warning: 4 motors: a SPIDAR-H needs 8",
+    ] {
+        assert!(rep.contains(want), "{want:?} missing from:\n{rep}");
+    }
+}
+
+#[test]
 fn exchange_allocates_nothing() {
     let r = rigged(vec![1, 1], ReplyLayout::Forces);
     r.recording.store(false, std::sync::atomic::Ordering::SeqCst);
