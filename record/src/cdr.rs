@@ -36,7 +36,7 @@ impl<'a> Writer<'a> {
         Writer { buf, start }
     }
     fn align(&mut self, n: usize) {
-        while (self.buf.len() - self.start) % n != 0 {
+        while !(self.buf.len() - self.start).is_multiple_of(n) {
             self.buf.push(0);
         }
     }
@@ -80,7 +80,10 @@ impl<'a> Reader<'a> {
     /// Checks the encapsulation header and reads after it.
     pub fn new(data: &'a [u8]) -> Result<Reader<'a>, DecodeError> {
         if data.len() < 4 || data[..4] != HEADER {
-            return Err(DecodeError { what: "not little-endian CDR (bad encapsulation header)".into(), at: 0 });
+            return Err(DecodeError {
+                what: "not little-endian CDR (bad encapsulation header)".into(),
+                at: 0,
+            });
         }
         Ok(Reader { data: &data[4..], pos: 0 })
     }

@@ -38,7 +38,11 @@ impl std::fmt::Display for ExportReport {
 
 /// `/rig/tick` -> `rig_tick.csv`.
 pub fn file_name(topic: &str) -> String {
-    let s: String = topic.trim_start_matches('/').chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+    let s: String = topic
+        .trim_start_matches('/')
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
     format!("{s}.csv")
 }
 
@@ -56,7 +60,8 @@ impl Sink {
         let f = File::create(&path).map_err(|e| RecordError::Create { path: path.clone(), source: e })?;
         let mut cols = Vec::new();
         T::columns("", &mut cols);
-        let mut s = Sink { topic, path, w: BufWriter::with_capacity(1 << 20, f), rows: 0, line: cols.join(",") };
+        let mut s =
+            Sink { topic, path, w: BufWriter::with_capacity(1 << 20, f), rows: 0, line: cols.join(",") };
         s.line.push('\n');
         s.flush_line()?;
         Ok(s)
@@ -177,7 +182,12 @@ pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> 
         send(&tb, &mut bb, true);
         drop((ta, tb));
         let join = |h: std::thread::ScopedJoinHandle<'_, Result<Vec<Sink>, RecordError>>| {
-            h.join().unwrap_or_else(|_| Err(RecordError::Write { path: dir.to_path_buf(), why: "a CSV writer thread panicked".into() }))
+            h.join().unwrap_or_else(|_| {
+                Err(RecordError::Write {
+                    path: dir.to_path_buf(),
+                    why: "a CSV writer thread panicked".into(),
+                })
+            })
         };
         let (sa, sb) = (join(a), join(b));
         let recording = read?;

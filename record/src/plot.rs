@@ -43,7 +43,8 @@ impl Peaks {
         let t0 = *self.t0.get_or_insert(t_s);
         let mut i = ((t_s - t0) / self.width_s).max(0.0) as usize;
         while i >= BUCKETS {
-            self.peaks = self.peaks.chunks(2).map(|c| c.iter().copied().fold(f64::NEG_INFINITY, f64::max)).collect();
+            self.peaks =
+                self.peaks.chunks(2).map(|c| c.iter().copied().fold(f64::NEG_INFINITY, f64::max)).collect();
             self.width_s *= 2.0;
             i = ((t_s - t0) / self.width_s).max(0.0) as usize;
         }
@@ -158,7 +159,10 @@ fn forces(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> Re
     let top = d.force.iter().flat_map(|p| p.points()).map(|p| p.1).fold(0.5, f64::max) * 1.15;
     let mut c = ChartBuilder::on(area)
         .caption(
-            format!("force on each hand (peak per {:.0} ms); hits: dots, faults: red lines", d.force[0].width_s() * 1e3),
+            format!(
+                "force on each hand (peak per {:.0} ms); hits: dots, faults: red lines",
+                d.force[0].width_s() * 1e3
+            ),
             ("sans-serif", 16),
         )
         .margin(8)
@@ -174,11 +178,18 @@ fn forces(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> Re
             .label(["left hand", "right hand"][h])
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2)));
         let y = top * (0.96 - 0.04 * h as f64);
-        c.draw_series(d.hits[h].iter().map(|t| Circle::new((*t, y), 2, col.filled()))).map_err(|e| err(e.to_string()))?;
+        c.draw_series(d.hits[h].iter().map(|t| Circle::new((*t, y), 2, col.filled())))
+            .map_err(|e| err(e.to_string()))?;
     }
-    c.draw_series(d.faults.iter().map(|(t, _)| PathElement::new(vec![(*t, 0.0), (*t, top)], RED.stroke_width(1))))
+    c.draw_series(
+        d.faults.iter().map(|(t, _)| PathElement::new(vec![(*t, 0.0), (*t, top)], RED.stroke_width(1))),
+    )
+    .map_err(|e| err(e.to_string()))?;
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
         .map_err(|e| err(e.to_string()))?;
-    c.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(|e| err(e.to_string()))?;
     Ok(())
 }
 
@@ -186,35 +197,45 @@ fn tensions(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
     let (t0, t1) = (d.span.0, d.span.1.max(d.span.0 + 1e-3));
     let top = d.tension.iter().flatten().flat_map(|p| p.points()).map(|p| p.1).fold(1.0, f64::max) * 1.1;
     let mut c = ChartBuilder::on(area)
-        .caption(format!("string tensions (peak per {:.0} ms)", d.tension[0][0].width_s() * 1e3), ("sans-serif", 16))
+        .caption(
+            format!("string tensions (peak per {:.0} ms)", d.tension[0][0].width_s() * 1e3),
+            ("sans-serif", 16),
+        )
         .margin(8)
         .x_label_area_size(30)
         .y_label_area_size(50)
         .build_cartesian_2d(t0..t1, 0.0..top)
         .map_err(|e| err(e.to_string()))?;
     c.configure_mesh().x_desc("t (s)").y_desc("tension (N)").draw().map_err(|e| err(e.to_string()))?;
-    for h in 0..2 {
-        for s in 0..4 {
-            let col = STRING_COLOURS[h][s];
+    for (h, colours) in STRING_COLOURS.iter().enumerate() {
+        for (s, col) in colours.iter().copied().enumerate() {
             c.draw_series(LineSeries::new(d.tension[h][s].points(), col.stroke_width(1)))
                 .map_err(|e| err(e.to_string()))?
                 .label(format!("{} string {s}", ["left", "right"][h]))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2)));
         }
     }
-    c.configure_series_labels().border_style(BLACK).background_style(WHITE.mix(0.8)).draw().map_err(|e| err(e.to_string()))?;
+    c.configure_series_labels()
+        .border_style(BLACK)
+        .background_style(WHITE.mix(0.8))
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
     Ok(())
 }
 
 fn lateness(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> Result<(), RecordError> {
     let total: u64 = d.late.iter().sum();
-    let top = d.late.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.1;
+    let top = d.late.iter().copied().max().unwrap_or(1).max(1) as f64 * 2.0;
+    // Counts on a log scale: the rare late ticks are what matters.
     let mut c = ChartBuilder::on(area)
-        .caption(format!("wake-up lateness of {total} ticks (ten bins per decade; the last: 10 ms and later)"), ("sans-serif", 16))
+        .caption(
+            format!("wake-up lateness of {total} ticks (ten bins per decade, log count; the last: 10 ms and later)"),
+            ("sans-serif", 16),
+        )
         .margin(8)
         .x_label_area_size(30)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..(LATE_BINS as f64 / 10.0), 0.0..top)
+        .build_cartesian_2d(0.0..(LATE_BINS as f64 / 10.0), (0.5..top).log_scale())
         .map_err(|e| err(e.to_string()))?;
     c.configure_mesh()
         .x_desc("lateness")
@@ -232,7 +253,7 @@ fn lateness(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
         .map_err(|e| err(e.to_string()))?;
     c.draw_series(d.late.iter().enumerate().filter(|(_, n)| **n > 0).map(|(i, n)| {
         let x = i as f64 / 10.0;
-        Rectangle::new([(x, 0.0), (x + 0.09, *n as f64)], HAND_COLOURS[0].filled())
+        Rectangle::new([(x, 0.5), (x + 0.09, *n as f64)], HAND_COLOURS[0].filled())
     }))
     .map_err(|e| err(e.to_string()))?;
     Ok(())
@@ -241,7 +262,10 @@ fn lateness(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
 fn timeline(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> Result<(), RecordError> {
     let (t0, t1) = (d.span.0, d.span.1.max(d.span.0 + 1e-3));
     let mut c = ChartBuilder::on(area)
-        .caption("timeline: rig lifecycle (grey inactive, green active, red faulted) and each hand's hits", ("sans-serif", 16))
+        .caption(
+            "timeline: rig lifecycle (grey inactive, green active, red faulted) and each hand's hits",
+            ("sans-serif", 16),
+        )
         .margin(8)
         .x_label_area_size(30)
         .y_label_area_size(80)
@@ -264,13 +288,20 @@ fn timeline(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
         Lifecycle::Faulted => RGBColor(214, 39, 40),
         _ => RGBColor(180, 180, 180),
     };
-    c.draw_series(d.states.iter().map(|(a, b, s)| Rectangle::new([(*a, 2.2), (b.max(*a + 1e-3), 2.8)], state_col(*s).filled())))
-        .map_err(|e| err(e.to_string()))?;
-    for h in 0..2 {
+    c.draw_series(
+        d.states
+            .iter()
+            .map(|(a, b, s)| Rectangle::new([(*a, 2.2), (b.max(*a + 1e-3), 2.8)], state_col(*s).filled())),
+    )
+    .map_err(|e| err(e.to_string()))?;
+    for (h, col) in HAND_COLOURS.iter().copied().enumerate() {
         let y = 1.5 - h as f64; // left at 1.5, right at 0.5
-        let col = HAND_COLOURS[h];
-        c.draw_series(d.hits[h].iter().map(|t| PathElement::new(vec![(*t, y - 0.3), (*t, y + 0.3)], col.stroke_width(1))))
-            .map_err(|e| err(e.to_string()))?;
+        c.draw_series(
+            d.hits[h]
+                .iter()
+                .map(|t| PathElement::new(vec![(*t, y - 0.3), (*t, y + 0.3)], col.stroke_width(1))),
+        )
+        .map_err(|e| err(e.to_string()))?;
     }
     Ok(())
 }

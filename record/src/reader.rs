@@ -46,7 +46,9 @@ impl std::fmt::Display for Ending {
             Ending::CutShort { at_byte } => {
                 write!(f, "cut short at byte {at_byte} (the session was killed or the disk filled up): read up to the last complete chunk")
             }
-            Ending::Damaged { at_byte, why } => write!(f, "damaged from byte {at_byte} ({why}): read up to there"),
+            Ending::Damaged { at_byte, why } => {
+                write!(f, "damaged from byte {at_byte} ({why}): read up to there")
+            }
         }
     }
 }
@@ -77,6 +79,7 @@ pub struct Recording {
     /// (name, bytes) of every attachment.
     pub attachments: Vec<(String, Vec<u8>)>,
     pub channels: Vec<ChannelInfo>,
+    /// None when the reading was stopped before the end.
     pub ending: Option<Ending>,
     /// Tick records read, the first and last tick and its loop-clock time.
     pub ticks: u64,
@@ -102,9 +105,12 @@ impl Recording {
     }
     /// Where the readable part ends, in words.
     pub fn ends(&self) -> String {
-        let e = self.ending.clone().unwrap_or(Ending::CutShort { at_byte: self.bytes_read });
+        let e = match &self.ending {
+            Some(e) => e.to_string(),
+            None => "not read to its end (the reading stopped early)".into(),
+        };
         match self.first_tick {
-            Some(_) => format!("{e}; last tick {} at t = {:.3} s", self.last_tick, self.last_t_s),
+            Some(_) => format!("{e}; last tick read {} at t = {:.3} s", self.last_tick, self.last_t_s),
             None => format!("{e}; no tick recorded"),
         }
     }
@@ -117,7 +123,11 @@ pub enum Msg<'a> {
     Model(Box<TakenModel>),
     Event(EventMsg),
     /// A channel this spidar does not decode (e.g. a later world channel).
-    Other { channel: &'a ChannelInfo, log_time_ns: u64, data: &'a [u8] },
+    Other {
+        channel: &'a ChannelInfo,
+        log_time_ns: u64,
+        data: &'a [u8],
+    },
 }
 
 /// What the visitor wants next.
@@ -241,7 +251,9 @@ pub fn read(
                             rec.other_meta.push((m.name, m.metadata));
                         }
                     }
-                    Record::Attachment { header, data, .. } => rec.attachments.push((header.name, data.into_owned())),
+                    Record::Attachment { header, data, .. } => {
+                        rec.attachments.push((header.name, data.into_owned()))
+                    }
                     Record::Schema { header, data } => {
                         schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
                     }
@@ -253,9 +265,15 @@ pub fn read(
                         let kind = match known(&c.topic) {
                             Some((k, name, text)) => {
                                 if rec.session.is_empty() {
-                                    return Err(bad("its channels come before the spidar metadata record".into()));
+                                    return Err(bad(
+                                        "its channels come before the spidar metadata record".into()
+                                    ));
                                 }
-                                if sname != name || senc != "ros2msg" || c.message_encoding != "cdr" || sdata != text.as_bytes() {
+                                if sname != name
+                                    || senc != "ros2msg"
+                                    || c.message_encoding != "cdr"
+                                    || sdata != text.as_bytes()
+                                {
                                     return Err(RecordError::OtherVersion {
                                         path: path.to_path_buf(),
                                         found: format!(
@@ -306,14 +324,17 @@ pub fn read(
                                 rec.last_t_s = t.t_s;
                                 Msg::Tick(Box::new(t))
                             }
-                            Some(Known::Sample) => Msg::Sample(Box::new(cdr::decode(&data).map_err(corrupt)?)),
+                            Some(Known::Sample) => {
+                                Msg::Sample(Box::new(cdr::decode(&data).map_err(corrupt)?))
+                            }
                             Some(Known::Model) => Msg::Model(Box::new(cdr::decode(&data).map_err(corrupt)?)),
                             Some(Known::Event) => Msg::Event(cdr::decode(&data).map_err(corrupt)?),
                             None => {
                                 let ch = rec.channels[idx].clone();
-                                if let Flow::Stop =
-                                    visit(&rec, Msg::Other { channel: &ch, log_time_ns: header.log_time, data: &data })?
-                                {
+                                if let Flow::Stop = visit(
+                                    &rec,
+                                    Msg::Other { channel: &ch, log_time_ns: header.log_time, data: &data },
+                                )? {
                                     return Ok(rec);
                                 }
                                 continue;

@@ -198,7 +198,10 @@ impl Field for CommandLog {
     fn read(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
         let n = r.count(1)?;
         if n > RECORD_COMMANDS {
-            return Err(DecodeError { what: format!("{n} commands in one tick (at most {RECORD_COMMANDS})"), at: 0 });
+            return Err(DecodeError {
+                what: format!("{n} commands in one tick (at most {RECORD_COMMANDS})"),
+                at: 0,
+            });
         }
         let mut log = CommandLog::default();
         for _ in 0..n {
@@ -551,7 +554,8 @@ mod tests {
             assert_eq!(s.matches(&format!("MSG: {t}\n")).count(), 1, "{t} in\n{s}");
         }
         let m = schema_text::<TakenModel>();
-        for t in ["spidar/ContactModel", "spidar/Proxy", "spidar/ProxyShape", "spidar/ProxyId", "spidar/Vec3"] {
+        for t in ["spidar/ContactModel", "spidar/Proxy", "spidar/ProxyShape", "spidar/ProxyId", "spidar/Vec3"]
+        {
             assert_eq!(m.matches(&format!("MSG: {t}\n")).count(), 1, "{t} in\n{m}");
         }
     }

@@ -99,7 +99,11 @@ impl std::fmt::Display for Summary {
         let names: Vec<&str> = r.attachments.iter().map(|(n, _)| n.as_str()).collect();
         writeln!(f, "  attached     {}", names.join(", "))?;
         for c in &r.channels {
-            writeln!(f, "  channel      {:<20} {:>9} messages  {} ({} / {})", c.topic, c.messages, c.schema, c.schema_encoding, c.message_encoding)?;
+            writeln!(
+                f,
+                "  channel      {:<20} {:>9} messages  {} ({} / {})",
+                c.topic, c.messages, c.schema, c.schema_encoding, c.message_encoding
+            )?;
         }
         writeln!(
             f,
@@ -125,7 +129,11 @@ impl std::fmt::Display for Summary {
             "  contacts     {} / {} hits (left/right), clamped {}/{} ticks",
             self.hits[0], self.hits[1], self.clamped[0], self.clamped[1]
         )?;
-        writeln!(f, "  link         {} hand samples sent, {} contact models taken", self.samples, self.models)?;
+        writeln!(
+            f,
+            "  link         {} hand samples sent, {} contact models taken",
+            self.samples, self.models
+        )?;
         writeln!(f, "  events       {} ({} faults)", self.event_count, self.faults)?;
         for e in &self.events {
             writeln!(f, "    t {:8.3} s  tick {:>8}  {}", e.t_s, e.tick, e.text)?;

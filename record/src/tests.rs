@@ -35,7 +35,8 @@ fn info() -> SessionInfo {
 /// Record `i` of a synthetic session: moving hands, a model every third tick, a few events.
 fn record(i: u64) -> TickRecord {
     let t = i as f64 * 1e-3;
-    let mut r = TickRecord { tick: i, t_s: t, lateness_s: 1e-5 * (i % 7) as f64, gain: 1.0, ..Default::default() };
+    let mut r =
+        TickRecord { tick: i, t_s: t, lateness_s: 1e-5 * (i % 7) as f64, gain: 1.0, ..Default::default() };
     r.state = if i < 100 { Lifecycle::Inactive } else { Lifecycle::Active };
     for h in 0..2 {
         r.hands[h].pos_m = DVec3::new((t * 3.0).sin(), 0.1 * h as f64, (t * 2.0).cos());
@@ -49,7 +50,7 @@ fn record(i: u64) -> TickRecord {
     }
     r.sample.tick = i;
     r.sample.t_s = t;
-    if i % 3 == 0 {
+    if i.is_multiple_of(3) {
         r.model = Some(ContactModel { seq: i / 3 + 1, stamp_s: t, ..Default::default() });
     }
     if i == 0 {
@@ -69,7 +70,12 @@ fn write(path: &std::path::Path, ticks: u64) -> Vec<TickRecord> {
     for r in &recs {
         rec.write_tick(r);
     }
-    let rep = rec.finish(&EndInfo { ticks, final_state: "inactive".into(), clean_stop: true, ..Default::default() });
+    let rep = rec.finish(&EndInfo {
+        ticks,
+        final_state: "inactive".into(),
+        clean_stop: true,
+        ..Default::default()
+    });
     assert_eq!(rep.error, None);
     assert_eq!(rep.ticks, ticks);
     recs
@@ -184,7 +190,11 @@ fn a_recording_cut_short_reads_up_to_its_last_complete_chunk() {
     let last_kept = chunks[1].message_end_time;
     let kept = back.len();
     assert!(kept > 0 && back.iter().all(|t| t.tick < recs.len() as u64));
-    assert_eq!(back.last().map(|t| rec_time(&info_start(&rec), t.t_s)), Some(last_kept), "up to the end of chunk 2");
+    assert_eq!(
+        back.last().map(|t| rec_time(&info_start(&rec), t.t_s)),
+        Some(last_kept),
+        "up to the end of chunk 2"
+    );
     for (a, b) in recs.iter().zip(&back) {
         assert_eq!(a.tick, b.tick);
         assert_eq!(a.hands, b.hands);
@@ -257,7 +267,10 @@ fn a_schema_unlike_this_spidars_is_refused_naming_the_channel() {
         w.finish().unwrap();
     }
     let e = read_back(&p).unwrap_err().to_string();
-    assert!(e.contains("another version of spidar") && e.contains("channel /rig/tick") && e.contains("0.0.1"), "{e}");
+    assert!(
+        e.contains("another version of spidar") && e.contains("channel /rig/tick") && e.contains("0.0.1"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -316,5 +329,28 @@ proptest! {
             }
         }
         let _ = std::fs::remove_file(&p);
+    }
+}
+
+/// The schemas as docs/recording.md lists them: every one, exactly as this code writes it.
+#[test]
+fn docs_list_every_schema_as_implemented() {
+    use crate::cdr::schema_text;
+    let docs = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/recording.md")).unwrap();
+    for (name, text) in [
+        ("spidar/Tick", schema_text::<TickRecord>()),
+        ("spidar/HandSample", schema_text::<spidar_msg::HandSample>()),
+        ("spidar/TakenModel", schema_text::<crate::schema::TakenModel>()),
+        ("spidar/Event", schema_text::<crate::schema::EventMsg>()),
+    ] {
+        if std::env::var("SPIDAR_PRINT_SCHEMAS").is_ok() {
+            // How the docs' listing is made.
+            println!("### `{name}`\n\n```\n{text}```\n");
+            continue;
+        }
+        assert!(
+            docs.contains(&text),
+            "docs/recording.md does not list the schema of {name} as written:\n{text}"
+        );
     }
 }

@@ -141,7 +141,9 @@ pub fn verify(path: &Path, rig: Option<(String, String)>) -> Result<VerifyReport
                         None => match rec.rig_text() {
                             Some(text) => (format!("rig.ron attached to {}", path.display()), text),
                             None => {
-                                setup_err = Some("the recording has no rig file attached: pass one with --rig".into());
+                                setup_err = Some(
+                                    "the recording has no rig file attached: pass one with --rig".into(),
+                                );
                                 return Ok(Flow::Stop);
                             }
                         },
@@ -172,7 +174,8 @@ pub fn verify(path: &Path, rig: Option<(String, String)>) -> Result<VerifyReport
                     c.device_reopened();
                 }
                 let io = t.io_error.map_or(Ok(()), |k| Err(device_error(k)));
-                let (mut out, mut sample, mut r) = (Output::default(), HandSample::default(), TickRecord::default());
+                let (mut out, mut sample, mut r) =
+                    (Output::default(), HandSample::default(), TickRecord::default());
                 c.step(t.t_s, io, &t.input, &mut out, &mut sample, &mut r);
                 // What is not the core's to compute comes from the recording.
                 r.lateness_s = t.lateness_s;
@@ -194,8 +197,13 @@ pub fn verify(path: &Path, rig: Option<(String, String)>) -> Result<VerifyReport
                     .collect();
                 let theirs: Vec<EventMsg> = events.drain(..).filter(|e| e.tick == t.tick).collect();
                 if mine != theirs {
-                    let names = |v: &[EventMsg]| v.iter().map(|e| e.text.clone()).collect::<Vec<_>>().join("; ");
-                    diff = Some(fail(format!("events: recorded [{}], replayed [{}]", names(&theirs), names(&mine))));
+                    let names =
+                        |v: &[EventMsg]| v.iter().map(|e| e.text.clone()).collect::<Vec<_>>().join("; ");
+                    diff = Some(fail(format!(
+                        "events: recorded [{}], replayed [{}]",
+                        names(&theirs),
+                        names(&mine)
+                    )));
                     return Ok(Flow::Stop);
                 }
                 ticks_ok += 1;

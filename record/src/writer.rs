@@ -138,9 +138,7 @@ const MODEL: usize = 2;
 const EVENT: usize = 3;
 
 fn unix_now_ns() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl Recorder {
@@ -226,7 +224,12 @@ impl Recorder {
         cdr::encode(x, &mut self.buf);
         let t = self.start_unix_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64);
         self.seq[ch] = self.seq[ch].wrapping_add(1);
-        let h = MessageHeader { channel_id: self.channels[ch], sequence: self.seq[ch], log_time: t, publish_time: t };
+        let h = MessageHeader {
+            channel_id: self.channels[ch],
+            sequence: self.seq[ch],
+            log_time: t,
+            publish_time: t,
+        };
         match w.write_to_known_channel(&h, &self.buf) {
             Ok(()) => true,
             Err(e) => {
@@ -280,7 +283,9 @@ impl Recorder {
             ] {
                 meta.insert(k.to_string(), v);
             }
-            let r = w.write_metadata(&Metadata { name: META_END.into(), metadata: meta }).and_then(|_| w.finish());
+            let r = w
+                .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
+                .and_then(|_| w.finish());
             if let Err(e) = r {
                 self.report.error.get_or_insert(e.to_string());
             }
@@ -327,8 +332,16 @@ impl RecorderThread {
                 }
                 rec
             })
-            .map_err(|e| RecordError::Write { path: PathBuf::new(), why: format!("starting the recorder thread: {e}") })?;
-        Ok(RecorderThread { tx: Some(tx), batch: Vec::with_capacity(BATCH), dropped: 0, handle: Some(handle) })
+            .map_err(|e| RecordError::Write {
+                path: PathBuf::new(),
+                why: format!("starting the recorder thread: {e}"),
+            })?;
+        Ok(RecorderThread {
+            tx: Some(tx),
+            batch: Vec::with_capacity(BATCH),
+            dropped: 0,
+            handle: Some(handle),
+        })
     }
 
     /// Queues one record; never waits (a full queue drops the batch and counts it).
@@ -360,11 +373,10 @@ impl RecorderThread {
     pub fn finish(mut self, end: &EndInfo) -> Result<RecordingReport, RecordError> {
         self.send(true);
         drop(self.tx.take());
-        let rec = self
-            .handle
-            .take()
-            .and_then(|h| h.join().ok())
-            .ok_or_else(|| RecordError::Write { path: PathBuf::new(), why: "the recorder thread panicked".into() })?;
+        let rec = self.handle.take().and_then(|h| h.join().ok()).ok_or_else(|| RecordError::Write {
+            path: PathBuf::new(),
+            why: "the recorder thread panicked".into(),
+        })?;
         let mut rec = rec;
         rec.report.queue_dropped = self.dropped;
         Ok(rec.finish(end))

@@ -43,7 +43,12 @@ pub struct RecordBenchReport {
 }
 
 fn arm(h: &DurationHist) -> Arm {
-    Arm { lateness: h.percentiles(), over_100us: h.count_above(100e-6), over_1ms: h.count_above(1e-3), ticks: h.len() }
+    Arm {
+        lateness: h.percentiles(),
+        over_100us: h.count_above(100e-6),
+        over_1ms: h.count_above(1e-3),
+        ticks: h.len(),
+    }
 }
 
 pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordBenchReport> {
@@ -92,12 +97,24 @@ pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordB
         // Let the threads of the last block go before the next starts.
         std::thread::sleep(Duration::from_millis(50));
     }
-    Ok(RecordBenchReport { rt, without: arm(&without), with: arm(&with), bytes, recorded_s, lost, scene: o.scene.clone() })
+    Ok(RecordBenchReport {
+        rt,
+        without: arm(&without),
+        with: arm(&with),
+        bytes,
+        recorded_s,
+        lost,
+        scene: o.scene.clone(),
+    })
 }
 
 impl std::fmt::Display for RecordBenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "spidar bench record: live sessions (scene {}) alternating without and with --record", self.scene)?;
+        writeln!(
+            f,
+            "spidar bench record: live sessions (scene {}) alternating without and with --record",
+            self.scene
+        )?;
         if let Some(rt) = &self.rt {
             writeln!(f, "  real time    {rt}")?;
             for w in &rt.warnings {

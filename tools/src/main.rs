@@ -284,7 +284,10 @@ fn main() -> anyhow::Result<()> {
                     println!("  prediction   {}", b.prediction);
                     println!("  step+predict {}", b.step_with_prediction);
                     let [med, p99, max] = b.prediction_steps;
-                    println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
+                    println!(
+                        "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead",
+                        b.horizon_steps
+                    );
                     println!("  rt misses    {}", b.misses);
                     println!("  scene        {}\n", b.status);
                 }
@@ -551,16 +554,16 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         });
         let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
         if a.json {
-            let j = report::virtual_json(
-                c.ticks,
-                seconds,
-                wall,
-                &v.stats,
-                &c,
-                &status,
-                v.rt.state(),
-                recording.as_ref(),
-            );
+            let j = report::virtual_json(&report::VirtualRunReport {
+                ticks: c.ticks,
+                rig_seconds: seconds,
+                wall_s: wall,
+                stats: &v.stats,
+                counters: &c,
+                scene_status: &status,
+                end: v.rt.state(),
+                recording: recording.as_ref(),
+            });
             println!("{j:#}");
         } else {
             println!(

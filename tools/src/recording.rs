@@ -86,7 +86,8 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
         let rig = match &a.rig {
             Some(p) => Some((
                 p.display().to_string(),
-                std::fs::read_to_string(p).with_context(|| format!("reading the rig file {}", p.display()))?,
+                std::fs::read_to_string(p)
+                    .with_context(|| format!("reading the rig file {}", p.display()))?,
             )),
             None => None,
         };

@@ -1,15 +1,19 @@
 //! What a run reports to scripts (`--json`) and to the shell (its exit status).
 
 use serde_json::{json, Value};
+use spidar_record::writer::RecordingReport;
 use spidar_rt::telemetry::{Percentiles, Stats};
 use spidar_rt::{Counters, Lifecycle};
-use spidar_record::writer::RecordingReport;
 
 use crate::session::Summary;
 
 /// Fails a run that ended faulted or whose rig never became active, so scripts and CI see it in
 /// the exit status (the summary says the same in words).
-pub fn check_outcome(final_state: Lifecycle, counters: &Counters, faults_seen: &[String]) -> anyhow::Result<()> {
+pub fn check_outcome(
+    final_state: Lifecycle,
+    counters: &Counters,
+    faults_seen: &[String],
+) -> anyhow::Result<()> {
     if final_state == Lifecycle::Faulted {
         let why = faults_seen.last().map_or("see the summary".to_string(), |f| f.clone());
         anyhow::bail!("the session ended faulted ({why})");
@@ -106,30 +110,33 @@ pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
     })
 }
 
+/// What a run on the virtual clock reports.
+pub struct VirtualRunReport<'a> {
+    pub ticks: u64,
+    pub rig_seconds: f64,
+    pub wall_s: f64,
+    pub stats: &'a Stats,
+    pub counters: &'a Counters,
+    pub scene_status: &'a str,
+    pub end: Lifecycle,
+    pub recording: Option<&'a RecordingReport>,
+}
+
 /// `spidar run --virtual --json`.
-pub fn virtual_json(
-    ticks: u64,
-    seconds: f64,
-    wall_s: f64,
-    stats: &Stats,
-    c: &Counters,
-    scene_status: &str,
-    end: Lifecycle,
-    recording: Option<&RecordingReport>,
-) -> Value {
+pub fn virtual_json(r: &VirtualRunReport<'_>) -> Value {
     json!({
         "command": "run",
         "measured": "the virtual clock: device, rt-loop and scene interleaved on one thread",
-        "ticks": ticks,
-        "rig_seconds": seconds,
-        "wall_s": wall_s,
-        "active_ticks": c.active_ticks,
-        "compute_s": pct(&stats.compute.percentiles()),
-        "forces": forces(stats),
-        "safety": safety(c),
-        "scene_status": scene_status,
-        "end": { "state": end.name() },
-        "recording": recording.map(recording_json),
+        "ticks": r.ticks,
+        "rig_seconds": r.rig_seconds,
+        "wall_s": r.wall_s,
+        "active_ticks": r.counters.active_ticks,
+        "compute_s": pct(&r.stats.compute.percentiles()),
+        "forces": forces(r.stats),
+        "safety": safety(r.counters),
+        "scene_status": r.scene_status,
+        "end": { "state": r.end.name() },
+        "recording": r.recording.map(recording_json),
     })
 }
 
@@ -144,6 +151,9 @@ mod tests {
         let e = check_outcome(Lifecycle::Faulted, &active, &["device error (Timeout)".into()]).unwrap_err();
         assert!(e.to_string().contains("ended faulted (device error (Timeout))"), "{e}");
         let never = Counters::default();
-        assert!(check_outcome(Lifecycle::Inactive, &never, &[]).unwrap_err().to_string().contains("never became active"));
+        assert!(check_outcome(Lifecycle::Inactive, &never, &[])
+            .unwrap_err()
+            .to_string()
+            .contains("never became active"));
     }
 }

@@ -56,7 +56,13 @@ fn record_bout(path: &std::path::Path) -> Vec<TickRecord> {
         }
     }
     let c = *v.counters();
-    let rep = rec.finish(&EndInfo { ticks: c.ticks, final_state: v.rt.state().name().into(), clean_stop: true, faults: c.faults, ..Default::default() });
+    let rep = rec.finish(&EndInfo {
+        ticks: c.ticks,
+        final_state: v.rt.state().name().into(),
+        clean_stop: true,
+        faults: c.faults,
+        ..Default::default()
+    });
     assert_eq!((rep.error.as_deref(), rep.lost()), (None, 0));
     // The bout did take every path above.
     assert!(c.faults >= 2 && c.reopens == 1 && c.models > 1000 && c.clamped[0] + c.clamped[1] > 0, "{c:?}");
@@ -120,11 +126,7 @@ fn child_records_a_live_session_until_killed() {
     let opts = spidar_tools::session::LiveOptions {
         // Ends by itself if nobody kills it.
         seconds: Some(120.0),
-        rt: spidar_rt::rt_thread::RtOptions {
-            fifo_priority: None,
-            lock_memory: false,
-            ..Default::default()
-        },
+        rt: spidar_rt::rt_thread::RtOptions { fifo_priority: None, lock_memory: false, ..Default::default() },
         spin_ns: 0,
         status_every: None,
         stop: Default::default(),
