@@ -354,3 +354,51 @@ fn docs_list_every_schema_as_implemented() {
         );
     }
 }
+
+/// A file on a disk that fills up after `left` more bytes.
+struct FillsUp {
+    f: std::fs::File,
+    left: usize,
+}
+
+impl std::io::Write for FillsUp {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if self.left == 0 {
+            return Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "no space left on device"));
+        }
+        let n = buf.len().min(self.left);
+        self.left -= n;
+        self.f.write(&buf[..n])
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.f.flush()
+    }
+}
+
+impl std::io::Seek for FillsUp {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.f.seek(pos)
+    }
+}
+
+#[test]
+fn a_full_disk_stops_the_recording_counts_what_was_lost_and_keeps_the_rest() {
+    let p = temp("full.mcap");
+    let sink = FillsUp { f: std::fs::File::create(&p).unwrap(), left: 300_000 };
+    let mut rec = Recorder::with_sink(sink, &p, &info()).unwrap();
+    let n = 6000;
+    for i in 0..n {
+        rec.write_tick(&record(i));
+    }
+    let rep = rec.finish(&EndInfo { ticks: n, ..Default::default() });
+    let e = rep.error.clone().expect("the full disk is reported");
+    assert!(e.contains("no space left"), "{e}");
+    assert!(rep.ticks > 0 && rep.write_failed > 0, "{rep:?}");
+    assert_eq!(rep.ticks + rep.write_failed, n, "every tick is either kept or counted lost");
+    assert!(rep.to_string().contains("WRITING FAILED"), "{rep}");
+    // The file holds exactly the ticks reported kept, in order from the first.
+    let (r, back) = read_back(&p).unwrap();
+    assert!(matches!(r.ending, Some(Ending::CutShort { .. })), "{:?}", r.ending);
+    assert_eq!(back.len() as u64, rep.ticks);
+    assert!(back.iter().enumerate().all(|(i, t)| t.tick == i as u64));
+}

@@ -15,6 +15,7 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
+use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
 use std::thread::JoinHandle;
 
@@ -122,13 +123,16 @@ impl std::fmt::Display for RecordingReport {
 }
 
 /// One open recording.
-pub struct Recorder {
-    w: Option<Writer<File>>,
+pub struct Recorder<W: Write + Seek = File> {
+    w: Option<Writer<W>>,
     path: PathBuf,
     channels: [u16; 4],
     seq: [u32; 4],
     start_unix_ns: u64,
     buf: Vec<u8>,
+    /// Bytes of messages in the chunk being filled, and its messages per channel.
+    chunk_bytes: u64,
+    pending: [u64; 4],
     report: RecordingReport,
 }
 
@@ -136,6 +140,18 @@ const TICK: usize = 0;
 const SAMPLE: usize = 1;
 const MODEL: usize = 2;
 const EVENT: usize = 3;
+
+/// An error and its causes, e.g. `I/O error from writing ...: no space left on device`.
+fn describe(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}
 
 fn unix_now_ns() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
@@ -149,10 +165,18 @@ impl Recorder {
         if path.is_dir() {
             return Err(create(std::io::Error::other("it is a directory")));
         }
-        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
-        // placeholder header patched later), straight to the file (unbuffered): a process killed
-        // outright leaves every finished chunk intact and at most one partial record at the end.
+        // Straight to the file (unbuffered): each finished chunk reaches the system at once.
         let file = File::create(path).map_err(create)?;
+        Recorder::with_sink(file, path, info)
+    }
+}
+
+impl<W: Write + Seek> Recorder<W> {
+    /// A recorder writing into `sink` (`path` names it in reports and errors).
+    pub fn with_sink(sink: W, path: &Path, info: &SessionInfo) -> Result<Recorder<W>, RecordError> {
+        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
+        // placeholder header patched later): a process killed outright leaves every finished
+        // chunk intact and at most one partial record at the end.
         let opts = WriteOptions::new()
             .disable_seeking(true)
             .profile(PROFILE)
@@ -160,9 +184,10 @@ impl Recorder {
             .compression(Some(mcap::Compression::Zstd))
             .compression_level(ZSTD_LEVEL)
             .compression_threads(0)
-            .chunk_size(Some(CHUNK_BYTES));
-        let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: e.to_string() };
-        let mut w = opts.create(file).map_err(write)?;
+            // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
+            .chunk_size(None);
+        let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
+        let mut w = opts.create(sink).map_err(write)?;
         let start_unix_ns = unix_now_ns();
         let mut meta = BTreeMap::new();
         for (k, v) in [
@@ -215,6 +240,8 @@ impl Recorder {
             seq: [0; 4],
             start_unix_ns,
             buf: Vec::with_capacity(4096),
+            chunk_bytes: 0,
+            pending: [0; 4],
             report: RecordingReport { path: path.to_path_buf(), ..Default::default() },
         })
     }
@@ -231,18 +258,45 @@ impl Recorder {
             publish_time: t,
         };
         match w.write_to_known_channel(&h, &self.buf) {
-            Ok(()) => true,
+            Ok(()) => {
+                self.chunk_bytes += self.buf.len() as u64;
+                self.pending[ch] += 1;
+                true
+            }
             Err(e) => {
-                // The writer's state is unknown after an I/O error: stop here. The file keeps
-                // every chunk finished before.
-                self.report.error = Some(e.to_string());
-                self.w = None;
+                self.fail(describe(&e));
                 false
             }
         }
     }
 
-    /// Writes one tick: its events, the model it took, the tick, the sample.
+    /// Stops writing after an I/O error (the writer's state is then unknown). The file keeps
+    /// every chunk finished before; the ticks of the chunk being filled are lost and counted.
+    fn fail(&mut self, why: String) {
+        self.report.error.get_or_insert(why);
+        self.w = None;
+        self.report.write_failed += self.pending[TICK];
+        self.pending = [0; 4];
+    }
+
+    /// Ends the chunk being filled and writes it; its messages count as kept once it is written.
+    fn end_chunk(&mut self) {
+        let Some(w) = self.w.as_mut() else { return };
+        match w.flush() {
+            Ok(()) => {
+                let [t, s, m, e] = std::mem::take(&mut self.pending);
+                self.report.ticks += t;
+                self.report.samples += s;
+                self.report.models += m;
+                self.report.events += e;
+                self.chunk_bytes = 0;
+            }
+            Err(e) => self.fail(describe(&e)),
+        }
+    }
+
+    /// Writes one tick: its events, the model it took, the tick, the sample. It counts as kept
+    /// once the chunk holding it is written.
     pub fn write_tick(&mut self, r: &TickRecord) {
         if self.w.is_none() {
             self.report.write_failed += 1;
@@ -250,26 +304,26 @@ impl Recorder {
         }
         let mut ok = true;
         for e in r.events.iter() {
-            ok &= self.put(EVENT, r.t_s, &EventMsg::new(r.tick, r.t_s, &e));
-            self.report.events += ok as u64;
+            ok = ok && self.put(EVENT, r.t_s, &EventMsg::new(r.tick, r.t_s, &e));
         }
         if let Some(m) = r.model {
-            ok &= self.put(MODEL, r.t_s, &TakenModel { tick: r.tick, model: m });
-            self.report.models += ok as u64;
+            ok = ok && self.put(MODEL, r.t_s, &TakenModel { tick: r.tick, model: m });
         }
-        ok &= self.put(TICK, r.t_s, r);
-        ok &= self.put(SAMPLE, r.t_s, &r.sample);
-        if ok {
-            self.report.ticks += 1;
-            self.report.samples += 1;
-        } else {
+        ok = ok && self.put(TICK, r.t_s, r) && self.put(SAMPLE, r.t_s, &r.sample);
+        if !ok {
+            // This tick's own messages were counted nowhere yet.
             self.report.write_failed += 1;
+            return;
+        }
+        if self.chunk_bytes >= CHUNK_BYTES {
+            self.end_chunk();
         }
     }
 
-    /// Ends the recording: the `spidar.end` record, the last chunk, the summary and footer.
+    /// Ends the recording: the last chunk, the `spidar.end` record, the summary and footer.
     pub fn finish(mut self, end: &EndInfo) -> RecordingReport {
         self.report.telemetry_dropped = end.telemetry_dropped;
+        self.end_chunk();
         if let Some(mut w) = self.w.take() {
             let mut meta = BTreeMap::new();
             for (k, v) in [
@@ -287,7 +341,7 @@ impl Recorder {
                 .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
                 .and_then(|_| w.finish());
             if let Err(e) = r {
-                self.report.error.get_or_insert(e.to_string());
+                self.report.error.get_or_insert(describe(&e));
             }
         }
         self.report.bytes = std::fs::metadata(&self.path).map_or(0, |m| m.len());
