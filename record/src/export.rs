@@ -57,7 +57,7 @@ struct Sink {
 impl Sink {
     fn new<T: Field>(dir: &Path, topic: &'static str) -> Result<Sink, RecordError> {
         let path = dir.join(file_name(topic));
-        let f = File::create(&path).map_err(|e| RecordError::Create { path: path.clone(), source: e })?;
+        let f = File::create(&path).map_err(|e| RecordError::Create { path: path.clone(), cause: e })?;
         let mut cols = Vec::new();
         T::columns("", &mut cols);
         let mut s =
@@ -129,7 +129,7 @@ fn writer(rx: crossbeam_channel::Receiver<Vec<Row>>, mut sinks: Vec<Sink>) -> Re
 /// read and decoded on the calling thread while two threads format and write the rows (the ticks
 /// on one, the other channels on the other), so an hour exports in well under a minute.
 pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> {
-    std::fs::create_dir_all(dir).map_err(|e| RecordError::Create { path: dir.to_path_buf(), source: e })?;
+    std::fs::create_dir_all(dir).map_err(|e| RecordError::Create { path: dir.to_path_buf(), cause: e })?;
     let ticks = vec![Sink::new::<TickRecord>(dir, TOPIC_TICK)?];
     let others = vec![
         Sink::new::<HandSample>(dir, TOPIC_SAMPLE)?,

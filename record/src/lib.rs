@@ -35,20 +35,13 @@ use std::path::PathBuf;
 /// Errors of recording and reading recordings. Each says what to do.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
-    #[error("cannot create the recording {}: {source}; choose a path in a writable directory", path.display())]
-    Create {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    // The cause is in the text (not a `source`), so it is said once.
+    #[error("cannot create the recording {}: {cause}; choose a path in a writable directory", path.display())]
+    Create { path: PathBuf, cause: std::io::Error },
     #[error("writing the recording {} failed: {why}", path.display())]
     Write { path: PathBuf, why: String },
-    #[error("cannot read {}: {source}", path.display())]
-    Open {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error("cannot read {}: {cause}", path.display())]
+    Open { path: PathBuf, cause: std::io::Error },
     #[error("{} is not a spidar recording: {what}", path.display())]
     NotSpidar { path: PathBuf, what: String },
     #[error("{} was recorded by another version of spidar ({found}); this spidar {} reads recording format {}: replay it with the spidar that wrote it", path.display(), SPIDAR_VERSION, FORMAT_VERSION)]

@@ -171,7 +171,7 @@ pub fn read(
     path: &Path,
     mut visit: impl FnMut(&Recording, Msg<'_>) -> Result<Flow, RecordError>,
 ) -> Result<Recording, RecordError> {
-    let mut file = File::open(path).map_err(|e| RecordError::Open { path: path.to_path_buf(), source: e })?;
+    let mut file = File::open(path).map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?;
     let opts = LinearReaderOptions::default()
         .with_prevalidate_chunk_crcs(true)
         .with_record_length_limit(RECORD_LIMIT);
@@ -207,7 +207,7 @@ pub fn read(
                     match file.read(buf) {
                         Ok(n) => break n,
                         Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                        Err(e) => return Err(RecordError::Open { path: path.to_path_buf(), source: e }),
+                        Err(e) => return Err(RecordError::Open { path: path.to_path_buf(), cause: e }),
                     }
                 };
                 rec.bytes_read += n as u64;

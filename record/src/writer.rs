@@ -161,7 +161,7 @@ impl Recorder {
     /// Creates the file and writes what made the session. Fails (before any session starts)
     /// when the path cannot be written.
     pub fn create(path: &Path, info: &SessionInfo) -> Result<Recorder, RecordError> {
-        let create = |e: std::io::Error| RecordError::Create { path: path.to_path_buf(), source: e };
+        let create = |e: std::io::Error| RecordError::Create { path: path.to_path_buf(), cause: e };
         if path.is_dir() {
             return Err(create(std::io::Error::other("it is a directory")));
         }
