@@ -211,12 +211,14 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         };
         let io_s = t_io.elapsed().as_secs_f64();
 
-        let t_compute = Instant::now();
+        // The record is built in place (`last`) and copied once, into the telemetry channel.
+        self.last = TickRecord::default();
         let mut sample = HandSample::default();
-        let mut rec = TickRecord::default();
-        self.core.step(wake as f64 * 1e-9, io, &self.inp, &mut self.out, &mut sample, &mut rec);
+        let t_compute = Instant::now();
+        self.core.step(wake as f64 * 1e-9, io, &self.inp, &mut self.out, &mut sample, &mut self.last);
         let compute_s = t_compute.elapsed().as_secs_f64();
 
+        let rec = &mut self.last;
         rec.lateness_s = lateness_ns as f64 * 1e-9;
         rec.compute_s = compute_s;
         rec.io_s = io_s;
@@ -243,19 +245,18 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 let _ = self.dev.deactivate();
                 self.finished = true;
                 self.core_event(Event::Stopped);
-                rec.events.push(Event::Stopped);
+                self.last.events.push(Event::Stopped);
             }
         }
         while let Some(e) = self.core.pop_event() {
             self.core_event(e);
-            rec.events.push(e);
+            self.last.events.push(e);
         }
         if let Some(tx) = self.ep.telemetry.as_ref() {
-            if let Err(TrySendError::Full(_)) = tx.try_send(rec) {
+            if let Err(TrySendError::Full(_)) = tx.try_send(self.last) {
                 self.core.counters_mut().telemetry_dropped += 1;
             }
         }
-        self.last = rec;
 
         self.deadline_ns += self.period_ns;
         let now = if self.clock.is_virtual() { wake } else { self.clock.now_ns() };
