@@ -1,10 +1,16 @@
 //! The loop around a [`TickCore`]: wait for the absolute deadline, take commands and the newest
 //! contact model, exchange with the device, compute, publish the hand sample and the telemetry.
 //!
-//! Channels are bounded and used only with `try_send`/`try_recv` on this side, so the tick never
-//! blocks and never allocates. The other side must *poll* too (never block in `recv` on a
-//! channel this loop sends to): crossbeam wakes a blocked receiver through a mutex, and this loop
-//! must take no lock. The consumers in `spidar` poll at a few milliseconds.
+//! The world is reached through a [`RigLink`] (`spidar-link`): bounded channels to a world
+//! thread in this process, or datagrams to a world process. Either way the loop only polls it and
+//! hands it the tick's sample (and every `STATUS_EVERY` ticks a status): it never blocks, never
+//! allocates. The control side's channels are bounded and used only with `try_send`/`try_recv`
+//! here; the other side must *poll* too (never block in `recv` on a channel this loop sends to):
+//! crossbeam wakes a blocked receiver through a mutex, and this loop must take no lock. The
+//! consumers in `spidar` poll at a few milliseconds.
+//!
+//! A model stamped in the loop's future is taken as stamped now, whatever link it came by: a
+//! wrong stamp must never keep a model fresh past the staleness fade.
 //!
 //! Deadlines advance by exactly one period; if the loop falls more than `MAX_BEHIND` periods
 //! behind (the machine stalled), the deadline is re-based on now and the skipped periods are
@@ -14,10 +20,12 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use spidar_device::{Device, DeviceError, ErrorKind, Input, Output};
-use spidar_msg::{ContactModel, HandSample};
+use spidar_link::{channel, RigLink, Sent};
+use spidar_msg::{ContactModel, HandSample, RigStatus};
 
 use crate::clock::Clock;
 use crate::rig::Rig;
+use crate::status::{StatusWindow, STATUS_EVERY};
 use crate::telemetry::TickRecord;
 use crate::tick::{Command, Event, Lifecycle, TickCore};
 
@@ -25,50 +33,51 @@ const MAX_BEHIND: u64 = 10;
 /// Ticks at minimum tension after the ramp-out, before the device is switched off.
 const STOP_HOLD_TICKS: u32 = 20;
 
-/// The loop's ends of its channels. Any of them may be absent.
+/// The loop's ends of its channels and its link to the world. Any of them may be absent.
 #[derive(Default)]
 pub struct Endpoints {
     pub commands: Option<Receiver<Command>>,
     pub events: Option<Sender<Event>>,
-    pub models: Option<Receiver<ContactModel>>,
-    pub samples: Option<Sender<HandSample>>,
+    /// The world: a channel link from [`Endpoints::pair`], or a socket link put in its place.
+    pub link: Option<Box<dyn RigLink>>,
     pub telemetry: Option<Sender<TickRecord>>,
 }
 
-/// Bounded channel capacities used by [`Endpoints::pair`].
+/// Bounded channel capacities used by [`Endpoints::pair`] (the link's are in `spidar_link::channel`).
 pub const COMMAND_CAPACITY: usize = 16;
 pub const EVENT_CAPACITY: usize = 64;
-pub const MODEL_CAPACITY: usize = 8;
-pub const SAMPLE_CAPACITY: usize = 64;
 pub const TELEMETRY_CAPACITY: usize = 4096;
 
-/// The far ends of the channels, for the control side, the scene and the telemetry consumer.
+/// The far ends of the channels, for the control side, an in-process world and the telemetry
+/// consumer. With a socket link in place of the channel link, `models`, `samples` and `status`
+/// lead nowhere.
 pub struct FarEnds {
     pub commands: Sender<Command>,
     pub events: Receiver<Event>,
     pub models: Sender<ContactModel>,
     pub samples: Receiver<HandSample>,
+    pub status: Receiver<RigStatus>,
     pub telemetry: Receiver<TickRecord>,
 }
 
 impl Endpoints {
-    /// Creates every channel with the default capacities.
+    /// Creates every channel with the default capacities; the world is an in-process channel link.
     pub fn pair() -> (Endpoints, FarEnds) {
         use crossbeam_channel::bounded;
         let (ct, cr) = bounded(COMMAND_CAPACITY);
         let (et, er) = bounded(EVENT_CAPACITY);
-        let (mt, mr) = bounded(MODEL_CAPACITY);
-        let (st, sr) = bounded(SAMPLE_CAPACITY);
         let (tt, tr) = bounded(TELEMETRY_CAPACITY);
+        let (link, world) = channel::pair();
         (
-            Endpoints {
-                commands: Some(cr),
-                events: Some(et),
-                models: Some(mr),
-                samples: Some(st),
-                telemetry: Some(tt),
+            Endpoints { commands: Some(cr), events: Some(et), link: Some(Box::new(link)), telemetry: Some(tt) },
+            FarEnds {
+                commands: ct,
+                events: er,
+                models: world.models,
+                samples: world.samples,
+                status: world.status,
+                telemetry: tr,
             },
-            FarEnds { commands: ct, events: er, models: mt, samples: sr, telemetry: tr },
         )
     }
 }
@@ -94,6 +103,7 @@ pub struct RtLoop<D: Device, C: Clock> {
     reopen_every: u32,
     reopen_wait: u32,
     reopen_budget: Duration,
+    status: StatusWindow,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -119,6 +129,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             reopen_wait: 0,
             // Half a tick: the attempt, the compute and the sleep must all fit in the period.
             reopen_budget: Duration::from_secs_f64(rig.period_s * 0.5),
+            status: StatusWindow::default(),
         })
     }
 
@@ -182,11 +193,11 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         while let Some(c) = self.ep.commands.as_ref().and_then(|r| r.try_recv().ok()) {
             self.command(c);
         }
-        let mut newest = None;
-        while let Some(m) = self.ep.models.as_ref().and_then(|r| r.try_recv().ok()) {
-            newest = Some(m);
-        }
-        if let Some(m) = newest {
+        let now_s = wake as f64 * 1e-9;
+        if let Some(mut m) = self.ep.link.as_mut().and_then(|l| l.poll(now_s)) {
+            if m.stamp_s > now_s {
+                m.stamp_s = now_s;
+            }
             self.core.set_contact_model(m);
         }
 
@@ -206,7 +217,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         let t_compute = Instant::now();
         let mut sample = HandSample::default();
         let mut rec = TickRecord::default();
-        self.core.step(wake as f64 * 1e-9, io, &self.inp, &mut self.out, &mut sample, &mut rec);
+        self.core.step(now_s, io, &self.inp, &mut self.out, &mut sample, &mut rec);
         let compute_s = t_compute.elapsed().as_secs_f64();
 
         rec.lateness_s = lateness_ns as f64 * 1e-9;
@@ -215,9 +226,14 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if lateness_ns > self.period_ns {
             self.core.counters_mut().misses += 1;
         }
-        if let Some(tx) = self.ep.samples.as_ref() {
-            if let Err(TrySendError::Full(_)) = tx.try_send(sample) {
+        self.status.add(&rec);
+        if let Some(link) = self.ep.link.as_mut() {
+            if link.send_sample(&sample) == Sent::Dropped {
                 self.core.counters_mut().samples_dropped += 1;
+            }
+            if rec.tick % STATUS_EVERY == 0 {
+                let st = self.status.status(&rec, self.core.counters(), self.stopping, self.core.rig());
+                link.send_status(&st);
             }
         }
         if let Some(tx) = self.ep.telemetry.as_ref() {
@@ -233,6 +249,9 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 // Strings have been at minimum tension with zero net force; now switch off.
                 let _ = self.dev.deactivate();
                 self.finished = true;
+                if let Some(link) = self.ep.link.as_mut() {
+                    link.close();
+                }
                 self.core_event(Event::Stopped);
             }
         }
@@ -290,6 +309,11 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     /// Ticks until stopped.
     pub fn run(&mut self) {
         while self.tick() {}
+    }
+
+    /// The link to the world (to inspect or wait on it between ticks).
+    pub fn link(&self) -> Option<&dyn RigLink> {
+        self.ep.link.as_deref()
     }
 
     /// Gives the device back (after the loop finished), e.g. to inspect a simulated rig.
