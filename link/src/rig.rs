@@ -144,14 +144,20 @@ impl SocketRigLink {
     }
 
     /// Says hello until the world answers, for at most `timeout` (not real-time: before the
-    /// loop starts). `now_s` is the rig clock. A refusal or a version mismatch is an error that
-    /// names both sides.
-    pub fn connect(&mut self, timeout: Duration, now_s: impl Fn() -> f64) -> Result<Welcome, LinkError> {
+    /// loop starts). `rig_now_s` is the rig clock now (hellos are paced by the wall clock here, a
+    /// virtual rig clock may stand still). A refusal or a version mismatch is an error that names
+    /// both sides.
+    pub fn connect(&mut self, timeout: Duration, rig_now_s: f64) -> Result<Welcome, LinkError> {
         let start = Instant::now();
         let version_before = LinkStats::get(&self.stats.wrong_version);
         let refusals_before = LinkStats::get(&self.stats.refusals);
+        let mut last_hello: Option<Instant> = None;
         loop {
-            let _ = self.poll(now_s());
+            if self.state != LinkState::Connected && last_hello.is_none_or(|t| t.elapsed() >= Duration::from_millis(50)) {
+                self.send_hello(rig_now_s);
+                last_hello = Some(Instant::now());
+            }
+            let _ = self.poll(rig_now_s);
             match self.state {
                 LinkState::Connected => {
                     let (_, d) = self.stats.handshake.read().unwrap_or_default();

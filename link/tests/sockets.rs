@@ -52,7 +52,7 @@ fn connect(rig: &mut SocketRigLink, world: WorldLink) -> (Result<Welcome, LinkEr
         let ev = serve_handshake(&mut world);
         (world, ev)
     });
-    let r = rig.connect(WAIT, || 0.0);
+    let r = rig.connect(WAIT, 0.0);
     let (world, ev) = h.join().unwrap();
     (r, world, ev)
 }
@@ -189,7 +189,7 @@ fn a_world_of_another_protocol_version_is_named_with_both_versions() {
         b[4..6].copy_from_slice(&7u16.to_le_bytes()); // protocol 7
         fake.send_raw(&b[..n]);
     });
-    let e = rig.connect(WAIT, || 0.0).unwrap_err();
+    let e = rig.connect(WAIT, 0.0).unwrap_err();
     h.join().unwrap();
     assert!(matches!(e, LinkError::Version { world: 7, rig: 1, .. }), "{e}");
     let text = e.to_string();
@@ -353,7 +353,7 @@ fn a_world_pauses_when_its_rig_leaves_or_goes_silent_and_refuses_a_second_rig() 
         RigLinkOptions::default(),
     )
     .unwrap();
-    let h = std::thread::spawn(move || other.connect(Duration::from_secs(5), || 0.0).map(|_| ()));
+    let h = std::thread::spawn(move || other.connect(Duration::from_secs(5), 0.0).map(|_| ()));
     let ev = serve_handshake(&mut world);
     let e = h.join().unwrap().unwrap_err();
     assert!(matches!(e, LinkError::Refused { code: RefuseCode::Busy, .. }), "{e}");

@@ -12,6 +12,11 @@
 //! A model stamped in the loop's future is taken as stamped now, whatever link it came by: a
 //! wrong stamp must never keep a model fresh past the staleness fade.
 //!
+//! A sample the link cannot take (the world is not draining: a full socket queue or channel) is
+//! not the end of its impulses: they are carried into the next sample of the same model, or sent
+//! on their own first when the model changed, so the world gets every impulse the rig applied
+//! while it stalled. Only what still cannot go is counted lost.
+//!
 //! Deadlines advance by exactly one period; if the loop falls more than `MAX_BEHIND` periods
 //! behind (the machine stalled), the deadline is re-based on now and the skipped periods are
 //! counted as misses, rather than running a burst of catch-up ticks into the user's hand.
@@ -82,6 +87,39 @@ impl Endpoints {
     }
 }
 
+/// Sends `s`, with the impulses of an earlier sample the link could not take (`carry`).
+fn send_with_carry(
+    link: &mut dyn RigLink,
+    mut s: HandSample,
+    carry: &mut Option<HandSample>,
+    c: &mut crate::tick::Counters,
+) {
+    if let Some(old) = carry.take() {
+        if old.model_seq == s.model_seq {
+            for (a, b) in s.proxy_impulse_n_s.iter_mut().zip(old.proxy_impulse_n_s.iter()) {
+                *a += *b;
+            }
+            for (a, b) in s.proxy_contact_impulse_n_s.iter_mut().zip(old.proxy_contact_impulse_n_s.iter()) {
+                *a += *b;
+            }
+        } else if link.send_sample(&old) != Sent::Queued {
+            c.impulses_lost += 1; // of another model, and still no way through
+        }
+    }
+    match link.send_sample(&s) {
+        Sent::Queued => {}
+        Sent::Dropped => {
+            c.samples_dropped += 1;
+            *carry = Some(s);
+        }
+        Sent::NoPeer => {
+            if s.proxy_impulse_n_s.iter().chain(s.proxy_contact_impulse_n_s.iter()).any(|i| *i != glam::DVec3::ZERO) {
+                c.impulses_lost += 1;
+            }
+        }
+    }
+}
+
 /// A device, a clock and a tick core, run as a loop.
 pub struct RtLoop<D: Device, C: Clock> {
     dev: D,
@@ -104,6 +142,8 @@ pub struct RtLoop<D: Device, C: Clock> {
     reopen_wait: u32,
     reopen_budget: Duration,
     status: StatusWindow,
+    /// A sample the link could not take, waiting to go with the next one.
+    carry: Option<HandSample>,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -130,6 +170,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             // Half a tick: the attempt, the compute and the sleep must all fit in the period.
             reopen_budget: Duration::from_secs_f64(rig.period_s * 0.5),
             status: StatusWindow::default(),
+            carry: None,
         })
     }
 
@@ -228,9 +269,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         }
         self.status.add(&rec);
         if let Some(link) = self.ep.link.as_mut() {
-            if link.send_sample(&sample) == Sent::Dropped {
-                self.core.counters_mut().samples_dropped += 1;
-            }
+            let c = self.core.counters_mut();
+            send_with_carry(&mut **link, sample, &mut self.carry, c);
             if rec.tick % STATUS_EVERY == 0 {
                 let st = self.status.status(&rec, self.core.counters(), self.stopping, self.core.rig());
                 link.send_status(&st);
@@ -316,8 +356,80 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         self.ep.link.as_deref()
     }
 
+    /// Puts another link to the world in place (between ticks; a benchmark switching worlds) and
+    /// returns the one it replaces.
+    pub fn replace_link(&mut self, link: Option<Box<dyn RigLink>>) -> Option<Box<dyn RigLink>> {
+        self.carry = None;
+        std::mem::replace(&mut self.ep.link, link)
+    }
+
     /// Gives the device back (after the loop finished), e.g. to inspect a simulated rig.
     pub fn into_device(self) -> D {
         self.dev
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// A link whose way is full for the first `full` sends; it keeps what got through.
+    struct Narrow {
+        full: u32,
+        got: Vec<HandSample>,
+    }
+    impl RigLink for Narrow {
+        fn poll(&mut self, _: f64) -> Option<ContactModel> {
+            None
+        }
+        fn send_sample(&mut self, s: &HandSample) -> Sent {
+            if self.full > 0 {
+                self.full -= 1;
+                return Sent::Dropped;
+            }
+            self.got.push(*s);
+            Sent::Queued
+        }
+        fn send_status(&mut self, _: &RigStatus) {}
+    }
+
+    fn sample(tick: u64, model_seq: u64, x: f64) -> HandSample {
+        let mut s = HandSample { tick, model_seq, ..Default::default() };
+        s.proxy_impulse_n_s[1] = DVec3::X * x;
+        s.proxy_contact_impulse_n_s[2] = DVec3::Y * x;
+        s
+    }
+
+    #[test]
+    fn impulses_of_samples_the_link_could_not_take_go_with_the_next_one() {
+        let mut link = Narrow { full: 3, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        for tick in 0..5 {
+            send_with_carry(&mut link, sample(tick, 7, 1.0), &mut carry, &mut c);
+        }
+        // Ticks 0-2 did not fit; tick 3 carried their impulses, tick 4 its own.
+        assert_eq!(link.got.iter().map(|s| s.tick).collect::<Vec<_>>(), [3, 4]);
+        assert_eq!(link.got[0].proxy_impulse_n_s[1], DVec3::X * 4.0);
+        assert_eq!(link.got[0].proxy_contact_impulse_n_s[2], DVec3::Y * 4.0);
+        assert_eq!(link.got[1].proxy_impulse_n_s[1], DVec3::X);
+        assert_eq!((c.samples_dropped, c.impulses_lost), (3, 0));
+
+        // The model changes while a sample waits: the old one goes first, on its own.
+        let mut link = Narrow { full: 1, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        send_with_carry(&mut link, sample(0, 7, 1.0), &mut carry, &mut c);
+        send_with_carry(&mut link, sample(1, 8, 2.0), &mut carry, &mut c);
+        assert_eq!(link.got.iter().map(|s| (s.tick, s.model_seq)).collect::<Vec<_>>(), [(0, 7), (1, 8)]);
+        assert_eq!(link.got[1].proxy_impulse_n_s[1], DVec3::X * 2.0);
+        assert_eq!(c.impulses_lost, 0);
+
+        // ... unless the way is still full: then that one is counted lost.
+        let mut link = Narrow { full: 2, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        send_with_carry(&mut link, sample(0, 7, 1.0), &mut carry, &mut c);
+        send_with_carry(&mut link, sample(1, 8, 2.0), &mut carry, &mut c);
+        assert_eq!(link.got.iter().map(|s| s.tick).collect::<Vec<_>>(), [1]);
+        assert_eq!(c.impulses_lost, 1);
     }
 }

@@ -139,7 +139,12 @@ pub struct Counters {
     /// Deadline misses (woke more than one period late), counted by the loop.
     pub misses: u64,
     pub telemetry_dropped: u64,
+    /// Samples the link could not take at once (the world not draining); their impulses went
+    /// with the next sample that got through.
     pub samples_dropped: u64,
+    /// Samples whose impulses could not be carried either (the model changed meanwhile and the
+    /// way was still full, or no world was connected).
+    pub impulses_lost: u64,
     pub events_dropped: u64,
     /// Contact models received.
     pub models: u64,

@@ -14,7 +14,10 @@ use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_rt, RtBenchOptions};
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
+use spidar_tools::child_world::ChildWorldSpec;
+use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice};
+use spidar_tools::signals::Stop;
+use spidar_tools::world_process::WorldArgs;
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -25,8 +28,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
+    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
+    /// world runs as a child process unless --world says otherwise.
     Run(RunArgs),
+    /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
+    /// ADDR`), on this host or another.
+    World(WorldArgs),
     /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
     Calib {
         #[command(subcommand)]
@@ -148,12 +155,24 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
-    /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
-    /// characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the rig check)
-    /// or a walls scene file (.ron).
-    #[arg(long, default_value = "boxing")]
-    scene: String,
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
+    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
+    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
+    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
+    /// (default: whatever it runs).
+    #[arg(long)]
+    scene: Option<String>,
+    /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
+    /// dies; the default), `thread` (inside this process), or the address of a world already
+    /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
+    #[arg(long, default_value = "child")]
+    world: String,
+    /// How many times a child world that dies is restarted.
+    #[arg(long, default_value_t = 3)]
+    world_restarts: u32,
+    /// How long to wait for the world's first answer, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    world_timeout_s: f64,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
     /// tour (for `walls`), or a script file (.ron).
     #[arg(long, default_value = "box")]
@@ -227,6 +246,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Cmd::Run(a) => run(a),
+        Cmd::World(a) => {
+            let stop = Stop::install()?;
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+        }
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
         Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
@@ -377,9 +400,30 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
         bail!("--noise-counts must be >= 0");
     }
+    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
+        bail!("--world-timeout-s must be a positive number of seconds");
+    }
     let rig = load_rig(&a.rig)?;
-    let scene = spidar_world::load(&a.scene)?;
-    let scene_name = format!("{} ({})", a.scene, scene.name());
+    let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
+    // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
+    // in the world process otherwise (the rig process stays small).
+    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+        (true, "child" | "thread") | (false, "thread") => {
+            let scene = spidar_world::load(&scene_arg)?;
+            let name = format!("{scene_arg} ({})", scene.name());
+            (WorldChoice::Thread(scene), name)
+        }
+        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
+        (false, "child") => {
+            (WorldChoice::Child(ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?), scene_arg.clone())
+        }
+        (false, addr) => {
+            let at = spidar_link::Endpoint::parse(addr)
+                .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
+            let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
+            (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
+        }
+    };
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
@@ -414,6 +458,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
+        let WorldChoice::Thread(scene) = world else { unreachable!("--virtual runs the world in this process") };
         let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
@@ -451,16 +496,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         return Ok(());
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
+    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
-        scene,
+        world,
         LiveOptions {
             seconds: a.seconds,
             rt: rt_options(&a.rig),
@@ -469,6 +509,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             stop,
             scene_name,
             script_name: a.script.clone(),
+            connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
         },
     )?;
     println!("{summary}");

@@ -1,0 +1,119 @@
+//! `spidar world`: the world process. It loads a scene, listens for a rig (a Unix socket in a
+//! private directory by default, or UDP for a rig on another host), and steps the scene while a
+//! rig is connected; a rig that leaves or goes silent pauses it until one connects again.
+//!
+//! It runs with the normal scheduler, below the rig's real-time loop, and may allocate. The first
+//! line on stdout is where it listens. On stderr it says what happens on the link; with
+//! `--report-status` (as the child of `spidar run`) it also writes machine-readable lines that
+//! the rig shows in its status line: `@status <steps>\t<scene status>` twice a second and
+//! `@report <summary>` at the end.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use spidar_link::world::{WorldLink, WorldOffer};
+use spidar_link::{Endpoint, PrivateDir};
+use spidar_world::host::{serve, ServeOptions, ServeReport, Stepper};
+use spidar_world::{Observer, StepView};
+
+use crate::signals::Stop;
+
+/// Marks a status line on a child world's stderr.
+pub const STATUS_PREFIX: &str = "@status ";
+/// Marks the final report line on a child world's stderr.
+pub const REPORT_PREFIX: &str = "@report ";
+
+/// The world process's options (`spidar world --help`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct WorldArgs {
+    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, a boxer file like
+    /// configs/boxer.ron, `crowd` or a crowd scene file (*crowd*.ron), `walls` (the rig check) or
+    /// a walls scene file (.ron).
+    #[arg(long, default_value = "boxing")]
+    pub scene: String,
+    /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host
+    /// (udp://:PORT listens on 127.0.0.1 only; udp://0.0.0.0:PORT on every interface). Default:
+    /// unix:$XDG_RUNTIME_DIR/spidar/world.sock, or a new private directory (printed).
+    #[arg(long)]
+    pub listen: Option<String>,
+    /// The rig is taken as gone (and the scene paused) after this long without a datagram.
+    #[arg(long, default_value_t = 0.5)]
+    pub rig_lost_s: f64,
+    /// Step when a virtual-clock rig's samples say a step is due, instead of on this clock
+    /// (bit-identical runs through two processes; for tests).
+    #[arg(long, hide = true)]
+    pub lockstep: bool,
+    /// Write `@status` lines for a parent `spidar run` to show (set by it).
+    #[arg(long, hide = true)]
+    pub report_status: bool,
+}
+
+/// Writes `@status` lines every half second.
+struct StatusLines {
+    last: Option<Instant>,
+    steps: u64,
+}
+
+impl Observer for StatusLines {
+    fn after_step(&mut self, step: &StepView<'_>) {
+        self.steps += 1;
+        if self.last.is_none_or(|t| t.elapsed() >= Duration::from_millis(500)) {
+            self.last = Some(Instant::now());
+            let _ = writeln!(std::io::stderr().lock(), "{STATUS_PREFIX}{}\t{}", self.steps, step.scene.status());
+        }
+    }
+}
+
+/// Runs the world until `stop` is requested (SIGINT, SIGTERM, SIGHUP, or the parent rig's end).
+pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
+    if !(a.rig_lost_s.is_finite() && a.rig_lost_s > 0.0) {
+        bail!("--rig-lost-s must be a positive number of seconds");
+    }
+    let scene = spidar_world::load(&a.scene)?;
+    let step_s = scene.step_s();
+    let scene_label = format!("{} ({})", a.scene, scene.name());
+    // The default directory lives as long as the world.
+    let mut _dir = None;
+    let listen = match &a.listen {
+        Some(s) => Endpoint::parse(s)?,
+        None => {
+            let d = PrivateDir::user_default().context("making a private directory for the world's socket")?;
+            let ep = Endpoint::unix(&d.join("world.sock"));
+            _dir = Some(d);
+            ep
+        }
+    };
+    let offer =
+        WorldOffer { scene: a.scene.clone(), step_s, rig_lost_after: Duration::from_secs_f64(a.rig_lost_s) };
+    let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
+    let at = link.listening().clone();
+    println!("spidar world: scene {scene_label} listening on {at}");
+    let _ = std::io::stdout().flush();
+    if !a.report_status {
+        eprintln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
+    }
+    let mut stepper = Stepper::new(scene);
+    if a.report_status {
+        stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
+    }
+    let stop_fn = || stop.requested();
+    let rep = serve(
+        &mut stepper,
+        &mut link,
+        &ServeOptions { lockstep: a.lockstep },
+        &stop_fn,
+        &mut |line| eprintln!("spidar world: {line}"),
+    );
+    if a.report_status {
+        eprintln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
+        eprintln!("{REPORT_PREFIX}{rep}");
+    } else {
+        eprintln!("spidar world: {rep}");
+        let status = stepper.scene().status();
+        if !status.is_empty() {
+            eprintln!("spidar world: {status}");
+        }
+    }
+    Ok(rep)
+}
