@@ -186,6 +186,7 @@ pub struct LinkStats {
     pub worlds: AtomicU64,
     /// Times the world went silent or said goodbye while connected.
     pub lost: AtomicU64,
+    /// Hellos handed to the kernel (not those that found nobody or a full way).
     pub hellos: AtomicU64,
     pub models: AtomicU64,
     pub samples_sent: AtomicU64,

@@ -8,7 +8,8 @@
 //!
 //! Liveness: a world that sends nothing for `lost_after_s` (killed, crashed, hung, network down)
 //! or says `Bye` is lost: the rig's own staleness fade has already taken the force to zero by
-//! then, the state says "world lost" and hellos go out again. A send that finds nobody at a Unix
+//! then, the state says "world lost", samples stop and hellos go out again (a world that was only
+//! slow answers with a model or a welcome and is back). A send that finds nobody at a Unix
 //! address (the world process is gone) declares it lost at once.
 //!
 //! What the tick gets is checked here: only datagrams from the world's address, of this
@@ -233,11 +234,10 @@ impl SocketRigLink {
         let seq = self.next_seq();
         // The hello was encoded once; only its sequence number changes.
         self.hello[12..20].copy_from_slice(&seq.to_le_bytes());
-        LinkStats::add(&self.stats.hellos);
-        if let Err(e) = self.send_raw(self.hello_len, true) {
-            if is_gone(&e) {
-                LinkStats::add(&self.stats.sends_unanswered);
-            }
+        match self.send_raw(self.hello_len, true) {
+            Ok(()) => LinkStats::add(&self.stats.hellos),
+            Err(e) if is_gone(&e) => LinkStats::add(&self.stats.sends_unanswered),
+            Err(_) => {}
         }
     }
 
@@ -358,7 +358,9 @@ impl RigLink for SocketRigLink {
     }
 
     fn send_sample(&mut self, s: &HandSample) -> Sent {
-        if !matches!(self.state, LinkState::Connected | LinkState::Lost) {
+        // Only to a world that welcomed this rig and is heard from: a lost one (or a new one at
+        // its address) gets hellos, not a flood of samples it would drop.
+        if self.state != LinkState::Connected {
             return Sent::NoPeer;
         }
         let seq = self.next_seq();

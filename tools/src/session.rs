@@ -151,8 +151,10 @@ impl Lockstep {
         if now[3] != self.seen[3] {
             self.next_ns = 0; // a world starts its schedule at each connection
         }
-        let mut expect = now[0] != self.seen[0] && now[1] == self.seen[1];
-        if now[2] != self.seen[2] && now_ns >= self.next_ns {
+        // A hello that reached a socket is answered (welcome or refusal).
+        let mut expect = now[0] != self.seen[0];
+        // A world answers samples only once it has welcomed the rig (a lost link still sends).
+        if now[2] != self.seen[2] && s.state() == LinkState::Connected && now_ns >= self.next_ns {
             self.next_ns = now_ns + self.step_ns;
             expect = true;
         }
@@ -263,10 +265,17 @@ impl<D: Device> VirtualRun<D> {
         self.rt.tick();
         let rec = *self.rt.last_record();
         self.stats.add(&rec);
+        self.after_tick();
+        rec
+    }
+
+    /// The world's side of a tick (for callers that run `rt.tick()` themselves): the in-process
+    /// scene steps if a step is due, or a world process is given time to answer.
+    pub fn after_tick(&mut self) {
         let now = self.clock.now_ns();
         if let Some(l) = self.lockstep.as_mut() {
             l.after_tick(now);
-            return rec;
+            return;
         }
         let scene_due = self.scene.is_some() && now >= self.next_scene_ns;
         if scene_due || self.scene.is_none() {
@@ -295,7 +304,6 @@ impl<D: Device> VirtualRun<D> {
             let _ = self.far.models.try_send(m);
             self.next_scene_ns = now + self.scene_step_ns;
         }
-        rec
     }
 
     pub fn run_ticks(&mut self, n: u64) {
@@ -314,8 +322,8 @@ impl<D: Device> VirtualRun<D> {
     }
 
     /// The socket link's counters (a world process), if any.
-    pub fn link_stats(&self) -> Option<&LinkStats> {
-        self.rt.link().and_then(|l| l.stats())
+    pub fn link_stats(&self) -> Option<Arc<LinkStats>> {
+        self.lockstep.as_ref().map(|l| l.stats.clone())
     }
 
     /// Lockstep answers that did not come in time (a world process only).
