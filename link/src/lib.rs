@@ -63,7 +63,11 @@ pub enum LinkError {
 }
 
 impl LinkError {
-    pub(crate) fn io(op: &'static str, at: &(impl std::fmt::Debug + ?Sized), source: std::io::Error) -> LinkError {
+    pub(crate) fn io(
+        op: &'static str,
+        at: &(impl std::fmt::Debug + ?Sized),
+        source: std::io::Error,
+    ) -> LinkError {
         LinkError::Io { op, at: format!("{at:?}"), source }
     }
 }

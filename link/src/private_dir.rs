@@ -29,7 +29,9 @@ pub struct PrivateDir {
 pub fn random_u64() -> u64 {
     let mut h = std::collections::hash_map::RandomState::new().build_hasher();
     h.write_u64(std::process::id() as u64);
-    h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos()));
+    h.write_u128(
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos()),
+    );
     h.finish()
 }
 
@@ -101,7 +103,11 @@ fn fresh_in(base: PathBuf, prefix: &str) -> Result<PathBuf, LinkError> {
             Err(e) => last = Some(e),
         }
     }
-    Err(LinkError::io("creating a private directory in", &base, last.unwrap_or_else(|| std::io::Error::other("?"))))
+    Err(LinkError::io(
+        "creating a private directory in",
+        &base,
+        last.unwrap_or_else(|| std::io::Error::other("?")),
+    ))
 }
 
 impl PrivateDir {
@@ -121,7 +127,9 @@ impl PrivateDir {
                 create_or_check(&p)?;
                 Ok(PrivateDir { path: p, remove_on_drop: false })
             }
-            None => Ok(PrivateDir { path: fresh_in(std::env::temp_dir(), "spidar-world")?, remove_on_drop: true }),
+            None => {
+                Ok(PrivateDir { path: fresh_in(std::env::temp_dir(), "spidar-world")?, remove_on_drop: true })
+            }
         }
     }
 

@@ -90,7 +90,9 @@ impl SocketRigLink {
     ) -> Result<SocketRigLink, LinkError> {
         let (sock, addr) = match world {
             Endpoint::Unix(p) => {
-                let own = own_path.ok_or_else(|| LinkError::BadAddress("a Unix world needs a socket path for the rig".into()))?;
+                let own = own_path.ok_or_else(|| {
+                    LinkError::BadAddress("a Unix world needs a socket path for the rig".into())
+                })?;
                 if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
                     crate::private_dir::check_socket_dir(dir)?;
                 }
@@ -126,7 +128,8 @@ impl SocketRigLink {
             opts,
             stats: Arc::new(LinkStats::default()),
         };
-        link.hello_len = wire::encode(&hello, 0, &mut link.hello).map_err(|e| LinkError::BadAddress(e.to_string()))?;
+        link.hello_len =
+            wire::encode(&hello, 0, &mut link.hello).map_err(|e| LinkError::BadAddress(e.to_string()))?;
         Ok(link)
     }
 
@@ -154,7 +157,9 @@ impl SocketRigLink {
         let refusals_before = LinkStats::get(&self.stats.refusals);
         let mut last_hello: Option<Instant> = None;
         loop {
-            if self.state != LinkState::Connected && last_hello.is_none_or(|t| t.elapsed() >= Duration::from_millis(50)) {
+            if self.state != LinkState::Connected
+                && last_hello.is_none_or(|t| t.elapsed() >= Duration::from_millis(50))
+            {
                 self.send_hello(rig_now_s);
                 last_hello = Some(Instant::now());
             }
@@ -180,7 +185,10 @@ impl SocketRigLink {
             }
             let waited = start.elapsed();
             if waited >= timeout {
-                return Err(LinkError::NoWorld { addr: self.world_name.clone(), waited_s: waited.as_secs_f64() });
+                return Err(LinkError::NoWorld {
+                    addr: self.world_name.clone(),
+                    waited_s: waited.as_secs_f64(),
+                });
             }
             self.sock.wait((timeout - waited).min(Duration::from_millis(20)));
         }
@@ -310,7 +318,8 @@ impl RigLink for SocketRigLink {
                 continue;
             }
             let n = r.len.min(self.rx.len());
-            let decoded = if r.truncated { Err(WireError::Short { got: 0 }) } else { wire::decode(&self.rx[..n]) };
+            let decoded =
+                if r.truncated { Err(WireError::Short { got: 0 }) } else { wire::decode(&self.rx[..n]) };
             match decoded {
                 Err(WireError::Version { got, .. }) => {
                     LinkStats::add(&self.stats.wrong_version);
@@ -330,7 +339,9 @@ impl RigLink for SocketRigLink {
                     LinkStats::add(&self.stats.byes);
                     self.lose_world();
                 }
-                Ok((_, Message::Model(m))) if matches!(self.state, LinkState::Connected | LinkState::Lost) => {
+                Ok((_, Message::Model(m)))
+                    if matches!(self.state, LinkState::Connected | LinkState::Lost) =>
+                {
                     self.last_heard_s = now_s;
                     if self.state == LinkState::Lost {
                         // The same world, back from a stall (a new one would have welcomed us).
@@ -402,6 +413,8 @@ impl RigLink for SocketRigLink {
             if let Ok(n) = wire::encode(&Bye { session: self.session }, seq, &mut self.tx) {
                 let _ = self.send_raw(n, false);
             }
+            // Polled again, the link says hello first (the world paused when it got the bye).
+            self.set_state(LinkState::Lost);
         }
     }
 

@@ -223,7 +223,9 @@ impl Sock {
     /// A UDP socket bound at `addr` (port 0: any free port).
     pub fn bind_udp(addr: SocketAddr) -> Result<Sock, LinkError> {
         let s = UdpSocket::bind(addr).map_err(|e| LinkError::io("binding", &format!("udp://{addr}"), e))?;
-        let bound = s.local_addr().map_err(|e| LinkError::io("reading the address of", &format!("udp://{addr}"), e))?;
+        let bound = s
+            .local_addr()
+            .map_err(|e| LinkError::io("reading the address of", &format!("udp://{addr}"), e))?;
         Ok(Sock { inner: Inner::Udp(s), own_path: None, local: RawAddr::inet(bound) })
     }
 
@@ -260,7 +262,13 @@ impl Sock {
         let mut len = std::mem::size_of::<libc::c_int>() as libc::socklen_t;
         // SAFETY: valid out-pointers of the right size.
         unsafe {
-            libc::getsockopt(self.fd(), libc::SOL_SOCKET, libc::SO_RCVBUF, &mut got as *mut _ as *mut _, &mut len)
+            libc::getsockopt(
+                self.fd(),
+                libc::SOL_SOCKET,
+                libc::SO_RCVBUF,
+                &mut got as *mut _ as *mut _,
+                &mut len,
+            )
         };
         got.max(0) as usize
     }
@@ -323,11 +331,7 @@ impl Sock {
 
     /// Waits until a datagram is queued or `timeout` passes; true if one is.
     pub fn wait(&self, timeout: Duration) -> bool {
-        let mut p = libc::pollfd { fd: self.fd(), events: libc::POLLIN, revents: 0 };
-        let ms = timeout.as_millis().min(i32::MAX as u128) as libc::c_int;
-        // SAFETY: one valid pollfd.
-        let r = unsafe { libc::poll(&mut p, 1, ms) };
-        r > 0 && p.revents & libc::POLLIN != 0
+        wait_readable(self.fd(), timeout)
     }
 
     /// Another descriptor for the same socket (e.g. to wait on it from another owner).
@@ -356,12 +360,21 @@ pub struct Waiter {
 impl Waiter {
     /// True once a datagram is queued, false after `timeout`.
     pub fn wait(&self, timeout: Duration) -> bool {
-        let mut p = libc::pollfd { fd: self.fd.as_raw_fd(), events: libc::POLLIN, revents: 0 };
-        let ms = timeout.as_millis().min(i32::MAX as u128) as libc::c_int;
-        // SAFETY: one valid pollfd.
-        let r = unsafe { libc::poll(&mut p, 1, ms) };
-        r > 0 && p.revents & libc::POLLIN != 0
+        wait_readable(self.fd.as_raw_fd(), timeout)
     }
+}
+
+/// `ppoll` for readability with a nanosecond timeout (`poll`'s milliseconds would turn a
+/// sub-millisecond wait into none).
+fn wait_readable(fd: RawFd, timeout: Duration) -> bool {
+    let mut p = libc::pollfd { fd, events: libc::POLLIN, revents: 0 };
+    let ts = libc::timespec {
+        tv_sec: timeout.as_secs().min(i32::MAX as u64) as libc::time_t,
+        tv_nsec: timeout.subsec_nanos() as _,
+    };
+    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+    let r = unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
+    r > 0 && p.revents & libc::POLLIN != 0
 }
 
 fn setsockopt(fd: RawFd, opt: libc::c_int, v: libc::c_int) -> io::Result<()> {

@@ -17,7 +17,7 @@
 
 use std::time::{Duration, Instant};
 
-use spidar_msg::handshake::{Bye, Hello, Name, Reason, RefuseCode, Refuse, Welcome};
+use spidar_msg::handshake::{Bye, Hello, Name, Reason, Refuse, RefuseCode, Welcome};
 use spidar_msg::wire::{self, Message, WireError, MAX_DATAGRAM, PROTOCOL_VERSION};
 use spidar_msg::{ContactModel, HandSample, RigInfo, RigStatus, HANDS, MAX_PROXIES, STRINGS};
 
@@ -81,13 +81,28 @@ pub struct Arrived {
 #[derive(Clone, Debug, PartialEq)]
 pub enum WorldEvent {
     /// A rig is served; `again` when it is the same rig session as before (it had lost us).
-    Connected { rig: String, session: u64, again: bool },
-    Refused { rig: String, reason: String },
-    WrongVersion { rig: String, theirs: u16 },
+    Connected {
+        rig: String,
+        session: u64,
+        again: bool,
+    },
+    Refused {
+        rig: String,
+        reason: String,
+    },
+    WrongVersion {
+        rig: String,
+        theirs: u16,
+    },
     /// The rig said goodbye.
-    Left { rig: String },
+    Left {
+        rig: String,
+    },
     /// The rig went silent (or its socket is gone).
-    Lost { rig: String, silent_s: f64 },
+    Lost {
+        rig: String,
+        silent_s: f64,
+    },
 }
 
 /// The rig's clock now, from the newest sample: its time plus how long ago it arrived (both
@@ -173,7 +188,14 @@ impl WorldLink {
         self.sock.send_to(&self.tx[..n], to)
     }
 
-    fn refuse(&mut self, to: &RawAddr, session: u64, code: RefuseCode, reason: String, events: &mut Vec<WorldEvent>) {
+    fn refuse(
+        &mut self,
+        to: &RawAddr,
+        session: u64,
+        code: RefuseCode,
+        reason: String,
+        events: &mut Vec<WorldEvent>,
+    ) {
         self.stats.refusals += 1;
         let _ = self.send(&Refuse { rig_session: session, code, reason: Reason::new(&reason) }, to);
         let key = (session, reason.clone());
@@ -268,14 +290,18 @@ impl WorldLink {
             let arrived_ns = r.arrived_ns.unwrap_or_else(realtime_ns);
             let from_peer = self.peer.as_ref().is_some_and(|p| p.addr.same(&r.from));
             let n = r.len.min(self.rx.len());
-            let decoded = if r.truncated { Err(WireError::Short { got: 0 }) } else { wire::decode(&self.rx[..n]) };
+            let decoded =
+                if r.truncated { Err(WireError::Short { got: 0 }) } else { wire::decode(&self.rx[..n]) };
             match decoded {
                 Ok((_, Message::Hello(h))) => self.on_hello(h, r.from, events),
                 Err(WireError::Version { got, .. }) => {
                     self.stats.wrong_version += 1;
                     // Answer in this version: its header tells the rig which one this world speaks.
                     let reason = format!("this world speaks link protocol {PROTOCOL_VERSION}, the rig {got}");
-                    let _ = self.send(&Refuse { rig_session: 0, code: RefuseCode::Other, reason: Reason::new(&reason) }, &r.from);
+                    let _ = self.send(
+                        &Refuse { rig_session: 0, code: RefuseCode::Other, reason: Reason::new(&reason) },
+                        &r.from,
+                    );
                     if self.last_wrong_version != Some(got) {
                         self.last_wrong_version = Some(got);
                         events.push(WorldEvent::WrongVersion { rig: r.from.describe(), theirs: got });
@@ -306,7 +332,9 @@ impl WorldLink {
                     }
                 }
                 Ok((_, Message::Bye(b))) => match self.peer.take() {
-                    Some(p) if p.session == b.session => events.push(WorldEvent::Left { rig: p.addr.describe() }),
+                    Some(p) if p.session == b.session => {
+                        events.push(WorldEvent::Left { rig: p.addr.describe() })
+                    }
                     other => {
                         self.peer = other;
                         self.stats.unexpected += 1;

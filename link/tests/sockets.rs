@@ -27,8 +27,13 @@ fn rig_info() -> RigInfo {
 }
 
 fn rig_for(world: &Endpoint, dir: &Path, scene: &str) -> SocketRigLink {
-    SocketRigLink::open(world, Some(&dir.join("rig.sock")), hello(77, rig_info(), scene), RigLinkOptions::default())
-        .unwrap()
+    SocketRigLink::open(
+        world,
+        Some(&dir.join("rig.sock")),
+        hello(77, rig_info(), scene),
+        RigLinkOptions::default(),
+    )
+    .unwrap()
 }
 
 /// Drains the world's end until something happens (a hello answered, a rig gone).
@@ -46,7 +51,10 @@ fn serve_handshake(world: &mut WorldLink) -> Vec<WorldEvent> {
 }
 
 /// Connects `rig` to `world` (the world answering on another thread). Returns the welcome.
-fn connect(rig: &mut SocketRigLink, world: WorldLink) -> (Result<Welcome, LinkError>, WorldLink, Vec<WorldEvent>) {
+fn connect(
+    rig: &mut SocketRigLink,
+    world: WorldLink,
+) -> (Result<Welcome, LinkError>, WorldLink, Vec<WorldEvent>) {
     let h = std::thread::spawn(move || {
         let mut world = world;
         let ev = serve_handshake(&mut world);
@@ -135,7 +143,11 @@ fn a_rig_asking_for_another_scene_is_refused_with_both_named() {
     assert!(reason.contains("'walls'") && reason.contains("'crowd'"), "{reason}");
     assert!(matches!(&ev[..], [WorldEvent::Refused { .. }]), "{ev:?}");
     assert_eq!(rig.state(), LinkState::Refused);
-    assert_eq!(rig.send_sample(&HandSample::default()), Sent::NoPeer, "nothing is sent to a world that refused");
+    assert_eq!(
+        rig.send_sample(&HandSample::default()),
+        Sent::NoPeer,
+        "nothing is sent to a world that refused"
+    );
 }
 
 /// A fake world: a plain socket at the world's address that speaks the wire format by hand.
@@ -231,7 +243,8 @@ fn odd_datagrams_from_a_world_are_counted_and_change_nothing() {
 
     let good = {
         let mut b = vec![0u8; MAX_DATAGRAM];
-        let n = wire::encode(&ContactModel { seq: 2, stamp_s: 0.01, ..Default::default() }, 2, &mut b).unwrap();
+        let n =
+            wire::encode(&ContactModel { seq: 2, stamp_s: 0.01, ..Default::default() }, 2, &mut b).unwrap();
         b.truncate(n);
         b
     };
@@ -251,7 +264,7 @@ fn odd_datagrams_from_a_world_are_counted_and_change_nothing() {
     fake.send_raw(&version);
     fake.send(&ContactModel { seq: 3, stamp_s: f64::NAN, ..Default::default() }); // no time
     fake.send(&HandSample::default()); // a sample, to the rig
-    // A stranger on the same host sends a perfectly good model.
+                                       // A stranger on the same host sends a perfectly good model.
     let stranger = UnixDatagram::bind(d.join("stranger.sock")).unwrap();
     stranger.send_to(&good, d.join("rig.sock")).unwrap();
     std::thread::sleep(Duration::from_millis(20));
@@ -397,7 +410,8 @@ fn a_planted_symlink_or_a_live_socket_is_never_taken_over() {
     std::fs::create_dir(&shared).unwrap();
     use std::os::unix::fs::PermissionsExt;
     std::fs::set_permissions(&shared, std::fs::Permissions::from_mode(0o777)).unwrap();
-    let e = WorldLink::bind(&Endpoint::unix(&shared.join("w.sock")), offer("walls")).err().unwrap().to_string();
+    let e =
+        WorldLink::bind(&Endpoint::unix(&shared.join("w.sock")), offer("walls")).err().unwrap().to_string();
     assert!(e.contains("written by group or others"), "{e}");
     let e = SocketRigLink::open(
         &Endpoint::unix(&shared.join("w.sock")),

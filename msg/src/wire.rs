@@ -23,7 +23,7 @@
 
 use glam::DVec3;
 
-use crate::handshake::{Bye, Hello, RefuseCode, Refuse, Text, Welcome};
+use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
 use crate::{
     ContactModel, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo, RigState, RigStatus, HANDS,
     MAX_PROXIES, STRINGS,
@@ -468,8 +468,7 @@ impl Field for HandState {
 }
 
 impl Field for HandSample {
-    const SIZE: usize =
-        8 + 8 + <[HandState; HANDS]>::SIZE + 8 + 2 * <[DVec3; MAX_PROXIES]>::SIZE;
+    const SIZE: usize = 8 + 8 + <[HandState; HANDS]>::SIZE + 8 + 2 * <[DVec3; MAX_PROXIES]>::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.tick.put(w);
         self.t_s.put(w);

@@ -44,20 +44,23 @@ fn arr<T: std::fmt::Debug, const N: usize>(s: impl Strategy<Value = T>) -> impl 
 }
 
 fn model() -> impl Strategy<Value = ContactModel> {
-    (any::<u64>(), num(), arr::<_, MAX_PROXIES>(proxy()), 0..=MAX_PROXIES as u8, arr::<_, HANDS>(v3())).prop_map(
-        |(seq, stamp_s, proxies, proxy_count, extra_force_n)| ContactModel {
+    (any::<u64>(), num(), arr::<_, MAX_PROXIES>(proxy()), 0..=MAX_PROXIES as u8, arr::<_, HANDS>(v3()))
+        .prop_map(|(seq, stamp_s, proxies, proxy_count, extra_force_n)| ContactModel {
             seq,
             stamp_s,
             proxies,
             proxy_count,
             extra_force_n,
-        },
-    )
+        })
 }
 
 fn hand_state() -> impl Strategy<Value = HandState> {
-    (v3(), v3(), v3(), any::<bool>())
-        .prop_map(|(pos_m, vel_m_per_s, force_n, valid)| HandState { pos_m, vel_m_per_s, force_n, valid })
+    (v3(), v3(), v3(), any::<bool>()).prop_map(|(pos_m, vel_m_per_s, force_n, valid)| HandState {
+        pos_m,
+        vel_m_per_s,
+        force_n,
+        valid,
+    })
 }
 
 fn sample() -> impl Strategy<Value = HandSample> {
@@ -69,13 +72,8 @@ fn sample() -> impl Strategy<Value = HandSample> {
         arr::<_, MAX_PROXIES>(v3()),
         arr::<_, MAX_PROXIES>(v3()),
     )
-        .prop_map(|(tick, t_s, hands, model_seq, proxy_impulse_n_s, proxy_contact_impulse_n_s)| HandSample {
-            tick,
-            t_s,
-            hands,
-            model_seq,
-            proxy_impulse_n_s,
-            proxy_contact_impulse_n_s,
+        .prop_map(|(tick, t_s, hands, model_seq, proxy_impulse_n_s, proxy_contact_impulse_n_s)| {
+            HandSample { tick, t_s, hands, model_seq, proxy_impulse_n_s, proxy_contact_impulse_n_s }
         })
 }
 
@@ -136,13 +134,8 @@ fn text<const N: usize>() -> impl Strategy<Value = Text<N>> {
 }
 
 fn hello() -> impl Strategy<Value = Hello> {
-    (any::<u64>(), any::<[u8; 3]>(), text::<64>(), rig_info()).prop_map(|(rig_session, n, scene, rig)| Hello {
-        rig_session,
-        hands: n[0],
-        strings: n[1],
-        max_proxies: n[2],
-        scene,
-        rig,
+    (any::<u64>(), any::<[u8; 3]>(), text::<64>(), rig_info()).prop_map(|(rig_session, n, scene, rig)| {
+        Hello { rig_session, hands: n[0], strings: n[1], max_proxies: n[2], scene, rig }
     })
 }
 
@@ -364,7 +357,11 @@ fn every_malformed_header_is_named() {
             d[8..12].copy_from_slice(&(ContactModel::SIZE as u32).to_le_bytes());
             decode(&d)
         },
-        Err(WireError::Truncated { kind: Kind::Model, got: good.len(), want: HEADER_LEN + ContactModel::SIZE })
+        Err(WireError::Truncated {
+            kind: Kind::Model,
+            got: good.len(),
+            want: HEADER_LEN + ContactModel::SIZE
+        })
     );
     // The version is read before the kind, so a peer of another version is named even when its
     // kinds differ from ours.
@@ -420,10 +417,7 @@ fn encoding_needs_a_big_enough_buffer_and_allocates_nothing_else() {
 #[test]
 fn the_documented_bye_datagram_is_what_encode_writes() {
     let hex: String = bye_datagram().iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
-    assert_eq!(
-        hex,
-        "53 50 44 52 01 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01"
-    );
+    assert_eq!(hex, "53 50 44 52 01 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
 }
 
 #[test]
@@ -431,7 +425,10 @@ fn names_are_cut_to_fit_and_read_back() {
     let long = "x".repeat(100);
     let w = Welcome { scene: Name::new(&long), ..Default::default() };
     assert_eq!(w.scene.as_str().len(), 64);
-    let r = Refuse { reason: Reason::new("the world runs 'walls', the rig asked for 'crowd'"), ..Default::default() };
+    let r = Refuse {
+        reason: Reason::new("the world runs 'walls', the rig asked for 'crowd'"),
+        ..Default::default()
+    };
     let d = encoded(&Message::Refuse(r), 0);
     assert_eq!(decode(&d).unwrap().1, Message::Refuse(r));
 }

@@ -74,7 +74,12 @@ impl Endpoints {
         let (tt, tr) = bounded(TELEMETRY_CAPACITY);
         let (link, world) = channel::pair();
         (
-            Endpoints { commands: Some(cr), events: Some(et), link: Some(Box::new(link)), telemetry: Some(tt) },
+            Endpoints {
+                commands: Some(cr),
+                events: Some(et),
+                link: Some(Box::new(link)),
+                telemetry: Some(tt),
+            },
             FarEnds {
                 commands: ct,
                 events: er,
@@ -113,7 +118,11 @@ fn send_with_carry(
             *carry = Some(s);
         }
         Sent::NoPeer => {
-            if s.proxy_impulse_n_s.iter().chain(s.proxy_contact_impulse_n_s.iter()).any(|i| *i != glam::DVec3::ZERO) {
+            if s.proxy_impulse_n_s
+                .iter()
+                .chain(s.proxy_contact_impulse_n_s.iter())
+                .any(|i| *i != glam::DVec3::ZERO)
+            {
                 c.impulses_lost += 1;
             }
         }

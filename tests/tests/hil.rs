@@ -661,7 +661,13 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
         let s = stop.clone();
         let h = std::thread::spawn(move || {
             let mut st = Stepper::new(Box::new(WallsScene::builtin()));
-            serve(&mut st, &mut link, &ServeOptions { lockstep: true }, &|| s.load(Ordering::Relaxed), &mut |_| {});
+            serve(
+                &mut st,
+                &mut link,
+                &ServeOptions { lockstep: true },
+                &|| s.load(Ordering::Relaxed),
+                &mut |_| {},
+            );
         });
         (h, stop)
     };
@@ -669,7 +675,8 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
     let scripts = load_scripts("spar", &r, 3).unwrap();
     let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
     let dev = sim_device(&r, scripts, &opts).unwrap();
-    let mut v = VirtualRun::with_world_process(dev, &r, &at, None, std::time::Duration::from_secs(30)).unwrap();
+    let mut v =
+        VirtualRun::with_world_process(dev, &r, &at, None, std::time::Duration::from_secs(30)).unwrap();
     v.home_and_activate();
     v.run_ticks(1000); // warm-up
     let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);

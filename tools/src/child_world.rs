@@ -10,13 +10,14 @@
 use std::ffi::OsString;
 use std::io::BufRead;
 use std::os::unix::process::{CommandExt, ExitStatusExt};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use crossbeam_channel::{unbounded, Receiver, Sender};
+use spidar_link::Endpoint;
 
 use crate::world_process::{REPORT_PREFIX, STATUS_PREFIX};
 
@@ -38,15 +39,22 @@ pub struct ChildWorldSpec {
 impl ChildWorldSpec {
     /// `spidar world` from the running executable.
     pub fn this_executable(scene: &str, restarts: u32) -> anyhow::Result<ChildWorldSpec> {
-        let program = std::env::current_exe().context("finding this executable to start the world process")?;
-        Ok(ChildWorldSpec { program, prefix: vec!["world".into()], scene: scene.into(), restarts, extra: Vec::new() })
+        let program =
+            std::env::current_exe().context("finding this executable to start the world process")?;
+        Ok(ChildWorldSpec {
+            program,
+            prefix: vec!["world".into()],
+            scene: scene.into(),
+            restarts,
+            extra: Vec::new(),
+        })
     }
 }
 
 /// A watched world process.
 pub struct ChildWorld {
     spec: ChildWorldSpec,
-    listen: PathBuf,
+    listen: Endpoint,
     child: Option<Child>,
     reader: Option<JoinHandle<()>>,
     lines_tx: Sender<String>,
@@ -69,18 +77,21 @@ pub fn describe_exit(s: ExitStatus) -> String {
     match (s.code(), s.signal()) {
         (Some(c), _) => format!("exited with status {c}"),
         (_, Some(9)) => "was killed (signal 9, SIGKILL)".into(),
-        (_, Some(sig)) => format!("ended by signal {sig}{}", if s.core_dumped() { " (core dumped)" } else { "" }),
+        (_, Some(sig)) => {
+            format!("ended by signal {sig}{}", if s.core_dumped() { " (core dumped)" } else { "" })
+        }
         _ => "ended".into(),
     }
 }
 
 impl ChildWorld {
-    /// Starts a world listening on the Unix socket `listen`.
-    pub fn start(spec: ChildWorldSpec, listen: &Path) -> anyhow::Result<ChildWorld> {
+    /// Starts a world listening at `listen` (a Unix socket in a private directory, for
+    /// `spidar run`).
+    pub fn start(spec: ChildWorldSpec, listen: &Endpoint) -> anyhow::Result<ChildWorld> {
         let (lines_tx, lines) = unbounded();
         let mut w = ChildWorld {
             spec,
-            listen: listen.to_path_buf(),
+            listen: listen.clone(),
             child: None,
             reader: None,
             lines_tx,
@@ -102,7 +113,7 @@ impl ChildWorld {
             .arg("--scene")
             .arg(&self.spec.scene)
             .arg("--listen")
-            .arg(format!("unix:{}", self.listen.display()))
+            .arg(self.listen.to_string())
             .arg("--report-status")
             .args(&self.spec.extra)
             .stdin(Stdio::null())

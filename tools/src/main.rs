@@ -12,10 +12,12 @@ use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
-use spidar_tools::bench::{bench_rt, RtBenchOptions};
-use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
 use spidar_tools::child_world::ChildWorldSpec;
-use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice};
+use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_tools::session::{
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+};
 use spidar_tools::signals::Stop;
 use spidar_tools::world_process::WorldArgs;
 
@@ -211,6 +213,25 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10)]
         blocks: u32,
     },
+    /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
+    /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
+    /// rig with the world as a process and as a thread, alternating in one run.
+    Link {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of the loop with each kind of world.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Alternations between the two kinds of world.
+        #[arg(long, default_value_t = 10)]
+        blocks: u32,
+        /// The scene of both worlds.
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Samples echoed per transport for the round-trip figures (at 1 kHz).
+        #[arg(long, default_value_t = 5000)]
+        echoes: u64,
+    },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
         #[command(flatten)]
@@ -310,6 +331,28 @@ fn main() -> anyhow::Result<()> {
             })?;
             eprintln!();
             println!("{report}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!(
+                "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
+            );
+            let rep = bench_link(
+                &r,
+                &LinkBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    echoes,
+                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                },
+            )?;
+            println!("{rep}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
@@ -414,9 +457,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             (WorldChoice::Thread(scene), name)
         }
         (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
-        (false, "child") => {
-            (WorldChoice::Child(ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?), scene_arg.clone())
-        }
+        (false, "child") => (
+            WorldChoice::Child(ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?),
+            scene_arg.clone(),
+        ),
         (false, addr) => {
             let at = spidar_link::Endpoint::parse(addr)
                 .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
@@ -458,7 +502,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        let WorldChoice::Thread(scene) = world else { unreachable!("--virtual runs the world in this process") };
+        let WorldChoice::Thread(scene) = world else {
+            unreachable!("--virtual runs the world in this process")
+        };
         let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;

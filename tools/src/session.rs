@@ -208,7 +208,12 @@ impl<D: Device> VirtualRun<D> {
         let stats = link.shared_stats();
         let lockstep = Lockstep {
             waiter: link.waiter().context("waiting on the link")?,
-            seen: [LinkStats::get(&stats.hellos), LinkStats::get(&stats.sends_unanswered), 0, LinkStats::get(&stats.connects)],
+            seen: [
+                LinkStats::get(&stats.hellos),
+                LinkStats::get(&stats.sends_unanswered),
+                0,
+                LinkStats::get(&stats.connects),
+            ],
             stats,
             step_ns,
             next_ns: 0,
@@ -500,18 +505,29 @@ pub struct LiveSession<D: Device + 'static> {
     script_name: String,
 }
 
-/// Starts the world process and connects to it, retrying while it starts (loading a scene takes
-/// a moment); an early exit is an error with what it said.
-fn start_child(
+/// Starts a world process listening in `dir` and connects to it, retrying while it starts
+/// (loading a scene takes a moment); an early exit is an error with what it said.
+pub fn start_child_world(
     rig: &Rig,
     spec: ChildWorldSpec,
     dir: &PrivateDir,
     clock: &MonotonicClock,
     timeout: Duration,
 ) -> anyhow::Result<(ChildWorld, SocketRigLink, Welcome)> {
-    let world_path = dir.join("world.sock");
-    let at = Endpoint::unix(&world_path);
-    let mut child = ChildWorld::start(spec, &world_path)?;
+    start_child_world_at(rig, spec, &Endpoint::unix(&dir.join("world.sock")), dir, clock, timeout)
+}
+
+/// The same at any address (a UDP one for benchmarks).
+pub fn start_child_world_at(
+    rig: &Rig,
+    spec: ChildWorldSpec,
+    at: &Endpoint,
+    dir: &PrivateDir,
+    clock: &MonotonicClock,
+    timeout: Duration,
+) -> anyhow::Result<(ChildWorld, SocketRigLink, Welcome)> {
+    let at = at.clone();
+    let mut child = ChildWorld::start(spec, &at)?;
     let until = Instant::now() + timeout;
     let mut said = Vec::new();
     loop {
@@ -520,7 +536,9 @@ fn start_child(
             Ok((link, w)) => return Ok((child, link, w)),
             Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}
             // Not there yet: the socket file does not exist or nobody listens on it.
-            Err(LinkError::Io { .. }) if Instant::now() < until => std::thread::sleep(Duration::from_millis(20)),
+            Err(LinkError::Io { .. }) if Instant::now() < until => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
             Err(e) => return Err(e).context("connecting to the world process"),
         }
         if let Some(how) = child.try_exit(&mut |l| said.push(l)) {
@@ -532,7 +550,12 @@ fn start_child(
 
 impl<D: Device + 'static> LiveSession<D> {
     /// Opens the device, starts or connects to the world, starts the loop, homes and activates.
-    pub fn start(dev: D, rig: &Rig, world: WorldChoice, opts: &LiveOptions) -> anyhow::Result<LiveSession<D>> {
+    pub fn start(
+        dev: D,
+        rig: &Rig,
+        world: WorldChoice,
+        opts: &LiveOptions,
+    ) -> anyhow::Result<LiveSession<D>> {
         let device = format!("{} ({})", dev.info().board, dev.info().identity);
         let clock = MonotonicClock::new();
         let (mut ep, far) = Endpoints::pair();
@@ -553,8 +576,9 @@ impl<D: Device + 'static> LiveSession<D> {
                 LiveWorld::Thread { handle: Some(handle), stop, counters }
             }
             WorldChoice::Child(spec) => {
-                let dir = PrivateDir::for_process().context("making a private directory for the world's socket")?;
-                let (child, link, w) = start_child(rig, spec, &dir, &clock, opts.connect_timeout)?;
+                let dir =
+                    PrivateDir::for_process().context("making a private directory for the world's socket")?;
+                let (child, link, w) = start_child_world(rig, spec, &dir, &clock, opts.connect_timeout)?;
                 let stats = link.shared_stats();
                 ep.link = Some(Box::new(link));
                 LiveWorld::Process {
@@ -567,9 +591,16 @@ impl<D: Device + 'static> LiveSession<D> {
                 }
             }
             WorldChoice::Connect { at, scene } => {
-                let dir = PrivateDir::for_process().context("making a private directory for the rig's socket")?;
-                let (link, w) =
-                    connect_world(rig, &at, &dir, scene.as_deref(), clock.now_ns() as f64 * 1e-9, opts.connect_timeout)?;
+                let dir =
+                    PrivateDir::for_process().context("making a private directory for the rig's socket")?;
+                let (link, w) = connect_world(
+                    rig,
+                    &at,
+                    &dir,
+                    scene.as_deref(),
+                    clock.now_ns() as f64 * 1e-9,
+                    opts.connect_timeout,
+                )?;
                 let stats = link.shared_stats();
                 ep.link = Some(Box::new(link));
                 LiveWorld::Process {
@@ -625,8 +656,12 @@ impl<D: Device + 'static> LiveSession<D> {
         for e in self.events.try_iter() {
             match e {
                 Event::Fault(why) => self.faults_seen.push(format!("{why}")),
-                Event::Refused { command, why } => self.faults_seen.push(format!("{command:?} refused: {why}")),
-                Event::DeviceReopened => self.faults_seen.push("device reopened after a disconnect: home again".into()),
+                Event::Refused { command, why } => {
+                    self.faults_seen.push(format!("{command:?} refused: {why}"))
+                }
+                Event::DeviceReopened => {
+                    self.faults_seen.push("device reopened after a disconnect: home again".into())
+                }
                 Event::Stopped => self.stopped = true,
                 _ => {}
             }
@@ -741,48 +776,50 @@ impl<D: Device + 'static> LiveSession<D> {
             self.stats.add(&r);
         }
         let c = *rt.core().counters();
-        let (scene_steps, scene_late, models_dropped, scene_status, world, link, world_report) = match &mut self.world {
-            LiveWorld::Thread { handle, stop, counters } => {
-                stop.store(true, Ordering::Relaxed);
-                let stepper = handle
-                    .take()
-                    .context("the scene thread")?
-                    .join()
-                    .map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
-                (
-                    counters.steps.load(Ordering::Relaxed),
-                    counters.late_steps.load(Ordering::Relaxed),
-                    counters.models_dropped.load(Ordering::Relaxed),
-                    stepper.scene().status(),
-                    "a thread of this process".to_string(),
-                    None,
-                    None,
-                )
-            }
-            LiveWorld::Process { stats, at, scene, child, .. } => {
-                let mut world = format!("process at {at}, scene {scene}");
-                let (mut steps, mut status, mut report) = (LinkStats::get(&stats.models), String::new(), None);
-                if let Some(ch) = child.as_mut() {
-                    // The rig said goodbye as it stopped; now end the world and keep its last words.
-                    ch.stop(Duration::from_secs(3), say);
-                    if let Some((n, s)) = ch.status.clone() {
-                        (steps, status) = (n, s);
-                    }
-                    report = ch.report.clone();
-                    world.push_str(&format!(
-                        " (a child of this process, pid {}; started {} times{})",
-                        ch.last_pid,
-                        ch.starts,
-                        if ch.exits.is_empty() {
-                            String::new()
-                        } else {
-                            format!(": it {}", ch.exits.join(", then "))
-                        }
-                    ));
+        let (scene_steps, scene_late, models_dropped, scene_status, world, link, world_report) =
+            match &mut self.world {
+                LiveWorld::Thread { handle, stop, counters } => {
+                    stop.store(true, Ordering::Relaxed);
+                    let stepper = handle
+                        .take()
+                        .context("the scene thread")?
+                        .join()
+                        .map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
+                    (
+                        counters.steps.load(Ordering::Relaxed),
+                        counters.late_steps.load(Ordering::Relaxed),
+                        counters.models_dropped.load(Ordering::Relaxed),
+                        stepper.scene().status(),
+                        "a thread of this process".to_string(),
+                        None,
+                        None,
+                    )
                 }
-                (steps, 0, 0, status, world, Some(stats.summary()), report)
-            }
-        };
+                LiveWorld::Process { stats, at, scene, child, .. } => {
+                    let mut world = format!("process at {at}, scene {scene}");
+                    let (mut steps, mut status, mut report) =
+                        (LinkStats::get(&stats.models), String::new(), None);
+                    if let Some(ch) = child.as_mut() {
+                        // The rig said goodbye as it stopped; now end the world and keep its last words.
+                        ch.stop(Duration::from_secs(3), say);
+                        if let Some((n, s)) = ch.status.clone() {
+                            (steps, status) = (n, s);
+                        }
+                        report = ch.report.clone();
+                        world.push_str(&format!(
+                            " (a child of this process, pid {}; started {} times{})",
+                            ch.last_pid,
+                            ch.starts,
+                            if ch.exits.is_empty() {
+                                String::new()
+                            } else {
+                                format!(": it {}", ch.exits.join(", then "))
+                            }
+                        ));
+                    }
+                    (steps, 0, 0, status, world, Some(stats.summary()), report)
+                }
+            };
         Ok(Summary {
             scene_status,
             device: self.device.clone(),

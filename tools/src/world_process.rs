@@ -47,6 +47,41 @@ pub struct WorldArgs {
     /// Write `@status` lines for a parent `spidar run` to show (set by it).
     #[arg(long, hide = true)]
     pub report_status: bool,
+    /// No scene: answer every sample at once with a model carrying its times (`spidar bench
+    /// link` measures the link's round trip with it).
+    #[arg(long, hide = true)]
+    pub echo: bool,
+}
+
+/// Where an echo world puts what it measured in the model it answers with: the sample's tick
+/// in `seq`, its `t_s` in `stamp_s`, and the rig-to-world trip (kernel arrival time minus the
+/// send time the sample carried in `ECHO_SENT_AT`) in seconds in `extra_force_n[0].x`.
+pub const ECHO_MODULO_NS: i64 = 1_000_000_000_000;
+
+/// The CLOCK_REALTIME nanoseconds (modulo `ECHO_MODULO_NS`, exact in an f64) an echo sample was
+/// sent at travel in `hands[0].pos_m.x`.
+pub fn echo_sample(tick: u64, t_s: f64) -> spidar_msg::HandSample {
+    let mut s = spidar_msg::HandSample { tick, t_s, ..Default::default() };
+    s.hands[0].pos_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
+    s
+}
+
+fn run_echo(link: &mut WorldLink, stop: &Stop) {
+    let (mut arrived, mut events) = (Vec::new(), Vec::new());
+    while !stop.requested() {
+        link.wait(Duration::from_millis(50));
+        link.drain(&mut arrived, &mut events);
+        events.clear();
+        for a in arrived.drain(..) {
+            let s = a.sample;
+            let sent = s.hands[0].pos_m.x as i64;
+            let trip = (a.arrived_ns % ECHO_MODULO_NS - sent).rem_euclid(ECHO_MODULO_NS);
+            let mut m = spidar_msg::ContactModel { seq: s.tick, stamp_s: s.t_s, ..Default::default() };
+            m.extra_force_n[0].x = trip as f64 * 1e-9;
+            link.send_model(&m, &mut events);
+        }
+    }
+    link.close();
 }
 
 /// Writes `@status` lines every half second.
@@ -60,7 +95,8 @@ impl Observer for StatusLines {
         self.steps += 1;
         if self.last.is_none_or(|t| t.elapsed() >= Duration::from_millis(500)) {
             self.last = Some(Instant::now());
-            let _ = writeln!(std::io::stderr().lock(), "{STATUS_PREFIX}{}\t{}", self.steps, step.scene.status());
+            let _ =
+                writeln!(std::io::stderr().lock(), "{STATUS_PREFIX}{}\t{}", self.steps, step.scene.status());
         }
     }
 }
@@ -70,6 +106,16 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if !(a.rig_lost_s.is_finite() && a.rig_lost_s > 0.0) {
         bail!("--rig-lost-s must be a positive number of seconds");
     }
+    if a.echo {
+        let listen = Endpoint::parse(a.listen.as_deref().unwrap_or(""))?;
+        let offer =
+            WorldOffer { scene: "echo".into(), step_s: 0.001, rig_lost_after: Duration::from_secs(3600) };
+        let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
+        println!("spidar world: echo listening on {}", link.listening());
+        let _ = std::io::stdout().flush();
+        run_echo(&mut link, stop);
+        return Ok(ServeReport { link: *link.stats(), ..Default::default() });
+    }
     let scene = spidar_world::load(&a.scene)?;
     let step_s = scene.step_s();
     let scene_label = format!("{} ({})", a.scene, scene.name());
@@ -78,7 +124,8 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let listen = match &a.listen {
         Some(s) => Endpoint::parse(s)?,
         None => {
-            let d = PrivateDir::user_default().context("making a private directory for the world's socket")?;
+            let d =
+                PrivateDir::user_default().context("making a private directory for the world's socket")?;
             let ep = Endpoint::unix(&d.join("world.sock"));
             _dir = Some(d);
             ep
@@ -98,13 +145,9 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
     }
     let stop_fn = || stop.requested();
-    let rep = serve(
-        &mut stepper,
-        &mut link,
-        &ServeOptions { lockstep: a.lockstep },
-        &stop_fn,
-        &mut |line| eprintln!("spidar world: {line}"),
-    );
+    let rep = serve(&mut stepper, &mut link, &ServeOptions { lockstep: a.lockstep }, &stop_fn, &mut |line| {
+        eprintln!("spidar world: {line}")
+    });
     if a.report_status {
         eprintln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
         eprintln!("{REPORT_PREFIX}{rep}");

@@ -98,7 +98,14 @@ impl Stepper {
         self.steps += 1;
         self.last_scene_t_s = Some(t_s);
         for o in self.observers.iter_mut() {
-            o.after_step(&StepView { t_s, scene: &*self.scene, samples, model: &model, rig_info, rig_status });
+            o.after_step(&StepView {
+                t_s,
+                scene: &*self.scene,
+                samples,
+                model: &model,
+                rig_info,
+                rig_status,
+            });
         }
         ContactModel { stamp_s: model.stamp_s - self.offset_s, ..model }
     }

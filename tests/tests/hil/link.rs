@@ -98,11 +98,10 @@ fn pressing(both: bool) -> SimRig {
     let r = rig();
     let home = [r.hands[0].home_m, r.hands[1].home_m];
     let press = |h: usize| reach_and_hold(DVec3::new(home[h].x, 0.0, WALL_Z_M + 0.04 - 0.015));
-    let scripts = [press(0), if both { press(1) } else { Script::hold(home[1]) }]
-        .map(|s| {
-            let hold = s.start_hold_s.max(HOLD_AT_HOME_S);
-            s.with_start_hold(hold)
-        });
+    let scripts = [press(0), if both { press(1) } else { Script::hold(home[1]) }].map(|s| {
+        let hold = s.start_hold_s.max(HOLD_AT_HOME_S);
+        s.with_start_hold(hold)
+    });
     sim_device(&r, scripts, &SimOptions::default()).unwrap()
 }
 
@@ -127,7 +126,10 @@ fn same_tick(a: &TickRecord, b: &TickRecord) -> bool {
         && a.contact_age_s == b.contact_age_s
         && a.state == b.state
         && a.hands.iter().zip(b.hands.iter()).all(|(x, y)| {
-            x.pos_m == y.pos_m && x.commanded_n == y.commanded_n && x.tensions_n == y.tensions_n && x.contacts == y.contacts
+            x.pos_m == y.pos_m
+                && x.commanded_n == y.commanded_n
+                && x.tensions_n == y.tensions_n
+                && x.contacts == y.contacts
         })
 }
 
@@ -201,7 +203,12 @@ fn kill_9_of_the_world_fades_force_to_zero_and_a_new_world_restores_it_without_h
         check(&rec);
         let f: Vec<f64> = rec.hands.iter().map(|h| h.commanded_n.length()).collect();
         for h in 0..2 {
-            assert!(f[h] <= prev[h] + 0.2, "tick {i}: hand {h} force rose from {} to {} while fading", prev[h], f[h]);
+            assert!(
+                f[h] <= prev[h] + 0.2,
+                "tick {i}: hand {h} force rose from {} to {} while fading",
+                prev[h],
+                f[h]
+            );
         }
         if rec.contact_age_s >= stale + fade {
             assert!(f.iter().all(|x| *x == 0.0), "tick {i}: the faded model still pushes: {f:?}");
@@ -252,7 +259,10 @@ fn kill_9_of_the_world_fades_force_to_zero_and_a_new_world_restores_it_without_h
 
 /// A world that speaks the wire format by hand and sends the rig everything a broken or hostile
 /// world could: for every sample, a burst of odd datagrams and one model, some of them absurd.
-fn hostile_world(dir: PathBuf, stop: Arc<std::sync::atomic::AtomicBool>) -> std::thread::JoinHandle<[u64; 6]> {
+fn hostile_world(
+    dir: PathBuf,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+) -> std::thread::JoinHandle<[u64; 6]> {
     use spidar_msg::handshake::Welcome;
     use spidar_msg::wire::{self, Message, MAX_DATAGRAM};
     use spidar_msg::{Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES, STRINGS};
@@ -296,7 +306,10 @@ fn hostile_world(dir: PathBuf, stop: Arc<std::sync::atomic::AtomicBool>) -> std:
                         let p = s.hands[hand].pos_m;
                         m.push(Proxy {
                             id: ProxyId { body: 1, part: hand as u16 },
-                            shape: ProxyShape::Sphere { centre_m: p + DVec3::new(0.0, 0.0, -0.05), radius_m: 0.03 },
+                            shape: ProxyShape::Sphere {
+                                centre_m: p + DVec3::new(0.0, 0.0, -0.05),
+                                radius_m: 0.03,
+                            },
                             k_n_per_m: match k % 4 {
                                 0 => f64::NAN,
                                 1 => 1e12,
@@ -373,7 +386,8 @@ fn a_world_sending_malformed_datagrams_and_hostile_models_changes_nothing_beyond
     let r = rig();
     let scripts = load_scripts("spar", &r, 5).unwrap();
     let dev = sim_device(&r, scripts, &SimOptions::default()).unwrap();
-    let mut v = VirtualRun::with_world_process(dev, &r, &Endpoint::unix(&dir.join("world.sock")), None, WAIT).unwrap();
+    let mut v = VirtualRun::with_world_process(dev, &r, &Endpoint::unix(&dir.join("world.sock")), None, WAIT)
+        .unwrap();
     v.home_and_activate();
     let mut clamped = 0;
     for i in 0..6000 {
@@ -381,9 +395,16 @@ fn a_world_sending_malformed_datagrams_and_hostile_models_changes_nothing_beyond
         assert!(rec.state == Lifecycle::Active || i < 200 && rec.state == Lifecycle::Inactive, "{rec:?}");
         for (h, hr) in rec.hands.iter().enumerate() {
             let t = &r.hands[h];
-            assert!(hr.commanded_n.is_finite() && hr.commanded_n.length() <= t.force_limit_n + 1e-9, "{}", hr.commanded_n);
+            assert!(
+                hr.commanded_n.is_finite() && hr.commanded_n.length() <= t.force_limit_n + 1e-9,
+                "{}",
+                hr.commanded_n
+            );
             assert!(hr.output_n.length() <= t.force_limit_n + 1e-9);
-            assert!(hr.tensions_n.iter().all(|x| x.is_finite() && *x >= t.tension_min_n - 1e-9 && *x <= t.tension_max_n + 1e-9));
+            assert!(hr
+                .tensions_n
+                .iter()
+                .all(|x| x.is_finite() && *x >= t.tension_min_n - 1e-9 && *x <= t.tension_max_n + 1e-9));
             clamped += hr.clamped as u32;
         }
     }
@@ -453,7 +474,8 @@ fn spidar_run_restarts_a_killed_child_world_and_force_returns_without_homing() {
         restarts: 2,
         extra: Vec::new(),
     };
-    let mut s = LiveSession::start(pressing(true), &r, WorldChoice::Child(spec), &live_options("front wall")).unwrap();
+    let mut s = LiveSession::start(pressing(true), &r, WorldChoice::Child(spec), &live_options("front wall"))
+        .unwrap();
     let (stale, fade) = (r.safety.contact_stale_after_s, r.safety.contact_fade_s);
     let mut said = Vec::new();
     let mut bad = Vec::new();
@@ -501,7 +523,8 @@ fn spidar_run_restarts_a_killed_child_world_and_force_returns_without_homing() {
     assert!(restored, "force came back with the restarted world; it said {said:?}");
     assert_eq!(s.world_starts(), 2);
     assert!(
-        said.iter().any(|l| l.contains("was killed (signal 9, SIGKILL)") && l.contains("restarting it (1 of 2")),
+        said.iter()
+            .any(|l| l.contains("was killed (signal 9, SIGKILL)") && l.contains("restarting it (1 of 2")),
         "{said:?}"
     );
     assert!(said.iter().any(|l| l.contains("world lost")), "{said:?}");
@@ -559,5 +582,9 @@ fn spidar_run_feels_the_wall_of_a_world_over_udp_and_the_world_pauses_when_the_r
     assert!(sum.clean_stop && sum.counters.faults == 0, "{sum}");
     assert!(sum.link.as_deref().is_some_and(|l| l.contains("0 malformed")), "{:?}", sum.link);
     // The rig said goodbye: the world pauses its scene and says so.
-    assert!(world.wait_for_line("stopped: scene paused, waiting for a rig"), "{:?}", world.said.lock().unwrap());
+    assert!(
+        world.wait_for_line("stopped: scene paused, waiting for a rig"),
+        "{:?}",
+        world.said.lock().unwrap()
+    );
 }
