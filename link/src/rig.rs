@@ -361,7 +361,7 @@ impl RigLink for SocketRigLink {
         }
         if self.state != LinkState::Connected {
             let every = if self.state == LinkState::Refused { 10.0 } else { 1.0 } * self.opts.hello_every_s;
-            if !(now_s - self.last_hello_s < every) {
+            if now_s - self.last_hello_s >= every {
                 self.send_hello(now_s);
             }
         }

@@ -282,11 +282,7 @@ impl WorldLink {
     /// Reads every queued datagram: samples of the served rig go to `samples` (in order, with
     /// their arrival times), what happened to `events`. Then checks that the rig is alive.
     pub fn drain(&mut self, samples: &mut Vec<Arrived>, events: &mut Vec<WorldEvent>) {
-        loop {
-            let r = match self.sock.recv(&mut self.rx) {
-                Ok(r) => r,
-                Err(_) => break,
-            };
+        while let Ok(r) = self.sock.recv(&mut self.rx) {
             let arrived_ns = r.arrived_ns.unwrap_or_else(realtime_ns);
             let from_peer = self.peer.as_ref().is_some_and(|p| p.addr.same(&r.from));
             let n = r.len.min(self.rx.len());

@@ -470,6 +470,8 @@ pub struct LiveOptions {
     pub connect_timeout: Duration,
 }
 
+/// One per session: its size does not matter.
+#[allow(clippy::large_enum_variant)]
 enum LiveWorld {
     Thread {
         handle: Option<JoinHandle<Stepper>>,

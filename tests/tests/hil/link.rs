@@ -316,12 +316,16 @@ fn hostile_world(
                                 2 => f64::INFINITY,
                                 _ => 3000.0,
                             },
-                            d_n_s_per_m: if k % 5 == 0 { f64::NAN } else { 1e6 },
-                            vel_m_per_s: DVec3::new(0.0, 0.0, if k % 7 == 0 { f64::INFINITY } else { 40.0 }),
+                            d_n_s_per_m: if k.is_multiple_of(5) { f64::NAN } else { 1e6 },
+                            vel_m_per_s: DVec3::new(
+                                0.0,
+                                0.0,
+                                if k.is_multiple_of(7) { f64::INFINITY } else { 40.0 },
+                            ),
                             hand_mask: Proxy::BOTH_HANDS,
                         });
                     }
-                    if k % 9 == 0 {
+                    if k.is_multiple_of(9) {
                         m.extra_force_n = [DVec3::splat(f64::NAN), DVec3::splat(1e9)];
                     }
                     let len = wire::encode(&m, seq, &mut out).unwrap();
