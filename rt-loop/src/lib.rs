@@ -7,6 +7,7 @@
 //! together with the lifecycle, [`runner`] adds the device, the clock, the channels and the link
 //! to the world ([`status`]: what the rig tells the world about itself).
 
+pub mod boards;
 pub mod clock;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
