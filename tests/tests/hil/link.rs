@@ -592,3 +592,39 @@ fn spidar_run_feels_the_wall_of_a_world_over_udp_and_the_world_pauses_when_the_r
         world.said.lock().unwrap()
     );
 }
+
+#[test]
+fn a_child_world_ends_when_the_rig_that_started_it_is_gone() {
+    // PR_SET_PDEATHSIG fires when the thread that started the child ends: a thread stands in for
+    // a rig process killed with kill -9 (which cannot be done to this test process).
+    let dir = PrivateDir::for_process().unwrap();
+    let at = Endpoint::unix(&dir.join("world.sock"));
+    let spec = ChildWorldSpec {
+        program: WORLD_BIN.into(),
+        prefix: Vec::new(),
+        scene: "walls".into(),
+        restarts: 0,
+        extra: Vec::new(),
+    };
+    let pid = std::thread::spawn(move || {
+        let child = spidar_tools::child_world::ChildWorld::start(spec, &at).unwrap();
+        let pid = child.pid().unwrap();
+        std::mem::forget(child); // no clean stop: the "rig" just vanishes
+        pid
+    })
+    .join()
+    .unwrap();
+    let until = Instant::now() + WAIT;
+    let mut status = 0;
+    let mut ended = false;
+    while Instant::now() < until && !ended {
+        // SAFETY: waitpid on our own child, without blocking.
+        ended = unsafe { libc::waitpid(pid as i32, &mut status, libc::WNOHANG) } == pid as i32;
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(ended, "the world outlived the rig that started it");
+    // A clean exit if its signal handler was in place yet, else the signal's default action.
+    let clean = libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0;
+    let termed = libc::WIFSIGNALED(status) && libc::WTERMSIG(status) == libc::SIGTERM;
+    assert!(clean || termed, "it ended on SIGTERM: status {status:#x}");
+}
