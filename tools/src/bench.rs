@@ -150,6 +150,8 @@ pub struct LinkBenchOptions {
     pub echoes: u64,
     /// How to start a world process (`spidar world` from this executable).
     pub world: crate::child_world::ChildWorldSpec,
+    /// SCHED_FIFO priority of both worlds (None: the normal scheduler).
+    pub world_priority: Option<u8>,
 }
 
 /// Latency of one transport.
@@ -171,6 +173,7 @@ pub struct WorldBlock {
 
 pub struct LinkBenchReport {
     pub rt: RtReport,
+    pub world_priority: Option<u8>,
     pub scene: String,
     pub step_s: f64,
     pub echo: Vec<EchoResult>,
@@ -253,6 +256,7 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
     let per_block = ((opts.seconds_each / blocks as f64) / rig.period_s).round().max(1.0) as u64;
     let world_spec = opts.world.clone();
     let echoes = opts.echoes;
+    let world_priority = opts.world_priority;
     let scene_name = opts.scene.clone();
     // Everything runs on one thread set up for real time; the worlds it starts (process and
     // thread) run with the normal scheduler.
@@ -277,6 +281,9 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
             let clock = MonotonicClock::new();
             let mut spec = world_spec.clone();
             spec.scene = scene_name.clone();
+            if let Some(p) = world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
             let (mut child, plink, welcome) = crate::session::start_child_world(
                 &rig,
                 spec,
@@ -318,6 +325,7 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
                             info,
                             stop.clone(),
                             counters,
+                            world_priority,
                         )?;
                         thread = Some((h, stop));
                         rt.replace_link(Some(Box::new(rig_end)));
@@ -359,6 +367,7 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
             };
             Ok(LinkBenchReport {
                 rt: report,
+                world_priority,
                 scene: format!("{} ({})", scene_name, welcome.scene),
                 step_s: welcome.step_s,
                 echo,
@@ -376,6 +385,11 @@ impl std::fmt::Display for LinkBenchReport {
             f,
             "spidar bench link: spidar run's path (simulated rig, rt-loop, world {}), at 1 kHz",
             self.scene
+        )?;
+        writeln!(
+            f,
+            "  worlds      {}",
+            self.world_priority.map_or("normal scheduler".to_string(), |p| format!("SCHED_FIFO {p}"))
         )?;
         writeln!(f, "  real time   {}", self.rt)?;
         for w in &self.rt.warnings {

@@ -181,6 +181,10 @@ struct RunArgs {
     /// How long to wait for the world's first answer, in seconds.
     #[arg(long, default_value_t = 30.0)]
     world_timeout_s: f64,
+    /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
+    /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    world_priority: Option<u8>,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
     /// tour (for `walls`), or a script file (.ron).
     #[arg(long, default_value = "box")]
@@ -237,6 +241,9 @@ enum BenchCmd {
         /// Samples echoed per transport for the round-trip figures (at 1 kHz).
         #[arg(long, default_value_t = 5000)]
         echoes: u64,
+        /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+        world_priority: Option<u8>,
     },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
@@ -339,7 +346,7 @@ fn main() -> anyhow::Result<()> {
             println!("{report}");
             Ok(())
         }
-        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes } } => {
+        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
             if !(seconds.is_finite() && seconds > 0.0) {
                 bail!("--seconds must be a positive number");
             }
@@ -356,6 +363,7 @@ fn main() -> anyhow::Result<()> {
                     scene,
                     echoes,
                     world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world_priority,
                 },
             )?;
             println!("{rep}");
@@ -466,6 +474,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         bail!("--world-timeout-s must be a positive number of seconds");
     }
     let rig = load_rig(&a.rig)?;
+    if let Some(p) = a.world_priority {
+        if !a.rig.no_rt && p >= a.rig.priority {
+            bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
+        }
+    }
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
@@ -476,10 +489,13 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             (WorldChoice::Thread(scene), name)
         }
         (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
-        (false, "child") => (
-            WorldChoice::Child(ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?),
-            scene_arg.clone(),
-        ),
+        (false, "child") => {
+            let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
+            if let Some(p) = a.world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
+            (WorldChoice::Child(spec), scene_arg.clone())
+        }
         (false, addr) => {
             let at = spidar_link::Endpoint::parse(addr)
                 .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
@@ -575,6 +591,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             scene_name,
             script_name: a.script.clone(),
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
+            world_priority: a.world_priority,
         },
     )?;
     println!("{summary}");

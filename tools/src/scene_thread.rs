@@ -1,6 +1,6 @@
 //! The world as a thread of the rig's process: a scene stepped every `step_s` on the loop's own
-//! clock, fed by and feeding the loop's channel link, with the normal scheduler (below the
-//! loop). (`spidar run --world thread`; the default is a world process, see `session`.)
+//! clock, fed by and feeding the loop's channel link, with the normal scheduler or a SCHED_FIFO
+//! priority below the loop's. (`spidar run --world thread`; the default is a world process, see `session`.)
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -34,12 +34,11 @@ pub fn spawn(
     rig_info: RigInfo,
     stop: Arc<AtomicBool>,
     counters: Arc<SceneCounters>,
+    priority: Option<u8>,
 ) -> std::io::Result<JoinHandle<Stepper>> {
     std::thread::Builder::new().name("spidar-scene".into()).spawn(move || {
         // Below the rig's loop, whatever thread started this one (threads inherit the policy).
-        let normal = libc::sched_param { sched_priority: 0 };
-        // SAFETY: sets the calling thread's policy; a valid sched_param.
-        unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &normal) };
+        crate::world_process::setup_world_thread(priority);
         let step_ns = (stepper.step_s() * 1e9).round() as u64;
         let mut buf: Vec<HandSample> = Vec::with_capacity(256);
         let mut status = None;

@@ -348,7 +348,8 @@ pub struct Summary {
     pub stats: Stats,
     pub counters: Counters,
     pub scene_steps: u64,
-    pub scene_late: u64,
+    /// Steps that started late (known for a thread world; a world process reports its own).
+    pub scene_late: Option<u64>,
     pub models_dropped: u64,
     /// The scene's own status at the end (`Scene::status`).
     pub scene_status: String,
@@ -411,10 +412,11 @@ impl std::fmt::Display for Summary {
         for fault in &self.faults_seen {
             writeln!(f, "  fault        {fault}")?;
         }
+        let late = self.scene_late.map_or(String::new(), |n| format!(" ({n} late)"));
         writeln!(
             f,
-            "  scene        {} steps ({} late), {} models received, {} dropped",
-            self.scene_steps, self.scene_late, c.models, self.models_dropped
+            "  scene        {} steps{late}, {} models received, {} dropped",
+            self.scene_steps, c.models, self.models_dropped
         )?;
         if !self.scene_status.is_empty() {
             writeln!(f, "               {}", self.scene_status)?;
@@ -468,6 +470,8 @@ pub struct LiveOptions {
     pub script_name: String,
     /// How long to wait for the world's first answer.
     pub connect_timeout: Duration,
+    /// SCHED_FIFO priority of a thread world (a child world gets its own `--priority`).
+    pub world_priority: Option<u8>,
 }
 
 /// One per session: its size does not matter.
@@ -573,6 +577,7 @@ impl<D: Device + 'static> LiveSession<D> {
                     rig_info(rig),
                     stop.clone(),
                     counters.clone(),
+                    opts.world_priority,
                 )
                 .context("starting the scene thread")?;
                 LiveWorld::Thread { handle: Some(handle), stop, counters }
@@ -677,7 +682,8 @@ impl<D: Device + 'static> LiveSession<D> {
                 }
             }
             let state = stats.state();
-            if state != *last_state {
+            // Once stopping, the rig says goodbye itself: nothing to announce.
+            if state != *last_state && self.stop_deadline.is_none() {
                 match state {
                     LinkState::Lost => say(
                         "world lost: its force fades to zero, the strings hold minimum tension, the rig stays homed; \
@@ -789,7 +795,7 @@ impl<D: Device + 'static> LiveSession<D> {
                         .map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
                     (
                         counters.steps.load(Ordering::Relaxed),
-                        counters.late_steps.load(Ordering::Relaxed),
+                        Some(counters.late_steps.load(Ordering::Relaxed)),
                         counters.models_dropped.load(Ordering::Relaxed),
                         stepper.scene().status(),
                         "a thread of this process".to_string(),
@@ -809,7 +815,7 @@ impl<D: Device + 'static> LiveSession<D> {
                         }
                         report = ch.report.clone();
                         world.push_str(&format!(
-                            " (a child of this process, pid {}; started {} times{})",
+                            " (a child of this process, pid {}; starts {}{})",
                             ch.last_pid,
                             ch.starts,
                             if ch.exits.is_empty() {
@@ -819,7 +825,7 @@ impl<D: Device + 'static> LiveSession<D> {
                             }
                         ));
                     }
-                    (steps, 0, 0, status, world, Some(stats.summary()), report)
+                    (steps, None, 0, status, world, Some(stats.summary()), report)
                 }
             };
         Ok(Summary {

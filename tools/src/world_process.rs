@@ -44,6 +44,10 @@ pub struct WorldArgs {
     /// (bit-identical runs through two processes; for tests).
     #[arg(long, hide = true)]
     pub lockstep: bool,
+    /// Step with SCHED_FIFO at this priority: keeps the model fresh on a busy machine. Keep it
+    /// below the rig's loop (80 by default). Default: the normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    pub priority: Option<u8>,
     /// Write `@status` lines for a parent `spidar run` to show (set by it).
     #[arg(long, hide = true)]
     pub report_status: bool,
@@ -101,6 +105,25 @@ impl Observer for StatusLines {
     }
 }
 
+/// Sets the calling world thread's scheduling: SCHED_FIFO at `priority`, or the normal scheduler
+/// (threads inherit their creator's policy: a world started from the rig's loop must not keep it).
+pub fn setup_world_thread(priority: Option<u8>) -> spidar_rt::rt_thread::RtReport {
+    match priority {
+        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
+            fifo_priority: Some(p),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        }),
+        None => {
+            let normal = libc::sched_param { sched_priority: 0 };
+            // SAFETY: sets the calling thread's policy; a valid sched_param.
+            unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &normal) };
+            spidar_rt::rt_thread::RtReport { policy: "SCHED_OTHER (normal)".into(), ..Default::default() }
+        }
+    }
+}
+
 /// Runs the world until `stop` is requested (SIGINT, SIGTERM, SIGHUP, or the parent rig's end).
 pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if !(a.rig_lost_s.is_finite() && a.rig_lost_s > 0.0) {
@@ -135,6 +158,12 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         WorldOffer { scene: a.scene.clone(), step_s, rig_lost_after: Duration::from_secs_f64(a.rig_lost_s) };
     let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
     let at = link.listening().clone();
+    if let Some(p) = a.priority {
+        let rep = setup_world_thread(Some(p));
+        for w in &rep.warnings {
+            eprintln!("spidar world: warning: {w}");
+        }
+    }
     println!("spidar world: scene {scene_label} listening on {at}");
     let _ = std::io::stdout().flush();
     if !a.report_status {
