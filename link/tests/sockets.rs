@@ -424,3 +424,33 @@ fn a_planted_symlink_or_a_live_socket_is_never_taken_over() {
     .to_string();
     assert!(e.contains("written by group or others"), "{e}");
 }
+
+#[test]
+fn a_model_is_stamped_with_the_rigs_time_however_long_the_world_held_the_sample() {
+    use spidar_link::sock::realtime_ns;
+    use spidar_link::world::rig_time_now;
+    use std::time::Instant;
+    let d = PrivateDir::for_process().unwrap();
+    let world = WorldLink::bind(&Endpoint::unix(&d.join("w.sock")), offer("walls")).unwrap();
+    let mut rig = rig_for(world.listening(), d.path(), "");
+    let (r, mut world, _) = connect(&mut rig, world);
+    r.unwrap();
+    // The rig's clock reads 7.0 s as it sends (a clock of its own: not the world's).
+    let rig_t0 = 7.0;
+    let sent = Instant::now();
+    rig.send_sample(&HandSample { tick: 7000, t_s: rig_t0, ..Default::default() });
+    // The world is slow to drain: 50 ms.
+    std::thread::sleep(Duration::from_millis(50));
+    let (s, _) = drain_until(&mut world, 1);
+    let stamp = rig_time_now(s[0].sample.t_s, s[0].arrived_ns, realtime_ns());
+    let mut e = Vec::new();
+    world.send_model(&ContactModel { seq: 1, stamp_s: stamp, ..Default::default() }, &mut e);
+    let m = poll_until(&mut rig, rig_t0 + sent.elapsed().as_secs_f64()).expect("the model");
+    let rig_now = rig_t0 + sent.elapsed().as_secs_f64();
+    // The stamp counts the time the world held the sample ...
+    assert!(m.stamp_s - rig_t0 >= 0.050, "stamped {} s after the sample", m.stamp_s - rig_t0);
+    // ... and is never in the rig's future: the age the rig sees is real and small.
+    let age = rig_now - m.stamp_s;
+    assert!(age >= 0.0, "a model from the future: age {age}");
+    assert_eq!(LinkStats::get(&rig.stats().unwrap().future_stamps), 0);
+}

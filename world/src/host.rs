@@ -287,6 +287,7 @@ pub fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::Ordering;
 
     type Seen = std::sync::Arc<std::sync::Mutex<Vec<(f64, Vec<f64>)>>>;
 
@@ -317,6 +318,88 @@ mod tests {
 
     fn sample(t_s: f64) -> HandSample {
         HandSample { t_s, ..Default::default() }
+    }
+
+    /// What an observer of the world process saw.
+    #[derive(Default)]
+    struct Seen2 {
+        steps: u64,
+        info: Option<RigInfo>,
+        status_ticks: Vec<u64>,
+    }
+    struct Watch(std::sync::Arc<std::sync::Mutex<Seen2>>);
+    impl Observer for Watch {
+        fn after_step(&mut self, s: &StepView<'_>) {
+            let mut w = self.0.lock().unwrap();
+            w.steps += 1;
+            w.info = s.rig_info.copied();
+            if let Some(st) = s.rig_status {
+                w.status_ticks.push(st.tick);
+            }
+        }
+    }
+
+    #[test]
+    fn the_world_process_shows_its_observers_every_step_with_the_rigs_geometry_and_status() {
+        use spidar_link::rig::{hello, RigLinkOptions, SocketRigLink};
+        use spidar_link::world::WorldOffer;
+        use spidar_link::{Endpoint, PrivateDir, RigLink};
+        let d = PrivateDir::for_process().unwrap();
+        let at = Endpoint::unix(&d.join("w.sock"));
+        let offer =
+            WorldOffer { scene: "clock".into(), step_s: 0.003, rig_lost_after: Duration::from_secs(60) };
+        let mut link = WorldLink::bind(&at, offer).unwrap();
+        let seen = std::sync::Arc::new(std::sync::Mutex::new(Seen2::default()));
+        let mut stepper = Stepper::new(Box::new(Clockwork { seen: Seen::default() }));
+        stepper.add_observer(Box::new(Watch(seen.clone())));
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let s = stop.clone();
+        let world = std::thread::spawn(move || {
+            serve(
+                &mut stepper,
+                &mut link,
+                &ServeOptions { lockstep: true },
+                &|| s.load(Ordering::Relaxed),
+                &mut |_| {},
+            )
+        });
+        let info =
+            RigInfo { period_s: 0.001, home_m: [glam::DVec3::X, glam::DVec3::Y], ..Default::default() };
+        let mut rig = SocketRigLink::open(
+            &at,
+            Some(&d.join("rig.sock")),
+            hello(3, info, ""),
+            RigLinkOptions::default(),
+        )
+        .unwrap();
+        rig.connect(Duration::from_secs(10), 0.0).unwrap();
+        let until = std::time::Instant::now() + Duration::from_secs(20);
+        for tick in 0..300u64 {
+            let t_s = 0.001 * (tick + 1) as f64;
+            if tick % 16 == 0 {
+                rig.send_status(&RigStatus { tick, t_s, ..Default::default() });
+            }
+            rig.send_sample(&HandSample { tick, t_s, ..Default::default() });
+            // Lockstep: every third sample makes a step; its model comes back before the next.
+            while tick % 3 == 0 && rig.poll(t_s).is_none() && std::time::Instant::now() < until {
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        stop.store(true, Ordering::Relaxed);
+        let rep = world.join().unwrap();
+        let w = seen.lock().unwrap();
+        assert_eq!((w.steps, rep.steps), (100, 100));
+        assert_eq!(w.info, Some(info), "the rig's geometry from its hello");
+        assert!(
+            !w.status_ticks.is_empty() && w.status_ticks.windows(2).all(|p| p[0] <= p[1]),
+            "{:?}",
+            w.status_ticks
+        );
+        assert_eq!(
+            *w.status_ticks.last().unwrap(),
+            288,
+            "the newest status the rig sent before the last step"
+        );
     }
 
     #[test]
