@@ -10,7 +10,8 @@ use spidar_rt::rt_thread::{RtOptions, RtReport};
 use spidar_rt::telemetry::{DurationHist, Percentiles};
 use spidar_rt::Rig;
 
-use crate::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions};
+use crate::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions, WorldChoice};
+use crate::signals::Stop;
 
 pub struct RecordBenchOptions {
     /// Seconds of session per arm, split into `blocks` blocks.
@@ -70,30 +71,31 @@ pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordB
         } else {
             None
         };
-        let mut s = run_live(
+        let s = run_live(
             dev,
             rig,
-            scene,
+            WorldChoice::Thread(scene),
             LiveOptions {
                 seconds: Some(block_s),
                 rt: o.rt.clone(),
                 spin_ns: 0,
                 status_every: None,
-                stop: Default::default(),
+                stop: Stop::detached(),
                 scene_name: o.scene.clone(),
                 script_name: o.script.clone(),
+                connect_timeout: Duration::from_secs(10),
+                world_priority: None,
                 recorder,
             },
         )?;
-        if let Some(r) = s.recorder.take() {
-            let rep = r.finish(&crate::recording::end_info(&s))?;
+        if let Some(rep) = &s.recording {
             bytes += rep.bytes;
             lost += rep.lost();
             recorded_s += s.stats.first_t_s.map_or(0.0, |t0| s.stats.last_t_s - t0);
             let _ = std::fs::remove_file(&path);
         }
         if recording { &mut with } else { &mut without }.merge(&s.stats.lateness);
-        rt.get_or_insert(s.rt);
+        rt.get_or_insert(s.rt.clone());
         // Let the threads of the last block go before the next starts.
         std::thread::sleep(Duration::from_millis(50));
     }

@@ -129,12 +129,15 @@ fn child_records_a_live_session_until_killed() {
         rt: spidar_rt::rt_thread::RtOptions { fifo_priority: None, lock_memory: false, ..Default::default() },
         spin_ns: 0,
         status_every: None,
-        stop: Default::default(),
+        stop: spidar_tools::signals::Stop::detached(),
         scene_name: "walls".into(),
         script_name: "tour".into(),
+        connect_timeout: std::time::Duration::from_secs(10),
+        world_priority: None,
         recorder: Some(RecorderThread::spawn(rec).unwrap()),
     };
-    let _ = spidar_tools::session::run_live(dev, &r, Box::new(WallsScene::builtin()), opts);
+    let world = spidar_tools::session::WorldChoice::Thread(Box::new(WallsScene::builtin()));
+    let _ = spidar_tools::session::run_live(dev, &r, world, opts);
 }
 
 #[test]
