@@ -297,12 +297,12 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if lateness_ns > self.period_ns {
             self.core.counters_mut().misses += 1;
         }
-        self.status.add(&rec);
+        self.status.add(rec);
         if let Some(link) = self.ep.link.as_mut() {
             let c = self.core.counters_mut();
             send_with_carry(&mut **link, sample, &mut self.carry, c);
-            if rec.tick % STATUS_EVERY == 0 {
-                let st = self.status.status(&rec, self.core.counters(), self.stopping, self.core.rig());
+            if rec.tick.is_multiple_of(STATUS_EVERY) {
+                let st = self.status.status(rec, self.core.counters(), self.stopping, self.core.rig());
                 link.send_status(&st);
             }
         }
