@@ -39,7 +39,7 @@ pub const PATH: &str =
                         in-process on the virtual clock (1 ms ticks, a world step every 3 ms)";
 
 /// Median and 99th percentile of a set of durations (ns), in ms.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Spread {
     pub n: usize,
     pub median_ms: f64,
@@ -155,6 +155,7 @@ impl Bout {
 }
 
 /// What a timed bout measured.
+#[derive(serde::Serialize)]
 pub struct BoutTiming {
     pub seconds: f64,
     /// World steps without a prediction in them.
@@ -217,7 +218,7 @@ pub const SEEN_M: f64 = 0.01;
 const WINDOW_TAIL_S: f64 = 0.1;
 
 /// What one punch did, as the world and the rig saw it.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PunchOutcome {
     pub punch: Punch,
     /// The user's hand's highest speed during the punch (the rig's estimate, m/s).
@@ -271,6 +272,7 @@ impl PunchOutcome {
 }
 
 /// A whole bout's punches and what it counted on the way.
+#[derive(serde::Serialize)]
 pub struct BoutOutcome {
     pub active: bool,
     pub punches: Vec<PunchOutcome>,
@@ -517,6 +519,7 @@ pub fn punch_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
 }
 
 /// The punch experiment: the same plan against an active and a passive virtual human.
+#[derive(serde::Serialize)]
 pub struct PunchReport {
     pub active: BoutOutcome,
     pub passive: BoutOutcome,
@@ -685,6 +688,7 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<(Vec<f64>, [u
 }
 
 /// The experiment's result for one mode.
+#[derive(serde::Serialize)]
 pub struct Confusion {
     /// counts[target][answer]
     pub counts: [[usize; 4]; 4],
@@ -737,6 +741,7 @@ fn observe(samples: &[(usize, Vec<f64>)]) -> Confusion {
     Confusion { counts }
 }
 
+#[derive(serde::Serialize)]
 pub struct Reactions {
     pub trials: usize,
     pub active: Confusion,

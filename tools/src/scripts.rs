@@ -12,7 +12,7 @@ use spidar_sim::boxer::reach::min_jerk;
 use spidar_sim::boxer::{BoxerParams, BoxingWorld};
 
 /// The shape of a punch's path from the guard to its target.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 pub enum PunchKind {
     /// Straight from the guard to the target (a jab or a cross).
     Straight,
@@ -35,7 +35,7 @@ impl PunchKind {
 }
 
 /// Where a punch is aimed: a part of the virtual human in its guard.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 pub enum Aim {
     Head,
     Chest,
@@ -61,7 +61,7 @@ impl Aim {
 }
 
 /// One punch of a script.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Punch {
     /// 0 the user's left hand, 1 the right.
     pub hand: usize,
