@@ -253,7 +253,14 @@ impl RigToWorld {
 impl Rig {
     /// Loads and validates a rig file.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
-        let (file, text) = config::load_file::<RigFile>(path)?;
+        Rig::load_with_overrides(path, &[])
+    }
+
+    /// Loads and validates a rig file with more overrides than it lists itself (a command line's
+    /// `--override KEY`); they are checked and shown like the file's own.
+    pub fn load_with_overrides(path: &Path, extra: &[String]) -> Result<Rig, ConfigError> {
+        let (mut file, text) = config::load_file::<RigFile>(path)?;
+        file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, &text, &path.display().to_string())
     }
 
@@ -263,7 +270,13 @@ impl Rig {
     }
 
     pub fn from_str(text: &str, origin: &str) -> Result<Rig, ConfigError> {
-        let file = config::parse::<RigFile>(text, origin)?;
+        Rig::from_str_with_overrides(text, origin, &[])
+    }
+
+    /// [`Rig::from_str`] with more overrides (see [`Rig::load_with_overrides`]).
+    pub fn from_str_with_overrides(text: &str, origin: &str, extra: &[String]) -> Result<Rig, ConfigError> {
+        let mut file = config::parse::<RigFile>(text, origin)?;
+        file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, text, origin)
     }
 

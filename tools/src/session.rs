@@ -182,6 +182,8 @@ pub struct Summary {
     pub final_state: Lifecycle,
     pub faults_seen: Vec<String>,
     pub clean_stop: bool,
+    /// Rig-file bounds overridden for this run (shown, never silent).
+    pub overrides: Vec<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -197,6 +199,9 @@ impl std::fmt::Display for Summary {
             self.wall_s, self.device, self.scene, self.script
         )?;
         writeln!(f, "  real time    {}", self.rt)?;
+        if !self.overrides.is_empty() {
+            writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
+        }
         for w in &self.rt.warnings {
             writeln!(f, "  warning      {w}")?;
         }
@@ -389,6 +394,7 @@ pub fn run_live<D: Device + 'static>(
         final_state: rt.state(),
         faults_seen,
         clean_stop: rt.is_finished(),
+        overrides: rig.overrides.clone(),
     })
 }
 
