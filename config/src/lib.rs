@@ -59,10 +59,7 @@ pub fn read_capped(path: &Path, cap: u64) -> Result<String, ConfigError> {
     let mut bytes = Vec::new();
     file.take(cap + 1).read_to_end(&mut bytes).map_err(|e| err(format!("cannot read the file: {e}")))?;
     if bytes.len() as u64 > cap {
-        return Err(err(format!(
-            "larger than {} MiB: not a configuration file (check the path)",
-            cap >> 20
-        )));
+        return Err(err(format!("larger than {} MiB: not a configuration file (check the path)", cap >> 20)));
     }
     String::from_utf8(bytes).map_err(|e| err(format!("not UTF-8 text ({e}): not a configuration file")))
 }

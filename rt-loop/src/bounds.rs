@@ -86,12 +86,8 @@ pub const LENGTH_AT_ZERO_M: Bound = Bound {
 };
 
 /// Radius of the fist's sphere in contact rendering.
-pub const GRIP_RADIUS_M: Bound = Bound {
-    key: "grip_radius_m",
-    lo: 0.01,
-    hi: 0.15,
-    why: "a fist is 3 .. 6 cm in radius",
-};
+pub const GRIP_RADIUS_M: Bound =
+    Bound { key: "grip_radius_m", lo: 0.01, hi: 0.15, why: "a fist is 3 .. 6 cm in radius" };
 
 /// Force ramps: the shortest ramp still felt as a ramp rather than a knock.
 pub const RAMP_S: Bound = Bound {

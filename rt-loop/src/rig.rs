@@ -302,7 +302,10 @@ impl Rig {
                     format!("overrides[{i}]"),
                     "overrides",
                     0,
-                    format!("\"{o}\" is not a bound that can be overridden; known: {}", bounds::OVERRIDABLE.join(", ")),
+                    format!(
+                        "\"{o}\" is not a bound that can be overridden; known: {}",
+                        bounds::OVERRIDABLE.join(", ")
+                    ),
                 ));
             }
         }
@@ -831,23 +834,125 @@ mod tests {
             }
         };
     }
-    refuses!(refuses_tension_max_beyond_the_motors, "tension_max_n: 20.0", "tension_max_n: 1e6", "hands[0].tension_max_n", "motors");
-    refuses!(refuses_a_force_limit_the_strings_cannot_produce, "force_limit_n: 4.0", "force_limit_n: 400.0", "hands[0].force_limit_n", "strings can produce at most");
-    refuses!(refuses_a_zero_force_limit, "force_limit_n: 4.0", "force_limit_n: 0.0", "hands[0].force_limit_n", "positive");
-    refuses!(refuses_a_stiffness_beyond_the_stability_bound, "stiffness_limit_n_per_m: 5000.0", "stiffness_limit_n_per_m: 1e9", "hands[0].stiffness_limit_n_per_m", "K_max = 2 b / (3 T)");
-    refuses!(refuses_a_minimum_tension_that_pulls_in_the_safe_output, "tension_min_n: 1.0", "tension_min_n: 9.0", "hands[0].tension_min_n", "safe output");
-    refuses!(refuses_a_zero_minimum_tension, "tension_min_n: 1.0", "tension_min_n: 0.0", "hands[0].tension_min_n", "taut");
-    refuses!(refuses_a_ramp_in_of_zero, "ramp_in_s: 0.5", "ramp_in_s: 0.0", "safety.ramp_in_s", "step of full force");
-    refuses!(refuses_a_ramp_out_of_zero, "ramp_out_s: 0.3", "ramp_out_s: 0.0", "safety.ramp_out_s", "step of full force");
-    refuses!(refuses_a_residual_check_switched_off, "residual_fault_ticks: 20", "residual_fault_ticks: 4294967295", "safety.residual_fault_ticks", "switches the pose check off");
-    refuses!(refuses_recovery_after_a_single_good_tick, "fault_recovery_ticks: 30", "fault_recovery_ticks: 1", "safety.fault_recovery_ticks", "at least 10 times");
-    refuses!(refuses_holding_the_output_for_long, "reply_fault_ticks: 5", "reply_fault_ticks: 1000", "safety.reply_fault_ticks", "20 ms");
-    refuses!(refuses_metres_per_count_of_1e_300, "metres_per_count: 2.924062107079e-5", "metres_per_count: 1e-300", "hands[0].strings[0].metres_per_count", "pulley");
-    refuses!(refuses_volts_per_newton_of_1000, "volts_per_newton: 0.2", "volts_per_newton: 1000.0", "hands[0].strings[0].volts_per_newton", "amplifiers");
-    refuses!(refuses_a_home_point_15_m_outside_the_frame, "home_m: (-0.15, 0.0, 0.0)", "home_m: (15.0, 0.0, 0.0)", "hands[0].home_m", "not inside this hand's frame");
-    refuses!(refuses_a_negative_length_at_zero, "volts_per_newton: 0.2)", "volts_per_newton: 0.2, length_at_zero_m: Some(-1.0))", "hands[0].strings[0].length_at_zero_m", "never negative");
-    refuses!(refuses_a_contact_fade_of_minus_zero, "contact_fade_s: 0.1", "contact_fade_s: -0.0", "safety.contact_fade_s", "must be in");
-    refuses!(refuses_a_stillness_tolerance_below_the_encoder_noise, "rehome_still_m: 0.003", "rehome_still_m: 0.0001", "safety.rehome_still_m", "encoder");
+    refuses!(
+        refuses_tension_max_beyond_the_motors,
+        "tension_max_n: 20.0",
+        "tension_max_n: 1e6",
+        "hands[0].tension_max_n",
+        "motors"
+    );
+    refuses!(
+        refuses_a_force_limit_the_strings_cannot_produce,
+        "force_limit_n: 4.0",
+        "force_limit_n: 400.0",
+        "hands[0].force_limit_n",
+        "strings can produce at most"
+    );
+    refuses!(
+        refuses_a_zero_force_limit,
+        "force_limit_n: 4.0",
+        "force_limit_n: 0.0",
+        "hands[0].force_limit_n",
+        "positive"
+    );
+    refuses!(
+        refuses_a_stiffness_beyond_the_stability_bound,
+        "stiffness_limit_n_per_m: 5000.0",
+        "stiffness_limit_n_per_m: 1e9",
+        "hands[0].stiffness_limit_n_per_m",
+        "K_max = 2 b / (3 T)"
+    );
+    refuses!(
+        refuses_a_minimum_tension_that_pulls_in_the_safe_output,
+        "tension_min_n: 1.0",
+        "tension_min_n: 9.0",
+        "hands[0].tension_min_n",
+        "safe output"
+    );
+    refuses!(
+        refuses_a_zero_minimum_tension,
+        "tension_min_n: 1.0",
+        "tension_min_n: 0.0",
+        "hands[0].tension_min_n",
+        "taut"
+    );
+    refuses!(
+        refuses_a_ramp_in_of_zero,
+        "ramp_in_s: 0.5",
+        "ramp_in_s: 0.0",
+        "safety.ramp_in_s",
+        "step of full force"
+    );
+    refuses!(
+        refuses_a_ramp_out_of_zero,
+        "ramp_out_s: 0.3",
+        "ramp_out_s: 0.0",
+        "safety.ramp_out_s",
+        "step of full force"
+    );
+    refuses!(
+        refuses_a_residual_check_switched_off,
+        "residual_fault_ticks: 20",
+        "residual_fault_ticks: 4294967295",
+        "safety.residual_fault_ticks",
+        "switches the pose check off"
+    );
+    refuses!(
+        refuses_recovery_after_a_single_good_tick,
+        "fault_recovery_ticks: 30",
+        "fault_recovery_ticks: 1",
+        "safety.fault_recovery_ticks",
+        "at least 10 times"
+    );
+    refuses!(
+        refuses_holding_the_output_for_long,
+        "reply_fault_ticks: 5",
+        "reply_fault_ticks: 1000",
+        "safety.reply_fault_ticks",
+        "20 ms"
+    );
+    refuses!(
+        refuses_metres_per_count_of_1e_300,
+        "metres_per_count: 2.924062107079e-5",
+        "metres_per_count: 1e-300",
+        "hands[0].strings[0].metres_per_count",
+        "pulley"
+    );
+    refuses!(
+        refuses_volts_per_newton_of_1000,
+        "volts_per_newton: 0.2",
+        "volts_per_newton: 1000.0",
+        "hands[0].strings[0].volts_per_newton",
+        "amplifiers"
+    );
+    refuses!(
+        refuses_a_home_point_15_m_outside_the_frame,
+        "home_m: (-0.15, 0.0, 0.0)",
+        "home_m: (15.0, 0.0, 0.0)",
+        "hands[0].home_m",
+        "not inside this hand's frame"
+    );
+    refuses!(
+        refuses_a_negative_length_at_zero,
+        "volts_per_newton: 0.2)",
+        "volts_per_newton: 0.2, length_at_zero_m: Some(-1.0))",
+        "hands[0].strings[0].length_at_zero_m",
+        "never negative"
+    );
+    refuses!(
+        refuses_a_contact_fade_of_minus_zero,
+        "contact_fade_s: 0.1",
+        "contact_fade_s: -0.0",
+        "safety.contact_fade_s",
+        "must be in"
+    );
+    refuses!(
+        refuses_a_stillness_tolerance_below_the_encoder_noise,
+        "rehome_still_m: 0.003",
+        "rehome_still_m: 0.0001",
+        "safety.rehome_still_m",
+        "encoder"
+    );
 
     #[test]
     fn an_override_accepts_a_value_beyond_its_bound_and_is_kept_for_the_summary() {
@@ -859,7 +964,10 @@ mod tests {
         assert_eq!(rig.overrides, vec!["tension_max_n".to_string()]);
         // Hard limits are never overridable.
         let text = text.replace("contact_fade_s: 0.1", "contact_fade_s: -0.0");
-        let text = text.replace("overrides: [\"tension_max_n\"],", "overrides: [\"tension_max_n\", \"contact_fade_s\"],");
+        let text = text.replace(
+            "overrides: [\"tension_max_n\"],",
+            "overrides: [\"tension_max_n\", \"contact_fade_s\"],",
+        );
         assert_eq!(Rig::from_str(&text, "r").unwrap_err().field, "safety.contact_fade_s");
         // An unknown override name is an error that lists the known ones.
         let text = DEFAULT_RIG_RON.replace("overrides: [],", "overrides: [\"everything\"],");

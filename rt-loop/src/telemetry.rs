@@ -30,6 +30,9 @@ pub struct HandRecord {
     pub method: Method,
     pub contacts: u8,
     pub clamped: bool,
+    /// This hand's output was held from the last tick (late, missing or rejected reply, or a
+    /// pose above the residual limit): every other field repeats that tick's.
+    pub held: bool,
 }
 
 impl Default for HandRecord {
@@ -47,6 +50,7 @@ impl Default for HandRecord {
             method: Method::Exact,
             contacts: 0,
             clamped: false,
+            held: false,
         }
     }
 }
@@ -70,6 +74,9 @@ pub struct TickRecord {
     /// Age of the contact model used (infinite: none).
     pub contact_age_s: f64,
     pub hands: [HandRecord; 2],
+    /// Homing was lost (a fault during homing, a reopened device): the rig waits for both grips
+    /// to be held still at their home points, or for the Home command.
+    pub awaiting_home: bool,
 }
 
 /// Percentiles of a distribution, in seconds.
