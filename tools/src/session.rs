@@ -234,6 +234,18 @@ impl std::fmt::Display for Summary {
             "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
         )?;
+        writeln!(
+            f,
+            "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
+            c.held[0],
+            c.held[1],
+            c.late_replies,
+            c.count_jumps[0],
+            c.count_jumps[1],
+            c.residual_high[0],
+            c.residual_high[1],
+            c.rehomes
+        )?;
         for fault in &self.faults_seen {
             writeln!(f, "  fault        {fault}")?;
         }
@@ -333,6 +345,10 @@ pub fn run_live<D: Device + 'static>(
                 Event::DeviceReopened => {
                     faults_seen.push("device reopened after a disconnect: home again".into())
                 }
+                Event::HomeNeeded => faults_seen.push(
+                    "homing lost: hold both grips still at their home points (the rig homes itself) or send Home"
+                        .into(),
+                ),
                 Event::Stopped => stopped = true,
                 _ => {}
             }
@@ -404,7 +420,10 @@ pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let Some(last) = w.last else { return "waiting for the first tick".into() };
     let p = w.lateness.percentiles();
     let f = |h: usize| last.hands[h].output_n.length();
-    let fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    let mut fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    if last.awaiting_home {
+        fault.push_str(" (hold both grips still at home to re-home)");
+    }
     format!(
         "t {:6.1} s  {}{}  {:6.1} Hz  late p99 {:>8}  force L {:4.1} N R {:4.1} N (max {:4.1}/{:4.1})  gain {:.2}  faults {}  scene steps {}",
         last.t_s,
