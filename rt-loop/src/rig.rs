@@ -144,7 +144,7 @@ pub struct SafetyFile {
     pub reply_fault_ticks: u32,
     /// A string length further than this from where the hand's last pose and velocity predict it
     /// (per tick since the last accepted reply) marks the reply corrupt: held and counted.
-    /// Optional: 5 mm when left out.
+    /// Optional: 2 mm when left out.
     #[serde(default = "default_reply_jump_m")]
     pub reply_jump_m: f64,
     /// After homing was lost (a fault during homing, a reopened device) the rig homes itself when
@@ -167,7 +167,7 @@ fn default_reply_fault_ticks() -> u32 {
     5
 }
 fn default_reply_jump_m() -> f64 {
-    0.005
+    0.002
 }
 fn default_rehome_still_m() -> f64 {
     0.003

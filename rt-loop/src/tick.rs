@@ -191,8 +191,10 @@ struct HandCore {
     /// Last pose that was valid: the safe output's string directions come from it.
     safe_pos_m: DVec3,
     bad_residual_ticks: u32,
-    /// Ticks since this hand's counts were last accepted (1: the previous tick).
+    /// Ticks since this hand's counts were last accepted (1: the previous tick), and the string
+    /// lengths they gave.
     since_accept: u32,
+    lengths_m: [f64; 4],
     /// Rejected count jumps in a row.
     jump_run: u32,
     /// What this hand output on its last computed tick, for holding it.
@@ -263,6 +265,7 @@ impl TickCore {
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
                 since_accept: 1,
+                lengths_m: [0.0; 4],
                 jump_run: 0,
                 last: HeldHand::default(),
                 still_min: [0; 4],
@@ -567,6 +570,11 @@ impl TickCore {
         self.model = Some(m);
     }
 
+    /// The contact model in use (the newest received).
+    pub fn contact_model(&self) -> Option<&ContactModel> {
+        self.model.as_ref()
+    }
+
     /// The age of the current contact model at `now_s`.
     pub fn model_age_s(&self, now_s: f64) -> Option<f64> {
         self.model.as_ref().map(|m| now_s - m.stamp_s)
@@ -685,6 +693,7 @@ impl TickCore {
             h.bad_residual_ticks = 0;
             h.prev_counts = std::mem::replace(&mut h.counts, counts);
             h.pose = pose;
+            h.lengths_m = lengths;
             h.vel.update_after(pose.pos_m, h.since_accept);
             h.since_accept = 1;
             h.safe_pos_m = pose.pos_m;
@@ -853,14 +862,18 @@ impl TickCore {
 }
 
 impl HandCore {
-    /// Where this hand's last accepted pose and velocity put each string now, `since_accept`
-    /// ticks later; None without a velocity history (first tick, after homing or a fault).
+    /// Where each string should be now, `since_accept` ticks after the last accepted reply: its
+    /// length then, plus the change the hand's velocity makes of it (the step is predicted, not
+    /// the length, so the pose's own residual does not count as a jump). None without a velocity
+    /// history (first tick, after homing or a fault).
     fn predicted_lengths(&self, dt_s: f64) -> Option<[f64; 4]> {
         if !(self.pose.valid && self.vel.has_history()) {
             return None;
         }
-        let p = self.pose.pos_m + self.vel.velocity() * (dt_s * self.since_accept as f64);
-        Some(self.kin.lengths(p))
+        let p = self.pose.pos_m;
+        let ahead = self.kin.lengths(p + self.vel.velocity() * (dt_s * self.since_accept as f64));
+        let now = self.kin.lengths(p);
+        Some(std::array::from_fn(|s| self.lengths_m[s] + (ahead[s] - now[s])))
     }
 }
 
@@ -1112,15 +1125,15 @@ mod tests {
         for _ in 0..10 {
             tick_io(&mut c, &mut out, None, &zero, Ok(()));
         }
-        // String 1 of hand 0 creeps 0.5 mm per tick (a slipping encoder): slow enough for the jump
+        // String 1 of hand 0 creeps 0.2 mm per tick (a slipping encoder): slow enough for the jump
         // check, inconsistent with the other three.
         let mpc = c.rig().hands[0].metres_per_count[1];
         let limit = c.rig().safety.residual_fault_ticks;
         let mut held = 0;
         let mut fault_at = None;
-        for i in 1..200 {
+        for i in 1..400 {
             let mut counts = zero;
-            counts[1] = (i as f64 * 0.5e-3 / mpc).round() as i64;
+            counts[1] = (i as f64 * 0.2e-3 / mpc).round() as i64;
             let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
             if r.state == Lifecycle::Faulted {
                 fault_at = Some(r.fault);
@@ -1132,6 +1145,7 @@ mod tests {
         assert_eq!(held, u64::from(limit) - 1, "each tick above the limit before the fault is held");
         assert_eq!(c.counters().residual_high[0], u64::from(limit));
         assert_eq!(c.counters().held, [u64::from(limit) - 1, 0]);
+        assert_eq!(c.counters().count_jumps, [0, 0]);
     }
 
     #[test]

@@ -749,3 +749,6 @@ mod uart_pty;
 
 #[path = "hil/boxing.rs"]
 mod boxing;
+
+#[path = "hil/corrupt.rs"]
+mod corrupt;
