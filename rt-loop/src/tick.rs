@@ -1434,6 +1434,94 @@ mod tests {
     }
 
     #[test]
+    fn the_scenes_extra_force_is_rendered_as_given_and_every_safety_counter_counts_its_ticks() {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        let extra = |f: DVec3| {
+            let mut m = ContactModel { seq: 1, ..Default::default() };
+            m.extra_force_n = [f, DVec3::ZERO];
+            m
+        };
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(extra(DVec3::ZERO)), &zero, Ok(()));
+        }
+        let base = *c.counters();
+        // The scene's extra force, as given (world and rig axes agree here).
+        let (_, r) = tick_io(&mut c, &mut out, Some(extra(DVec3::new(0.0, 1.0, -2.0))), &zero, Ok(()));
+        assert!((r.hands[0].commanded_n - DVec3::new(0.0, 1.0, -2.0)).length() < 1e-12, "{r:?}");
+        assert!((r.hands[0].output_n - DVec3::new(0.0, 1.0, -2.0)).length() < 1e-9);
+        // 7 ticks above the 4 N limit: clamped 7 times, on hand 0 only.
+        for _ in 0..7 {
+            tick_io(&mut c, &mut out, Some(extra(DVec3::X * 10.0)), &zero, Ok(()));
+        }
+        // 3 ticks of a NaN force: replaced by zero, counted.
+        for _ in 0..3 {
+            let (_, r) = tick_io(&mut c, &mut out, Some(extra(DVec3::NAN)), &zero, Ok(()));
+            assert_eq!(r.hands[0].commanded_n, DVec3::ZERO);
+        }
+        // 5 ticks against a proxy stiffer than the limit, 1 mm deep.
+        let home = c.rig().rig_to_world.point(c.rig().hands[1].home_m);
+        let mut stiff = ContactModel { seq: 2, ..Default::default() };
+        stiff.push(Proxy {
+            id: ProxyId { body: 1, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Y * 0.039, normal: DVec3::Y },
+            k_n_per_m: 1e6,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b10,
+        });
+        for _ in 0..5 {
+            let (_, r) = tick_io(&mut c, &mut out, Some(stiff), &zero, Ok(()));
+            assert!((r.hands[1].commanded_n.y - 4.0).abs() < 1e-9, "5000 N/m x 1 mm = 5 N, clamped to 4");
+        }
+        // 100 ticks with no new model: the ticks past contact_stale_after_s are stale.
+        let (mut stale, mut clamped_fading) = (0, 0);
+        for _ in 0..100 {
+            let (_, r) = tick_io(&mut c, &mut out, None, &zero, Ok(()));
+            stale += (r.contact_age_s > c.rig().safety.contact_stale_after_s) as u64;
+            clamped_fading += r.hands[1].clamped as u64;
+        }
+        assert!((60..=71).contains(&stale), "{stale}");
+        // The stiff contact goes on (fading) while the model ages: clamped while above 4 N.
+        assert!((30..60).contains(&clamped_fading), "{clamped_fading}");
+        let k = c.counters();
+        assert_eq!(k.clamped, [base.clamped[0] + 7, base.clamped[1] + 5 + clamped_fading]);
+        assert_eq!(k.non_finite, base.non_finite + 3);
+        assert_eq!(k.stiffness_limited, [base.stiffness_limited[0], base.stiffness_limited[1] + 5 + 100]);
+        assert_eq!(k.stale, base.stale + stale);
+        assert_eq!(k.active_ticks, base.active_ticks + 1 + 7 + 3 + 5 + 100);
+        assert_eq!(k.infeasible, base.infeasible);
+        assert_eq!(k.fallback, base.fallback);
+        assert_eq!(k.models, base.models + 1 + 7 + 3 + 5);
+    }
+
+    #[test]
+    fn a_grip_outside_its_frame_is_counted_as_fallback_every_tick() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        // Hand 1 walks 1 mm per tick down to 1.5 m below the rig origin, out of its tetrahedron
+        // (zero net force is then infeasible: the box-QP fallback chooses the tensions).
+        let mut fallback = 0;
+        let mut infeasible = 0;
+        for k in 0..1500 {
+            let p = [home[0], home[1] - DVec3::Y * (k as f64 * 1e-3)];
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            assert!(!r.hands[1].held, "walking is not a jump");
+            fallback += (r.hands[1].method == Method::Fallback) as u64;
+            infeasible += (r.hands[1].method == Method::Scaled) as u64;
+        }
+        assert!(fallback > 100, "{fallback}");
+        assert_eq!(c.counters().fallback, [0, fallback]);
+        assert_eq!(c.counters().infeasible, [0, infeasible]);
+    }
+
+    #[test]
     fn recovery_needs_good_exchanges_in_a_row() {
         let mut c = core();
         home_and_activate(&mut c);
