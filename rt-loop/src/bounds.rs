@@ -195,7 +195,9 @@ pub fn check_board_range(
     for (h, vpn) in volts_per_newton.iter().enumerate() {
         for (s, v) in vpn.iter().enumerate() {
             let need = tension_max_n[h] * v.abs();
-            if !(need <= volts_max + 1e-9) {
+            // Written so that a NaN need does not fit either.
+            let fits = need <= volts_max + 1e-9;
+            if !fits {
                 out.push(format!(
                     "hand {h} string {s}: {} N needs {need:.2} V, the board stops at {volts_max:.2} V ({:.1} N)",
                     tension_max_n[h],

@@ -191,9 +191,10 @@ struct HandCore {
     /// Last pose that was valid: the safe output's string directions come from it.
     safe_pos_m: DVec3,
     bad_residual_ticks: u32,
-    /// Ticks since this hand's counts were last accepted (1: the previous tick), and the string
-    /// lengths they gave.
+    /// Ticks since this hand's counts were last accepted (1: the previous tick), when that was,
+    /// and the string lengths they gave.
     since_accept: u32,
+    accept_t_s: f64,
     lengths_m: [f64; 4],
     /// Rejected count jumps in a row.
     jump_run: u32,
@@ -265,6 +266,7 @@ impl TickCore {
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
                 since_accept: 1,
+                accept_t_s: 0.0,
                 lengths_m: [0.0; 4],
                 jump_run: 0,
                 last: HeldHand::default(),
@@ -655,9 +657,14 @@ impl TickCore {
             }
             // The count step against the hand's motion: where the last pose and velocity put each
             // string now. A corrupt count lands centimetres away; a hand cannot.
-            if let Some(pred) = h.predicted_lengths(dt) {
-                let tol = jump_m * h.since_accept as f64;
-                let jumped = lengths.iter().zip(pred).any(|(l, p)| !((l - p).abs() <= tol));
+            let periods = h.periods_since_accept(now_s, dt);
+            if let Some(pred) = h.predicted_lengths(dt, periods) {
+                let tol = jump_m * f64::from(periods);
+                // A NaN length is a jump too.
+                let jumped = lengths.iter().zip(pred).any(|(l, p)| {
+                    let within = (l - p).abs() <= tol;
+                    !within
+                });
                 if jumped {
                     self.counters.count_jumps[hi] += 1;
                     h.jump_run += 1;
@@ -694,8 +701,9 @@ impl TickCore {
             h.prev_counts = std::mem::replace(&mut h.counts, counts);
             h.pose = pose;
             h.lengths_m = lengths;
-            h.vel.update_after(pose.pos_m, h.since_accept);
+            h.vel.update_after(pose.pos_m, periods);
             h.since_accept = 1;
+            h.accept_t_s = now_s;
             h.safe_pos_m = pose.pos_m;
         }
         if let Some(f) = fault {
@@ -862,16 +870,24 @@ impl TickCore {
 }
 
 impl HandCore {
-    /// Where each string should be now, `since_accept` ticks after the last accepted reply: its
-    /// length then, plus the change the hand's velocity makes of it (the step is predicted, not
-    /// the length, so the pose's own residual does not count as a jump). None without a velocity
+    /// Periods since the last accepted reply: the ticks run since, or the time that passed when
+    /// the loop woke late (on the real clock a late tick's counts moved for longer).
+    fn periods_since_accept(&self, now_s: f64, dt_s: f64) -> u32 {
+        let by_time = ((now_s - self.accept_t_s) / dt_s).round();
+        // `as` saturates (and a NaN gives 0), so this never panics.
+        self.since_accept.max(by_time as u32)
+    }
+
+    /// Where each string should be now, `periods` after the last accepted reply: its length
+    /// then, plus the change the hand's velocity makes of it (the step is predicted, not the
+    /// length, so the pose's own residual does not count as a jump). None without a velocity
     /// history (first tick, after homing or a fault).
-    fn predicted_lengths(&self, dt_s: f64) -> Option<[f64; 4]> {
+    fn predicted_lengths(&self, dt_s: f64, periods: u32) -> Option<[f64; 4]> {
         if !(self.pose.valid && self.vel.has_history()) {
             return None;
         }
         let p = self.pose.pos_m;
-        let ahead = self.kin.lengths(p + self.vel.velocity() * (dt_s * self.since_accept as f64));
+        let ahead = self.kin.lengths(p + self.vel.velocity() * (dt_s * f64::from(periods)));
         let now = self.kin.lengths(p);
         Some(std::array::from_fn(|s| self.lengths_m[s] + (ahead[s] - now[s])))
     }
@@ -1114,6 +1130,36 @@ mod tests {
         assert_eq!(r.hands[0].commanded_n, DVec3::ZERO);
         assert_eq!(c.counters().count_jumps, [1 + n as u64, 1]);
         assert_eq!(c.counters().held, [1 + n as u64 - 1, 1]);
+    }
+
+    #[test]
+    fn a_tick_that_woke_late_is_judged_by_the_time_that_passed_not_as_a_jump() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let (mut out, mut rec, mut s) = (Output::default(), TickRecord::default(), HandSample::default());
+        // The hands move at 1 m/s along x; on the real clock.
+        let mut t = c.counters.ticks as f64 * 0.001;
+        let mut x = 0.0;
+        let mut tick = |c: &mut TickCore, dt: f64| {
+            t += dt;
+            x += dt; // 1 m/s
+            let inp = Input { counts: counts_at(c, home.map(|h| h + DVec3::X * x)), status: 0 };
+            c.step(t, Ok(()), &inp, &mut out, &mut s, &mut rec);
+            rec
+        };
+        for _ in 0..300 {
+            tick(&mut c, 0.001);
+        }
+        // The loop wakes 6 ms late: the hands moved 6 mm, three times the per-tick tolerance.
+        let r = tick(&mut c, 0.006);
+        assert!(!r.hands[0].held && !r.hands[1].held, "{:?}", c.counters());
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        assert!(
+            (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+            "velocity over the late tick: {}",
+            r.hands[0].vel_m_per_s
+        );
     }
 
     #[test]

@@ -50,7 +50,7 @@ impl Device for Garbling {
         if self.uniform() < self.rate {
             let ch = (self.next() % 8) as usize;
             let mag = 1 + (self.next() % 4096) as i64;
-            let by = if self.next() % 2 == 0 { mag } else { -mag };
+            let by = if self.next().is_multiple_of(2) { mag } else { -mag };
             inp.counts[ch] += by;
             self.garbled += 1;
             self.last = Some((ch, by));
@@ -133,7 +133,7 @@ fn measure(seed: u64, rate: f64, ticks: usize) -> Damage {
                 d.used_max_counts = d.used_max_counts.max(by.abs());
             }
         }
-        for h in 0..2 {
+        for (h, prev) in prev.iter_mut().enumerate() {
             let err = (rb.hands[h].commanded_n - rc.hands[h].commanded_n).length();
             if rb.hands[h].held {
                 d.force_err_held_n = d.force_err_held_n.max(err);
@@ -144,8 +144,8 @@ fn measure(seed: u64, rate: f64, ticks: usize) -> Damage {
                 }
             }
             d.over_half_newton += (err > 0.5) as u64;
-            d.shadow_step_n = d.shadow_step_n.max((rc.hands[h].commanded_n - prev[h]).length());
-            prev[h] = rc.hands[h].commanded_n;
+            d.shadow_step_n = d.shadow_step_n.max((rc.hands[h].commanded_n - *prev).length());
+            *prev = rc.hands[h].commanded_n;
         }
     }
     d.counters = *v.counters();
