@@ -144,9 +144,34 @@ mod tests {
         // A model from the future (clock skew) is fresh, not amplified.
         assert_eq!(staleness_gain(Some(-0.5), 0.03, 0.1), 1.0);
         // A zero or negative fade (refused by the rig file) drops force at once, never keeps it.
+        assert_eq!(staleness_gain(Some(0.01), 0.03, 0.0), 1.0, "a fresh model is full whatever the fade");
         assert_eq!(staleness_gain(Some(0.0300001), 0.03, 0.0), 0.0);
         assert_eq!(staleness_gain(Some(0.0300001), 0.03, -0.0), 0.0);
         assert_eq!(staleness_gain(Some(0.0300001), 0.03, -1.0), 0.0);
+    }
+
+    #[test]
+    fn every_ramp_time_takes_its_number_of_ticks_and_ends_exactly_at_its_ends() {
+        // Steps of dt / t rarely sum to exactly 1: the snap must land the ends on the right tick.
+        for ms in 50..=1000 {
+            let t = ms as f64 * 1e-3;
+            let want = ms;
+            let mut r = Ramp::new(t, t, 0.001);
+            r.rise();
+            let mut n = 1;
+            while r.step() < 1.0 {
+                n += 1;
+                assert!(r.gain() < 1.0 && n <= want, "ramp {ms} ms rose for {n} ticks");
+            }
+            assert_eq!((n, r.gain()), (want, 1.0), "ramp in {ms} ms");
+            r.fall();
+            let mut n = 1;
+            while r.step() > 0.0 {
+                n += 1;
+                assert!(n <= want, "ramp {ms} ms fell for {n} ticks");
+            }
+            assert_eq!((n, r.gain()), (want, 0.0), "ramp out {ms} ms");
+        }
     }
 
     #[test]
