@@ -49,7 +49,12 @@ fn pressing_through_the_pty(name: &str, k: f64, reply_timeout: Duration) -> PtyS
     let sim = sim_device(&r, scripts, &SimOptions::default()).unwrap();
     let opts = EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() };
     let emu = Emulator::spawn(sim, opts, &link(name)).unwrap();
-    let uo = UartOptions { reply_timeout, ..UartOptions::default() };
+    // Enumeration at open waits for every board id, present or not: generous, but not slow.
+    let uo = UartOptions {
+        reply_timeout,
+        enumerate_timeout: Duration::from_millis(250),
+        ..UartOptions::default()
+    };
     let dev = UartDevice::on_port(emu.link().to_str().unwrap(), uo).unwrap();
     let mut v = VirtualRun::new(dev, &r, Some(Box::new(front_wall(k, 5.0)))).unwrap();
     v.home_and_activate();
@@ -125,23 +130,33 @@ fn run_checked(s: &mut PtySession, n: u64) -> TickRecord {
 
 /// Runs a faulted tick, then one more whose exchange writes its output: the boards must then
 /// drive exactly that safe output (zero net force, every string at or above minimum tension),
-/// converted at 0.2 V/N and 4096/3.3 digits per volt.
+/// converted at 0.2 V/N and 4096/3.3 digits per volt. Only an exchange that got its reply proves
+/// the boards took the command (a late one may still be on its way), so this retries until one
+/// does, as long as the rig stays faulted.
 fn boards_drive_the_safe_output(s: &mut PtySession) {
-    let safe = run_checked(s, 1);
-    assert_eq!(safe.state, Lifecycle::Faulted);
-    run_checked(s, 1);
-    let cur = s.control().boards().motor_currents();
-    for (h, hr) in safe.hands.iter().enumerate() {
-        assert!(hr.output_n.length() < 1e-9);
-        for (i, t) in hr.tensions_n.iter().enumerate() {
-            let want = (t * 0.2 * 4096.0 / 3.3).round() as i16;
-            assert!(
-                (cur[4 * h + i] - want).abs() <= 1,
-                "board currents {cur:?}, safe tensions {:?}",
-                hr.tensions_n
-            );
+    for _ in 0..20 {
+        let safe = run_checked(s, 1);
+        assert_eq!(safe.state, Lifecycle::Faulted);
+        let errors = s.v.counters().device_errors;
+        run_checked(s, 1);
+        if s.v.counters().device_errors != errors {
+            continue;
         }
+        let cur = s.control().boards().motor_currents();
+        for (h, hr) in safe.hands.iter().enumerate() {
+            assert!(hr.output_n.length() < 1e-9);
+            for (i, t) in hr.tensions_n.iter().enumerate() {
+                let want = (t * 0.2 * 4096.0 / 3.3).round() as i16;
+                assert!(
+                    (cur[4 * h + i] - want).abs() <= 1,
+                    "board currents {cur:?}, safe tensions {:?}",
+                    hr.tensions_n
+                );
+            }
+        }
+        return;
     }
+    panic!("no exchange got its reply: {:?}", s.v.counters());
 }
 
 fn reply_limit() -> u64 {
