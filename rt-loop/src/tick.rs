@@ -531,9 +531,18 @@ impl TickCore {
             return;
         }
         let need = (self.rig.safety.rehome_still_s / self.rig.period_s).round() as u32;
-        let tol = self.rig.safety.rehome_still_m;
+        let (tol, jump) = (self.rig.safety.rehome_still_m, self.rig.safety.reply_jump_m);
         let mut all_still = true;
-        for (h, hr) in self.hands.iter_mut().zip(self.rig.hands.iter()) {
+        for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
+            // An unhomed hand's counts are taken as they come: a reply that disagrees with the one
+            // before by more than a hand moves in a tick is corrupt (or the hand moves fast, and
+            // the next replies will say so): it neither extends nor restarts the window.
+            let step = |s: usize| ((h.counts[s] - h.prev_counts[s]) as f64 * hr.metres_per_count[s]).abs();
+            if (0..4).any(|s| step(s) > jump) {
+                self.counters.count_jumps[hi] += 1;
+                all_still &= h.still_ticks >= need;
+                continue;
+            }
             let mut moved = h.still_ticks == 0;
             for s in 0..4 {
                 let lo = h.still_min[s].min(h.counts[s]);
@@ -1328,6 +1337,37 @@ mod tests {
         let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
         run(&mut c, settle + 1, Ok(()));
         assert_eq!(c.state(), Lifecycle::Active, "the Activate that was waiting for homing is kept");
+    }
+
+    #[test]
+    fn garbled_replies_neither_stop_nor_fake_the_stillness_that_rehomes() {
+        let mut c = core();
+        c.command(Command::Home);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, need, Ok(()));
+        assert!(c.is_awaiting_home());
+        // Grips held still, but every 20th reply has a count 4096 off.
+        let mut out = Output::default();
+        let still = (c.rig().safety.rehome_still_s / c.rig().period_s).round() as usize;
+        let mut ticks = 0;
+        while c.counters().rehomes == 0 {
+            let mut counts = [0i64; MAX_CHANNELS];
+            if ticks % 20 == 7 {
+                counts[ticks % 8] = 4096;
+            }
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            ticks += 1;
+            assert!(ticks < 2 * still, "the garbled replies kept the rig from homing");
+        }
+        assert!(ticks >= still, "{ticks}");
+        assert!(c.counters().count_jumps.iter().sum::<u64>() > 0);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed());
+        assert_eq!(c.hands[0].zero_m, Some(c.rig().hands[0].home_offsets([0; 4], c.rig().hands[0].home_m)));
     }
 
     #[test]

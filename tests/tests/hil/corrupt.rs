@@ -181,3 +181,35 @@ fn with_5_percent_of_replies_garbled_no_wrong_count_drives_the_force() {
     assert!(d.force_err_held_n <= d.shadow_step_n + 1e-9);
     assert!(d.over_half_newton < 40, "{} hand-ticks off by more than 0.5 N", d.over_half_newton);
 }
+
+#[test]
+fn garbled_replies_a_fault_during_homing_and_the_rehoming_allocate_nothing() {
+    let r = rig();
+    let mut v = sparring_garbled(5, 0.05);
+    v.run_ticks(1000);
+    let (before, _) = super::forbidden_allocs();
+    let home = [r.hands[0].home_m, r.hands[1].home_m];
+    for i in 0..8_000u32 {
+        match i {
+            0 => v.rt.command(Command::Deactivate),
+            1 => (0..2).for_each(|h| v.rt.device_mut().inner.set_script(h, reach_and_hold(home[h]))),
+            1_500 => {
+                v.rt.command(Command::Home);
+                v.rt.command(Command::Activate);
+            }
+            // A run of timeouts while homing: the homing is lost and redone once the grips rest.
+            1_520 => {
+                v.rt.device_mut()
+                    .inner
+                    .fail_next(r.safety.reply_fault_ticks, DeviceError::Timeout { waited_us: 1 })
+            }
+            _ => {}
+        }
+        super::no_alloc(|| v.tick());
+    }
+    let (after, first) = super::forbidden_allocs();
+    assert_eq!(after - before, 0, "the tick allocated (first: {first} bytes)");
+    let c = v.counters();
+    assert!(c.rehomes == 1 && c.count_jumps.iter().sum::<u64>() > 100 && c.faults == 1, "{c:?}");
+    assert_eq!(v.rt.state(), Lifecycle::Active);
+}
