@@ -239,6 +239,16 @@ mod tests {
         assert!((d - 0.5).abs() < 1e-12 && (n + DVec3::Y).length() < 1e-12);
         let (d, n) = distance(&cap, DVec3::new(-1.0, 0.0, 0.0));
         assert!((d - 0.9).abs() < 1e-12 && (n + DVec3::X).length() < 1e-12, "before the first end cap");
+        // Away from the origin: the axis parameter is measured from the first end.
+        let off = ProxyShape::Capsule {
+            a_m: DVec3::new(1.0, 2.0, 3.0),
+            b_m: DVec3::new(3.0, 2.0, 3.0),
+            radius_m: 0.1,
+        };
+        let (d, n) = distance(&off, DVec3::new(1.5, 2.0, 3.6));
+        assert!((d - 0.5).abs() < 1e-12 && (n - DVec3::Z).length() < 1e-12, "{d} {n}");
+        let (d, n) = distance(&off, DVec3::new(3.4, 2.0, 3.0));
+        assert!((d - 0.3).abs() < 1e-12 && (n - DVec3::X).length() < 1e-12, "beyond the second end: {d} {n}");
         let dot = ProxyShape::Capsule { a_m: DVec3::ONE, b_m: DVec3::ONE, radius_m: 0.1 };
         let (d, _) = distance(&dot, DVec3::new(1.0, 2.0, 1.0));
         assert!((d - 0.9).abs() < 1e-12, "a zero-length capsule is a sphere");
