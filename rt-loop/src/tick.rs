@@ -1608,6 +1608,26 @@ mod tests {
     }
 
     #[test]
+    fn names_and_reasons_say_what_they_are() {
+        let names = [Lifecycle::Unconfigured, Lifecycle::Inactive, Lifecycle::Active, Lifecycle::Faulted]
+            .map(Lifecycle::name);
+        assert_eq!(names, ["unconfigured", "inactive", "active", "faulted"]);
+        let says = |f: FaultReason| f.to_string();
+        assert_eq!(says(FaultReason::Device(ErrorKind::Timeout)), "device error (Timeout)");
+        assert!(says(FaultReason::PoseInvalid { hand: 1 }).starts_with("hand 1: pose"));
+        assert!(says(FaultReason::Residual { hand: 0 }).contains("slack string"));
+        assert!(says(FaultReason::CountJump { hand: 1 }).starts_with("hand 1: counts jumped"));
+    }
+
+    #[test]
+    fn the_loop_counts_into_the_cores_counters() {
+        let mut c = core();
+        c.counters_mut().misses += 2;
+        c.counters_mut().samples_dropped += 1;
+        assert_eq!((c.counters().misses, c.counters().samples_dropped), (2, 1));
+    }
+
+    #[test]
     fn recovery_needs_good_exchanges_in_a_row() {
         let mut c = core();
         home_and_activate(&mut c);
