@@ -1620,6 +1620,43 @@ mod tests {
     }
 
     #[test]
+    fn events_beyond_the_queue_are_dropped_and_counted() {
+        let mut c = core();
+        for _ in 0..20 {
+            c.command(Command::Activate); // refused: not homed
+        }
+        assert_eq!(c.counters().events_dropped, 4);
+        assert_eq!(std::iter::from_fn(|| c.pop_event()).count(), 16);
+    }
+
+    #[test]
+    fn quiet_only_when_not_active_and_the_force_has_ramped_out() {
+        let mut c = core();
+        assert!(c.is_quiet());
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed() && c.is_quiet());
+        c.command(Command::Activate);
+        assert!(!c.is_quiet(), "active, though the ramp has not risen yet");
+        run(&mut c, 600, Ok(()));
+        assert!(!c.is_quiet(), "active");
+        c.command(Command::Stop);
+        run(&mut c, 100, Ok(()));
+        assert!(!c.is_quiet(), "still ramping out");
+        let ramp_out = (c.rig().safety.ramp_out_s / c.rig().period_s).round() as usize;
+        run(&mut c, ramp_out, Ok(()));
+        assert!(c.is_quiet());
+        // A fault is quiet at once (the ramp is cut).
+        let mut c = core();
+        home_and_activate(&mut c);
+        run(&mut c, 600, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        assert!(c.is_quiet());
+    }
+
+    #[test]
     fn the_loop_counts_into_the_cores_counters() {
         let mut c = core();
         c.counters_mut().misses += 2;
