@@ -1270,14 +1270,21 @@ mod tests {
     fn a_reopened_device_clears_the_fault_to_inactive_and_unhomed_then_rehomes_when_held_still() {
         let mut c = core();
         home_and_activate(&mut c);
-        run(&mut c, 3, Err(TIMEOUT));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        assert_eq!(c.fault(), Some(FaultReason::Device(ErrorKind::Timeout)));
+        while c.pop_event().is_some() {}
+        run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
+        assert_eq!(c.pop_event(), Some(Event::Fault(FaultReason::Device(ErrorKind::Disconnected))));
         run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
         run(&mut c, 10, Err(TIMEOUT));
+        assert_eq!(c.pop_event(), None, "reported once");
         assert_eq!(
             c.fault(),
             Some(FaultReason::Device(ErrorKind::Disconnected)),
             "a disconnect outranks a timeout"
         );
+        assert_eq!(c.counters().faults, 1, "one fault, its reason upgraded");
         c.device_reopened();
         while c.pop_event().is_some() {}
         let need = c.rig().safety.fault_recovery_ticks as usize;
