@@ -1398,6 +1398,20 @@ mod tests {
     }
 
     #[test]
+    fn homing_settles_on_good_replies_only() {
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle - 2, Ok(()));
+        run(&mut c, 3, Err(TIMEOUT)); // held, not a fault: the settle clock waits
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        run(&mut c, 2, Ok(()));
+        assert!(c.is_homing(), "a held tick is not a settled one");
+        run(&mut c, 1, Ok(()));
+        assert!(c.is_homed());
+    }
+
+    #[test]
     fn homing_waits_for_two_replies_that_agree() {
         let mut c = core();
         c.command(Command::Home);
