@@ -495,6 +495,22 @@ fn a_late_reply_burst_shorter_than_the_limit_keeps_force_and_a_longer_one_goes_s
 }
 
 #[test]
+fn a_late_reply_at_start_is_retried_and_a_dead_board_is_not() {
+    let r = rig();
+    let hold = [Script::hold(r.hands[0].home_m), Script::hold(r.hands[1].home_m)];
+    let mut dev = sim_device(&r, hold.clone(), &SimOptions::default()).unwrap();
+    dev.fail_next(spidar_rt::runner::PRIME_TRIES - 1, DeviceError::Timeout { waited_us: 900 });
+    let mut v = VirtualRun::new(dev, &r, None).unwrap();
+    v.home_and_activate();
+    v.run_ticks(200);
+    assert_eq!(v.rt.state(), Lifecycle::Active);
+    let mut dev = sim_device(&r, hold, &SimOptions::default()).unwrap();
+    dev.fail_next(spidar_rt::runner::PRIME_TRIES, DeviceError::Timeout { waited_us: 900 });
+    let e = VirtualRun::new(dev, &r, None).err().expect("a board that never answers is an error");
+    assert!(e.to_string().contains("did not answer"), "{e}");
+}
+
+#[test]
 fn wrong_anchor_in_the_rig_file_faults_on_the_residual_and_drops_force() {
     // The rig file believes one anchor 20 cm from where the simulated frame has it (a typo).
     let truth_rig = rig();
