@@ -668,10 +668,14 @@ impl TickCore {
             // string now. A corrupt count lands centimetres away; a hand cannot.
             let periods = h.periods_since_accept(now_s, dt);
             if let Some(pred) = h.predicted_lengths(dt, periods) {
-                let tol = jump_m * f64::from(periods);
+                // `reply_jump_m` per period, plus one period of the string's own predicted motion:
+                // a reply is sampled when it reaches the board, up to a reply deadline away from
+                // the tick's time, so a fast hand's counts may be that much ahead or behind.
+                let k = f64::from(periods);
                 // A NaN length is a jump too.
-                let jumped = lengths.iter().zip(pred).any(|(l, p)| {
-                    let within = (l - p).abs() <= tol;
+                let jumped = (0..4).any(|s| {
+                    let tol = jump_m * k + (pred[s] - h.lengths_m[s]).abs() / k;
+                    let within = (lengths[s] - pred[s]).abs() <= tol;
                     !within
                 });
                 if jumped {

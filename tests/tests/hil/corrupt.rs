@@ -169,11 +169,13 @@ fn with_5_percent_of_replies_garbled_no_wrong_count_drives_the_force() {
     assert_eq!(c.held, c.count_jumps, "each rejected reply held its hand's output for that tick");
     // A garbled reply is used only when its error is within the jump tolerance of the hand's
     // predicted motion (a few percent of them, all small): never the centimetres of a bad count.
-    // The prediction itself may miss by up to about tau when the fist stops on a stiff wall, so a
-    // used error stays below 2 tau.
+    // The tolerance is tau plus one tick of the string's own motion (at most 3 mm at the 3 m/s
+    // of a sparring punch), and the prediction itself may miss by up to about tau when the fist
+    // stops on a stiff wall: a used error stays below 2 tau + 3 mm.
+    let bound = 2.0 * tau + 3e-3;
     assert!(d.used_garbled < d.garbled / 20, "{} of {} used", d.used_garbled, d.garbled);
-    assert!((d.used_max_counts as f64) * mpc <= 2.0 * tau, "a {} count error was used", d.used_max_counts);
-    assert!(d.pose_err_m <= 2.0 * tau, "pose error {} m", d.pose_err_m);
+    assert!((d.used_max_counts as f64) * mpc <= bound, "a {} count error was used", d.used_max_counts);
+    assert!(d.pose_err_m <= bound, "pose error {} m", d.pose_err_m);
     // The bound on the force: a used reply moves the force by at most what its pose error makes
     // of the stiffest contact (here far less: 0.5 N); a held tick misses at most one tick of the
     // uncorrupted force's own change.
