@@ -1402,6 +1402,70 @@ mod tests {
     }
 
     #[test]
+    fn homing_takes_steady_counts_wherever_they_are() {
+        // Counters far from zero (a board that was never reset) and a grip that trembles by 20
+        // counts (0.6 mm) from one reply to the next: that is steady, homing goes ahead.
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        let mut out = Output::default();
+        let mut counts = [0i64; MAX_CHANNELS];
+        for (ch, n) in counts.iter_mut().enumerate() {
+            *n = 100_000 + 1_000 * ch as i64;
+        }
+        for _ in 0..settle {
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        }
+        counts[5] += 20;
+        tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        assert!(c.is_homed(), "a tremor is not a jump");
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        let h1: [i64; 4] = std::array::from_fn(|s| counts[c.rig().hands[1].channels[s]]);
+        assert_eq!(c.hands[1].zero_m, Some(c.rig().hands[1].home_offsets(h1, c.rig().hands[1].home_m)));
+    }
+
+    #[test]
+    fn the_rehoming_window_counts_only_good_replies_of_an_inactive_rig() {
+        // Ticks until the rig re-homes itself after a fault during homing, with `spoil` applied
+        // on the first ticks after the fault cleared.
+        fn ticks_to_rehome(spoil: usize, err: Option<DeviceError>) -> usize {
+            let mut c = core();
+            c.command(Command::Home);
+            run(&mut c, 20, Ok(()));
+            let n = reply_limit(&c);
+            run(&mut c, n, Err(TIMEOUT));
+            let need = c.rig().safety.fault_recovery_ticks as usize;
+            run(&mut c, need, Ok(()));
+            assert_eq!(c.state(), Lifecycle::Inactive);
+            let mut ticks = 0;
+            if let Some(e) = err {
+                run(&mut c, spoil, Err(e));
+                ticks += spoil;
+            }
+            while c.counters().rehomes == 0 {
+                run(&mut c, 1, Ok(()));
+                ticks += 1;
+                assert!(ticks < 5000);
+            }
+            ticks
+        }
+        let clean = ticks_to_rehome(0, None);
+        // Held ticks (no reply) are not still ticks: they add to the wait.
+        assert_eq!(ticks_to_rehome(4, Some(TIMEOUT)), clean + 4);
+        // A faulted rig does not home by itself, however still the grips.
+        let text = crate::rig::DEFAULT_RIG_RON.replace("fault_recovery_ticks: 30", "fault_recovery_ticks: 0");
+        let mut c = TickCore::new(&Rig::from_str(&text, "t").unwrap()).unwrap();
+        c.command(Command::Home);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        run(&mut c, 3000, Ok(()));
+        assert!(c.is_awaiting_home() && c.state() == Lifecycle::Faulted);
+        assert_eq!(c.counters().rehomes, 0);
+        assert!(!c.is_homing());
+    }
+
+    #[test]
     fn homing_settles_on_good_replies_only() {
         let mut c = core();
         c.command(Command::Home);
