@@ -46,6 +46,10 @@ pub struct RigFile {
     /// every override in effect is shown in the run summary. Optional: none when left out.
     #[serde(default)]
     pub overrides: Vec<String>,
+    /// Per kind of board: what a string's command is, its real range and scale
+    /// ([`crate::boards`]). Optional: every part has a default.
+    #[serde(default)]
+    pub boards: crate::boards::BoardsFile,
 }
 
 /// The calibration record of a rig file (informational: the geometry itself is in `hands`).
@@ -198,6 +202,8 @@ pub struct Rig {
     pub estimation: EstimationFile,
     /// The physical bounds this rig file overrides (shown in the run summary).
     pub overrides: Vec<String>,
+    /// What the boards' commands mean and their ranges ([`crate::boards`]).
+    pub boards: crate::boards::BoardScales,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -680,6 +686,7 @@ impl Rig {
                 format!("{} Hz: must be in 0 .. {nyquist} Hz (half the tick rate)", e.velocity_cutoff_hz),
             ));
         }
+        let boards = crate::boards::validate(&f.boards, &hands, |field, key, msg| bad(field, key, 0, msg))?;
         let hands: [HandRig; 2] = hands.try_into().expect("two hands");
         Ok(Rig {
             name: f.name,
@@ -692,6 +699,7 @@ impl Rig {
             safety: f.safety,
             estimation: f.estimation,
             overrides: f.overrides,
+            boards,
         })
     }
 
