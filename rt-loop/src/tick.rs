@@ -1057,6 +1057,8 @@ mod tests {
             assert!(r.hands.iter().all(|h| h.held));
             assert_eq!(r.hands[0].commanded_n, r0.hands[0].commanded_n);
             assert_eq!(s.proxy_impulse_n_s, s0.proxy_impulse_n_s, "the held force is the applied one");
+            assert_eq!(s.proxy_contact_impulse_n_s, s0.proxy_contact_impulse_n_s);
+            assert!(s0.proxy_contact_impulse_n_s[0].length() > 0.0);
             assert_eq!(s.hands, s0.hands);
         }
         let (_, r) = tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
@@ -1694,6 +1696,73 @@ mod tests {
         assert!(fallback > 100, "{fallback}");
         assert_eq!(c.counters().fallback, [0, fallback]);
         assert_eq!(c.counters().infeasible, [0, infeasible]);
+    }
+
+    #[test]
+    fn nothing_is_rendered_while_inactive_and_a_contact_pushing_nothing_gives_back_nothing() {
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        let m = pressing_wall(&c);
+        assert_eq!(c.contact_model(), None);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        let (s, r) = tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
+        assert_eq!(c.contact_model().map(|m| m.seq), Some(1), "the newest model is kept");
+        assert_eq!((r.hands[0].rendered_n, r.hands[0].contacts), (DVec3::ZERO, 0), "inactive: no rendering");
+        assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+        // Active, the fist 1 cm inside a heavily damped plane but leaving it at 1 m/s: the damper
+        // cancels the spring (a penalty contact never pulls), so the force and impulses are zero,
+        // not NaN.
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        c.command(Command::Activate);
+        let home = c.rig().hands[0].home_m;
+        let world = c.rig().rig_to_world.point(home);
+        let mut damped = ContactModel { seq: 2, ..Default::default() };
+        damped.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: world - DVec3::Z * 0.03, normal: DVec3::Z },
+            k_n_per_m: 2000.0,
+            d_n_s_per_m: 5000.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        for k in 0..9 {
+            let p = [home + DVec3::Z * (k as f64 * 1e-3), c.rig().hands[1].home_m];
+            let counts = counts_at(&c, p);
+            let (s, r) = tick_io(&mut c, &mut out, Some(damped), &counts, Ok(()));
+            if k > 4 {
+                assert_eq!(r.hands[0].contacts, 1, "tick {k}");
+                assert_eq!(r.hands[0].rendered_n, DVec3::ZERO, "tick {k}");
+                assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO, "tick {k}: {:?}", s.proxy_impulse_n_s[0]);
+                assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+            }
+        }
+    }
+
+    #[test]
+    fn a_force_beyond_what_the_strings_can_render_there_is_counted_as_infeasible() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        // Hand 0 walks 0.3 m to its outer side (-x), where the strings give about 2 N outward.
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.extra_force_n = [DVec3::X * -4.0, DVec3::ZERO];
+        let mut scaled = 0;
+        for k in 0..=300 {
+            let p = [home[0] - DVec3::X * (k as f64 * 1e-3), home[1]];
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, Some(m), &counts, Ok(()));
+            scaled += (r.hands[0].method == Method::Scaled) as u64;
+            if k == 300 {
+                assert_eq!(r.hands[0].method, Method::Scaled);
+                assert!(r.hands[0].output_n.length() < 3.9 && r.hands[0].scale < 1.0, "{:?}", r.hands[0]);
+            }
+        }
+        assert!(scaled > 10);
+        assert_eq!(c.counters().infeasible, [scaled, 0]);
     }
 
     #[test]
