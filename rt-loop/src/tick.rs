@@ -1178,6 +1178,38 @@ mod tests {
     }
 
     #[test]
+    fn a_fast_steady_hand_is_never_taken_for_a_jump_and_its_volts_are_its_tensions() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let m = pressing_wall(&c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let mut out = Output::default();
+        // Both hands speed up at 30 m/s^2 to 3 m/s (3 mm per tick, beyond reply_jump_m alone),
+        // then sweep on: the prediction from their velocity keeps every reply.
+        let along = |k: usize| {
+            let t = k as f64 * 1e-3;
+            if t < 0.1 {
+                15.0 * t * t
+            } else {
+                0.15 + 3.0 * (t - 0.1)
+            }
+        };
+        for k in 0..200 {
+            let p = home.map(|h| h + DVec3::new(0.0, 1.0, -1.0).normalize() * along(k));
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, Some(m), &counts, Ok(()));
+            for (h, hr) in c.rig().hands.iter().enumerate() {
+                for s in 0..4 {
+                    let want = r.hands[h].tensions_n[s] * hr.volts_per_newton[s];
+                    assert_eq!(out.volts[hr.channels[s]], want, "the volts written are the tensions'");
+                }
+            }
+        }
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        assert_eq!(c.counters().held, [0, 0]);
+    }
+
+    #[test]
     fn a_pose_above_the_residual_limit_is_held_and_a_run_of_them_faults() {
         let mut c = core();
         home_and_activate(&mut c);
