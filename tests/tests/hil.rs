@@ -706,7 +706,7 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
                 &mut st,
                 &mut link,
                 &ServeOptions { lockstep: true },
-                &|| s.load(Ordering::Relaxed),
+                &|| s.load(std::sync::atomic::Ordering::Relaxed),
                 &mut |_| {},
             );
         });
@@ -720,12 +720,12 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
         VirtualRun::with_world_process(dev, &r, &at, None, std::time::Duration::from_secs(30)).unwrap();
     v.home_and_activate();
     v.run_ticks(1000); // warm-up
-    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let (before, _) = forbidden_allocs();
     for i in 0..8000u32 {
         match i {
             3000 => {
                 let (h, stop) = world.take().unwrap();
-                stop.store(true, Ordering::Relaxed);
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
                 h.join().unwrap();
             }
             4000 => world = Some(start_world(&at)),
@@ -734,13 +734,9 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
         no_alloc(|| v.rt.tick());
         v.after_tick();
     }
-    let forbidden = FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before;
-    assert_eq!(
-        forbidden,
-        0,
-        "the tick allocated {forbidden} times (first: {} bytes)",
-        FIRST_FORBIDDEN_SIZE.load(Ordering::SeqCst)
-    );
+    let (after, first) = forbidden_allocs();
+    let forbidden = after - before;
+    assert_eq!(forbidden, 0, "the tick allocated {forbidden} times (first: {first} bytes)");
     let st = v.link_stats().unwrap();
     let g = |c: &std::sync::atomic::AtomicU64| LinkStats::get(c);
     assert_eq!(g(&st.connects), 2, "{}", st.summary());
@@ -748,7 +744,7 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
     assert!(g(&st.models) > 2000 && g(&st.statuses_sent) > 300, "{}", st.summary());
     assert!(v.counters().stale > 0 && v.counters().clamped.iter().sum::<u64>() > 0);
     let (h, stop) = world.take().unwrap();
-    stop.store(true, Ordering::Relaxed);
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
     h.join().unwrap();
 }
 
