@@ -44,6 +44,9 @@ pub struct HandRecord {
     /// to stay within it this tick (`local.rs`).
     pub reserve_j: f64,
     pub passivity_limited: bool,
+    /// This hand's output was held from the last tick (late, missing or rejected reply, or a
+    /// pose above the residual limit): every other field repeats that tick's.
+    pub held: bool,
 }
 
 impl Default for HandRecord {
@@ -65,6 +68,7 @@ impl Default for HandRecord {
             non_finite: false,
             reserve_j: 0.0,
             passivity_limited: false,
+            held: false,
         }
     }
 }
@@ -162,6 +166,9 @@ pub struct TickRecord {
     pub sample: HandSample,
     /// What the core and the loop reported during this tick, in order.
     pub events: EventLog,
+    /// Homing was lost (a fault during homing, a reopened device): the rig waits for both grips
+    /// to be held still at their home points, or for the Home command.
+    pub awaiting_home: bool,
 }
 
 /// Percentiles of a distribution, in seconds.
