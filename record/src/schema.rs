@@ -8,7 +8,9 @@
 
 use glam::DVec3;
 use spidar_device::{ErrorKind, Input, Output, MAX_CHANNELS};
-use spidar_msg::{ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES};
+use spidar_msg::{
+    ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES,
+};
 use spidar_rt::telemetry::{CommandLog, HandRecord, TickRecord, RECORD_COMMANDS};
 use spidar_rt::tension::Method;
 use spidar_rt::{Command, Event, FaultReason, Lifecycle};
