@@ -18,6 +18,7 @@
 pub mod ai;
 pub mod controller;
 pub mod crowd;
+pub mod feet;
 pub mod keyframe;
 pub mod scene;
 pub mod space;
