@@ -6,6 +6,7 @@ pub mod bench;
 pub mod calib;
 pub mod eval;
 pub mod eval_impacts;
+pub mod eval_poses;
 pub mod hardware;
 pub mod scene_thread;
 pub mod scripts;

@@ -49,7 +49,8 @@ enum Cmd {
         what: BenchCmd,
     },
     /// Evaluations against the papers: `reactions` (seed 000: timing during a bout and the
-    /// reaction experiment), `impacts` (seed 002: impact-force estimation).
+    /// reaction experiment), `impacts` (seed 002: impact-force estimation), `poses` (seed 002:
+    /// contact sheets of the characters as drawn).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -70,6 +71,13 @@ enum EvalCmd {
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+    },
+    /// Seed 002: contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
+    /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
+    Poses {
+        /// Folder the sheets are written to.
+        #[arg(long, default_value = "docs/poses")]
+        out: PathBuf,
     },
     /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
     /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
@@ -154,10 +162,11 @@ struct RunArgs {
     /// or a walls scene file (.ron).
     #[arg(long, default_value = "boxing")]
     scene: String,
-    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
-    /// tour (for `walls`), or a script file (.ron).
-    #[arg(long, default_value = "box")]
-    script: String,
+    /// The simulated user's hands: box (jabs and hooks at the virtual human), crowd (pushes at the
+    /// crowd's front row), hold, circle, spar, tour (for `walls`), or a script file (.ron).
+    /// Default: the scene's own (box, crowd or tour).
+    #[arg(long)]
+    script: Option<String>,
     /// Stop after this many seconds (default: run until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
@@ -250,6 +259,10 @@ fn main() -> anyhow::Result<()> {
             })?;
             eprintln!();
             println!("{r}");
+            Ok(())
+        }
+        Cmd::Eval { what: EvalCmd::Poses { out } } => {
+            println!("{}", spidar_tools::eval_poses::eval_poses(&out)?);
             Ok(())
         }
         Cmd::Devices { probe, port } => {
@@ -380,7 +393,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let rig = load_rig(&a.rig)?;
     let scene = spidar_world::load(&a.scene)?;
     let scene_name = format!("{} ({})", a.scene, scene.name());
-    let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let script = a.script.clone().unwrap_or_else(|| session::default_script(&a.scene).to_string());
+    let scripts = load_scripts(&script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
         encoder_noise_counts: a.noise_counts,
@@ -391,7 +405,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         None => {
             eprintln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
-                rig.name, a.seed, scene_name, a.script
+                rig.name, a.seed, scene_name, script
             );
             Box::new(sim_device(&rig, scripts, &sim_opts)?)
         }
@@ -468,7 +482,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
             scene_name,
-            script_name: a.script.clone(),
+            script_name: script.clone(),
         },
     )?;
     println!("{summary}");

@@ -467,6 +467,7 @@ impl ControllerState {
             }
             Policy::Balance => {}
         }
+        self.feet.update_grip(dt_s);
         let n = ground.normal_n;
         if !(n > 0.0) {
             // In the air: nothing to push on. A swing still finishes (the foot is drawn landing).
@@ -487,7 +488,12 @@ impl ControllerState {
         let e_stand = if self.rest_energy_j > 0.0 { self.rest_energy_j } else { mass_kg * g_m_per_s2 * l };
         let v0 = t.velocity_m_per_s;
         let e_cap = e_stand + 0.5 * mass_kg * v0.length_squared() + ENERGY_SLACK_J;
-        let excess = e > e_cap;
+        // Nor may the legs make the body move faster than the AI asks (plus a walk's sway): a
+        // body leaning back lowers its potential energy, which would otherwise let the legs run it
+        // backward.
+        let ke = e - mass_kg * g_m_per_s2 * (b.r_m.y - alpha.y);
+        let v_allow = v0.length() + KE_SWAY_M_PER_S;
+        let excess = e > e_cap || ke > 0.5 * mass_kg * v_allow * v_allow;
         let mut drive = match self.policy {
             Policy::Balance => self.balance(p, mass_kg, g_m_per_s2, dt_s, b, alpha, n, t, excess),
             Policy::Fall | Policy::Down => {
@@ -580,8 +586,7 @@ impl ControllerState {
         let v0 = horizontal(t.velocity_m_per_s);
         // Where a step should land: the capture point, shifted to the foot's own side, and ahead
         // by what walking on at the AI's speed needs.
-        let aim =
-            |k: usize| capture + h.e_xc * (side_sign(k) * p.hip_half_width_m * 0.5) + v0 * (p.swing_min_s);
+        let aim = |k: usize| capture + h.e_xc * (side_sign(k) * p.hip_half_width_m * 0.5);
         // A swing in progress keeps aiming at the moving capture point.
         let retarget = self.feet.swinging().map(|k| self.feet.reachable(p, k, aim(k), h.e_xc, h.e_zc));
         self.feet.advance(p, dt_s, retarget);
@@ -733,6 +738,8 @@ impl ControllerState {
 /// rule from chattering about the standing energy, which the contact's springiness moves by
 /// millijoules.
 const ENERGY_SLACK_J: f64 = 0.2;
+/// Speed above the AI's target the kinetic-energy bound leaves for a walk's sway (m/s).
+const KE_SWAY_M_PER_S: f64 = 0.25;
 
 /// The drive made to do no positive work on the body, changing it as little as that takes: first
 /// the force is scaled down, then the centre of pressure moved back toward where the feet's place

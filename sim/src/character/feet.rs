@@ -33,6 +33,8 @@ pub struct Foot {
     /// Time into the swing and its length (s); `swing_s_total == 0`: planted.
     pub swing_s: f64,
     pub swing_s_total: f64,
+    /// Planted but dragged along the floor since it landed (the legs could not hold it).
+    pub dragged: bool,
 }
 
 impl Foot {
@@ -73,7 +75,14 @@ pub struct Feet {
     pub since_land_s: f64,
     /// Steps taken so far.
     pub steps: u64,
+    /// How much the drawn legs stand on these feet, in [0, 1]: rises to 1 after the feet are
+    /// placed and falls to 0 after they are released, over [`GRIP_S`], so the legs never jump
+    /// between the feet and the keyframes.
+    pub grip: f32,
 }
+
+/// Time the drawn legs take to hand over between the feet and the keyframes (s).
+pub const GRIP_S: f64 = 0.2;
 
 /// Which way a foot lies from the body's centre line: +1 left, -1 right.
 #[inline]
@@ -131,7 +140,8 @@ impl Feet {
         for k in 0..2 {
             let mut at = base_m + e_side * (side_sign(k) * p.hip_half_width_m);
             at.y = floor_y;
-            self.foot[k] = Foot { pos_m: at, from_m: at, to_m: at, swing_s: 0.0, swing_s_total: 0.0 };
+            self.foot[k] =
+                Foot { pos_m: at, from_m: at, to_m: at, swing_s: 0.0, swing_s_total: 0.0, dragged: false };
         }
         self.placed = true;
         self.since_land_s = 0.0;
@@ -140,6 +150,13 @@ impl Feet {
     /// Lifts both feet off the floor (the character fell).
     pub fn release(&mut self) {
         self.placed = false;
+    }
+
+    /// Moves the legs' grip toward the feet (placed) or away (released) for a step of `dt_s`.
+    #[inline]
+    pub fn update_grip(&mut self, dt_s: f64) {
+        let d = (dt_s / GRIP_S) as f32;
+        self.grip = if self.placed { (self.grip + d).min(1.0) } else { (self.grip - d).max(0.0) };
     }
 
     /// The index of the swinging foot, if one is.
@@ -160,6 +177,7 @@ impl Feet {
                 f.pos_m = to;
                 f.from_m = to;
                 f.to_m = to;
+                f.dragged = true;
                 slid = true;
             }
         }
@@ -200,6 +218,7 @@ impl Feet {
             f.from_m = f.to_m;
             f.swing_s = 0.0;
             f.swing_s_total = 0.0;
+            f.dragged = false;
             self.since_land_s = 0.0;
             self.steps += 1;
         } else {
@@ -240,6 +259,7 @@ impl Feet {
         f.to_m = to_m;
         f.swing_s = 0.0;
         f.swing_s_total = t;
+        f.dragged = false;
     }
 }
 
