@@ -472,8 +472,8 @@ pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
                 "mass",
                 i,
                 format!(
-                    "mass (up to {MASS_MAX_KG} kg), sizes (up to {SIZE_MAX_M} m) and inertias (up to {INERTIA_MAX_KG_M2} kg m^2) \
-                     must be positive numbers and the centre finite"
+                    "mass and sizes (or inertias) must be > 0 (at most {MASS_MAX_KG} kg, {SIZE_MAX_M} m, \
+                     {INERTIA_MAX_KG_M2} kg m^2), and the centre finite"
                 ),
             ));
         }

@@ -31,9 +31,10 @@ use spidar_sim::SimError;
 
 const POS_DEG: [f64; 3] = [-45.0, 0.0, 45.0];
 const H_M: [f64; 3] = [0.0, 0.5, 1.0];
-/// Impulses of the two strengths (N s), given over `PUSH_S`.
-const WEAK_N_S: f64 = 30.0;
-const STRONG_N_S: f64 = 75.0;
+/// Impulses of the two strengths (N s), given over `PUSH_S`: a weak hit the character catches by
+/// stepping, a strong one its feet cannot catch (it falls at every height but the feet).
+const WEAK_N_S: f64 = 20.0;
+const STRONG_N_S: f64 = 80.0;
 const PUSH_S: f64 = 0.1;
 /// Radius of the trunk's surface where the force is applied (m).
 const SURFACE_M: f64 = 0.2;
@@ -100,9 +101,7 @@ fn watch(imp: &Impact, rng: &mut Crowd) -> Result<Features, SimError> {
     let wait_s = 0.3 + 0.3 * rng.random();
 
     // One character with the crowd scene's own settings, body and keyframes.
-    let c = builtin_crowd()?;
-    let mut one = Crowd::new(c.body.clone(), c.world, c.params, c.set.clone());
-    one.statics = c.statics.clone();
+    let mut one = builtin_crowd()?.empty_like();
     one.add(0.0, 0.0, heading, Goal::Walk { velocity_m_per_s: drift });
     let dt_s = one.world.dt_s;
     let steps = |s: f64| (s / dt_s).round() as usize;
@@ -228,6 +227,10 @@ pub struct ImpactReport {
     pub scores: [Score; 4],
     pub patterns: usize,
     pub falls: usize,
+    /// Scored hits that fell, by strength (weak, strong) and by height (0, 0.5, 1.0 m), each with
+    /// how many there were: (fell, of).
+    pub falls_by_strength: [(usize, usize); 2],
+    pub falls_by_height: [(usize, usize); 3],
 }
 
 /// The paper's Table 1: accuracy, mean, standard deviation for the four parameters.
@@ -265,13 +268,20 @@ pub fn eval_impacts(
     let mut errs: [Vec<f64>; 4] = Default::default();
     let mut patterns = BTreeSet::new();
     let mut falls = 0;
+    let mut falls_by_strength = [(0, 0); 2];
+    let mut falls_by_height = [(0, 0); 3];
     for _ in 0..o.trials {
         let pick = (trial_rng.random() * combos.len() as f64) as usize % combos.len();
         let truth = combos[pick];
         let f = watch(&truth, &mut trial_rng)?;
         done += 1;
         progress(done, total);
-        falls += (f.v[6] > 0.0) as usize;
+        let fell = f.v[6] > 0.0;
+        falls += fell as usize;
+        let fs = &mut falls_by_strength[truth.strong as usize];
+        *fs = (fs.0 + fell as usize, fs.1 + 1);
+        let hk = H_M.iter().position(|h| (*h - truth.h_m).abs() < 1e-9).unwrap_or(0);
+        falls_by_height[hk] = (falls_by_height[hk].0 + fell as usize, falls_by_height[hk].1 + 1);
         let mut near: Vec<(f64, &Impact)> = practice
             .iter()
             .map(|(p, imp)| ((0..9).map(|k| ((p.v[k] - f.v[k]) * scale[k]).powi(2)).sum::<f64>(), imp))
@@ -316,6 +326,8 @@ pub fn eval_impacts(
         scores: [score(&errs[0]), score(&errs[1]), score(&errs[2]), score(&errs[3])],
         patterns: patterns.len(),
         falls,
+        falls_by_strength,
+        falls_by_height,
     })
 }
 
@@ -343,10 +355,17 @@ impl fmt::Display for ImpactReport {
             )?;
         }
         writeln!(f, "(mean and std of the signed error in units of each parameter's choice interval: 45 deg, 0.5 m, strong/weak)")?;
+        writeln!(
+            f,
+            "distinct motion patterns (fall side x travel octant x turn x initial lean): {} (paper: about 30)",
+            self.patterns
+        )?;
+        let [w, s] = self.falls_by_strength;
+        let [h0, h1, h2] = self.falls_by_height;
         write!(
             f,
-            "distinct motion patterns (fall side x travel octant x turn x initial lean): {} (paper: about 30); scored hits that fell: {}",
-            self.patterns, self.falls
+            "scored hits that fell: {} of {} (weak {WEAK_N_S} N s: {} of {}, strong {STRONG_N_S} N s: {} of {}; at h 0 m: {} of {}, 0.5 m: {} of {}, 1.0 m: {} of {})",
+            self.falls, self.trials, w.0, w.1, s.0, s.1, h0.0, h0.1, h1.0, h1.1, h2.0, h2.1
         )
     }
 }

@@ -193,7 +193,7 @@ impl Default for ControllerParams {
             stand_done_deg: 6.0,
             stand_timeout_s: 4.0,
             yaw_omega_rad_per_s: 4.0,
-            yaw_damping_per_s: 2.0,
+            yaw_damping_per_s: 1.0,
             yaw_arm_m: 0.05,
         }
     }

@@ -233,7 +233,7 @@ struct Shared<'a> {
 /// then when called from outside its pool). The results are the same bits either way.
 pub const PARALLEL_MIN: usize = 256;
 /// Characters per parallel task.
-const CHUNK: usize = 128;
+const CHUNK: usize = 64;
 
 /// A crowd: bodies, characters and their poses, and the scratch of the step.
 ///

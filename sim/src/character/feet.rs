@@ -73,8 +73,9 @@ pub struct Feet {
     pub placed: bool,
     /// Time since the last foot landed (s).
     pub since_land_s: f64,
-    /// Steps taken so far.
+    /// Steps taken so far (landed), and feet lifted.
     pub steps: u64,
+    pub lifts: u64,
     /// How much the drawn legs stand on these feet, in [0, 1]: rises to 1 after the feet are
     /// placed and falls to 0 after they are released, over [`GRIP_S`], so the legs never jump
     /// between the feet and the keyframes.
@@ -260,6 +261,7 @@ impl Feet {
         f.swing_s = 0.0;
         f.swing_s_total = t;
         f.dragged = false;
+        self.lifts += 1;
     }
 }
 

@@ -354,7 +354,8 @@ impl KeyframeSet {
                     origin,
                     &format!("skeleton[{i}].name"),
                     "name",
-                    i,
+                    // The set's own `name` comes first.
+                    i + 1,
                     format!("joint name {:?} is used twice", j.name),
                 ));
             }
@@ -430,10 +431,20 @@ impl KeyframeSet {
                     behaviour: b as u8,
                 };
                 let kf = field(&format!("keys[{ki}].at"));
-                let line_ok = [a.line.theta_x_deg, a.line.theta_z_deg, a.line.d_x, a.line.d_z, k.at]
+                if ![a.line.theta_x_deg, a.line.theta_z_deg, a.line.d_x, a.line.d_z]
                     .iter()
-                    .all(|v| v.is_finite());
-                if !line_ok {
+                    .all(|v| v.is_finite())
+                {
+                    return Err(err(
+                        text,
+                        origin,
+                        &field("line"),
+                        "line",
+                        ai,
+                        "the line's coordinates must be finite numbers".into(),
+                    ));
+                }
+                if !k.at.is_finite() {
                     return Err(err(
                         text,
                         origin,
@@ -478,7 +489,7 @@ impl KeyframeSet {
                 let in_front = at.theta_z.abs() < SAME && at.d_x.abs() < SAME;
                 let in_side = at.theta_x.abs() < SAME && at.d_z.abs() < SAME;
                 if !in_front && !in_side {
-                    return Err(err(text, origin, &kf, "at", occ, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
+                    return Err(err(text, origin, &field("line"), "line", ai, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
                 }
                 let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
                 for (name, rv) in &k.pose {

@@ -103,8 +103,18 @@ impl Legs {
 
     /// Turns the legs of `pose` toward ankle targets (`S_r`), leg `k` by `weight[k]` in [0, 1]
     /// (0 leaves the keyframe's leg). `up` is the world's up in `S_r`: the pelvis is lowered along
-    /// it when a weighted target is beyond the straight leg.
-    pub fn reach(&self, joints: &[Joint], pose: &mut Pose, target: [Vec3; 2], weight: [f32; 2], up: Vec3) {
+    /// it when a weighted target is beyond the straight leg. `floor_m`: how far below the origin of
+    /// `S_r` the floor is, along `up`; a leg only partly on its target (the hand-over between the feet
+    /// and the keyframes) is kept from going through it.
+    pub fn reach(
+        &self,
+        joints: &[Joint],
+        pose: &mut Pose,
+        target: [Vec3; 2],
+        weight: [f32; 2],
+        up: Vec3,
+        floor_m: f32,
+    ) {
         if weight[0] <= 0.0 && weight[1] <= 0.0 {
             return;
         }
@@ -170,6 +180,23 @@ impl Legs {
             let hip_local = (frame[k].1.conjugate() * swing * hip_rot).normalize();
             pose.rot[self.hip[k]] = nlerp(pose.rot[self.hip[k]], hip_local, w);
             pose.rot[self.knee[k]] = nlerp(pose.rot[self.knee[k]], knee, w);
+        }
+        if weight[0] < 1.0 || weight[1] < 1.0 {
+            // Blended legs end between the feet and the keyframe's legs, with the pelvis lowered
+            // for the feet: lift the figure if that puts an ankle through the floor.
+            let mut lowest = f32::INFINITY;
+            for k in 0..2 {
+                let (_, r_parent) = frame[k];
+                let hip_rot = r_parent * pose.rot[self.hip[k]];
+                let knee_pos = hip[k] + hip_rot * joints[self.knee[k]].offset_m.as_vec3();
+                let ankle =
+                    knee_pos + hip_rot * pose.rot[self.knee[k]] * joints[self.ankle[k]].offset_m.as_vec3();
+                lowest = lowest.min(ankle.dot(up));
+            }
+            let below = -floor_m - lowest;
+            if below > 0.0 {
+                pose.root_m += up * below;
+            }
         }
     }
 }

@@ -292,7 +292,12 @@ impl Character {
             to_body(f.pos_m + DVec3::Y * (legs.ankle_height_m as f64 + lift) - b.r_m)
         };
         let up = to_body(DVec3::Y);
-        legs.reach(&set.joints, out, [target(0), target(1)], [w, w], up);
+        let floor_y = if self.ground.normal_n > 0.0 {
+            self.ground.point_m.y
+        } else {
+            self.control.feet.foot[0].pos_m.y
+        };
+        legs.reach(&set.joints, out, [target(0), target(1)], [w, w], up, (b.r_m.y - floor_y) as f32);
     }
 
     /// Drives a character whose body is `body` of an engine model: reads the floor contacts of the
