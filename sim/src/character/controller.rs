@@ -584,8 +584,7 @@ impl ControllerState {
         // The capture point: where a foot must be for the body to come to rest over it.
         let capture = com + v / w0;
         let v0 = horizontal(t.velocity_m_per_s);
-        // Where a step should land: the capture point, shifted to the foot's own side, and ahead
-        // by what walking on at the AI's speed needs.
+        // Where a step should land: the capture point, shifted to the foot's own side.
         let aim = |k: usize| capture + h.e_xc * (side_sign(k) * p.hip_half_width_m * 0.5);
         // A swing in progress keeps aiming at the moving capture point.
         let retarget = self.feet.swinging().map(|k| self.feet.reachable(p, k, aim(k), h.e_xc, h.e_zc));
@@ -737,9 +736,9 @@ impl ControllerState {
 /// Energy above the AI's target the controller tolerates before it only brakes (J): keeps the
 /// rule from chattering about the standing energy, which the contact's springiness moves by
 /// millijoules.
-const ENERGY_SLACK_J: f64 = 0.2;
+const ENERGY_SLACK_J: f64 = 1.0;
 /// Speed above the AI's target the kinetic-energy bound leaves for a walk's sway (m/s).
-const KE_SWAY_M_PER_S: f64 = 0.25;
+const KE_SWAY_M_PER_S: f64 = 0.35;
 
 /// The drive made to do no positive work on the body, changing it as little as that takes: first
 /// the force is scaled down, then the centre of pressure moved back toward where the feet's place

@@ -27,6 +27,10 @@ pub struct Legs {
     /// Joints from the root to each hip's parent, root first.
     chain: [[u8; MAX_JOINTS]; 2],
     chain_len: [u8; 2],
+    /// Each hip's offset from its parent, in single precision; and whether both hips hang from
+    /// the same joint (then its frame is computed once).
+    hip_off: [Vec3; 2],
+    same_parent: bool,
 }
 
 /// Lowest the pelvis goes for the feet to reach the floor (m).
@@ -45,6 +49,8 @@ impl Legs {
             ankle_height_m,
             chain: [[0; MAX_JOINTS]; 2],
             chain_len: [0; 2],
+            hip_off: [Vec3::ZERO; 2],
+            same_parent: false,
         };
         for k in 0..2 {
             let a = ankle[k];
@@ -66,6 +72,7 @@ impl Legs {
             }
             legs.hip[k] = hip;
             legs.knee[k] = knee;
+            legs.hip_off[k] = joints[hip].offset_m.as_vec3();
             legs.thigh_m[k] = -joints[knee].offset_m.y as f32;
             legs.shin_m[k] = -joints[a].offset_m.y as f32;
             // The chain root .. hip parent.
@@ -85,6 +92,7 @@ impl Legs {
         if legs.ankle[0] == legs.ankle[1] || legs.hip[0] == legs.hip[1] {
             return Err("the two legs must be different joints".into());
         }
+        legs.same_parent = joints[legs.hip[0]].parent == joints[legs.hip[1]].parent;
         Ok(legs)
     }
 
@@ -122,8 +130,9 @@ impl Legs {
         let mut hip = [Vec3::ZERO; 2];
         let mut drop = 0.0f32;
         for k in 0..2 {
-            frame[k] = self.hip_parent_frame(joints, pose, k);
-            hip[k] = frame[k].0 + frame[k].1 * joints[self.hip[k]].offset_m.as_vec3();
+            frame[k] =
+                if k == 1 && self.same_parent { frame[0] } else { self.hip_parent_frame(joints, pose, k) };
+            hip[k] = frame[k].0 + frame[k].1 * self.hip_off[k];
             if weight[k] <= 0.0 {
                 continue;
             }
@@ -170,7 +179,7 @@ impl Legs {
             let now = hip_rot * Vec3::new(0.0, -a - b * cos_bend, -b * sin_bend);
             // The shortest rotation from `now` to `to` (both of length `d`, `len`): the
             // normalised (u x v, 1 + u . v) of the unit vectors.
-            let (u, v) = (now / d, to / len);
+            let (u, v) = (now * (1.0 / d), to * (1.0 / len));
             let dot = u.dot(v);
             if dot < -0.999 {
                 // Pointing the other way: no use turning a leg half a turn.
