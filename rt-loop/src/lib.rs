@@ -4,8 +4,10 @@
 //! forces against the contact proxies the scene sent, applies the safety rules and allocates
 //! string tensions, then writes DA volts. Phases live in their own modules, in the order they
 //! run: [`kinematics`], [`velocity`], [`render`], [`safety`], [`tension`]; [`tick`] strings them
-//! together with the lifecycle, [`runner`] adds the device, the clock and the channels.
+//! together with the lifecycle, [`runner`] adds the device, the clock, the channels and the link
+//! to the world ([`status`]: what the rig tells the world about itself).
 
+pub mod boards;
 pub mod clock;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
@@ -15,6 +17,7 @@ pub mod rig;
 pub mod rt_thread;
 pub mod runner;
 pub mod safety;
+pub mod status;
 pub mod telemetry;
 pub mod tension;
 pub mod tick;

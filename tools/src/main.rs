@@ -12,9 +12,14 @@ use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
-use spidar_tools::bench::{bench_rt, RtBenchOptions};
+use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
+use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
+use spidar_tools::session::{
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+};
+use spidar_tools::signals::Stop;
+use spidar_tools::world_process::WorldArgs;
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -25,8 +30,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
+    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
+    /// world runs as a child process unless --world says otherwise.
     Run(RunArgs),
+    /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
+    /// ADDR`), on this host or another.
+    World(WorldArgs),
     /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
     Calib {
         #[command(subcommand)]
@@ -99,12 +108,17 @@ struct EmulateArgs {
     /// Rig file (RON) whose geometry the simulated rig has. Default: the built-in one.
     #[arg(long)]
     rig: Option<PathBuf>,
-    /// The boards on the link, by model, ids 0, 1, ... in order (B1M, B1F, B2M, B2F, B3M, B3F).
+    /// The boards on the link, by model, ids 0, 1, ... in order (B1M, B1F, B2M, B2F, B3M, B3F, B5M).
     #[arg(long, default_value = "B1M,B1M")]
     boards: String,
-    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`).
-    #[arg(long, default_value = spidar_tools::hardware::DEFAULT_LINK)]
-    link: PathBuf,
+    /// The boards' firmware generation: 2021 (since 2021-08: forces in the reply) or 2020
+    /// (2020-01 to 2021-08: currents in the reply).
+    #[arg(long, default_value_t = 2021, value_parser = clap::value_parser!(u32).range(2020..=2021))]
+    firmware: u32,
+    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`). Default:
+    /// `uart` in a directory private to you ($XDG_RUNTIME_DIR/spidar, or /tmp/spidar-<uid>).
+    #[arg(long)]
+    link: Option<PathBuf>,
     /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
     #[arg(long, default_value = "tour")]
     script: String,
@@ -113,9 +127,10 @@ struct EmulateArgs {
     /// Encoder noise of the simulated rig, standard deviation in counts.
     #[arg(long, default_value_t = 0.0)]
     noise_counts: f64,
-    /// The boards zero their motor currents when no command came for this long.
-    #[arg(long, default_value_t = 50)]
-    watchdog_ms: u64,
+    /// Experiments only: zero the motors when no command came for this long. The real boards
+    /// have no watchdog (they hold their last command), so by default neither do these.
+    #[arg(long)]
+    watchdog_ms: Option<u64>,
     /// Advance the rig one period per servo tick received instead of with the wall clock.
     #[arg(long)]
     per_tick: bool,
@@ -156,15 +171,31 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
-    /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
-    /// characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the rig check)
-    /// or a walls scene file (.ron).
-    #[arg(long, default_value = "boxing")]
-    scene: String,
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
+    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
+    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
+    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
+    /// (default: whatever it runs).
+    #[arg(long)]
+    scene: Option<String>,
+    /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
+    /// dies; the default), `thread` (inside this process), or the address of a world already
+    /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
+    #[arg(long, default_value = "child")]
+    world: String,
+    /// How many times a child world that dies is restarted.
+    #[arg(long, default_value_t = 3)]
+    world_restarts: u32,
+    /// How long to wait for the world's first answer, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    world_timeout_s: f64,
+    /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
+    /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    world_priority: Option<u8>,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), crowd (pushes at the
     /// crowd's front row), hold, circle, spar, tour (for `walls`), or a script file (.ron).
-    /// Default: the scene's own (box, crowd or tour).
+    /// Default: the scene's own (crowd for a crowd scene, box otherwise).
     #[arg(long)]
     script: Option<String>,
     /// Stop after this many seconds (default: run until Ctrl-C).
@@ -201,6 +232,28 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10)]
         blocks: u32,
     },
+    /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
+    /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
+    /// rig with the world as a process and as a thread, alternating in one run.
+    Link {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of the loop with each kind of world.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Alternations between the two kinds of world.
+        #[arg(long, default_value_t = 10)]
+        blocks: u32,
+        /// The scene of both worlds.
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Samples echoed per transport for the round-trip figures (at 1 kHz).
+        #[arg(long, default_value_t = 5000)]
+        echoes: u64,
+        /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+        world_priority: Option<u8>,
+    },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
         #[command(flatten)]
@@ -236,6 +289,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Cmd::Run(a) => run(a),
+        Cmd::World(a) => {
+            let stop = Stop::install()?;
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+        }
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
         Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
@@ -302,6 +359,29 @@ fn main() -> anyhow::Result<()> {
             println!("{report}");
             Ok(())
         }
+        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!(
+                "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
+            );
+            let rep = bench_link(
+                &r,
+                &LinkBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    echoes,
+                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world_priority,
+                },
+            )?;
+            println!("{rep}");
+            Ok(())
+        }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
             if !(seconds.is_finite() && seconds > 0.0) {
                 bail!("--seconds must be a positive number");
@@ -334,31 +414,44 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     let models =
         spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let plant = if a.per_tick {
+        spidar_device::emulator::PlantClock::PerTick
+    } else {
+        spidar_device::emulator::PlantClock::RealTime
+    };
+    let layout = if a.firmware == 2020 {
+        spidar_device::uart::protocol::ReplyLayout::Currents
+    } else {
+        spidar_device::uart::protocol::ReplyLayout::Forces
+    };
+    let link = match a.link.clone() {
+        Some(l) => l,
+        None => hardware::default_link()?,
+    };
     let opts = hardware::EmulateOptions {
-        link: a.link.clone(),
+        link,
         emulator: spidar_device::emulator::EmulatorOptions {
-            models,
-            plant: if a.per_tick {
-                spidar_device::emulator::PlantClock::PerTick
-            } else {
-                spidar_device::emulator::PlantClock::RealTime
-            },
-            watchdog: Duration::from_millis(a.watchdog_ms),
+            watchdog: a.watchdog_ms.map(Duration::from_millis),
             fifo_priority: (!a.no_rt).then_some(70),
-            ..Default::default()
+            ..hardware::emulator_options(&rig, models, layout, plant)
         },
         sim: SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, ..Default::default() },
     };
     let emu = hardware::start_emulator(&rig, scripts, &opts)?;
     println!(
-        "spidar emulate: boards {} on {} (link {}), rig '{}', script {}",
+        "spidar emulate: boards {} ({}) on {} (link {}), rig '{}', script {}, watchdog {}",
         a.boards,
+        layout.firmware(),
         emu.pty_path().map_or("?".into(), |p| p.display().to_string()),
         emu.link().display(),
         rig.name,
-        a.script
+        a.script,
+        a.watchdog_ms.map_or("none (as the real boards)".to_string(), |w| format!("{w} ms (experiment)"))
     );
-    println!("run the stack against it: spidar run --device uart --port {}", emu.link().display());
+    println!(
+        "run the stack against it: spidar run --device uart   (--port {} is the default)",
+        emu.link().display()
+    );
     if !a.no_rt && !emu.control().fifo() {
         // The thread sets its policy as it starts; give it a moment before reporting.
         std::thread::sleep(Duration::from_millis(50));
@@ -390,10 +483,40 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
         bail!("--noise-counts must be >= 0");
     }
+    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
+        bail!("--world-timeout-s must be a positive number of seconds");
+    }
     let rig = load_rig(&a.rig)?;
-    let scene = spidar_world::load(&a.scene)?;
-    let scene_name = format!("{} ({})", a.scene, scene.name());
-    let script = a.script.clone().unwrap_or_else(|| session::default_script(&a.scene).to_string());
+    if let Some(p) = a.world_priority {
+        if !a.rig.no_rt && p >= a.rig.priority {
+            bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
+        }
+    }
+    let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
+    // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
+    // in the world process otherwise (the rig process stays small).
+    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+        (true, "child" | "thread") | (false, "thread") => {
+            let scene = spidar_world::load(&scene_arg)?;
+            let name = format!("{scene_arg} ({})", scene.name());
+            (WorldChoice::Thread(scene), name)
+        }
+        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
+        (false, "child") => {
+            let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
+            if let Some(p) = a.world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
+            (WorldChoice::Child(spec), scene_arg.clone())
+        }
+        (false, addr) => {
+            let at = spidar_link::Endpoint::parse(addr)
+                .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
+            let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
+            (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
+        }
+    };
+    let script = a.script.clone().unwrap_or_else(|| session::default_script(&scene_arg).to_string());
     let scripts = load_scripts(&script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
@@ -401,7 +524,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         slack: a.slack,
         ..Default::default()
     };
-    let dev: Box<dyn Device> = match a.hw.choice(a.device)? {
+    let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
             eprintln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
@@ -428,6 +551,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
+        let WorldChoice::Thread(scene) = world else {
+            unreachable!("--virtual runs the world in this process")
+        };
         let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
@@ -465,16 +591,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         return Ok(());
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
+    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
-        scene,
+        world,
         LiveOptions {
             seconds: a.seconds,
             rt: rt_options(&a.rig),
@@ -483,6 +604,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             stop,
             scene_name,
             script_name: script.clone(),
+            connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
+            world_priority: a.world_priority,
         },
     )?;
     println!("{summary}");
