@@ -75,6 +75,9 @@ pub struct CrowdBody {
     pub com_m: DVec3,
     pub i_com: DMat3,
     pub inv_i_com: DMat3,
+    /// The inverse inertia when it is the same about every axis (the paper's 10 I): then the
+    /// world inverse inertia is that scalar in every orientation, and no matrix is turned.
+    pub inv_i_iso: Option<f64>,
     /// Shapes with their pose in the body frame and bounding radius.
     pub shapes: Vec<(Shape, ShapePose, f64)>,
     /// Radius about the body origin that holds every shape.
@@ -127,6 +130,8 @@ impl CrowdBody {
             com_m,
             i_com,
             inv_i_com: i_com.inverse(),
+            inv_i_iso: (i_com == DMat3::from_diagonal(DVec3::splat(i_com.x_axis.x)))
+                .then(|| 1.0 / i_com.x_axis.x),
             shapes,
             bound_m,
             stand_height_m: l.joint.anchor_m.y,
@@ -736,7 +741,10 @@ fn one_character(
     kin.vel_m_per_s = s.vel_m_per_s;
     kin.rotm = r;
     kin.w_world = r * s.w_body;
-    kin.inv_i_world = r * sh.body.inv_i_com * r.transpose();
+    kin.inv_i_world = match sh.body.inv_i_iso {
+        Some(k) => DMat3::from_diagonal(DVec3::splat(k)),
+        None => r * sh.body.inv_i_com * r.transpose(),
+    };
     kin.com_world = b.r_m;
     // The body-frame box turned into the world holds the turned shapes.
     let (c, e) = sh.local_box_m;

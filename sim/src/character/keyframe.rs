@@ -249,6 +249,9 @@ pub struct KeyframeSet {
     pub keys: Vec<PlacedKey>,
     /// The legs posed onto the feet, if the file names them.
     pub legs: Option<super::legs::Legs>,
+    /// Joints `0..posed` are interpolated; the rest are leaves no keyframe turns (their rotation
+    /// moves nothing), left at rest. List leaves last in the skeleton and posing skips them.
+    pub posed: usize,
     sub: Vec<Subspace>,
 }
 
@@ -575,7 +578,9 @@ impl KeyframeSet {
             side.align(joints.len());
             sub.push(Subspace { front, side, origin: o });
         }
+        let posed = posed_joints(&joints, &keys);
         Ok(KeyframeSet {
+            posed,
             name: f.name,
             joints,
             behaviours: f.behaviours,
@@ -591,7 +596,7 @@ impl KeyframeSet {
 
     /// The pose at a point of Q (no behaviour blend).
     pub fn pose(&self, q: &QPoint, out: &mut Pose) {
-        let n = self.joints.len();
+        let n = self.posed;
         let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
         if s.side.rows.is_empty() || s.front.rows.is_empty() {
             let w = if s.side.rows.is_empty() {
@@ -623,7 +628,7 @@ impl KeyframeSet {
     /// how much of the lean is in each direction. A body lying down and rolling between its side
     /// and its face moves between the lying poses, never through the poses of falling.
     pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut Pose) {
-        let n = self.joints.len();
+        let n = self.posed;
         let s = &self.sub[(behaviour as usize).min(self.sub.len() - 1)];
         let (wf, ws) = (lean.front_share, 1.0 - lean.front_share);
         let front = (!s.front.rows.is_empty() && wf > 0.0).then(|| s.front.weights(lean.front_rad, d_z));
@@ -698,6 +703,20 @@ impl KeyframeSet {
     pub fn behaviour_index(&self, name: &str) -> Option<u8> {
         self.behaviours.iter().position(|b| b == name).map(|i| i as u8)
     }
+}
+
+/// How many leading joints posing must interpolate: up to the last joint that has a child or that
+/// some keyframe turns.
+fn posed_joints(joints: &[Joint], keys: &[PlacedKey]) -> usize {
+    let mut last = 0;
+    for (i, _) in joints.iter().enumerate() {
+        let parent = joints.iter().any(|c| c.parent == Some(i));
+        let turned = keys.iter().any(|k| k.pose.rot[i] != Quat::IDENTITY);
+        if parent || turned {
+            last = i + 1;
+        }
+    }
+    last.max(1)
 }
 
 fn same_point(a: &QPoint, b: &QPoint) -> bool {

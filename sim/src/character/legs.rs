@@ -31,6 +31,8 @@ pub struct Legs {
     /// the same joint (then its frame is computed once).
     hip_off: [Vec3; 2],
     same_parent: bool,
+    /// The root joint's rest offset, single precision.
+    root_off: Vec3,
 }
 
 /// Lowest the pelvis goes for the feet to reach the floor (m).
@@ -51,6 +53,7 @@ impl Legs {
             chain_len: [0; 2],
             hip_off: [Vec3::ZERO; 2],
             same_parent: false,
+            root_off: joints[0].offset_m.as_vec3(),
         };
         for k in 0..2 {
             let a = ankle[k];
@@ -99,6 +102,10 @@ impl Legs {
     /// Position and rotation of the frame of hip `k`'s parent in `S_r`.
     #[inline]
     fn hip_parent_frame(&self, joints: &[Joint], pose: &Pose, k: usize) -> (Vec3, Quat) {
+        if self.chain_len[k] == 1 {
+            // The hips hang from the root (the usual skeleton): its offset and rotation.
+            return (self.root_off + pose.root_m, pose.rot[0]);
+        }
         let (mut p, mut r) = (Vec3::ZERO, Quat::IDENTITY);
         for &i in &self.chain[k][..self.chain_len[k] as usize] {
             let i = i as usize;
@@ -174,7 +181,8 @@ impl Legs {
             let knee = Quat::from_xyzw(c2, 0.0, 0.0, s2);
             // With that bend the ankle is, in the hip's frame, at (0, -a - b cos(bend), -b sin(bend)),
             // which is `d` from the hip; in S_r, turned by the hip's rotation.
-            let (cos_bend, sin_bend) = (-cos_knee, (1.0 - cos_knee * cos_knee).max(0.0).sqrt());
+            // sin(bend) = 2 sin(bend / 2) cos(bend / 2).
+            let (cos_bend, sin_bend) = (-cos_knee, 2.0 * c2 * s2);
             let hip_rot = frame[k].1 * pose.rot[self.hip[k]];
             let now = hip_rot * Vec3::new(0.0, -a - b * cos_bend, -b * sin_bend);
             // The shortest rotation from `now` to `to` (both of length `d`, `len`): the
@@ -186,7 +194,9 @@ impl Legs {
                 continue;
             }
             let swing = Quat::from_vec4(u.cross(v).extend(1.0 + dot)).normalize();
-            let hip_local = (frame[k].1.conjugate() * swing * hip_rot).normalize();
+            // Unit quaternions multiply to a unit quaternion (to rounding; the next step starts
+            // again from the keyframes).
+            let hip_local = frame[k].1.conjugate() * swing * hip_rot;
             pose.rot[self.hip[k]] = nlerp(pose.rot[self.hip[k]], hip_local, w);
             pose.rot[self.knee[k]] = nlerp(pose.rot[self.knee[k]], knee, w);
         }

@@ -126,7 +126,7 @@ impl Correspondence {
         }
         let mut other = Pose::default();
         pose_at(set, &q, self.from_behaviour, polar.as_ref(), &mut other);
-        let (w, n) = (self.blend as f32, set.joints.len());
+        let (w, n) = (self.blend as f32, set.posed);
         for j in 0..n {
             out.rot[j] = nlerp(other.rot[j], out.rot[j], w);
         }
@@ -170,7 +170,7 @@ fn pose_at(set: &KeyframeSet, q: &QPoint, behaviour: u8, polar: Option<&(Lean, f
         *out = p;
         return;
     }
-    for j in 0..set.joints.len() {
+    for j in 0..set.posed {
         out.rot[j] = nlerp(out.rot[j], p.rot[j], *m);
     }
     out.root_m = out.root_m * (1.0 - m) + p.root_m * *m;
