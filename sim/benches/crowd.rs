@@ -1,8 +1,8 @@
 //! Crowd of keyframe characters: one 3 ms step (AI, controllers and feet, contacts with the floor
 //! and each other, integration, and every character's pose interpolated from the keyframe set and
 //! stood on its feet) per iteration, for 1,000 to 20,000 characters, on one thread and on all of
-//! rayon's threads, in one run. DESIGN.md section 8 asks for more than 5,000 characters per 3 ms step
-//! on one core and 10,000 on this 2-core machine; issue 19 for a cost per character at 20,000 within
+//! rayon's threads, in one run. The project's goal is more than 5,000 characters per 3 ms step
+//! on one core and 10,000 on this 2-core machine, at a cost per character at 20,000 within
 //! 20 % of that at 1,000 (criterion's throughput: elements per second).
 //!
 //! `cargo bench -p spidar-sim --bench crowd`

@@ -141,14 +141,14 @@ fn scene(seconds: f64) {
                 d.force_n.x, d.force_n.z, d.dropped, c.chars[i].goal
             );
         }
-        for i in 0..c.len() {
+        for (i, was) in last.iter_mut().enumerate() {
             let p = c.chars[i].control.policy;
-            if p != last[i] {
+            if p != *was {
                 let b = c.body_space(i);
                 println!(
                     "t {:6.2} char {i} {} -> {} at ({:5.2}, {:5.2}) v {:4.2} goal {:?} near pairs {} points {}",
                     k as f64 * 0.003,
-                    last[i].name(),
+                    was.name(),
                     p.name(),
                     b.r_m.x,
                     b.r_m.z,
@@ -157,7 +157,7 @@ fn scene(seconds: f64) {
                     c.stats.near_pairs,
                     c.stats.pair_points
                 );
-                last[i] = p;
+                *was = p;
             }
         }
     }

@@ -82,7 +82,7 @@ impl ContactDesc {
         if !(k > 0.0 && k <= GAIN_MAX) {
             return Err(("stiffness", format!("must be > 0 and at most {GAIN_MAX:e}, got {k}")));
         }
-        if !(d >= 0.0 && d <= GAIN_MAX) {
+        if !(0.0..=GAIN_MAX).contains(&d) {
             return Err(("damping", format!("must be >= 0 and at most {GAIN_MAX:e}, got {d}")));
         }
         if let Gain::Rate(r) = self.stiffness {
@@ -137,7 +137,7 @@ impl ShapeDesc {
         let ok = match *self {
             ShapeDesc::Sphere { radius_m } => size(radius_m),
             ShapeDesc::Capsule { half_length_m, radius_m } => {
-                size(radius_m) && half_length_m >= 0.0 && half_length_m <= SIZE_MAX_M
+                size(radius_m) && (0.0..=SIZE_MAX_M).contains(&half_length_m)
             }
             // Component by component: `min_element` would pass over a NaN.
             ShapeDesc::Box { size_m } => size(size_m.x) && size(size_m.y) && size(size_m.z),
@@ -525,7 +525,7 @@ pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
     }
     f.contact.check().map_err(|(field, m)| src.err(&format!("contact.{field}"), field, 0, m))?;
     let lim = &f.joint_limit;
-    let lim_ok = |v: f64| v >= 0.0 && v <= GAIN_MAX;
+    let lim_ok = |v: f64| (0.0..=GAIN_MAX).contains(&v);
     if !(lim_ok(lim.stiffness_n_m_per_rad) && lim_ok(lim.damping_n_m_s_per_rad)) {
         return Err(src.err(
             "joint_limit",

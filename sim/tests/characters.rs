@@ -1,5 +1,5 @@
 //! Tests of the keyframe characters (seed 002): balance, stepping, falls and standing up on the crowd
-//! stepper and in the general engine (issue 19: bounded by a person's feet, never adding energy);
+//! stepper and in the general engine (bounded by a person's feet, never adding energy);
 //! the drawn figure against the body; the keyframe set's interpolation; determinism for any number
 //! of threads; the loaders' errors.
 
@@ -266,14 +266,14 @@ fn the_lean_angles_stay_continuous_through_every_fall() {
     for (deg, offset) in (0..8).flat_map(|k| [(k as f64 * 45.0, 0.0), (k as f64 * 45.0 + 10.0, 0.03)]) {
         let mut c = standing();
         push(&mut c, 100.0, 1.2, dir(deg), offset);
-        let mut prev = None;
+        let mut prev: Option<(f64, f64)> = None;
         let mut worst: f64 = 0.0;
         for _ in 0..(6.0 / DT) as usize {
             c.step();
             let b = c.body_space(0);
             let q = c.chars[0].anim.q(&b, &c.set);
             if let Some((x, z)) = prev {
-                worst = worst.max((q.theta_x - x as f64).abs()).max((q.theta_z - z as f64).abs());
+                worst = worst.max((q.theta_x - x).abs()).max((q.theta_z - z).abs());
             }
             prev = Some((q.theta_x, q.theta_z));
         }

@@ -338,6 +338,10 @@ impl fmt::Display for ImpactReport {
             "impact-force estimation (seed 002, section 6.2): {} scored hits, estimator practised on {} other hits",
             self.trials, self.practice
         )?;
+        writeln!(
+            f,
+            "path measured: the crowd stepper (spidar-sim) with the crowd scene's character, hit by a force on its body; no rig, rt-loop or world process (the hands' pushes through them: `spidar run --scene crowd`)"
+        )?;
         writeln!(f, "{:<22} {:>28}   {:>28}", "", "this run", "paper (Table 1, 6 subjects)")?;
         writeln!(
             f,

@@ -251,7 +251,7 @@ impl ControllerParams {
             ("yaw_arm_m", self.yaw_arm_m),
         ];
         for (name, v) in non_negative {
-            if !(v >= 0.0 && v <= SETTING_MAX) {
+            if !(0.0..=SETTING_MAX).contains(&v) {
                 return Err((name, format!("must be a number from 0 to {SETTING_MAX:e}, got {v}")));
             }
         }

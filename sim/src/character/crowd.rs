@@ -1,5 +1,5 @@
 //! The crowd stepper: thousands of single-rigid-body characters stepped and posed per 3 ms step on
-//! one core (DESIGN.md section 8: more than 5,000).
+//! one core (the project's goal: more than 5,000).
 //!
 //! Why not the general engine: `Model::build_pairs` lists every pair of shapes (O(n^2) for n
 //! characters) and the articulated-body machinery is general. Here every body is one free rigid

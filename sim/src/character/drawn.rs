@@ -1,7 +1,7 @@
 //! The drawn figure measured against the simulated body: where each joint of the pose a viewer
 //! draws is in the world, how far it is outside the body's collision shapes, whether it is below the
 //! floor, how far it jumps in one step, and how far a drawn foot slides while its foot is planted.
-//! The tests of issue 19 and `spidar eval poses` use these; the live view draws the same joints.
+//! The character tests and `spidar eval poses` use these; the live view draws the same joints.
 //!
 //! Must never: change a character; these only read.
 

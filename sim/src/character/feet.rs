@@ -1,5 +1,5 @@
 //! The character's two feet on the floor: where the controller may put the centre of pressure,
-//! and the steps that move it (the bounded stepping of issue 19, after seed 002 section 4.2).
+//! and the steps that move it (steps bounded like a person's, after seed 002 section 4.2).
 //!
 //! The paper bounds the centre-of-pressure torque by "a reachable range for the legs". Here the
 //! range is where the feet really are: each planted foot supports the centre of pressure within

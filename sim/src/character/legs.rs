@@ -111,7 +111,7 @@ impl Legs {
             let i = i as usize;
             let off = joints[i].offset_m.as_vec3() + if i == 0 { pose.root_m } else { Vec3::ZERO };
             p += r * off;
-            r = r * pose.rot[i];
+            r *= pose.rot[i];
         }
         (p, r)
     }
