@@ -10,7 +10,7 @@
 //!
 //! Must never: draw a pose the world did not compute.
 
-use std::fmt::Write as _;
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
@@ -315,42 +315,78 @@ pub fn write_svg(sheet: &Sheet, path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes every sheet into `dir` (created if needed) and returns what it wrote and measured.
-pub fn eval_poses(dir: &Path) -> anyhow::Result<String> {
-    std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("creating {}: {e}", dir.display()))?;
-    let mut report = String::new();
-    writeln!(
-        report,
-        "drawn figure against the rigid body (crowd stepper, the crowd scene's settings), worst over each motion:"
-    )?;
-    writeln!(
-        report,
-        "{:<14} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}   file",
-        "motion", "trunk", "lying", "any", "below", "jump", "slide", "lift"
-    )?;
-    for s in sheets()? {
-        let path: PathBuf = dir.join(format!("{}.svg", s.name));
-        write_svg(&s, &path)?;
-        let st = &s.stats;
+/// What one sheet's motion measured (m): see [`FigureStats`].
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PoseRow {
+    pub motion: &'static str,
+    pub file: PathBuf,
+    pub trunk_outside_m: f64,
+    pub lying_outside_m: f64,
+    pub any_outside_m: f64,
+    pub below_floor_m: f64,
+    pub max_jump_m: f64,
+    pub max_slide_m: f64,
+    pub max_lift_m: f64,
+}
+
+/// Every sheet written and what it measured.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PosesReport {
+    pub path: &'static str,
+    pub rows: Vec<PoseRow>,
+}
+
+impl fmt::Display for PosesReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "drawn figure against the rigid body ({}), worst over each motion:", self.path)?;
         writeln!(
-            report,
-            "{:<14} {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm   {}",
-            s.name,
-            st.trunk_outside_m * 100.0,
-            st.lying_outside_m * 100.0,
-            st.any_outside_m * 100.0,
-            st.below_floor_m * 100.0,
-            st.max_jump_m * 100.0,
-            st.max_slide_m * 100.0,
-            st.max_lift_m * 100.0,
-            path.display()
+            f,
+            "{:<14} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}   file",
+            "motion", "trunk", "lying", "any", "below", "jump", "slide", "lift"
         )?;
+        for r in &self.rows {
+            writeln!(
+                f,
+                "{:<14} {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm {:>7.1}cm   {}",
+                r.motion,
+                r.trunk_outside_m * 100.0,
+                r.lying_outside_m * 100.0,
+                r.any_outside_m * 100.0,
+                r.below_floor_m * 100.0,
+                r.max_jump_m * 100.0,
+                r.max_slide_m * 100.0,
+                r.max_lift_m * 100.0,
+                r.file.display()
+            )?;
+        }
+        write!(
+            f,
+            "(trunk: joints other than hands, elbows, knees, ankles outside the body's shapes; lying: any joint while lying or \
+             standing up; any: any joint at any time, arms reaching out included; below: under the floor; jump: largest move \
+             of a joint in one 3 ms step; slide: a drawn ankle's drift while its foot is planted; lift: highest swing)"
+        )
     }
-    write!(
-        report,
-        "(trunk: joints other than hands, elbows, knees, ankles outside the body's shapes; lying: any joint while lying or \
-         standing up; any: any joint at any time, arms reaching out included; below: under the floor; jump: largest move \
-         of a joint in one 3 ms step; slide: a drawn ankle's drift while its foot is planted; lift: highest swing)"
-    )?;
-    Ok(report)
+}
+
+/// Writes every sheet into `dir` (created if needed) and returns what it wrote and measured.
+pub fn eval_poses(dir: &Path) -> anyhow::Result<PosesReport> {
+    std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("creating {}: {e}", dir.display()))?;
+    let mut rows = Vec::new();
+    for s in sheets()? {
+        let file: PathBuf = dir.join(format!("{}.svg", s.name));
+        write_svg(&s, &file)?;
+        let st = &s.stats;
+        rows.push(PoseRow {
+            motion: s.name,
+            file,
+            trunk_outside_m: st.trunk_outside_m,
+            lying_outside_m: st.lying_outside_m,
+            any_outside_m: st.any_outside_m,
+            below_floor_m: st.below_floor_m,
+            max_jump_m: st.max_jump_m,
+            max_slide_m: st.max_slide_m,
+            max_lift_m: st.max_lift_m,
+        });
+    }
+    Ok(PosesReport { path: "crowd stepper, the crowd scene's settings; no rig or rt-loop", rows })
 }

@@ -367,8 +367,13 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Cmd::Eval { what: EvalCmd::Poses { out } } => {
-            println!("{}", spidar_tools::eval_poses::eval_poses(&out)?);
+        Cmd::Eval { what: EvalCmd::Poses { out }, json } => {
+            let report = spidar_tools::eval_poses::eval_poses(&out)?;
+            if json {
+                println!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
+            } else {
+                println!("{report}");
+            }
             Ok(())
         }
         Cmd::Devices { probe, port } => {
@@ -603,7 +608,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             let info = spidar_tools::recording::session_info(
                 a.rig.rig.as_deref(),
                 &scene_arg,
-                &a.script,
+                &script,
                 &format!("{:?}", a.device),
                 a.seed,
                 a.virtual_clock,
