@@ -6,7 +6,8 @@
 //! foot's drawn ankle slides).
 //!
 //! The characters are those of the built-in crowd scene (its body, controller and keyframe set),
-//! stepped by the crowd stepper the scene runs; the frames are the poses the scene publishes.
+//! run through the user's path (`crate::crowd_run`: the simulated rig, the rt-loop, the crowd
+//! scene), pushed by a simulated hand; the frames are the poses the scene publishes.
 //!
 //! Must never: draw a pose the world did not compute.
 
@@ -15,6 +16,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
 use plotters::prelude::*;
+use spidar_rt::Rig;
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::crowd::Crowd;
@@ -23,12 +25,14 @@ use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_sim::character::scene::builtin_crowd;
 use spidar_sim::collide::Shape;
 
-/// Which way a sheet looks at the character: from its side (its front to the right) or from its
-/// front (its left to the right).
+use crate::crowd_run::{shove_scripts, CrowdRun, Shove, SETTLED_S};
+
+/// The horizontal axis of a sheet's pictures: the world's z (toward the user) or x (to the user's
+/// right).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum View {
-    Side,
-    Front,
+    WorldZ,
+    WorldX,
 }
 
 /// One drawn moment.
@@ -69,105 +73,176 @@ fn frame(c: &Crowd, t_s: f64) -> Frame {
     Frame { t_s, policy: c.chars[0].control.policy, joints, shapes, feet }
 }
 
-/// Runs one motion: `setup` places the character and may push it at `push_at_s`; frames every
-/// `every_s` from `from_s` for `frames` frames.
+/// A push through the user's path: a hand shoves the character at `height_m` above the floor,
+/// through the point of its body nearest the user, `depth_m` past its surface in `push_s`, the hand
+/// starting through the body at the motion's time `at_s`.
+#[derive(Clone, Copy, Debug)]
+struct HandPush {
+    at_s: f64,
+    height_m: f64,
+    depth_m: f64,
+    push_s: f64,
+}
+
+/// Where a pushed character stands (world x, z, m): on the rig's centre line, its near side about
+/// 0.3 m in front of the rig's origin (farther when it shows the user its side, the wider one).
+fn stand_point(heading_rad: f64) -> (f64, f64) {
+    (0.0, -0.42 - 0.08 * heading_rad.sin().abs())
+}
+
+/// Runs one motion through the user's path (simulated rig, rt-loop, crowd scene: `crowd_run`): a
+/// character of the crowd scene at `at` (world x, z) with `heading_rad` and `goal`, pushed by a hand
+/// if `push` says so; frames every `every_s` from the motion's time `from_s` (0: the rig has
+/// settled) for `frames` frames.
+#[allow(clippy::too_many_arguments)]
 fn record(
     name: &'static str,
     title: &str,
     view: View,
+    (at, heading_rad): ((f64, f64), f64),
     goal: Goal,
-    push: Option<(f64, DVec3, DVec3)>,
+    push: Option<HandPush>,
     (from_s, every_s, frames): (f64, f64, usize),
 ) -> anyhow::Result<Sheet> {
+    let rig = Rig::default_rig();
     let mut c = builtin_crowd()?.empty_like();
-    c.add(0.0, 0.0, 0.0, goal);
-    let dt = c.world.dt_s;
+    c.add(at.0, at.1, heading_rad, goal);
+    let shove = match push {
+        Some(p) => {
+            let b = c.body_space(0);
+            let floor_y = b.r_m.y - 0.75;
+            // The body's surface nearest the user, at the height; the hand pushes away from the user.
+            let into = -DVec3::Z;
+            let surface_z = (0..c.body.shapes.len())
+                .map(|k| c.shape_world(0, k))
+                .map(|(s, p)| {
+                    p.pos_m.z
+                        + match s {
+                            Shape::Sphere { radius_m } | Shape::Capsule { radius_m, .. } => radius_m,
+                            Shape::Box { half_extents_m } => half_extents_m.z,
+                            _ => 0.0,
+                        }
+                })
+                .fold(f64::NEG_INFINITY, f64::max);
+            let point = DVec3::new(b.r_m.x, floor_y + p.height_m, surface_z);
+            let near = point - into * 0.12;
+            let start_s = SETTLED_S + p.at_s - 0.6;
+            Some(Shove {
+                start_s,
+                reach_s: 0.6,
+                near: rig.rig_to_world.point_to_rig(near),
+                to: rig.rig_to_world.point_to_rig(point + into * p.depth_m),
+                push_s: p.push_s,
+            })
+        }
+        None => None,
+    };
+    let mut run = CrowdRun::new(&rig, c, shove_scripts(&rig, shove.as_ref()))?;
     let mut stats = FigureStats::default();
     let mut out = Vec::new();
     let end = from_s + every_s * frames as f64;
-    let mut k = 0usize;
-    let mut pushed = false;
     loop {
-        let t = k as f64 * dt;
+        let t = run.step()? - SETTLED_S;
         if t > end + 1e-9 {
             break;
         }
-        if let (Some((at_s, height_m, impulse)), false) = (push, pushed) {
-            if t >= at_s {
-                let b = c.body_space(0);
-                let dir = impulse.normalize();
-                // On the body's surface facing the push, at the given height above the floor.
-                let point = DVec3::new(b.r_m.x, height_m.x, b.r_m.z) - dir * 0.13;
-                c.add_impulse_at(0, point, impulse);
-                pushed = true;
-            }
-        }
-        c.step();
-        k += 1;
-        let t = k as f64 * dt;
+        let c = run.crowd();
+        let dt = c.world.dt_s;
         if t >= from_s - 1e-9 {
-            stats.add(&c, 0, 0.0);
+            stats.add(c, 0, 0.0);
         }
         let slot = ((t - from_s) / every_s).round();
-        if slot >= 0.0 && (t - from_s - slot * every_s).abs() < 0.5 * dt && (slot as usize) < frames {
-            out.push(frame(&c, t));
+        if slot >= 0.0
+            && (t - from_s - slot * every_s).abs() <= 0.5 * dt
+            && (slot as usize) < frames
+            && out.len() == slot as usize
+        {
+            out.push(frame(c, t));
         }
     }
-    Ok(Sheet { name, title: title.to_string(), view, frames: out, stats })
+    if run.faults() != 0 {
+        anyhow::bail!("the rig faulted {} times while recording {name}: the sheet is void", run.faults());
+    }
+    let title = match push {
+        Some(_) => format!("{title}; the hand gave {:.0} N s", run.scene.impulse_sum_n_s),
+        None => title.to_string(),
+    };
+    Ok(Sheet { name, title, view, frames: out, stats })
 }
 
-/// The motions of the contact sheets.
+/// The motions of the contact sheets, each through the user's path: the pushes are a hand's.
 pub fn sheets() -> anyhow::Result<Vec<Sheet>> {
-    let push = |at_s: f64, h_m: f64, dir: DVec3, n_s: f64| Some((at_s, DVec3::new(h_m, 0.0, 0.0), dir * n_s));
-    let walk = Goal::WalkTo { point_m: DVec3::new(0.0, 0.0, 2.4), speed_m_per_s: 0.9 };
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let push = |at_s: f64, height_m: f64, depth_m: f64, push_s: f64| {
+        Some(HandPush { at_s, height_m, depth_m, push_s })
+    };
+    // Facing the user (its front at +z), its back to the user, its left or right side to the user.
+    let (front, back, left, right) = (0.0, PI, FRAC_PI_2, -FRAC_PI_2);
+    let placed = |h: f64| (stand_point(h), h);
+    // A walk across in front of the user, from the left to the right, and a stop.
+    let walk = Goal::WalkTo { point_m: DVec3::new(1.2, 0.0, -1.2), speed_m_per_s: 0.9 };
     Ok(vec![
-        record("walk", "walking 2.4 m and stopping (side view)", View::Side, walk, None, (0.2, 0.3, 16))?,
+        record(
+            "walk",
+            "walking 2.4 m across in front of the user and stopping (side view)",
+            View::WorldX,
+            ((-1.2, -1.2), FRAC_PI_2 * -1.0 + PI),
+            walk,
+            None,
+            (0.2, 0.3, 16),
+        )?,
         record(
             "stagger",
-            "a 20 N s push at the shoulders from behind: staggers forward and recovers (side view)",
-            View::Side,
+            "a hand's push at the shoulders from behind: staggers forward and recovers (side view)",
+            View::WorldZ,
+            placed(back),
             Goal::Stand,
-            push(0.3, 1.2, DVec3::Z, 20.0),
+            push(0.3, 1.05, 0.06, 0.3),
             (0.2, 0.15, 16),
         )?,
         record(
             "fall-forward",
-            "a 100 N s shove at the trunk from behind: falls on its face (side view)",
-            View::Side,
+            "a hand's shove at the trunk from behind: falls on its face (side view)",
+            View::WorldZ,
+            placed(back),
             Goal::Stand,
-            push(0.3, 0.75, DVec3::Z, 100.0),
+            push(0.3, 0.85, 0.25, 0.5),
             (0.2, 0.12, 16),
         )?,
         record(
             "fall-backward",
-            "a 90 N s shove at the shoulders from the front: sits down and falls on its back (side view)",
-            View::Side,
+            "a hand's shove at the shoulders from the front: falls on its back (side view)",
+            View::WorldZ,
+            placed(front),
             Goal::Stand,
-            push(0.3, 1.2, -DVec3::Z, 90.0),
+            push(0.3, 1.05, 0.25, 0.5),
             (0.2, 0.12, 16),
         )?,
         record(
             "fall-left",
-            "a 90 N s shove at the shoulders from its right: falls to its left and rolls over (front view)",
-            View::Front,
+            "a hand's shove at the shoulders from its right: falls to its left and rolls over (front view)",
+            View::WorldZ,
+            placed(left),
             Goal::Stand,
-            push(0.3, 1.2, DVec3::X, 90.0),
+            push(0.3, 1.05, 0.25, 0.5),
             (0.2, 0.15, 16),
         )?,
         record(
             "fall-right",
-            "a 90 N s shove at the shoulders from its left: falls to its right and rolls over (front view)",
-            View::Front,
+            "a hand's shove at the shoulders from its left: falls to its right and rolls over (back view)",
+            View::WorldZ,
+            placed(right),
             Goal::Stand,
-            push(0.3, 1.2, -DVec3::X, 90.0),
+            push(0.3, 1.05, 0.25, 0.5),
             (0.2, 0.15, 16),
         )?,
         record(
             "stand-up",
-            "after falling on its face: stops, stands up and settles (side view)",
-            View::Side,
+            "after a hand's shove from behind: on its face, stops, stands up and settles (side view)",
+            View::WorldZ,
+            placed(back),
             Goal::Stand,
-            push(0.3, 0.75, DVec3::Z, 100.0),
+            push(0.3, 0.85, 0.25, 0.5),
             (2.0, 0.2, 16),
         )?,
     ])
@@ -181,8 +256,8 @@ const COLUMNS: usize = 8;
 
 fn horizontal(view: View, p: DVec3) -> f64 {
     match view {
-        View::Side => p.z,
-        View::Front => p.x,
+        View::WorldZ => p.z,
+        View::WorldX => p.x,
     }
 }
 
@@ -388,5 +463,47 @@ pub fn eval_poses(dir: &Path) -> anyhow::Result<PosesReport> {
             max_lift_m: st.max_lift_m,
         });
     }
-    Ok(PosesReport { path: "crowd stepper, the crowd scene's settings; no rig or rt-loop", rows })
+    Ok(PosesReport {
+        path: "the user's path, as `spidar run --scene crowd --virtual`: the crowd scene behind the simulated rig and the \
+               rt-loop, the pushes a simulated hand's",
+        rows,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every sheet, run through the simulated rig, the rt-loop and the crowd scene with a hand's
+    /// pushes, shows what its title says (the walk and the stagger keep their feet, every shove
+    /// topples the character, the stand-up ends upright), and the drawn figure stays on the body
+    /// within the bounds the character tests hold the crowd stepper to.
+    #[test]
+    fn the_contact_sheets_show_their_motions_through_the_rig() {
+        let sheets = sheets().unwrap();
+        assert_eq!(sheets.len(), 7);
+        for s in &sheets {
+            assert_eq!(s.frames.len(), 16, "{}", s.name);
+            eprintln!("{}: {}", s.name, s.title);
+            let fell = s.frames.iter().any(|f| f.policy != Policy::Balance);
+            let expect_fall = s.name.starts_with("fall") || s.name == "stand-up";
+            assert_eq!(
+                fell,
+                expect_fall,
+                "{}: {:?}",
+                s.name,
+                s.frames.iter().map(|f| f.policy).collect::<Vec<_>>()
+            );
+            let st = &s.stats;
+            assert!(st.trunk_outside_m < 0.06, "{}: {st:?}", s.name);
+            assert!(st.lying_outside_m < 0.09, "{}: {st:?}", s.name);
+            assert!(st.below_floor_m < 0.02, "{}: {st:?}", s.name);
+            assert!(st.max_jump_m < 0.07, "{}: {st:?}", s.name);
+            assert!(st.max_slide_m < 0.05, "{}: {st:?}", s.name);
+        }
+        let up = sheets.iter().find(|s| s.name == "stand-up").unwrap();
+        assert_eq!(up.frames.last().unwrap().policy, Policy::Balance, "it never stood up again");
+        // The walk lifts its feet visibly.
+        assert!(sheets[0].stats.max_lift_m > 0.05, "{:?}", sheets[0].stats);
+    }
 }

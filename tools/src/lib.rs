@@ -6,6 +6,7 @@ pub mod bench;
 pub mod bench_record;
 pub mod calib;
 pub mod child_world;
+pub mod crowd_run;
 pub mod eval;
 pub mod eval_impacts;
 pub mod eval_poses;

@@ -91,6 +91,11 @@ enum EvalCmd {
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// rig: hands push the character through the simulated rig, the rt-loop and the crowd
+        /// scene (the user's path); stepper: a force on the crowd stepper's character (the paper's
+        /// heights, down to the feet).
+        #[arg(long, value_enum, default_value = "rig")]
+        path: spidar_tools::eval_impacts::ImpactPath,
     },
     /// Seed 002: contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
     /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
@@ -409,12 +414,18 @@ fn main() -> anyhow::Result<()> {
             println!("{rep}");
             Ok(())
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed, path }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             if trials == 0 || practice == 0 {
                 bail!("--trials and --practice must be at least 1");
             }
-            let o = ImpactOptions { trials, practice_per_combo: practice, seed, ..ImpactOptions::default() };
+            let o = ImpactOptions {
+                trials,
+                practice_per_combo: practice,
+                seed,
+                path,
+                ..ImpactOptions::default()
+            };
             let report = eval_impacts(&o, |done, total| {
                 if done % 50 == 0 || done == total {
                     eprint!("\r  simulated {done}/{total} hits");
