@@ -11,6 +11,7 @@ use glam::DVec3;
 use spidar_device::sim::{Script, Segment, SimRig};
 use spidar_rt::{Clock as _, Rig};
 use spidar_sim::character::crowd::Crowd;
+use spidar_sim::character::drawn::outside_body;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::Scene as _;
 
@@ -103,4 +104,13 @@ impl CrowdRun {
     pub fn faults(&self) -> u64 {
         self.v.counters().faults
     }
+}
+
+/// Radius of the simulated fist (m).
+pub const FIST_M: f64 = 0.04;
+
+/// Where a fist moving from `from` along the unit direction `into` first touches character 0's
+/// body (its centre then, world frame), searched over 1.5 m in 2 mm steps; None if it passes by.
+pub fn first_touch(c: &Crowd, from: DVec3, into: DVec3) -> Option<DVec3> {
+    (0..750).map(|k| from + into * (k as f64 * 0.002)).find(|p| outside_body(&c.body, c, 0, *p) <= FIST_M)
 }

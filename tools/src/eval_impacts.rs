@@ -8,7 +8,7 @@
 //!
 //! Two paths ([`ImpactPath`]): by default the hits go the user's way, a simulated hand pushing the
 //! character through the simulated rig, the rt-loop and the crowd scene, as `spidar run --scene
-//! crowd --virtual` runs them (heights the hands reach: 0.35, 0.85, 1.35 m; strength by how far
+//! crowd --virtual` runs them (heights on the trunk: 0.5, 0.8, 1.1 m; strength by how far
 //! the hand pushes through); `--path stepper` hits the crowd stepper's character with a force, the
 //! paper's protocol to the letter. The estimator sees only the
 //! generated motion (the body's transform and the skeleton pose over time, as drawn, in the frame
@@ -36,7 +36,7 @@ use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::keyframe::Pose;
 use spidar_sim::character::scene::builtin_crowd;
 
-use crate::crowd_run::{shove_scripts, CrowdRun, Shove, SETTLED_S};
+use crate::crowd_run::{first_touch, shove_scripts, CrowdRun, Shove, SETTLED_S};
 
 const POS_DEG: [f64; 3] = [-45.0, 0.0, 45.0];
 /// Impulses of the two strengths on the crowd stepper (N s), given over `PUSH_S`: a weak hit the
@@ -44,18 +44,22 @@ const POS_DEG: [f64; 3] = [-45.0, 0.0, 45.0];
 const WEAK_N_S: f64 = 20.0;
 const STRONG_N_S: f64 = 80.0;
 const PUSH_S: f64 = 0.1;
-/// Through the rig, the two strengths are how far the hand pushes through the hit point (m): a
-/// push of a few centimetres, or a shove following through like the crowd script's.
-const WEAK_DEPTH_M: f64 = 0.05;
-const STRONG_DEPTH_M: f64 = 0.40;
-/// The simulated fist's radius (m), and how long the hand takes to reach the hit's start (s).
-const FIST_M: f64 = 0.04;
+/// Through the rig, the two strengths are how far the hand pushes past where it first touches the
+/// body (m): a push of a few centimetres, or a shove following through like the crowd script's.
+const WEAK_DEPTH_M: f64 = 0.04;
+const STRONG_DEPTH_M: f64 = 0.30;
+/// How long the hand takes to reach the hit's start (s).
 const REACH_S: f64 = 0.8;
 /// Through the rig, where the character stands: on the rig's centre line, its chest about 0.3 m
 /// in front of the rig's origin (world z, m).
 const CHARACTER_Z_M: f64 = -0.42;
-/// Radius of the trunk's surface where the force is applied (m).
+/// How far from the body's centre line the hit's line passes through the point at `theta_pos`
+/// (m): on the stepper the force is applied there, at the trunk's surface; through the rig the
+/// hand's line passes through a point inside the trunk, so that every direction of the hit meets
+/// the body (the trunk is two capsules 0.13 m thick, 0.21 m to each side), and the push starts
+/// where the fist first touches the body on that line.
 const SURFACE_M: f64 = 0.2;
+const AIM_M: f64 = 0.06;
 /// Seconds of motion watched after the hit.
 const WATCH_S: f64 = 6.0;
 
@@ -71,12 +75,14 @@ pub enum ImpactPath {
 }
 
 impl ImpactPath {
-    /// The three heights `h` of the hit above the floor (m), 0.5 m apart as in the paper: the
-    /// paper's on the stepper; through the rig the lowest the hands reach (the frame's lower
-    /// anchors are 0.1-0.2 m above the floor), the hips, and the head.
+    /// The three heights `h` of the hit above the floor (m): the paper's on the stepper (0.5 m
+    /// apart, the lowest at the feet); through the rig three on the trunk's straight part (0.42 to
+    /// 1.08 m; the hands reach down to the frame's lower anchors, 0.1-0.2 m above the floor, but
+    /// a hand's push at the feet or through the narrow top of the head glances off): the thighs,
+    /// the hips, the shoulders.
     pub fn heights_m(self) -> [f64; 3] {
         match self {
-            ImpactPath::Rig => [0.35, 0.85, 1.35],
+            ImpactPath::Rig => [0.5, 0.8, 1.1],
             ImpactPath::Stepper => [0.0, 0.5, 1.0],
         }
     }
@@ -276,18 +282,19 @@ impl Watcher {
 }
 
 /// Where the hit lands and which way it points, world frame: the point of the trunk's surface
-/// (`SURFACE_M` from the centre line) at `theta_pos` around the front of `b0`'s heading, `h` above
+/// (`radius_m` from the centre line) at `theta_pos` around the front of `b0`'s heading, `h` above
 /// the floor, and the unit direction into the body turned by `theta_dir`.
 fn hit_line(
     imp: &Impact,
     b0: &spidar_sim::character::space::BodySpace,
     floor_y: f64,
     h: f64,
+    radius_m: f64,
 ) -> (DVec3, DVec3) {
     let (ex, ez) = (b0.heading.e_xc, b0.heading.e_zc);
     let ang = imp.pos_deg.to_radians();
     let dir = (imp.pos_deg + imp.dir_deg).to_radians();
-    let point = b0.r_m + (ex * ang.sin() + ez * ang.cos()) * SURFACE_M + DVec3::Y * (floor_y + h - b0.r_m.y);
+    let point = b0.r_m + (ex * ang.sin() + ez * ang.cos()) * radius_m + DVec3::Y * (floor_y + h - b0.r_m.y);
     (point, -(ex * dir.sin() + ez * dir.cos()))
 }
 
@@ -311,7 +318,7 @@ fn hit_by_force(imp: &Impact, rng: &mut Crowd) -> anyhow::Result<(Features, f64)
     }
     one.chars[0].goal = Goal::Stand;
     let b0 = one.body_space(0);
-    let (point, into) = hit_line(imp, &b0, b0.r_m.y - 0.75, h);
+    let (point, into) = hit_line(imp, &b0, b0.r_m.y - 0.75, h, SURFACE_M);
     let force = into * (strength / PUSH_S);
     let mut w = Watcher::new(&one);
     for k in 0..steps(WATCH_S) {
@@ -328,8 +335,8 @@ fn hit_by_force(imp: &Impact, rng: &mut Crowd) -> anyhow::Result<(Features, f64)
 /// rig (its strings, encoders and the user's arm following a script), the rt-loop rendering the
 /// character's proxies, and the crowd scene (the world) giving the character the hand's contact.
 /// One character of the crowd scene stands facing the user in front of the rig; a hand reaches to
-/// just outside the hit point and pushes through it along the hit's direction, a few centimetres
-/// (weak) or a shove of `STRONG_DEPTH_M` (strong). Returns the features of the motion as drawn
+/// 6 cm short of the body on the hit's line and pushes along it, past where it first touches by
+/// `WEAK_DEPTH_M` (weak) or `STRONG_DEPTH_M` (strong). Returns the features of the motion as drawn
 /// (watched from the push's start) and the impulse the character got (N s).
 fn hit_by_hand(imp: &Impact, rng: &mut Crowd, rig: &Rig) -> anyhow::Result<(Features, f64)> {
     // Nuisance: the heading (roughly facing the user), the depth of the push, height and timing.
@@ -341,12 +348,14 @@ fn hit_by_hand(imp: &Impact, rng: &mut Crowd, rig: &Rig) -> anyhow::Result<(Feat
     let mut one = builtin_crowd()?.empty_like();
     one.add(0.0, CHARACTER_Z_M, heading, Goal::Stand);
     let b0 = one.body_space(0);
-    let (point, into) = hit_line(imp, &b0, b0.r_m.y - 0.75, h);
+    let (point, into) = hit_line(imp, &b0, b0.r_m.y - 0.75, h, AIM_M);
+    let touch = first_touch(&one, point - into * 0.5, into)
+        .ok_or_else(|| anyhow::anyhow!("the hit's line misses the body ({imp:?})"))?;
     let shove = Shove {
         start_s: SETTLED_S + wait_s,
         reach_s: REACH_S,
-        near: rig.rig_to_world.point_to_rig(point - into * (FIST_M + 0.08)),
-        to: rig.rig_to_world.point_to_rig(point + into * depth),
+        near: rig.rig_to_world.point_to_rig(touch - into * 0.06),
+        to: rig.rig_to_world.point_to_rig(touch + into * depth),
         push_s: if imp.strong { 0.5 } else { 0.4 },
     };
     let mut run = CrowdRun::new(rig, one, shove_scripts(rig, Some(&shove)))?;
@@ -481,7 +490,7 @@ pub fn eval_impacts(
         let g_f = vote(&|i| i.strong as u8 as f64);
         errs[0].push((g_pos - truth.pos_deg) / 45.0);
         errs[1].push((g_abs - (truth.pos_deg + truth.dir_deg)) / 45.0);
-        errs[2].push((g_h - truth.h_m) / 0.5);
+        errs[2].push((g_h - truth.h_m) / (heights[1] - heights[0]));
         errs[3].push(g_f - truth.strong as u8 as f64);
         patterns.insert(f.pattern);
     }
@@ -538,7 +547,7 @@ impl fmt::Display for ImpactReport {
                 name, s.accuracy, s.mean, s.std, pa, pm, ps
             )?;
         }
-        writeln!(f, "(mean and std of the signed error in units of each parameter's choice interval: 45 deg, 0.5 m, strong/weak)")?;
+        writeln!(f, "(mean and std of the signed error in units of each parameter's choice interval: 45 deg, {:.2} m, strong/weak)", self.heights_m[1] - self.heights_m[0])?;
         writeln!(
             f,
             "distinct motion patterns (fall side x travel octant x turn x initial lean): {} (paper: about 30)",
@@ -587,8 +596,8 @@ mod tests {
         let rig = Rig::default_rig();
         let mut rng = builtin_crowd().unwrap();
         rng.seed(3);
-        let shove = Impact { pos_deg: 0.0, dir_deg: 0.0, h_m: 1.35, strong: true };
-        let push = Impact { pos_deg: 45.0, dir_deg: -45.0, h_m: 0.85, strong: false };
+        let shove = Impact { pos_deg: 0.0, dir_deg: 0.0, h_m: 1.1, strong: true };
+        let push = Impact { pos_deg: 45.0, dir_deg: -45.0, h_m: 0.8, strong: false };
         let (fs, is) = hit_by_hand(&shove, &mut rng, &rig).unwrap();
         let (fp, ip) = hit_by_hand(&push, &mut rng, &rig).unwrap();
         assert!(fs.v[6] > 0.0, "the shove ({is:.1} N s) did not topple it: {:?}", fs.v);

@@ -25,7 +25,7 @@ use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_sim::character::scene::builtin_crowd;
 use spidar_sim::collide::Shape;
 
-use crate::crowd_run::{shove_scripts, CrowdRun, Shove, SETTLED_S};
+use crate::crowd_run::{first_touch, shove_scripts, CrowdRun, Shove, SETTLED_S};
 
 /// The horizontal axis of a sheet's pictures: the world's z (toward the user) or x (to the user's
 /// right).
@@ -74,8 +74,8 @@ fn frame(c: &Crowd, t_s: f64) -> Frame {
 }
 
 /// A push through the user's path: a hand shoves the character at `height_m` above the floor,
-/// through the point of its body nearest the user, `depth_m` past its surface in `push_s`, the hand
-/// starting through the body at the motion's time `at_s`.
+/// toward its centre line, `depth_m` past where it first touches the body in `push_s`, starting
+/// 6 cm short of it at the motion's time `at_s`.
 #[derive(Clone, Copy, Debug)]
 struct HandPush {
     at_s: f64,
@@ -111,21 +111,13 @@ fn record(
         Some(p) => {
             let b = c.body_space(0);
             let floor_y = b.r_m.y - 0.75;
-            // The body's surface nearest the user, at the height; the hand pushes away from the user.
+            // The hand pushes away from the user, through the body's centre line at the height,
+            // from 6 cm short of where it first touches the body.
             let into = -DVec3::Z;
-            let surface_z = (0..c.body.shapes.len())
-                .map(|k| c.shape_world(0, k))
-                .map(|(s, p)| {
-                    p.pos_m.z
-                        + match s {
-                            Shape::Sphere { radius_m } | Shape::Capsule { radius_m, .. } => radius_m,
-                            Shape::Box { half_extents_m } => half_extents_m.z,
-                            _ => 0.0,
-                        }
-                })
-                .fold(f64::NEG_INFINITY, f64::max);
-            let point = DVec3::new(b.r_m.x, floor_y + p.height_m, surface_z);
-            let near = point - into * 0.12;
+            let centre = DVec3::new(b.r_m.x, floor_y + p.height_m, b.r_m.z);
+            let touch = first_touch(&c, centre - into * 0.6, into)
+                .ok_or_else(|| anyhow::anyhow!("{name}: the hand's line misses the body"))?;
+            let (near, point) = (touch - into * 0.06, touch);
             let start_s = SETTLED_S + p.at_s - 0.6;
             Some(Shove {
                 start_s,
