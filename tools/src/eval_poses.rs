@@ -178,7 +178,7 @@ pub fn sheets() -> anyhow::Result<Vec<Sheet>> {
             "walk",
             "walking 2.4 m across in front of the user and stopping (side view)",
             View::WorldX,
-            ((-1.2, -1.2), FRAC_PI_2 * -1.0 + PI),
+            ((-1.2, -1.2), FRAC_PI_2), // facing +x, the way it walks
             walk,
             None,
             (0.2, 0.3, 16),
