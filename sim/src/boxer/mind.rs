@@ -260,7 +260,8 @@ impl Mind {
         let stance = root_home(model, vh.waist);
         let world = |b: usize| model.bodies[b].x_tree.point_to_parent(root_home(model, b));
         let to = world(av.waist) - world(vh.waist);
-        let toward_avatar = model.bodies[vh.waist].x_tree.e * DVec3::new(to.x, 0.0, to.z).normalize_or(DVec3::Z);
+        let toward_avatar =
+            model.bodies[vh.waist].x_tree.e * DVec3::new(to.x, 0.0, to.z).normalize_or(DVec3::Z);
         Mind {
             waist_home_m: stance,
             stance_home_m: stance,
