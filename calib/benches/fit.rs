@@ -27,7 +27,7 @@ fn bench_fit(c: &mut Criterion) {
     .unwrap();
     let plan =
         Plan { hands: vec![0], jig: Some(jig), free_per_hand: 91, free_half_extent_m: DVec3::splat(0.3) };
-    let session = rec.record_plan(&mut SimOperator::new(false), &plan, "sim").unwrap();
+    let session = rec.record_session(&mut SimOperator::new(false), &plan, "sim").unwrap();
     let obs = observations(&session, 0);
     assert_eq!(obs.len(), 100);
     let mut g = c.benchmark_group("calib");

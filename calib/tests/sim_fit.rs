@@ -12,6 +12,7 @@ use spidar_calib::record::{Plan, RecordOptions, Recorder, SimOperator};
 use spidar_calib::session::SessionFile;
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_calib::verify::verify;
+use spidar_calib::quality::Cause;
 use spidar_calib::CalibError;
 use spidar_rt::Rig;
 
@@ -31,7 +32,7 @@ fn record(jig: Option<JigFile>, free: usize, opts: &SimTruthOptions) -> (Session
     let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
     let mut op = SimOperator::new(false);
     let plan = Plan { hands: vec![0, 1], jig, free_per_hand: free, free_half_extent_m: DVec3::splat(0.3) };
-    let session = rec.record_plan(&mut op, &plan, "sim").unwrap();
+    let session = rec.record_session(&mut op, &plan, "sim").unwrap();
     (session, truth)
 }
 
@@ -210,6 +211,7 @@ fn poses_all_in_one_plane_are_refused_with_the_plane_named() {
                 }),
                 known_m: None,
                 hint_m: (k == 0).then_some(p),
+                noise_counts: [0.29; 4],
             }
         })
         .collect();
@@ -243,14 +245,24 @@ fn a_string_slack_in_a_few_poses_is_down_weighted_and_named_and_in_many_is_an_er
         );
     }
     assert!(fit.advice.iter().any(|a| a.contains("re-record")), "{:?}", fit.advice);
-    // Slack in six of the eight jig poses: the string is not to be trusted at all.
+    // Slack in six of the eight jig poses: the string is not to be trusted at all. The
+    // data-quality check names the string and the run of poses, and the fit is not trustworthy.
     let mut obs = clean;
     for k in 1..=6 {
         obs[k].counts[2] += 5e-3 / mpc;
     }
-    let e = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap_err();
-    assert!(matches!(e, CalibError::InconsistentString { hand: 0, string: 2, .. }), "{e}");
-    assert!(e.to_string().contains("slack"), "{e}");
+    let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+    assert!(!fit.is_trustworthy());
+    assert_eq!(fit.quality.findings.len(), 1, "{:?}", fit.quality.findings);
+    match fit.quality.findings[0].cause {
+        Cause::Burst { string, from, to, size_m } => {
+            assert_eq!((string, from, to), (Some(2), 1, 6));
+            assert!((size_m - 5e-3).abs() < 0.1e-3, "{size_m}");
+        }
+        ref c => panic!("expected slack in poses 1..6, got {c:?}"),
+    }
+    let lines = fit.quality_lines().join("\n");
+    assert!(lines.contains("slack: hand 0 string 2") && lines.contains("pose 1 (jig"), "{lines}");
 }
 
 #[test]

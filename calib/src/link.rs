@@ -1,0 +1,169 @@
+//! The device as calibration drives it: every string held at the rig's minimum tension, one
+//! exchange per tick, late or bad replies retried and counted, a stop request and a lasting loss
+//! of the board turned into errors that end the session cleanly.
+//!
+//! Why it exists: a guided session lasts minutes and a person moves the grip all along. A board
+//! reply that comes after its deadline, or one corrupted byte, must not throw that work away:
+//! the sample of that tick is left out, the exchange is retried on the next tick, and the
+//! session goes on. Only when the board stays silent for `lost_after_s`, or the link is gone,
+//! does the session stop (what was recorded is kept by the caller). A stop signal (Ctrl-C,
+//! SIGTERM) is polled every tick.
+//!
+//! What it must never do: command anything but the holding output (every string at minimum
+//! tension), or stall without commanding the boards: they have no watchdog and hold their last
+//! command, so the holding output is what they keep if this program dies.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use spidar_device::{Device, ErrorKind, Input, Output};
+use spidar_rt::Rig;
+
+use crate::CalibError;
+
+/// Polled every tick: `true` asks the session to stop (outputs off, what was recorded kept).
+pub type StopCheck = Arc<dyn Fn() -> bool + Send + Sync>;
+
+/// What the link saw.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Exchanges that succeeded.
+    pub exchanges: u64,
+    /// Exchanges that failed (a late, lost or corrupt reply) and were retried on the next tick.
+    pub retried: u64,
+    /// Longest run of failed exchanges in a row.
+    pub longest_outage_ticks: u64,
+}
+
+impl std::fmt::Display for LinkStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} exchanges, {} late or bad replies retried (longest outage {} ticks)",
+            self.exchanges, self.retried, self.longest_outage_ticks
+        )
+    }
+}
+
+/// The output that holds every string of the rig at its minimum tension: what the device gets
+/// all through calibration, also while the operator moves the grip.
+pub fn holding_output(rig: &Rig) -> Output {
+    let mut out = Output::default();
+    for hr in &rig.hands {
+        for i in 0..4 {
+            out.volts[hr.channels[i]] = hr.tension_min_n * hr.volts_per_newton[i];
+        }
+    }
+    out
+}
+
+/// The device with calibration's exchange policy.
+pub struct Link<D: Device> {
+    dev: D,
+    out: Output,
+    inp: Input,
+    period: Duration,
+    /// Pace exchanges by the wall clock (a real board); `false`: back to back (the simulated
+    /// rig, whose time is its exchange count).
+    pace: bool,
+    next: Option<Instant>,
+    lost_after_ticks: u64,
+    failed_in_a_row: u64,
+    stop: Option<StopCheck>,
+    stats: LinkStats,
+}
+
+impl<D: Device> Link<D> {
+    /// `dev` opened already. Activates it (strings at minimum tension from the first exchange).
+    /// The board counts as lost after `lost_after_s` without a good exchange.
+    pub fn activate(mut dev: D, rig: &Rig, pace: bool, lost_after_s: f64) -> Result<Link<D>, CalibError> {
+        dev.activate()?;
+        let period = Duration::from_secs_f64(rig.period_s);
+        Ok(Link {
+            dev,
+            out: holding_output(rig),
+            inp: Input::default(),
+            period,
+            pace,
+            next: None,
+            lost_after_ticks: (lost_after_s / rig.period_s).ceil().max(1.0) as u64,
+            failed_in_a_row: 0,
+            stop: None,
+            stats: LinkStats::default(),
+        })
+    }
+
+    /// Polls `stop` every tick from now on.
+    pub fn set_stop(&mut self, stop: StopCheck) {
+        self.stop = Some(stop);
+    }
+
+    pub fn device(&mut self) -> &mut D {
+        &mut self.dev
+    }
+
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    /// True once a stop was asked for.
+    pub fn stop_requested(&self) -> bool {
+        self.stop.as_ref().is_some_and(|s| s())
+    }
+
+    /// One tick: waits for its time (when paced), exchanges the holding output, and returns the
+    /// counts, or `None` when this tick's reply was late or bad (counted; retried next tick).
+    /// Errors: a stop request, a lost board (disconnected, or silent for `lost_after_s`).
+    pub fn tick(&mut self) -> Result<Option<&Input>, CalibError> {
+        if self.stop_requested() {
+            return Err(CalibError::Interrupted("a stop signal (Ctrl-C, SIGTERM or SIGHUP)".into()));
+        }
+        if self.pace {
+            let now = Instant::now();
+            let next = self.next.map_or(now, |t| t + self.period);
+            if next > now {
+                std::thread::sleep(next - now);
+                self.next = Some(next);
+            } else {
+                // Behind (a slow exchange): no burst to catch up, the next tick a period from now.
+                self.next = Some(now);
+            }
+        }
+        match self.dev.exchange(&self.out, &mut self.inp) {
+            Ok(()) => {
+                self.stats.exchanges += 1;
+                self.failed_in_a_row = 0;
+                Ok(Some(&self.inp))
+            }
+            Err(e) if e.kind() == ErrorKind::Disconnected => Err(CalibError::BoardLost(format!(
+                "{e}; the board is gone (unplugged, powered down, or the emulator stopped)"
+            ))),
+            Err(e) => {
+                self.stats.retried += 1;
+                self.failed_in_a_row += 1;
+                self.stats.longest_outage_ticks = self.stats.longest_outage_ticks.max(self.failed_in_a_row);
+                if self.failed_in_a_row >= self.lost_after_ticks {
+                    return Err(CalibError::BoardLost(format!(
+                        "no good reply for {} ticks ({:.1} s; last: {e}): check the cable and the board's power",
+                        self.failed_in_a_row,
+                        self.failed_in_a_row as f64 * self.period.as_secs_f64()
+                    )));
+                }
+                Ok(None)
+            }
+        }
+    }
+
+    /// Switches the outputs off (one last holding exchange first, so a board that missed
+    /// commands gets a sane one before the zero).
+    pub fn switch_off(&mut self) -> Result<(), CalibError> {
+        let _ = self.dev.exchange(&self.out, &mut self.inp);
+        Ok(self.dev.deactivate()?)
+    }
+
+    /// Switches the outputs off and hands the device back.
+    pub fn finish(mut self) -> Result<D, CalibError> {
+        self.switch_off()?;
+        Ok(self.dev)
+    }
+}
