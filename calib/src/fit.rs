@@ -514,7 +514,9 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
         .iter()
         .map(|o| {
             std::array::from_fn(|i| {
-                (o.noise_counts[i] * problem.mpc0[i].abs()).hypot(opts.quality.model_floor_m).max(SIGMA_FLOOR_M)
+                (o.noise_counts[i] * problem.mpc0[i].abs())
+                    .hypot(opts.quality.model_floor_m)
+                    .max(SIGMA_FLOOR_M)
             })
         })
         .collect();

@@ -203,8 +203,17 @@ enum Shape {
 
 /// Judges the residual against the noise and looks for its causes.
 pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
-    let Design { geometry, mut residual, mut singles, singles_raw, mut drifts, drifts_raw, n, rows_dof, noise_rms_m } =
-        d;
+    let Design {
+        geometry,
+        mut residual,
+        mut singles,
+        singles_raw,
+        mut drifts,
+        drifts_raw,
+        n,
+        rows_dof,
+        noise_rms_m,
+    } = d;
     // Orthonormal basis of what the geometry can absorb.
     let svd = geometry.svd(true, false);
     let u = svd.u.expect("requested");
@@ -239,7 +248,9 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
         let named = (drop - rival >= opts.min_sigmas * opts.min_sigmas).then_some(string);
         let cause = match shape {
             Shape::Drift => Cause::Creep { string: named, per_pose_m: size },
-            Shape::Boxed { from, to } if from == to => Cause::Outlier { pose: from, string: named, size_m: size },
+            Shape::Boxed { from, to } if from == to => {
+                Cause::Outlier { pose: from, string: named, size_m: size }
+            }
             Shape::Boxed { from, to } if to == n - 1 => Cause::Slip { string: named, at: from, size_m: size },
             Shape::Boxed { from, to } => Cause::Burst { string: named, from, to, size_m: size },
         };
@@ -343,7 +354,8 @@ impl Scores {
     fn best(&self) -> Option<(usize, Shape, f64)> {
         let mut best: Option<(usize, Shape, f64)> = None;
         for i in 0..4 {
-            let shapes = Scores::boxes(self.n).map(|(from, to)| Shape::Boxed { from, to }).chain([Shape::Drift]);
+            let shapes =
+                Scores::boxes(self.n).map(|(from, to)| Shape::Boxed { from, to }).chain([Shape::Drift]);
             for shape in shapes {
                 let d = self.drop(i, shape);
                 if best.is_none_or(|b| d > b.2) {

@@ -137,8 +137,13 @@ pub struct RecordOptions {
     pub still_range_m: f64,
     /// Samples are averaged over blocks this long before the stillness test.
     pub block_s: f64,
-    /// Counts are averaged over this long once still (and it must stay still throughout).
+    /// Counts are averaged over at least this long once still (and it must stay still throughout)...
     pub average_s: f64,
+    /// ... and longer, up to this, while the average is not yet known to `target_sem_m` (noisy
+    /// encoders: 3 counts of noise average for 2 s).
+    pub max_average_s: f64,
+    /// Standard error of an averaged string length that ends the averaging early.
+    pub target_sem_m: f64,
     /// A pose whose grip is not still this long after the request is not kept (and asked again).
     pub timeout_s: f64,
     /// Times a home or jig point is asked again after its grip would not keep still.
@@ -167,6 +172,8 @@ impl Default for RecordOptions {
             still_range_m: 0.5e-3,
             block_s: 0.05,
             average_s: 0.5,
+            max_average_s: 2.0,
+            target_sem_m: 1.5e-6,
             timeout_s: 30.0,
             attempts: 3,
             min_separation_m: 0.02,
@@ -191,8 +198,10 @@ impl RecordOptions {
         range("the stillness window", self.still_window_s, 0.05, 10.0, " s")?;
         range("the stillness range", self.still_range_m, 1e-5, 0.02, " m")?;
         range("the averaging time", self.average_s, 0.01, 10.0, " s")?;
+        range("the longest averaging time", self.max_average_s, self.average_s, 60.0, " s")?;
+        range("the averaging target", self.target_sem_m, 1e-9, 1e-3, " m")?;
         range("the stillness block", self.block_s, 0.001, self.still_window_s.min(self.average_s), " s")?;
-        range("the pose timeout", self.timeout_s, self.still_window_s + self.average_s, 3600.0, " s")?;
+        range("the pose timeout", self.timeout_s, self.still_window_s + self.max_average_s, 3600.0, " s")?;
         range("the minimum pose separation", self.min_separation_m, 0.0, 0.5, " m")?;
         range("the slack residual", self.slack_residual_m, 1e-4, 1.0, " m")?;
         range("the board-lost time", self.lost_after_s, 0.01, 600.0, " s")?;
@@ -290,26 +299,34 @@ pub struct Still {
     pub samples: u32,
 }
 
+/// The noise of each string's counts (standard deviation per sample), from successive
+/// differences: a slow movement barely changes them, so it is the noise at rest even while the
+/// grip settles.
+pub fn noise_counts(buf: &[[i64; 4]]) -> [f64; 4] {
+    std::array::from_fn(|i| {
+        let diff2: f64 = buf.windows(2).map(|w| ((w[1][i] - w[0][i]) as f64).powi(2)).sum();
+        (diff2 / (2.0 * (buf.len().max(2) - 1) as f64)).sqrt()
+    })
+}
+
 /// Whether the samples in `buf` (oldest first) show a still grip: for every string the block
 /// averages (`block` samples each) spread by at most `range_counts` plus six standard deviations
-/// of a block average, with the noise estimated from successive differences.
-pub fn is_still(buf: &VecDeque<[i64; 4]>, block: usize, range_counts: &[f64; 4]) -> bool {
+/// of a block average, with the noise from [`noise_counts`].
+pub fn is_still(buf: &[[i64; 4]], block: usize, range_counts: &[f64; 4]) -> bool {
     let block = block.max(1);
     let blocks = buf.len() / block;
     if blocks < 2 {
         return false;
     }
+    let sigma = noise_counts(buf);
     (0..4).all(|i| {
-        let diff2: f64 =
-            buf.iter().zip(buf.iter().skip(1)).map(|(a, b)| ((b[i] - a[i]) as f64).powi(2)).sum::<f64>();
-        let sigma = (diff2 / (2.0 * (buf.len() - 1) as f64)).sqrt();
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for b in 0..blocks {
-            let m = buf.iter().skip(b * block).take(block).map(|s| s[i] as f64).sum::<f64>() / block as f64;
+        for b in buf.chunks_exact(block) {
+            let m = b.iter().map(|s| s[i] as f64).sum::<f64>() / block as f64;
             lo = lo.min(m);
             hi = hi.max(m);
         }
-        hi - lo <= range_counts[i] + 6.0 * sigma / (block as f64).sqrt()
+        hi - lo <= range_counts[i] + 6.0 * sigma[i] / (block as f64).sqrt()
     })
 }
 
@@ -372,31 +389,53 @@ impl<'r, D: Device> Recorder<'r, D> {
         (s / self.rig.period_s).round().max(1.0) as usize
     }
 
-    /// Waits until the hand's grip is still, then averages its counts. `None`: not still before
-    /// the timeout (the operator was told).
-    fn still_average(&mut self, hand: usize, tell: &mut dyn FnMut(&str)) -> Result<Option<Still>, CalibError> {
+    /// Waits until the hand's grip is still, then averages its counts: over `average_s`, or longer
+    /// (up to `max_average_s`) when the noise at rest is high, until the average is known to
+    /// `target_sem_m`. `None`: not still before the timeout (the operator was told).
+    fn still_average(
+        &mut self,
+        hand: usize,
+        tell: &mut dyn FnMut(&str),
+    ) -> Result<Option<Still>, CalibError> {
         let ch = self.rig.hands[hand].channels;
         let mpc = self.rig.hands[hand].metres_per_count;
         let window = self.ticks(self.opts.still_window_s);
         let avg = self.ticks(self.opts.average_s);
+        let max_avg = self.ticks(self.opts.max_average_s).max(avg);
         let block = self.ticks(self.opts.block_s);
         let timeout = self.ticks(self.opts.timeout_s);
         let range_counts: [f64; 4] = std::array::from_fn(|i| self.opts.still_range_m / mpc[i].abs());
-        let mut recent: VecDeque<[i64; 4]> = VecDeque::with_capacity(window + avg);
-        for _ in 0..timeout {
+        let mut recent: VecDeque<[i64; 4]> = VecDeque::with_capacity(window + max_avg + 1);
+        for tick in 0..timeout {
             // A late or bad reply leaves this tick's sample out.
             let Some(inp) = self.link.tick()? else { continue };
             recent.push_back(ch.map(|k| inp.counts[k]));
-            if recent.len() > window + avg {
+            if recent.len() > window + max_avg {
                 recent.pop_front();
             }
-            // Still over the whole buffer once it holds the window plus the average.
-            if recent.len() == window + avg && is_still(&recent, block, &range_counts) {
-                let tail: Vec<[i64; 4]> = recent.iter().skip(window).copied().collect();
+            // Judged once per block, once the buffer holds the window plus the shortest average.
+            if recent.len() < window + avg || tick % block != 0 {
+                continue;
+            }
+            let buf = recent.make_contiguous();
+            let sigma = noise_counts(buf);
+            let need = (0..4)
+                .map(|i| (sigma[i] * mpc[i].abs() / self.opts.target_sem_m).powi(2).ceil() as usize)
+                .max()
+                .unwrap_or(avg)
+                .clamp(avg, max_avg);
+            if buf.len() < window + need {
+                continue;
+            }
+            let span = &buf[buf.len() - window - need..];
+            if is_still(span, block, &range_counts) {
+                let tail = &span[window..];
                 let n = tail.len() as f64;
-                let counts: [f64; 4] = std::array::from_fn(|i| tail.iter().map(|s| s[i] as f64).sum::<f64>() / n);
+                let counts: [f64; 4] =
+                    std::array::from_fn(|i| tail.iter().map(|s| s[i] as f64).sum::<f64>() / n);
                 let counts_std: [f64; 4] = std::array::from_fn(|i| {
-                    (tail.iter().map(|s| (s[i] as f64 - counts[i]).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt()
+                    (tail.iter().map(|s| (s[i] as f64 - counts[i]).powi(2)).sum::<f64>() / (n - 1.0).max(1.0))
+                        .sqrt()
                 });
                 return Ok(Some(Still { counts, counts_std, samples: tail.len() as u32 }));
             }
@@ -429,7 +468,8 @@ impl<'r, D: Device> Recorder<'r, D> {
             op.tell("  skipped");
             return Ok(None);
         }
-        let Some(Still { counts, counts_std, samples }) = self.still_average(hand, &mut |s| op.tell(s))? else {
+        let Some(Still { counts, counts_std, samples }) = self.still_average(hand, &mut |s| op.tell(s))?
+        else {
             return Ok(None);
         };
         let mut tell = |s: &str| op.tell(s);
@@ -574,7 +614,9 @@ impl<'r, D: Device> Recorder<'r, D> {
                 op.tell(&format!("hand {hand} ({}): resuming at pose {}/{total}", hr.label, done + 1));
             }
             for jp in &jig {
-                let recorded = session.poses_of(hand).any(|p| matches!(&p.kind, PoseKind::Jig { label, .. } if *label == jp.label));
+                let recorded = session
+                    .poses_of(hand)
+                    .any(|p| matches!(&p.kind, PoseKind::Jig { label, .. } if *label == jp.label));
                 if recorded {
                     continue;
                 }
@@ -672,7 +714,9 @@ impl<'r, D: Device> Recorder<'r, D> {
     ) -> Result<([f64; 4], [f64; 4]), CalibError> {
         for attempt in 1..=self.opts.attempts {
             if op.request(&mut self.link, hand, req)? == Answer::Skip {
-                return Err(CalibError::Recording(format!("hand {hand}: {req}: this point cannot be skipped")));
+                return Err(CalibError::Recording(format!(
+                    "hand {hand}: {req}: this point cannot be skipped"
+                )));
             }
             if let Some(s) = self.still_average(hand, &mut |l| op.tell(l))? {
                 return Ok((s.counts, s.counts_std));
@@ -704,7 +748,7 @@ mod tests {
     use super::*;
 
     /// Samples of one string's counts: a value, gaussian-ish noise (sum of uniforms), a ramp.
-    fn samples(n: usize, noise: f64, ramp_per_sample: f64, seed: u64) -> VecDeque<[i64; 4]> {
+    fn samples(n: usize, noise: f64, ramp_per_sample: f64, seed: u64) -> Vec<[i64; 4]> {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
         (0..n)

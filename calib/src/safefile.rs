@@ -100,7 +100,10 @@ fn create_exclusive(near: &Path, suffix: &str, mode: u32) -> Result<(File, PathB
             }
         }
     }
-    Err(bad(&dir, "could not find a free temporary name in 64 tries: remove the folder's stray .*.tmp files".into()))
+    Err(bad(
+        &dir,
+        "could not find a free temporary name in 64 tries: remove the folder's stray .*.tmp files".into(),
+    ))
 }
 
 /// Checks, before any work is done, that `path` can be written later: its folder exists and
@@ -221,7 +224,8 @@ pub fn replace(path: &Path, text: &str, backup: bool) -> Result<Replaced, CalibE
             (Some(m), true) => Some(keep_backup(&target, m)?),
             _ => None,
         };
-        std::fs::rename(&tmp, &target).map_err(io_err(&target, "cannot rename the temporary file over the old one"))?;
+        std::fs::rename(&tmp, &target)
+            .map_err(io_err(&target, "cannot rename the temporary file over the old one"))?;
         // The rename itself is durable only once the folder is flushed.
         if let Ok(d) = File::open(folder(&target)) {
             let _ = d.sync_all();
@@ -247,8 +251,10 @@ mod tests {
     }
 
     fn names(d: &Path) -> Vec<String> {
-        let mut v: Vec<String> =
-            std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         v.sort();
         v
     }
@@ -311,7 +317,11 @@ mod tests {
         }
         replace(&p, "new", true).unwrap();
         replace(&p, "newer", true).unwrap();
-        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "victim", "the planted links' target is untouched");
+        assert_eq!(
+            std::fs::read_to_string(&victim).unwrap(),
+            "victim",
+            "the planted links' target is untouched"
+        );
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "newer");
         for s in &planted {
             assert!(std::fs::symlink_metadata(s).unwrap().file_type().is_symlink(), "{s:?} replaced");

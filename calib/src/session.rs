@@ -168,7 +168,12 @@ impl SessionFile {
                 ));
             }
             if !p.counts.iter().all(|c| c.is_finite() && c.abs() < 1e15) {
-                return Err(invalid(field("counts"), "counts", k, "every count must be a finite number".into()));
+                return Err(invalid(
+                    field("counts"),
+                    "counts",
+                    k,
+                    "every count must be a finite number".into(),
+                ));
             }
             if !p.counts_std.iter().all(|c| c.is_finite() && *c >= 0.0) {
                 return Err(invalid(
@@ -187,10 +192,8 @@ impl SessionFile {
             };
             if let Some(at) = at {
                 if !at.iter().all(|v| v.is_finite() && v.abs() < 5.0) {
-                    let occurrence = f.poses[..k]
-                        .iter()
-                        .filter(|q| !matches!(q.kind, PoseKind::Free))
-                        .count();
+                    let occurrence =
+                        f.poses[..k].iter().filter(|q| !matches!(q.kind, PoseKind::Free)).count();
                     return Err(invalid(
                         field("kind.at_m"),
                         "at_m",

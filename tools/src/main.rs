@@ -121,7 +121,8 @@ struct EmulateArgs {
 
 #[derive(clap::Args)]
 struct RigArgs {
-    /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+    /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron, made by `spidar calib home`) if
+    /// it exists, else the built-in configs/rig-spidar-h.ron.
     #[arg(long)]
     rig: Option<PathBuf>,
     /// Do not ask for SCHED_FIFO and locked memory.
@@ -209,10 +210,7 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    Ok(match &args.rig {
-        Some(p) => Rig::load(p)?,
-        None => Rig::default_rig(),
-    })
+    spidar_tools::rigpath::load_rig(args.rig.as_deref())
 }
 
 fn rt_options(args: &RigArgs) -> RtOptions {
