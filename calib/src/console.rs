@@ -75,7 +75,7 @@ impl ConsoleOperator {
              For each request: put the grip there, let go of any jig clamp's play, hold it still and press Enter;\n\
              the tool then waits until the grip is still and records (about a second).\n\
              Keys: Enter = the grip is there, s + Enter = skip this free pose, q + Enter = abort (outputs off).\n\
-             Every kept pose is saved at once; Ctrl-C switches the outputs off and keeps them (continue with --resume).\n\
+             Ctrl-C switches the outputs off (`record` has saved every kept pose: continue it with --resume).\n\
              The boards have no watchdog: if this program hangs they hold the strings at minimum tension until \
              switched off; if it is killed, switch the amplifiers off.",
             self.tension_min_n[0], self.tension_min_n[1]

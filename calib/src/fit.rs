@@ -361,11 +361,10 @@ impl Problem<'_> {
     fn geometry_columns(&self, sqrt_w: &[[f64; 4]]) -> DMatrix<f64> {
         let n = self.layout.n;
         let mut j = DMatrix::zeros(4 * self.obs.len(), n);
-        for k in 0..self.obs.len() {
+        for (k, wk) in sqrt_w.iter().enumerate() {
             let p = self.pose(k);
-            for i in 0..4 {
+            for (i, &w) in wk.iter().enumerate() {
                 let row = 4 * k + i;
-                let w = sqrt_w[k][i];
                 let d = self.anchor(i) - p;
                 let u = d / d.length().max(1e-9);
                 // r = L + m dc - |a - p|

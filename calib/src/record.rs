@@ -464,6 +464,7 @@ impl<'r, D: Device> Recorder<'r, D> {
         req: &Request,
         earlier: &[PoseRecord],
     ) -> Result<Option<PoseRecord>, CalibError> {
+        check_hand(hand)?;
         if op.request(&mut self.link, hand, req)? == Answer::Skip {
             op.tell("  skipped");
             return Ok(None);
@@ -712,6 +713,7 @@ impl<'r, D: Device> Recorder<'r, D> {
         hand: usize,
         req: &Request,
     ) -> Result<([f64; 4], [f64; 4]), CalibError> {
+        check_hand(hand)?;
         for attempt in 1..=self.opts.attempts {
             if op.request(&mut self.link, hand, req)? == Answer::Skip {
                 return Err(CalibError::Recording(format!(
@@ -730,6 +732,13 @@ impl<'r, D: Device> Recorder<'r, D> {
             self.opts.attempts
         )))
     }
+}
+
+fn check_hand(hand: usize) -> Result<(), CalibError> {
+    if hand > 1 {
+        return Err(CalibError::Options(format!("hand {hand}: must be 0 (left) or 1 (right)")));
+    }
+    Ok(())
 }
 
 /// Adds a pose to the session and saves it.

@@ -244,6 +244,13 @@ mod tests {
     }
 
     #[test]
+    fn a_version_1_session_still_loads_as_complete_without_a_plan() {
+        let v1 = text(1).replacen("version: 2", "version: 1", 1);
+        let f = SessionFile::from_str(&v1, "s.ron").unwrap();
+        assert!(f.complete && f.plan.is_none() && f.poses.len() == 2);
+    }
+
+    #[test]
     fn a_pose_of_hand_5_is_refused_at_its_line() {
         SessionFile::from_str(&text(1), "s.ron").unwrap();
         let e = SessionFile::from_str(&text(5), "s.ron").unwrap_err().to_string();
