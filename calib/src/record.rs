@@ -418,7 +418,8 @@ impl<'r, D: Device> Recorder<'r, D> {
                 continue;
             }
             let buf = recent.make_contiguous();
-            let sigma = noise_counts(buf);
+            // The noise of the latest samples (older ones may be from the reach to this pose).
+            let sigma = noise_counts(&buf[buf.len() - window - avg..]);
             let need = (0..4)
                 .map(|i| (sigma[i] * mpc[i].abs() / self.opts.target_sem_m).powi(2).ceil() as usize)
                 .max()

@@ -211,10 +211,15 @@ impl SessionFile {
         let pretty = ron::ser::PrettyConfig::new().depth_limit(3);
         let body = ron::ser::to_string_pretty(self, pretty)
             .map_err(|e| CalibError::BadFile { file: path.display().to_string(), message: e.to_string() })?;
+        let rig = if self.rig_file.is_empty() || self.rig_file.starts_with('(') {
+            String::new()
+        } else {
+            format!(" --rig {}", self.rig_file)
+        };
         Ok(format!(
             "// spidar calib session: averaged encoder counts per pose, as recorded (format: docs/calibration.md).\n\
-             // Refit with `spidar calib fit --session {}`; continue an incomplete one with\n\
-             // `spidar calib record --resume --out {}`.\n{body}\n",
+             // Refit with `spidar calib fit{rig} --session {}`; continue an incomplete one with\n\
+             // `spidar calib record{rig} --out {} --resume` (and the device options it was recorded with).\n{body}\n",
             path.display(),
             path.display()
         ))

@@ -597,7 +597,9 @@ fn fit(
             println!("  plot: {}", f.display());
         }
         refusals.extend(fit.quality_lines());
-        if fit.params.iter().any(|p| p.status == spidar_calib::fit::Observability::Weak) {
+        // (Weak parameters through bad data follow from the data: the quality line says what to do.)
+        let weak = fit.params.iter().any(|p| p.status == spidar_calib::fit::Observability::Weak);
+        if weak && fit.quality.clean() {
             refusals.push(format!(
                 "hand {h}: some parameter is weakly determined (marked WEAK): record more poses"
             ));
