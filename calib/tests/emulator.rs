@@ -104,7 +104,7 @@ fn a_burst_of_late_and_lost_replies_during_record_does_not_abort_it() {
     assert!(stats.longest_outage_ticks >= 100, "{stats}");
     assert_eq!(session.poses.len(), 9, "home and the 8 jig points");
     // The outputs are off again (every motor command zero) and the data are good.
-    assert!(emu.control().boards().motor_currents().iter().all(|&c| c == 0));
+    assert!(emu.control().boards().motor_commands().iter().all(|&c| c == 0));
     let fit = fit_hand(0, &rig.hands[0], &observations(&session, 0), &FitOptions::default()).unwrap();
     assert!(fit.quality.clean(), "{:?}", fit.quality);
     for i in 0..4 {

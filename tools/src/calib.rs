@@ -222,7 +222,7 @@ enum Opened {
 
 /// Opens the device `--device` names, with the same options and messages as `spidar run`.
 fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
-    match d.hw.choice(d.device)? {
+    match d.hw.choice(d.device, rig)? {
         None => {
             let (mut dev, name) = sim_device(d, rig)?;
             dev.open()?;

@@ -254,7 +254,7 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
         "continue with: spidar calib record --rig {rig} --device uart --port {port} --out s.ron --resume"
     );
     assert!(err.contains(&hint), "{err}");
-    assert!(emu.control().boards().motor_currents().iter().all(|&c| c == 0), "outputs left on after Ctrl-C");
+    assert!(emu.control().boards().motor_commands().iter().all(|&c| c == 0), "outputs left on after Ctrl-C");
     let saved = SessionFile::load(&dir.join("s.ron")).unwrap();
     assert_eq!(saved.poses.len(), 4);
     assert!(!saved.complete);
@@ -302,7 +302,7 @@ fn sigterm_also_switches_the_outputs_off_and_keeps_the_session() {
         !ok && err.contains("interrupted by a stop signal") && err.contains("1 poses kept in s.ron"),
         "{err}"
     );
-    assert!(emu.control().boards().motor_currents().iter().all(|&c| c == 0), "outputs left on after SIGTERM");
+    assert!(emu.control().boards().motor_commands().iter().all(|&c| c == 0), "outputs left on after SIGTERM");
     let saved = SessionFile::load(&dir.join("s.ron")).unwrap();
     assert_eq!((saved.poses.len(), saved.poses[0].hand), (1, 1));
     // Without a rig file of the user's, the built-in template was used and the hint says so.
