@@ -21,6 +21,9 @@ use spidar_rt::Rig;
 
 use crate::CalibError;
 
+/// Times the switch-off is tried when its replies come late or bad.
+const SWITCH_OFF_ATTEMPTS: u32 = 20;
+
 /// Polled every tick: `true` asks the session to stop (outputs off, what was recorded kept).
 pub type StopCheck = Arc<dyn Fn() -> bool + Send + Sync>;
 
@@ -155,10 +158,25 @@ impl<D: Device> Link<D> {
     }
 
     /// Switches the outputs off (one last holding exchange first, so a board that missed
-    /// commands gets a sane one before the zero).
+    /// commands gets a sane one before the zero). A late or bad reply to the switch-off is
+    /// retried like any other (up to `SWITCH_OFF_ATTEMPTS` ticks): an error here means the zero
+    /// may not have reached the boards.
     pub fn switch_off(&mut self) -> Result<(), CalibError> {
         let _ = self.dev.exchange(&self.out, &mut self.inp);
-        Ok(self.dev.deactivate()?)
+        let mut attempt = 0;
+        loop {
+            match self.dev.deactivate() {
+                Ok(()) => return Ok(()),
+                Err(e) if e.kind() != ErrorKind::Disconnected && attempt + 1 < SWITCH_OFF_ATTEMPTS => {
+                    attempt += 1;
+                    self.stats.retried += 1;
+                    if self.pace {
+                        std::thread::sleep(self.period);
+                    }
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
     }
 
     /// Switches the outputs off and hands the device back.

@@ -229,7 +229,7 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
     let ratio = (chi2 / dof as f64).sqrt();
     let mut findings = Vec::new();
     let mut left = chi2;
-    while (left / (dof - findings.len()).max(1) as f64).sqrt() > opts.max_noise_ratio
+    while (left / dof.saturating_sub(findings.len()).max(1) as f64).sqrt() > opts.max_noise_ratio
         && findings.len() < opts.max_causes
     {
         let scores = Scores::new(&singles, &singles_raw, &drifts, &drifts_raw, &residual, n);
@@ -263,7 +263,7 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
         drifts -= &unit * (unit.transpose() * &drifts);
         left = residual.norm_squared();
     }
-    let ratio_after = (left / (dof - findings.len()).max(1) as f64).sqrt();
+    let ratio_after = (left / dof.saturating_sub(findings.len()).max(1) as f64).sqrt();
     Quality { noise_rms_m, ratio, dof, ratio_after, findings, max_noise_ratio: opts.max_noise_ratio }
 }
 

@@ -17,7 +17,7 @@ use spidar_calib::record::{Answer, Operator, Plan, RecordOptions, Recorder, Requ
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_calib::CalibError;
 use spidar_device::emulator::{Control, Emulator, EmulatorOptions, PlantClock};
-use spidar_device::sim::Script;
+use spidar_device::sim::{Script, Segment};
 use spidar_device::uart::{UartDevice, UartOptions};
 use spidar_device::Device;
 use spidar_rt::Rig;
@@ -26,7 +26,7 @@ fn link(name: &str) -> PathBuf {
     std::env::temp_dir().join(format!("spidar-calib-emu-{}-{name}", std::process::id()))
 }
 
-/// Moves the emulator's simulated hand to each requested point (it holds it there stiffly) and
+/// Moves the emulator's simulated hand to each requested point (and holds it there stiffly) and
 /// answers at once; `fault` runs at the given request (0-based).
 struct EmulatorHand {
     control: Control,
@@ -41,7 +41,17 @@ impl<D: Device> Operator<D> for EmulatorHand {
             Request::Home { at_m } | Request::Jig { at_m, .. } => *at_m,
             Request::Free { suggest_m, .. } => *suggest_m,
         };
-        self.control.boards().rig_mut().try_set_script(hand, Script::hold(at)).unwrap();
+        // A minimum-jerk reach at arm speed, then hold (not a jump: no counter may move further
+        // in one tick than a grip can).
+        let from = self.control.truth().hands[hand].pos_m;
+        let script = Script::from_segments(
+            vec![
+                Segment::Reach { to_m: at.to_array(), duration_s: 0.3 + 2.0 * from.distance(at) },
+                Segment::Hold { at_m: at.to_array(), for_s: 1e6 },
+            ],
+            false,
+        );
+        self.control.boards().rig_mut().try_set_script(hand, script).unwrap();
         if self.requests == self.fault_at {
             (self.fault)(&self.control);
         }
@@ -72,7 +82,7 @@ fn a_burst_of_late_and_lost_replies_during_record_does_not_abort_it() {
     let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
     dev.open().unwrap();
     let mut rec = Recorder::opened(dev, &rig, RecordOptions::default()).unwrap();
-    // While the third pose is recorded, once its grip has arrived (300 servo ticks after the
+    // While the third pose is recorded, once its grip has arrived (1500 servo ticks after the
     // request): 40 replies 5 ms late, then 150 lost in a row (more than the 50 in a row that used
     // to end the session).
     let mut hand = EmulatorHand {
@@ -83,7 +93,7 @@ fn a_burst_of_late_and_lost_replies_during_record_does_not_abort_it() {
             let c = c.clone();
             let from = c.stats().ticks;
             std::thread::spawn(move || {
-                while c.stats().ticks < from + 300 {
+                while c.stats().ticks < from + 1500 {
                     std::thread::sleep(Duration::from_millis(1));
                 }
                 c.delay_replies(40, Duration::from_millis(5));
@@ -148,4 +158,30 @@ fn a_board_that_stays_silent_ends_the_session_with_the_poses_kept() {
     assert_eq!(session.poses.len(), 3, "the poses before the silence are kept");
     assert_eq!(saved, [1, 2, 3], "and were saved one by one");
     assert!(rec.link_stats().longest_outage_ticks >= 300);
+}
+
+#[test]
+fn a_late_reply_to_the_switch_off_is_retried() {
+    let rig = Rig::default_rig();
+    let opts = SimTruthOptions { seed: 13, ..SimTruthOptions::default() };
+    let truth = truth_geometry(&rig, &opts);
+    let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
+    let emu = Emulator::spawn(
+        sim,
+        EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() },
+        &link("off"),
+    )
+    .unwrap();
+    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
+    dev.open().unwrap();
+    let mut link = Link::activate(dev, &rig, false, 2.0).unwrap();
+    for _ in 0..10 {
+        link.tick().unwrap();
+    }
+    assert!(emu.control().boards().motor_commands().iter().any(|&c| c != 0), "strings held");
+    // The last holding exchange and the first switch-off replies are lost.
+    emu.control().drop_replies(4);
+    link.switch_off().unwrap();
+    assert!(link.stats().retried >= 2, "{}", link.stats());
+    assert!(emu.control().boards().motor_commands().iter().all(|&c| c == 0), "outputs left on");
 }

@@ -18,7 +18,7 @@ use glam::DVec3;
 use spidar_calib::session::SessionFile;
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_device::emulator::{Control, Emulator, EmulatorOptions, PlantClock};
-use spidar_device::sim::Script;
+use spidar_device::sim::{Script, Segment};
 use spidar_rt::Rig;
 
 const SPIDAR: &str = env!("CARGO_BIN_EXE_spidar");
@@ -156,6 +156,21 @@ fn point_in(line: &str) -> DVec3 {
     DVec3::new(v[0], v[1], v[2])
 }
 
+/// A person's move of the grip to `to`: a minimum-jerk reach at arm speed (under 1 m/s), then
+/// holding it there. (Not a jump: the boards' counters must not move further in one tick than a
+/// grip can.)
+fn reach(control: &Control, hand: usize, to: DVec3) -> Script {
+    let from = control.truth().hands[hand].pos_m;
+    let duration_s = 0.3 + 2.0 * from.distance(to);
+    Script::from_segments(
+        vec![
+            Segment::Reach { to_m: to.to_array(), duration_s },
+            Segment::Hold { at_m: to.to_array(), for_s: 1e6 },
+        ],
+        false,
+    )
+}
+
 /// A child at the console: its prompts (stderr) come on a channel.
 struct Console {
     child: Child,
@@ -219,7 +234,8 @@ impl Console {
                 continue;
             }
             let (hand, at) = target.expect("a request before its prompt");
-            control.boards().rig_mut().try_set_script(hand, Script::hold(at)).unwrap();
+            let script = reach(control, hand, at);
+            control.boards().rig_mut().try_set_script(hand, script).unwrap();
             self.child.stdin.as_mut().unwrap().write_all(b"\n").unwrap();
             answered += 1;
         }
@@ -245,8 +261,9 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
 
     // Home and three jig points, then Ctrl-C while the fourth is asked for.
     let mut c = Console::start(&dir, &[&record[..], &device[..]].concat());
-    assert_eq!(c.operate(emu.control(), Some(4)), 4);
+    let answered = c.operate(emu.control(), Some(4));
     let (ok, _, err) = c.finish();
+    assert_eq!(answered, 4, "{err}");
     assert!(!ok, "an interrupted recording fails:\n{err}");
     assert!(err.contains("interrupted by a stop signal"), "{err}");
     assert!(err.contains("4 poses kept in s.ron"), "{err}");
@@ -263,8 +280,9 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
     let resume = ["calib", "record", "--rig", rig, "--out", "s.ron", "--resume"];
     let mut c = Console::start(&dir, &[&resume[..], &device[..]].concat());
     // The home check, 5 jig points, back home at the end.
-    assert_eq!(c.operate(emu.control(), None), 7);
+    let answered = c.operate(emu.control(), None);
     let (ok, out, err) = c.finish();
+    assert_eq!(answered, 7, "{out}\n{err}");
     assert!(ok, "{out}\n{err}");
     assert!(err.contains("counters as recorded"), "{err}");
     assert!(out.contains(&format!("next: spidar calib fit --rig {rig} --session s.ron --write")), "{out}");
