@@ -13,12 +13,13 @@ use glam::DVec3;
 use spidar_calib::fit::{fit_hand, observations, FitOptions};
 use spidar_calib::jig::JigFile;
 use spidar_calib::link::Link;
+use spidar_calib::model::HandGeometry;
 use spidar_calib::record::{Answer, Operator, Plan, RecordOptions, Recorder, Request};
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_calib::CalibError;
 use spidar_device::emulator::{Control, Emulator, EmulatorOptions, PlantClock};
 use spidar_device::sim::{Script, Segment};
-use spidar_device::uart::{UartDevice, UartOptions};
+use spidar_device::uart::{SerialPath, UartDevice, UartOptions};
 use spidar_device::Device;
 use spidar_rt::Rig;
 
@@ -66,21 +67,27 @@ fn jig() -> JigFile {
         .unwrap()
 }
 
+/// The emulator in front of a simulated rig whose truth `opts` perturbs, advancing one period
+/// per servo tick, and the `uart` driver opened on it as `spidar calib record --device uart`
+/// opens it: default options.
+fn emulated(opts: SimTruthOptions, name: &str) -> (Emulator, UartDevice<SerialPath>, [HandGeometry; 2]) {
+    let rig = Rig::default_rig();
+    let truth = truth_geometry(&rig, &opts);
+    let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
+    let eo = EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() };
+    let emu = Emulator::spawn(sim, eo, &link(name)).unwrap();
+    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
+    dev.open().unwrap();
+    (emu, dev, truth)
+}
+
 #[test]
 fn a_burst_of_late_and_lost_replies_during_record_does_not_abort_it() {
     let rig = Rig::default_rig();
-    let opts = SimTruthOptions { seed: 11, anchor_error_m: 0.03, mpc_error: 0.05, noise_counts: 0.5 };
-    let truth = truth_geometry(&rig, &opts);
-    let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
-    let emu = Emulator::spawn(
-        sim,
-        EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() },
-        &link("burst"),
-    )
-    .unwrap();
-    // The driver as `spidar calib record --device uart` opens it: default options.
-    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
-    dev.open().unwrap();
+    let (emu, dev, truth) = emulated(
+        SimTruthOptions { seed: 11, anchor_error_m: 0.03, mpc_error: 0.05, noise_counts: 0.5 },
+        "burst",
+    );
     let mut rec = Recorder::opened(dev, &rig, RecordOptions::default()).unwrap();
     // While the third pose is recorded, once its grip has arrived (1500 servo ticks after the
     // request): 40 replies 5 ms late, then 150 lost in a row (more than the 50 in a row that used
@@ -126,17 +133,7 @@ fn a_burst_of_late_and_lost_replies_during_record_does_not_abort_it() {
 #[test]
 fn a_board_that_stays_silent_ends_the_session_with_the_poses_kept() {
     let rig = Rig::default_rig();
-    let opts = SimTruthOptions { seed: 12, ..SimTruthOptions::default() };
-    let truth = truth_geometry(&rig, &opts);
-    let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
-    let emu = Emulator::spawn(
-        sim,
-        EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() },
-        &link("silent"),
-    )
-    .unwrap();
-    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
-    dev.open().unwrap();
+    let (emu, dev, _) = emulated(SimTruthOptions { seed: 12, ..SimTruthOptions::default() }, "silent");
     // Lost after 0.3 s of silence (300 failed exchanges in a row).
     let ro = RecordOptions { lost_after_s: 0.3, ..RecordOptions::default() };
     let mut rec = Recorder::opened(dev, &rig, ro).unwrap();
@@ -163,17 +160,7 @@ fn a_board_that_stays_silent_ends_the_session_with_the_poses_kept() {
 #[test]
 fn a_late_reply_to_the_switch_off_is_retried() {
     let rig = Rig::default_rig();
-    let opts = SimTruthOptions { seed: 13, ..SimTruthOptions::default() };
-    let truth = truth_geometry(&rig, &opts);
-    let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
-    let emu = Emulator::spawn(
-        sim,
-        EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() },
-        &link("off"),
-    )
-    .unwrap();
-    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
-    dev.open().unwrap();
+    let (emu, dev, _) = emulated(SimTruthOptions { seed: 13, ..SimTruthOptions::default() }, "off");
     let mut link = Link::activate(dev, &rig, false, 2.0).unwrap();
     for _ in 0..10 {
         link.tick().unwrap();
