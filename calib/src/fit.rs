@@ -102,6 +102,31 @@ impl Default for FitOptions {
     }
 }
 
+impl FitOptions {
+    /// Refuses non-finite and out-of-range settings, naming the setting and its range.
+    pub fn check(&self) -> Result<(), CalibError> {
+        let range = |name: &str, v: f64, lo: f64, hi: f64| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(CalibError::Options(format!("fit option {name} must be {lo} .. {hi} (got {v})")))
+            }
+        };
+        range("huber_k", self.huber_k, 0.1, 100.0)?;
+        range("outlier_sigmas", self.outlier_sigmas, 1.0, 1000.0)?;
+        range("outlier_floor_m", self.outlier_floor_m, 0.0, 0.1)?;
+        range("slack_fraction", self.slack_fraction, 0.0, 1.0)?;
+        range("duplicate_m", self.duplicate_m, 0.0, 0.5)?;
+        range("min_depth_spread_m", self.min_depth_spread_m, 0.0, 1.0)?;
+        range("weak_std_m", self.weak_std_m, 1e-9, 1.0)?;
+        range("jig_tolerance_m", self.jig_tolerance_m, 0.0, 0.01)?;
+        if self.slack_min_poses == 0 {
+            return Err(CalibError::Options("fit option slack_min_poses must be at least 1".into()));
+        }
+        self.quality.check().map_err(|m| CalibError::Options(format!("data quality: {m}")))
+    }
+}
+
 /// One pose as the fit sees it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Observation {
@@ -574,7 +599,21 @@ pub fn fit_hand(
     obs: &[Observation],
     opts: &FitOptions,
 ) -> Result<HandFit, CalibError> {
+    opts.check()?;
     let degenerate = |message: String| CalibError::Degenerate { hand, message };
+    if hand > 1 {
+        return Err(CalibError::Options(format!("hand {hand}: must be 0 (left) or 1 (right)")));
+    }
+    if let Some(k) = obs.iter().position(|o| {
+        !(o.counts.iter().all(|c| c.is_finite())
+            && o.noise_counts.iter().all(|c| c.is_finite() && *c >= 0.0)
+            && o.known_m.is_none_or(|p| p.is_finite()))
+    }) {
+        return Err(degenerate(format!(
+            "pose {k} ({}) holds a number that is not finite: record it again",
+            obs[k].label
+        )));
+    }
     if obs.is_empty() {
         return Err(degenerate("no poses recorded for this hand: run `spidar calib record` for it".into()));
     }

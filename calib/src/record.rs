@@ -772,6 +772,31 @@ mod tests {
     }
 
     #[test]
+    fn thresholds_out_of_range_are_refused_by_name() {
+        RecordOptions::default().check().unwrap();
+        for (o, says) in [
+            (RecordOptions { still_range_m: f64::NAN, ..RecordOptions::default() }, "stillness range"),
+            (RecordOptions { average_s: -1.0, ..RecordOptions::default() }, "averaging time"),
+            (RecordOptions { lost_after_s: f64::INFINITY, ..RecordOptions::default() }, "board-lost time"),
+            (RecordOptions { attempts: 0, ..RecordOptions::default() }, "attempts"),
+            (RecordOptions { max_average_s: 0.1, ..RecordOptions::default() }, "longest averaging"),
+        ] {
+            let e = o.check().unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        let plan = |hands: Vec<usize>, free| Plan {
+            hands,
+            jig: None,
+            free_per_hand: free,
+            free_half_extent_m: DVec3::splat(0.3),
+        };
+        assert!(plan(vec![0, 1], 17).check().is_ok());
+        assert!(plan(vec![0, 1], 16).check().unwrap_err().to_string().contains("at least 17"));
+        assert!(plan(vec![2], 40).check().unwrap_err().to_string().contains("hand 2"));
+        assert!(plan(vec![0, 0], 40).check().unwrap_err().to_string().contains("twice"));
+    }
+
+    #[test]
     fn three_counts_of_noise_are_still_and_a_moving_grip_is_not() {
         // 0.5 mm at 2.9e-5 m per count: 17 counts.
         let range = [17.0; 4];

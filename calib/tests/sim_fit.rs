@@ -319,6 +319,31 @@ fn only_finding(fit: &spidar_calib::HandFit) -> Cause {
 }
 
 #[test]
+fn fit_settings_and_observations_out_of_range_are_refused() {
+    let rig = Rig::default_rig();
+    let (session, _) = record(Some(jig()), 10, &truth_opts());
+    let obs = observations(&session, 0);
+    let bad = FitOptions {
+        quality: spidar_calib::quality::QualityOptions { max_noise_ratio: f64::NAN, ..Default::default() },
+        ..FitOptions::default()
+    };
+    let e = fit_hand(0, &rig.hands[0], &obs, &bad).unwrap_err().to_string();
+    assert!(e.contains("max_noise_ratio"), "{e}");
+    let e = fit_hand(0, &rig.hands[0], &obs, &FitOptions { jig_tolerance_m: -1.0, ..FitOptions::default() })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("jig_tolerance_m"), "{e}");
+    assert!(fit_hand(5, &rig.hands[0], &obs, &FitOptions::default())
+        .unwrap_err()
+        .to_string()
+        .contains("hand 5"));
+    let mut nan = obs.clone();
+    nan[3].counts[1] = f64::NAN;
+    let e = fit_hand(0, &rig.hands[0], &nan, &FitOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("pose 3") && e.contains("not finite"), "{e}");
+}
+
+#[test]
 fn clean_data_fit_at_the_noise_level_and_name_no_cause() {
     let rig = Rig::default_rig();
     let (session, _) = jig_session();
