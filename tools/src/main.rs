@@ -12,9 +12,15 @@ use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
-use spidar_tools::bench::{bench_rt, RtBenchOptions};
+use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
+use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
+use spidar_tools::report;
+use spidar_tools::session::{
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+};
+use spidar_tools::signals::Stop;
+use spidar_tools::world_process::WorldArgs;
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -25,8 +31,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
+    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
+    /// world runs as a child process unless --world says otherwise.
     Run(RunArgs),
+    /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
+    /// ADDR`), on this host or another.
+    World(WorldArgs),
     /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
     Calib {
         #[command(subcommand)]
@@ -53,7 +63,17 @@ enum Cmd {
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
+        /// Print the results as JSON, for scripts.
+        #[arg(long, global = true)]
+        json: bool,
     },
+    /// Print what a recording (`run --record`) holds; with --verify, re-run the rt-loop from its
+    /// recorded inputs and check every output bit for bit.
+    Replay(spidar_tools::recording::ReplayArgs),
+    /// Write one CSV file per channel of a recording, each with a header line.
+    Export(spidar_tools::recording::ExportArgs),
+    /// Plot a recording as SVG: force per hand, tensions per string, lateness, events and hits.
+    Plot(spidar_tools::recording::PlotArgs),
 }
 
 #[derive(Subcommand)]
@@ -155,12 +175,28 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
-    /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
-    /// characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the rig check)
-    /// or a walls scene file (.ron).
-    #[arg(long, default_value = "boxing")]
-    scene: String,
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
+    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
+    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
+    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
+    /// (default: whatever it runs).
+    #[arg(long)]
+    scene: Option<String>,
+    /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
+    /// dies; the default), `thread` (inside this process), or the address of a world already
+    /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
+    #[arg(long, default_value = "child")]
+    world: String,
+    /// How many times a child world that dies is restarted.
+    #[arg(long, default_value_t = 3)]
+    world_restarts: u32,
+    /// How long to wait for the world's first answer, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    world_timeout_s: f64,
+    /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
+    /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    world_priority: Option<u8>,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
     /// tour (for `walls`), or a script file (.ron).
     #[arg(long, default_value = "box")]
@@ -184,6 +220,13 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
+    /// contact model, the events, and the files that made the session. See docs/recording.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
+    /// Print the summary as JSON, for scripts.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -198,6 +241,44 @@ enum BenchCmd {
         /// Alternations between the two loops.
         #[arg(long, default_value_t = 10)]
         blocks: u32,
+    },
+    /// Wake-up lateness of live sessions with and without --record (alternating blocks), and the
+    /// recording's size per hour.
+    Record {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of session for each arm.
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        /// Alternations between the two arms.
+        #[arg(long, default_value_t = 6)]
+        blocks: u32,
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        #[arg(long, default_value = "box")]
+        script: String,
+    },
+    /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
+    /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
+    /// rig with the world as a process and as a thread, alternating in one run.
+    Link {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of the loop with each kind of world.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Alternations between the two kinds of world.
+        #[arg(long, default_value_t = 10)]
+        blocks: u32,
+        /// The scene of both worlds.
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Samples echoed per transport for the round-trip figures (at 1 kHz).
+        #[arg(long, default_value_t = 5000)]
+        echoes: u64,
+        /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+        world_priority: Option<u8>,
     },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
@@ -231,21 +312,35 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Cmd::Run(a) => run(a),
+        Cmd::World(a) => {
+            let stop = Stop::install()?;
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+        }
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+        Cmd::Replay(a) => spidar_tools::recording::replay(&a),
+        Cmd::Export(a) => spidar_tools::recording::export(&a),
+        Cmd::Plot(a) => spidar_tools::recording::plot(&a),
+        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            let mut bout = None;
             if bout_seconds > 0.0 {
                 eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
-                println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
-                println!("  world step   {}", b.step);
-                println!("  prediction   {}", b.prediction);
-                println!("  step+predict {}", b.step_with_prediction);
-                let [med, p99, max] = b.prediction_steps;
-                println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
-                println!("  rt misses    {}", b.misses);
-                println!("  scene        {}\n", b.status);
+                if !json {
+                    println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                    println!("  world step   {}", b.step);
+                    println!("  prediction   {}", b.prediction);
+                    println!("  step+predict {}", b.step_with_prediction);
+                    let [med, p99, max] = b.prediction_steps;
+                    println!(
+                        "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead",
+                        b.horizon_steps
+                    );
+                    println!("  rt misses    {}", b.misses);
+                    println!("  scene        {}\n", b.status);
+                }
+                bout = Some(b);
             }
             let r = eval::reactions(trials, seed, |done, total| {
                 if done % 16 == 0 || done == total {
@@ -253,7 +348,12 @@ fn main() -> anyhow::Result<()> {
                 }
             })?;
             eprintln!();
-            println!("{r}");
+            if json {
+                let j = serde_json::json!({ "command": "eval reactions", "bout": bout, "reactions": r });
+                println!("{j:#}");
+            } else {
+                println!("{r}");
+            }
             Ok(())
         }
         Cmd::Devices { probe, port } => {
@@ -278,7 +378,7 @@ fn main() -> anyhow::Result<()> {
             println!("{rep}");
             Ok(())
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed } } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             if trials == 0 || practice == 0 {
                 bail!("--trials and --practice must be at least 1");
@@ -290,7 +390,54 @@ fn main() -> anyhow::Result<()> {
                 }
             })?;
             eprintln!();
-            println!("{report}");
+            if json {
+                println!("{:#}", serde_json::json!({ "command": "eval impacts", "report": report }));
+            } else {
+                println!("{report}");
+            }
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
+            let rep = spidar_tools::bench_record::bench_record(
+                &r,
+                &spidar_tools::bench_record::RecordBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    script,
+                    dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
+                },
+            )?;
+            println!("{rep}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!(
+                "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
+            );
+            let rep = bench_link(
+                &r,
+                &LinkBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    echoes,
+                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world_priority,
+                },
+            )?;
+            println!("{rep}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
@@ -394,15 +541,60 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
         bail!("--noise-counts must be >= 0");
     }
+    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
+        bail!("--world-timeout-s must be a positive number of seconds");
+    }
     let rig = load_rig(&a.rig)?;
-    let scene = spidar_world::load(&a.scene)?;
-    let scene_name = format!("{} ({})", a.scene, scene.name());
+    if let Some(p) = a.world_priority {
+        if !a.rig.no_rt && p >= a.rig.priority {
+            bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
+        }
+    }
+    let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
+    // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
+    // in the world process otherwise (the rig process stays small).
+    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+        (true, "child" | "thread") | (false, "thread") => {
+            let scene = spidar_world::load(&scene_arg)?;
+            let name = format!("{scene_arg} ({})", scene.name());
+            (WorldChoice::Thread(scene), name)
+        }
+        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
+        (false, "child") => {
+            let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
+            if let Some(p) = a.world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
+            (WorldChoice::Child(spec), scene_arg.clone())
+        }
+        (false, addr) => {
+            let at = spidar_link::Endpoint::parse(addr)
+                .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
+            let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
+            (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
+        }
+    };
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
         encoder_noise_counts: a.noise_counts,
         slack: a.slack,
         ..Default::default()
+    };
+    // Created before the device opens: a path that cannot be written stops the run here.
+    let mut recorder = match &a.record {
+        Some(path) => {
+            let info = spidar_tools::recording::session_info(
+                a.rig.rig.as_deref(),
+                &scene_arg,
+                &a.script,
+                &format!("{:?}", a.device),
+                a.seed,
+                a.virtual_clock,
+            )?;
+            Some(spidar_tools::recording::create(path, &info)?)
+        }
+        None => None,
     };
     let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
@@ -431,53 +623,91 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
+        let WorldChoice::Thread(scene) = world else {
+            unreachable!("--virtual runs the world in this process")
+        };
         let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();
-        v.run_ticks(ticks);
-        v.rt.command(spidar_rt::Command::Stop);
-        while v.rt.tick() {}
-        let wall = t0.elapsed().as_secs_f64();
-        let c = v.counters();
-        println!(
-            "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
-            c.ticks,
-            wall,
-            seconds / wall
-        );
-        println!("  compute      {}", v.stats.compute.percentiles());
-        if let Some(s) = v.scene.as_ref() {
-            println!("  scene        {}", s.status());
+        for _ in 0..ticks {
+            let r = v.tick();
+            if let Some(rec) = recorder.as_mut() {
+                rec.write_tick(&r);
+            }
         }
-        println!(
-            "  max force    left {:.2} N, right {:.2} N",
-            v.stats.max_force_n[0], v.stats.max_force_n[1]
-        );
-        println!(
-            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
-            c.faults
-        );
-        println!("  end          {}", v.rt.state().name());
-        return Ok(());
+        v.rt.command(spidar_rt::Command::Stop);
+        loop {
+            let more = v.rt.tick();
+            if let Some(rec) = recorder.as_mut() {
+                rec.write_tick(v.rt.last_record());
+            }
+            if !more {
+                break;
+            }
+        }
+        let wall = t0.elapsed().as_secs_f64();
+        let c = *v.counters();
+        let recording = recorder.map(|r| {
+            r.finish(&spidar_record::writer::EndInfo {
+                ticks: c.ticks,
+                telemetry_dropped: 0,
+                final_state: v.rt.state().name().into(),
+                clean_stop: v.rt.is_finished(),
+                faults: c.faults,
+            })
+        });
+        let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
+        if a.json {
+            let j = report::virtual_json(&report::VirtualRunReport {
+                ticks: c.ticks,
+                rig_seconds: seconds,
+                wall_s: wall,
+                stats: &v.stats,
+                counters: &c,
+                scene_status: &status,
+                end: v.rt.state(),
+                recording: recording.as_ref(),
+            });
+            println!("{j:#}");
+        } else {
+            println!(
+                "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
+                c.ticks,
+                wall,
+                seconds / wall
+            );
+            println!("  compute      {}", v.stats.compute.percentiles());
+            if !status.is_empty() {
+                println!("  scene        {status}");
+            }
+            println!(
+                "  max force    left {:.2} N, right {:.2} N",
+                v.stats.max_force_n[0], v.stats.max_force_n[1]
+            );
+            println!(
+                "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
+                c.clamped[0],
+                c.clamped[1],
+                c.infeasible[0],
+                c.infeasible[1],
+                c.fallback[0],
+                c.fallback[1],
+                c.faults
+            );
+            if let Some(r) = &recording {
+                println!("  recording    {r}");
+            }
+            println!("  end          {}", v.rt.state().name());
+        }
+        return report::check_outcome(v.rt.state(), &c, &[]);
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
+    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
-        scene,
+        world,
         LiveOptions {
             seconds: a.seconds,
             rt: rt_options(&a.rig),
@@ -486,9 +716,23 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             stop,
             scene_name,
             script_name: a.script.clone(),
+            connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
+            world_priority: a.world_priority,
+            recorder: match recorder {
+                Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
+                None => None,
+            },
         },
     )?;
-    println!("{summary}");
+    let recording = summary.recording.clone();
+    if a.json {
+        println!("{:#}", report::run_json(&summary, recording.as_ref()));
+    } else {
+        println!("{summary}");
+        if let Some(r) = &recording {
+            println!("  recording    {r}");
+        }
+    }
     let lat = summary.stats.lateness.percentiles();
     if summary.counters.misses > 0 {
         eprintln!(
@@ -500,5 +744,5 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !summary.clean_stop {
         bail!("the loop did not stop cleanly");
     }
-    Ok(())
+    report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)
 }
