@@ -231,9 +231,7 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;
             let name = format!("{} ({})", dev.info().board, dev.info().identity);
-            for w in hardware::check_rig_against(rig, dev.info()) {
-                eprintln!("warning: {w}");
-            }
+            hardware::check_rig_against(rig, dev.info())?;
             Ok((Opened::Board(dev), name))
         }
     }

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use spidar_device::Device;
-use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
@@ -160,6 +160,10 @@ struct RigArgs {
     /// Pin the loop thread to this CPU.
     #[arg(long)]
     cpu: Option<usize>,
+    /// Accept a rig value beyond its physical bound (a key of the rig file's `overrides`, e.g.
+    /// board_range); repeatable. The summary shows every override in effect.
+    #[arg(long = "override", value_name = "KEY")]
+    overrides: Vec<String>,
     /// Sleep to this many microseconds before each deadline, then busy-wait: hides the kernel's
     /// wake-up latency at the cost of that much CPU per millisecond.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=900))]
@@ -297,15 +301,18 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    spidar_tools::rigpath::load_rig(args.rig.as_deref())
+    spidar_tools::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
 }
 
-fn rt_options(args: &RigArgs) -> RtOptions {
-    if args.no_rt {
+fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
+    if let Some(cpu) = args.cpu {
+        rt_thread::check_cpu(cpu).map_err(|e| anyhow::anyhow!("--cpu {cpu}: {e}"))?;
+    }
+    Ok(if args.no_rt {
         RtOptions { fifo_priority: None, lock_memory: false, cpu: args.cpu, ..RtOptions::default() }
     } else {
         RtOptions { fifo_priority: Some(args.priority), cpu: args.cpu, ..RtOptions::default() }
-    }
+    })
 }
 
 fn main() -> anyhow::Result<()> {
@@ -372,7 +379,7 @@ fn main() -> anyhow::Result<()> {
                 scripts,
                 exchanges,
                 seconds,
-                &rt_options(&rig),
+                &rt_options(&rig)?,
                 Duration::from_micros(reply_timeout_us),
             )?;
             println!("{rep}");
@@ -408,7 +415,7 @@ fn main() -> anyhow::Result<()> {
                 &spidar_tools::bench_record::RecordBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     scene,
                     script,
                     dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
@@ -430,7 +437,7 @@ fn main() -> anyhow::Result<()> {
                 &LinkBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     scene,
                     echoes,
                     world: ChildWorldSpec::this_executable("walls", 0)?,
@@ -451,7 +458,7 @@ fn main() -> anyhow::Result<()> {
                 &RtBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     spin_ns: rig.spin_us * 1000,
                 },
             )?;
@@ -584,8 +591,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     // Created before the device opens: a path that cannot be written stops the run here.
     let mut recorder = match &a.record {
         Some(path) => {
+            // The rig file the run loads (yours when no --rig is given), so the record carries it.
+            let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
             let info = spidar_tools::recording::session_info(
-                a.rig.rig.as_deref(),
+                rig_src.path(),
                 &scene_arg,
                 &a.script,
                 &format!("{:?}", a.device),
@@ -613,9 +622,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 dev.info().identity,
                 scene_name
             );
-            for w in hardware::check_rig_against(&rig, dev.info()) {
-                eprintln!("warning: {w}");
-            }
+            hardware::check_rig_against(&rig, dev.info())?;
             eprintln!("hold each grip at its home point: the rig homes as it starts");
             dev
         }
@@ -710,7 +717,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         world,
         LiveOptions {
             seconds: a.seconds,
-            rt: rt_options(&a.rig),
+            rt: rt_options(&a.rig)?,
             spin_ns: a.rig.spin_us * 1000,
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,

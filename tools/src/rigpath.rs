@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use spidar_rt::rig::DEFAULT_RIG_RON;
+use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
 use spidar_rt::Rig;
 
 /// The rig file shipped with the sources (the built-in rig is compiled from it).
@@ -77,24 +77,32 @@ impl RigSource {
 
     /// Loads the rig (and its text, for a rig file).
     pub fn load(&self) -> anyhow::Result<(Rig, String)> {
+        self.load_with_overrides(&[])
+    }
+
+    /// [`RigSource::load`] with more overrides than the file lists (`--override KEY`).
+    pub fn load_with_overrides(&self, overrides: &[String]) -> anyhow::Result<(Rig, String)> {
         match self.path() {
             Some(p) => {
-                let text = std::fs::read_to_string(p).with_context(|| {
+                let text = spidar_config::read_capped(p, spidar_config::MAX_FILE_BYTES).with_context(|| {
                     format!("reading the rig file {} (give another with --rig)", p.display())
                 })?;
-                Ok((Rig::from_str(&text, &p.display().to_string())?, text))
+                Ok((Rig::from_str_with_overrides(&text, &p.display().to_string(), overrides)?, text))
             }
-            None => Ok((Rig::default_rig(), DEFAULT_RIG_RON.to_string())),
+            None => Ok((
+                Rig::from_str_with_overrides(DEFAULT_RIG_RON, DEFAULT_RIG_NAME, overrides)?,
+                DEFAULT_RIG_RON.to_string(),
+            )),
         }
     }
 }
 
 /// The rig `spidar run` (and the benchmarks) use: `--rig`, else the user's rig file, else the
-/// built-in rig. Says which on stderr.
-pub fn load_rig(given: Option<&Path>) -> anyhow::Result<Rig> {
+/// built-in rig, with the command line's `--override` keys. Says which on stderr.
+pub fn load_rig(given: Option<&Path>, overrides: &[String]) -> anyhow::Result<Rig> {
     let src = RigSource::resolve(given);
     eprintln!("rig file: {}", src.describe());
-    Ok(src.load()?.0)
+    Ok(src.load_with_overrides(overrides)?.0)
 }
 
 /// True when `path` is the rig file shipped in the sources (the template).
