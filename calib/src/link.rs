@@ -1,6 +1,6 @@
 //! The device as calibration drives it: every string held at the rig's minimum tension, one
-//! exchange per tick, late or bad replies retried and counted, a stop request and a lasting loss
-//! of the board turned into errors that end the session cleanly.
+//! exchange per tick, late or bad replies retried and counted, garbled counts left out, a stop
+//! request and a lasting loss of the board turned into errors that end the session cleanly.
 //!
 //! Why it exists: a guided session lasts minutes and a person moves the grip all along. A board
 //! reply that comes after its deadline, or one corrupted byte, must not throw that work away:
@@ -9,6 +9,14 @@
 //! does the session stop (what was recorded is kept by the caller). A stop signal (Ctrl-C,
 //! SIGTERM) is polled every tick.
 //!
+//! UART replies carry no checksum, so a garbled byte can change a count by up to 4096 (12 cm of
+//! string) while the exchange reports success. Averaged into a pose, one such count moves the
+//! pose's mean by millimetres with nothing to show for it. So a reply whose count on any string of
+//! the rig steps by more than the rig's `reply_jump_m` (2 mm: a grip moved by hand moves less in
+//! one tick) from the last reply taken is left out and counted, like a late one. A real step (a
+//! string that slipped, a grip moved faster) persists: a reply that agrees within the same
+//! tolerance with the reply left out just before it is taken, and the step with it.
+//!
 //! What it must never do: command anything but the holding output (every string at minimum
 //! tension), or stall without commanding the boards: they have no watchdog and hold their last
 //! command, so the holding output is what they keep if this program dies.
@@ -16,7 +24,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use spidar_device::{Device, ErrorKind, Input, Output};
+use spidar_device::{Device, ErrorKind, Input, Output, MAX_CHANNELS};
 use spidar_rt::Rig;
 
 use crate::CalibError;
@@ -36,14 +44,17 @@ pub struct LinkStats {
     pub retried: u64,
     /// Longest run of failed exchanges in a row.
     pub longest_outage_ticks: u64,
+    /// Replies left out because a count stepped by more than `reply_jump_m` (garbled counts).
+    pub count_jumps: u64,
 }
 
 impl std::fmt::Display for LinkStats {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} exchanges, {} late or bad replies retried (longest outage {} ticks)",
-            self.exchanges, self.retried, self.longest_outage_ticks
+            "{} exchanges, {} late or bad replies retried (longest outage {} ticks), {} replies with a count \
+             jump left out",
+            self.exchanges, self.retried, self.longest_outage_ticks, self.count_jumps
         )
     }
 }
@@ -60,6 +71,18 @@ pub fn holding_output(rig: &Rig) -> Output {
     out
 }
 
+/// Per channel, `reply_jump_m` in counts for the rig's strings (at least one count), 0 elsewhere.
+fn jump_counts(rig: &Rig) -> [i64; MAX_CHANNELS] {
+    let mut j = [0; MAX_CHANNELS];
+    for hr in &rig.hands {
+        for i in 0..4 {
+            j[hr.channels[i]] =
+                (rig.safety.reply_jump_m / hr.metres_per_count[i].abs()).ceil().max(1.0) as i64;
+        }
+    }
+    j
+}
+
 /// The device with calibration's exchange policy.
 pub struct Link<D: Device> {
     dev: D,
@@ -74,6 +97,12 @@ pub struct Link<D: Device> {
     failed_in_a_row: u64,
     stop: Option<StopCheck>,
     stats: LinkStats,
+    /// Per channel: the largest count step taken from one reply to the next (0: not a string
+    /// of the rig, not checked).
+    jump_counts: [i64; MAX_CHANNELS],
+    /// The last reply taken, and the last one left out for a count jump (if the latest was).
+    taken: Option<Input>,
+    left_out: Option<Input>,
 }
 
 impl<D: Device> Link<D> {
@@ -93,6 +122,9 @@ impl<D: Device> Link<D> {
             failed_in_a_row: 0,
             stop: None,
             stats: LinkStats::default(),
+            jump_counts: jump_counts(rig),
+            taken: None,
+            left_out: None,
         })
     }
 
@@ -136,7 +168,16 @@ impl<D: Device> Link<D> {
             Ok(()) => {
                 self.stats.exchanges += 1;
                 self.failed_in_a_row = 0;
-                Ok(Some(&self.inp))
+                let near = |a: &Input| self.within_step(a, &self.inp);
+                if self.taken.as_ref().is_none_or(near) || self.left_out.as_ref().is_some_and(near) {
+                    self.taken = Some(self.inp);
+                    self.left_out = None;
+                    Ok(Some(&self.inp))
+                } else {
+                    self.stats.count_jumps += 1;
+                    self.left_out = Some(self.inp);
+                    Ok(None)
+                }
             }
             Err(e) if e.kind() == ErrorKind::Disconnected => Err(CalibError::BoardLost(format!(
                 "{e}; the board is gone (unplugged, powered down, or the emulator stopped)"
@@ -155,6 +196,12 @@ impl<D: Device> Link<D> {
                 Ok(None)
             }
         }
+    }
+
+    /// True when no checked count of `b` is further than its step from `a`'s.
+    fn within_step(&self, a: &Input, b: &Input) -> bool {
+        (0..MAX_CHANNELS)
+            .all(|k| self.jump_counts[k] == 0 || (b.counts[k] - a.counts[k]).abs() <= self.jump_counts[k])
     }
 
     /// Switches the outputs off (one last holding exchange first, so a board that missed
