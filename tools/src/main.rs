@@ -552,6 +552,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         bail!("--world-timeout-s must be a positive number of seconds");
     }
     let rig = load_rig(&a.rig)?;
+    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
+    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     if let Some(p) = a.world_priority {
         if !a.rig.no_rt && p >= a.rig.priority {
             bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
@@ -591,8 +593,6 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     // Created before the device opens: a path that cannot be written stops the run here.
     let mut recorder = match &a.record {
         Some(path) => {
-            // The rig file the run loads (yours when no --rig is given), so the record carries it.
-            let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
             let info = spidar_tools::recording::session_info(
                 rig_src.path(),
                 &scene_arg,
@@ -675,6 +675,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 scene_status: &status,
                 end: v.rt.state(),
                 recording: recording.as_ref(),
+                rig_file: &rig_src.describe(),
             });
             println!("{j:#}");
         } else {
@@ -684,6 +685,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 wall,
                 seconds / wall
             );
+            println!("  rig file     {}", rig_src.describe());
             println!("  compute      {}", v.stats.compute.percentiles());
             if !status.is_empty() {
                 println!("  scene        {status}");
@@ -731,6 +733,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             },
         },
     )?;
+    let mut summary = summary;
+    summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
     if a.json {
         println!("{:#}", report::run_json(&summary, recording.as_ref()));

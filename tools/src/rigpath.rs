@@ -84,9 +84,10 @@ impl RigSource {
     pub fn load_with_overrides(&self, overrides: &[String]) -> anyhow::Result<(Rig, String)> {
         match self.path() {
             Some(p) => {
-                let text = spidar_config::read_capped(p, spidar_config::MAX_FILE_BYTES).with_context(|| {
-                    format!("reading the rig file {} (give another with --rig)", p.display())
-                })?;
+                let text =
+                    spidar_config::read_capped(p, spidar_config::MAX_FILE_BYTES).with_context(|| {
+                        format!("reading the rig file {} (give another with --rig)", p.display())
+                    })?;
                 Ok((Rig::from_str_with_overrides(&text, &p.display().to_string(), overrides)?, text))
             }
             None => Ok((

@@ -92,11 +92,14 @@ fn the_first_home_creates_the_users_rig_file_and_calib_and_run_use_it() {
         run(&dir, &["run", "--virtual", "--seconds", "0.2", "--scene", "walls", "--script", "hold"]);
     assert!(ok, "{out}\n{err}");
     assert!(err.contains(&format!("rig file: {} (yours)", mine.display())), "{err}");
+    // And its summary names it.
+    assert!(out.contains(&format!("  rig file     {} (yours)", mine.display())), "{out}");
     // Without one, run says it is on the built-in template.
     let other = folder("no-user-rig");
-    let (_, _, err) =
+    let (_, out, err) =
         run(&other, &["run", "--virtual", "--seconds", "0.2", "--scene", "walls", "--script", "hold"]);
     assert!(err.contains("rig file: the built-in template"), "{err}");
+    assert!(out.contains("  rig file     the built-in template"), "{out}");
 }
 
 #[test]
