@@ -232,3 +232,64 @@ impl<D: Device> Link<D> {
         Ok(self.dev)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use spidar_device::{DeviceError, DeviceInfo};
+
+    /// Replies with the next of `counts` on channel 0 (every other channel 0).
+    struct Scripted {
+        counts: Vec<i64>,
+        next: usize,
+        info: DeviceInfo,
+    }
+
+    impl Device for Scripted {
+        fn open(&mut self) -> Result<(), DeviceError> {
+            Ok(())
+        }
+        fn activate(&mut self) -> Result<(), DeviceError> {
+            Ok(())
+        }
+        fn deactivate(&mut self) -> Result<(), DeviceError> {
+            Ok(())
+        }
+        fn exchange(&mut self, _: &Output, inp: &mut Input) -> Result<(), DeviceError> {
+            *inp = Input::default();
+            inp.counts[0] = self.counts[self.next];
+            self.next += 1;
+            Ok(())
+        }
+        fn info(&self) -> &DeviceInfo {
+            &self.info
+        }
+    }
+
+    #[test]
+    fn a_garbled_count_is_left_out_and_a_step_that_persists_is_taken() {
+        let rig = Rig::default_rig();
+        // The built-in rig's 2 mm step is about 69 counts on channel 0.
+        let step = jump_counts(&rig)[0];
+        assert!((60..80).contains(&step), "{step}");
+        let counts = vec![0, 30, 4000, 35, 60, 60 + step + 1, 60, 500, 510, 520, 1000];
+        let taken = [true, true, false, true, true, false, true, false, true, true, false];
+        let info = DeviceInfo {
+            board: Default::default(),
+            identity: Default::default(),
+            channels: 8,
+            volts_min: -10.0,
+            volts_max: 10.0,
+        };
+        let dev = Scripted { counts: counts.clone(), next: 0, info };
+        let mut link = Link::activate(dev, &rig, false, 2.0).unwrap();
+        for (k, &want) in taken.iter().enumerate() {
+            let got = link.tick().unwrap().map(|i| i.counts[0]);
+            assert_eq!(got, want.then_some(counts[k]), "reply {k} ({})", counts[k]);
+        }
+        // A spike (4000), a step just over the limit that went back, a real step to 500 (taken
+        // on its second reply, then followed), a jump at the end.
+        assert_eq!(link.stats().count_jumps, 4);
+        assert_eq!(link.stats().retried, 0, "a count jump is not a late reply");
+    }
+}
