@@ -103,12 +103,12 @@ pub(crate) fn parse_ron<T: serde::de::DeserializeOwned>(text: &str, origin: &str
     })
 }
 
-/// Reads a whole file, naming it in the error.
+/// Reads a whole file of at most `spidar_config::MAX_FILE_BYTES` (a device or a pipe that never
+/// ends is refused), naming it in the error.
 pub(crate) fn read_text(path: &std::path::Path, what: &'static str) -> Result<String, CalibError> {
-    std::fs::read_to_string(path).map_err(|source| CalibError::Io {
+    spidar_config::read_capped(path, spidar_config::MAX_FILE_BYTES).map_err(|e| CalibError::BadFile {
         file: path.display().to_string(),
-        what,
-        source,
+        message: format!("{what}: {}", e.message),
     })
 }
 

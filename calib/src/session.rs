@@ -256,6 +256,12 @@ mod tests {
     }
 
     #[test]
+    fn a_file_that_never_ends_is_refused_not_read_forever() {
+        let e = SessionFile::load(Path::new("/dev/zero")).unwrap_err().to_string();
+        assert!(e.starts_with("/dev/zero: cannot read the session file: larger than 4 MiB"), "{e}");
+    }
+
+    #[test]
     fn a_pose_of_hand_5_is_refused_at_its_line() {
         SessionFile::from_str(&text(1), "s.ron").unwrap();
         let e = SessionFile::from_str(&text(5), "s.ron").unwrap_err().to_string();
