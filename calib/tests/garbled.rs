@@ -54,7 +54,7 @@ impl Device for Garbling {
             // Channels 0 .. 7 are the rig's eight strings.
             let ch = (self.next() % 8) as usize;
             let mag = 64 + (self.next() % 4033) as i64;
-            inp.counts[ch] += if self.next() % 2 == 0 { mag } else { -mag };
+            inp.counts[ch] += if self.next().is_multiple_of(2) { mag } else { -mag };
             self.garbled += 1;
         }
         Ok(())
