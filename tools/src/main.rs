@@ -104,12 +104,18 @@ enum EvalCmd {
         #[arg(long, default_value = "docs/poses")]
         out: PathBuf,
     },
-    /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
-    /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
+    /// On the path of `spidar run` (simulated rig, rt-loop, boxing world, virtual clock): sim step
+    /// and prediction cost during a bout, what punches of every kind did to an active and a
+    /// passive virtual human, then the section 4.3 experiment: straights at four targets, an
+    /// observer guesses each from the virtual human's motion.
     Reactions {
-        /// Jabs per target and mode (active, passive).
+        /// Straights per target and mode (active, passive).
         #[arg(long, default_value_t = 24)]
         trials: usize,
+        /// Punches of the punch experiment (each thrown at an active and a passive virtual
+        /// human); 0 skips it.
+        #[arg(long, default_value_t = 400)]
+        punches: usize,
         /// Seed of the jabs (aim, hand, speed) and of the bout.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -214,8 +220,9 @@ struct RunArgs {
     /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
-    /// The simulated user's hands: box (jabs and hooks at the virtual human), crowd (pushes at the
-    /// crowd's front row), hold, circle, spar, tour (for `walls`), or a script file (.ron).
+    /// The simulated user's hands: box (straights, hooks, uppercuts and feints at the virtual
+    /// human), crowd (pushes at the crowd's front row), hold, circle, spar, tour (for `walls`), or a
+    /// script file (.ron).
     /// Default: the scene's own (crowd for a crowd scene, box otherwise).
     #[arg(long)]
     script: Option<String>,
@@ -342,8 +349,11 @@ fn main() -> anyhow::Result<()> {
         Cmd::Replay(a) => spidar_tools::recording::replay(&a),
         Cmd::Export(a) => spidar_tools::recording::export(&a),
         Cmd::Plot(a) => spidar_tools::recording::plot(&a),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
+        Cmd::Eval { what: EvalCmd::Reactions { trials, punches, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            if !json {
+                println!("measured on {}\n", eval::PATH);
+            }
             let mut bout = None;
             if bout_seconds > 0.0 {
                 eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
@@ -363,6 +373,15 @@ fn main() -> anyhow::Result<()> {
                 }
                 bout = Some(b);
             }
+            let mut punch_report = None;
+            if punches > 0 {
+                eprintln!("throwing {punches} punches at an active and a passive virtual human ...");
+                let p = eval::punch_report(punches, seed)?;
+                if !json {
+                    println!("{p}\n");
+                }
+                punch_report = Some(p);
+            }
             let r = eval::reactions(trials, seed, |done, total| {
                 if done % 16 == 0 || done == total {
                     eprint!("\rjabs {done}/{total}\x1b[K");
@@ -370,7 +389,13 @@ fn main() -> anyhow::Result<()> {
             })?;
             eprintln!();
             if json {
-                let j = serde_json::json!({ "command": "eval reactions", "bout": bout, "reactions": r });
+                let j = serde_json::json!({
+                    "command": "eval reactions",
+                    "path": eval::PATH,
+                    "bout": bout,
+                    "punches": punch_report,
+                    "reactions": r,
+                });
                 println!("{j:#}");
             } else {
                 println!("{r}");
