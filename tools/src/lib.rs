@@ -13,6 +13,7 @@ pub mod eval_poses;
 pub mod hardware;
 pub mod recording;
 pub mod report;
+pub mod rigpath;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

@@ -166,7 +166,8 @@ struct EmulateArgs {
 
 #[derive(clap::Args)]
 struct RigArgs {
-    /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+    /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron, made by `spidar calib home`) if
+    /// it exists, else the built-in configs/rig-spidar-h.ron.
     #[arg(long)]
     rig: Option<PathBuf>,
     /// Do not ask for SCHED_FIFO and locked memory.
@@ -321,14 +322,7 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    Ok(match &args.rig {
-        Some(p) => Rig::load_with_overrides(p, &args.overrides)?,
-        None => Rig::from_str_with_overrides(
-            spidar_rt::rig::DEFAULT_RIG_RON,
-            spidar_rt::rig::DEFAULT_RIG_NAME,
-            &args.overrides,
-        )?,
-    })
+    spidar_tools::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
 }
 
 fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
@@ -612,6 +606,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         bail!("--world-timeout-s must be a positive number of seconds");
     }
     let rig = load_rig(&a.rig)?;
+    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
+    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     if let Some(p) = a.world_priority {
         if !a.rig.no_rt && p >= a.rig.priority {
             bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
@@ -653,7 +649,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let mut recorder = match &a.record {
         Some(path) => {
             let info = spidar_tools::recording::session_info(
-                a.rig.rig.as_deref(),
+                rig_src.path(),
                 &scene_arg,
                 &script,
                 &format!("{:?}", a.device),
@@ -734,6 +730,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 scene_status: &status,
                 end: v.rt.state(),
                 recording: recording.as_ref(),
+                rig_file: &rig_src.describe(),
             });
             println!("{j:#}");
         } else {
@@ -743,6 +740,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 wall,
                 seconds / wall
             );
+            println!("  rig file     {}", rig_src.describe());
             println!("  compute      {}", v.stats.compute.percentiles());
             if !status.is_empty() {
                 println!("  scene        {status}");
@@ -790,6 +788,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             },
         },
     )?;
+    let mut summary = summary;
+    summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
     if a.json {
         println!("{:#}", report::run_json(&summary, recording.as_ref()));

@@ -381,6 +381,8 @@ pub struct Summary {
     pub recording: Option<spidar_record::writer::RecordingReport>,
     /// Rig-file bounds overridden for this run (shown, never silent).
     pub overrides: Vec<String>,
+    /// The rig file the run used (`RigSource::describe`; empty: not said).
+    pub rig_file: String,
 }
 
 impl std::fmt::Display for Summary {
@@ -395,6 +397,9 @@ impl std::fmt::Display for Summary {
             "spidar run: {:.2} s on {}, scene {}, script {}",
             self.wall_s, self.device, self.scene, self.script
         )?;
+        if !self.rig_file.is_empty() {
+            writeln!(f, "  rig file     {}", self.rig_file)?;
+        }
         writeln!(f, "  real time    {}", self.rt)?;
         if !self.overrides.is_empty() {
             writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
@@ -893,6 +898,7 @@ impl<D: Device + 'static> LiveSession<D> {
             clean_stop: rt.is_finished(),
             recording: None,
             overrides: Vec::new(),
+            rig_file: String::new(),
         })
     }
 }
