@@ -41,7 +41,16 @@ pub struct RigFile {
     /// absent in a rig file that was never calibrated.
     #[serde(default)]
     pub calibration: CalibrationFile,
+    /// The user's eye point (rig frame, m), for the live view's first-person camera; absent: the
+    /// built-in [`DEFAULT_EYE_M`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eye_m: Option<[f64; 3]>,
 }
+
+/// Where a standing user's eyes are when the file does not say (rig frame, m): 0.45 m above the
+/// rig origin (1.55 m above the floor with the default `rig_to_world`), 0.25 m behind the grips'
+/// home points.
+pub const DEFAULT_EYE_M: [f64; 3] = [0.0, 0.45, 0.25];
 
 /// The calibration record of a rig file (informational: the geometry itself is in `hands`).
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -154,6 +163,8 @@ pub struct Rig {
     pub rig_to_world: RigToWorld,
     pub safety: SafetyFile,
     pub estimation: EstimationFile,
+    /// The user's eye point (rig frame).
+    pub eye_m: DVec3,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -237,6 +248,10 @@ impl Rig {
                     f.version
                 ),
             ));
+        }
+        let eye = f.eye_m.unwrap_or(DEFAULT_EYE_M);
+        if !eye.iter().all(|v| v.is_finite() && v.abs() < 10.0) {
+            return Err(bad("eye_m".into(), "eye_m", 0, "must be finite, within 10 m of the rig origin".into()));
         }
         if !(f.period_s.is_finite() && (1e-4..=1e-2).contains(&f.period_s)) {
             return Err(bad(
@@ -489,6 +504,7 @@ impl Rig {
             },
             safety: f.safety,
             estimation: f.estimation,
+            eye_m: DVec3::from_array(eye),
         })
     }
 

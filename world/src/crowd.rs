@@ -185,4 +185,12 @@ impl Scene for CrowdScene {
             self.impulse_total_n_s.length()
         )
     }
+
+    fn look(&self) -> crate::look::Look {
+        crate::looks::crowd::look(self)
+    }
+
+    fn pose(&self, out: &mut crate::look::Poses<'_>) {
+        crate::looks::crowd::pose(self, out)
+    }
 }
