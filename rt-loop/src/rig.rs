@@ -47,10 +47,10 @@ pub struct RigFile {
     pub eye_m: Option<[f64; 3]>,
 }
 
-/// Where a standing user's eyes are when the file does not say (rig frame, m): 0.45 m above the
-/// rig origin (1.55 m above the floor with the default `rig_to_world`), 0.25 m behind the grips'
+/// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
+/// rig origin (1.45 m above the floor with the default `rig_to_world`), 0.4 m behind the grips'
 /// home points.
-pub const DEFAULT_EYE_M: [f64; 3] = [0.0, 0.45, 0.25];
+pub const DEFAULT_EYE_M: [f64; 3] = [0.0, 0.35, 0.4];
 
 /// The calibration record of a rig file (informational: the geometry itself is in `hands`).
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]

@@ -7,6 +7,7 @@ pub mod calib;
 pub mod eval;
 pub mod eval_impacts;
 pub mod hardware;
+pub mod rig_view;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

@@ -177,6 +177,38 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    #[command(flatten)]
+    view: ViewArgs,
+}
+
+#[derive(clap::Args)]
+struct ViewArgs {
+    /// Serve the live 3D view at this address (HOST:PORT, :PORT or http://HOST:PORT; frames on the
+    /// next port). Default http://127.0.0.1:8080, or a free port when that one is taken.
+    #[arg(long, value_name = "ADDR")]
+    view: Option<String>,
+    /// No live view.
+    #[arg(long, conflicts_with = "view")]
+    no_view: bool,
+}
+
+/// Starts the live view for `scene` as `--view`/`--no-view` say, and prints its address.
+fn start_view(a: &ViewArgs, scene: &dyn spidar_world::Scene) -> anyhow::Result<Option<spidar_world::view::View>> {
+    use spidar_world::view::{parse_addr, View, ViewOptions};
+    if a.no_view {
+        return Ok(None);
+    }
+    let look = scene.look();
+    let view = match &a.view {
+        Some(addr) => View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?,
+        // The default port may be taken (another spidar): then any free one.
+        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
+            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
+            View::start(scene.name(), &look, &any)
+        })?,
+    };
+    eprintln!("spidar: live view at {} (frames on {})", view.url(), view.ws_url());
+    Ok(Some(view))
 }
 
 #[derive(Subcommand)]
@@ -414,6 +446,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
+        if a.view.view.is_some() {
+            eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
+        }
         let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
@@ -457,6 +492,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
             .context("installing the Ctrl-C handler")?;
     }
+    let observers: Vec<Box<dyn spidar_world::Observer>> = match start_view(&a.view, &*scene)? {
+        Some(v) => vec![Box::new(v)],
+        None => Vec::new(),
+    };
     let summary = session::run_live(
         dev,
         &rig,
@@ -469,6 +508,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             stop,
             scene_name,
             script_name: a.script.clone(),
+            observers,
         },
     )?;
     println!("{summary}");

@@ -6,9 +6,18 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
-use spidar_msg::{ContactModel, HandSample};
+use spidar_msg::{ContactModel, HandSample, RigInfo, RigStatus};
 use spidar_rt::{Clock, MonotonicClock};
-use spidar_world::Scene;
+use spidar_world::{Observer, Scene, StepView};
+
+/// What watches the scene thread's steps (the live view), and what it is told of the rig.
+#[derive(Default)]
+pub struct Observers {
+    pub list: Vec<Box<dyn Observer>>,
+    pub rig_info: Option<RigInfo>,
+    /// The rig's status, fed from the session's telemetry (the newest is kept).
+    pub rig_status: Option<Receiver<RigStatus>>,
+}
 
 /// Counters of a scene thread.
 #[derive(Default)]
@@ -31,12 +40,14 @@ pub fn spawn(
     models: Sender<ContactModel>,
     stop: Arc<AtomicBool>,
     counters: Arc<SceneCounters>,
+    mut observers: Observers,
 ) -> std::io::Result<JoinHandle<Box<dyn Scene>>> {
     std::thread::Builder::new().name("spidar-scene".into()).spawn(move || {
         let step_ns = (scene.step_s() * 1e9).round() as u64;
         let mut buf: Vec<HandSample> = Vec::with_capacity(256);
         let mut deadline = clock.now_ns();
         let mut since_status = 100u32;
+        let mut rig_status: Option<RigStatus> = None;
         while !stop.load(Ordering::Relaxed) {
             let wake = clock.sleep_until(deadline);
             if wake > deadline + step_ns {
@@ -47,6 +58,22 @@ pub fn spawn(
             let m = scene.step(wake as f64 * 1e-9, &buf);
             if let Err(TrySendError::Full(_)) = models.try_send(m) {
                 counters.models_dropped.fetch_add(1, Ordering::Relaxed);
+            }
+            if !observers.list.is_empty() {
+                if let Some(rx) = &observers.rig_status {
+                    rig_status = rx.try_iter().last().or(rig_status);
+                }
+                let view = StepView {
+                    t_s: wake as f64 * 1e-9,
+                    scene: &*scene,
+                    samples: &buf,
+                    model: &m,
+                    rig_info: observers.rig_info.as_ref(),
+                    rig_status: rig_status.as_ref(),
+                };
+                for o in observers.list.iter_mut() {
+                    o.after_step(&view);
+                }
             }
             counters.steps.fetch_add(1, Ordering::Relaxed);
             since_status += 1;

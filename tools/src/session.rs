@@ -269,6 +269,8 @@ pub struct LiveOptions {
     pub stop: Arc<AtomicBool>,
     pub scene_name: String,
     pub script_name: String,
+    /// Watch the scene thread's steps (the live view); they get the rig's geometry and status.
+    pub observers: Vec<Box<dyn spidar_world::Observer>>,
 }
 
 /// Runs a session on the real clock until `seconds` pass or `stop` is set (Ctrl-C), then stops
@@ -288,9 +290,25 @@ pub fn run_live<D: Device + 'static>(
     let scene_stop = Arc::new(AtomicBool::new(false));
     let scene_counters = Arc::new(SceneCounters::default());
     let FarEnds { commands, events, models, samples, telemetry } = far;
-    let scene_handle =
-        scene_thread::spawn(scene, clock, samples, models, scene_stop.clone(), scene_counters.clone())
-            .context("starting the scene thread")?;
+    // The viewers' rig status comes from the telemetry read below (the world's link will carry it).
+    let mut rig_feed = None;
+    let mut observers = scene_thread::Observers::default();
+    if !opts.observers.is_empty() {
+        let (feed, rx) = crate::rig_view::RigStatusFeed::new(rig);
+        rig_feed = Some(feed);
+        observers =
+            scene_thread::Observers { list: opts.observers, rig_info: Some(crate::rig_view::rig_info(rig)), rig_status: Some(rx) };
+    }
+    let scene_handle = scene_thread::spawn(
+        scene,
+        clock,
+        samples,
+        models,
+        scene_stop.clone(),
+        scene_counters.clone(),
+        observers,
+    )
+    .context("starting the scene thread")?;
 
     let rt_opts = opts.rt.clone();
     let rt_handle = std::thread::Builder::new()
@@ -320,6 +338,9 @@ pub fn run_live<D: Device + 'static>(
         // Poll (never block on) the loop's channels: see spidar_rt::runner.
         for r in telemetry.try_iter() {
             stats.add(&r);
+            if let Some(f) = rig_feed.as_mut() {
+                f.add(&r);
+            }
         }
         for e in events.try_iter() {
             match e {
@@ -340,6 +361,9 @@ pub fn run_live<D: Device + 'static>(
         if !stop_sent && (time_up || opts.stop.load(Ordering::Relaxed)) {
             let _ = commands.try_send(Command::Stop);
             stop_sent = true;
+            if let Some(f) = rig_feed.as_mut() {
+                f.stopping();
+            }
             stop_deadline = Some(Instant::now() + Duration::from_secs(5));
         }
         if stop_deadline.is_some_and(|d| Instant::now() > d) {

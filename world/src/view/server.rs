@@ -132,6 +132,10 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
                 latest.lock().ok().and_then(|l| l.rig.clone()).unwrap_or_else(|| "null".into()),
                 "application/json",
             ),
+            "/favicon.ico" => {
+                let _ = req.respond(tiny_http::Response::empty(204));
+                continue;
+            }
             _ => {
                 let _ = req.respond(tiny_http::Response::from_string("not found").with_status_code(404));
                 continue;
