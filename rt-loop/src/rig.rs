@@ -251,7 +251,12 @@ impl Rig {
         }
         let eye = f.eye_m.unwrap_or(DEFAULT_EYE_M);
         if !eye.iter().all(|v| v.is_finite() && v.abs() < 10.0) {
-            return Err(bad("eye_m".into(), "eye_m", 0, "must be finite, within 10 m of the rig origin".into()));
+            return Err(bad(
+                "eye_m".into(),
+                "eye_m",
+                0,
+                "must be finite, within 10 m of the rig origin".into(),
+            ));
         }
         if !(f.period_s.is_finite() && (1e-4..=1e-2).contains(&f.period_s)) {
             return Err(bad(

@@ -193,14 +193,19 @@ struct ViewArgs {
 }
 
 /// Starts the live view for `scene` as `--view`/`--no-view` say, and prints its address.
-fn start_view(a: &ViewArgs, scene: &dyn spidar_world::Scene) -> anyhow::Result<Option<spidar_world::view::View>> {
+fn start_view(
+    a: &ViewArgs,
+    scene: &dyn spidar_world::Scene,
+) -> anyhow::Result<Option<spidar_world::view::View>> {
     use spidar_world::view::{parse_addr, View, ViewOptions};
     if a.no_view {
         return Ok(None);
     }
     let look = scene.look();
     let view = match &a.view {
-        Some(addr) => View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?,
+        Some(addr) => {
+            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
+        }
         // The default port may be taken (another spidar): then any free one.
         None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
             let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };

@@ -296,8 +296,11 @@ pub fn run_live<D: Device + 'static>(
     if !opts.observers.is_empty() {
         let (feed, rx) = crate::rig_view::RigStatusFeed::new(rig);
         rig_feed = Some(feed);
-        observers =
-            scene_thread::Observers { list: opts.observers, rig_info: Some(crate::rig_view::rig_info(rig)), rig_status: Some(rx) };
+        observers = scene_thread::Observers {
+            list: opts.observers,
+            rig_info: Some(crate::rig_view::rig_info(rig)),
+            rig_status: Some(rx),
+        };
     }
     let scene_handle = scene_thread::spawn(
         scene,

@@ -168,7 +168,15 @@ impl Poses<'_> {
     /// Character `i`: its body pose (scene frame), its skeleton pose (in the body frame, the
     /// first `joints` joints), its control state and the force pushing it.
     #[inline]
-    pub fn character(&mut self, i: usize, pos_m: DVec3, rot: DQuat, pose: &SkeletonPose, state: usize, push_n: f64) {
+    pub fn character(
+        &mut self,
+        i: usize,
+        pos_m: DVec3,
+        rot: DQuat,
+        pose: &SkeletonPose,
+        state: usize,
+        push_n: f64,
+    ) {
         let n = self.character_floats;
         let Some(c) = self.characters.get_mut(i * n..(i + 1) * n) else { return };
         put3(&mut c[0..3], pos_m);

@@ -17,7 +17,8 @@ const VH_GLOVE: [u8; 3] = [140, 25, 20];
 const FLOOR_COLOUR: [u8; 3] = [120, 120, 115];
 
 /// The counters the heads-up display shows, in the order [`pose`] writes them.
-pub(crate) const COUNTERS: [&str; 6] = ["hits taken", "hits given", "attacks", "avoidances", "blocks", "predictions"];
+pub(crate) const COUNTERS: [&str; 6] =
+    ["hits taken", "hits given", "attacks", "avoidances", "blocks", "predictions"];
 
 pub(crate) fn look(scene: &BoxingScene) -> Look {
     let w = &scene.world;
@@ -31,13 +32,16 @@ pub(crate) fn look(scene: &BoxingScene) -> Look {
                 Some(b) if m.bodies[b].articulation == BOXER => {
                     ("virtual human", VH_COLOUR, VH_GLOVE, Some(proxy_id(m, b)))
                 }
-                Some(b) if m.bodies[b].articulation == AVATAR => ("avatar", AVATAR_COLOUR, AVATAR_GLOVE, None),
+                Some(b) if m.bodies[b].articulation == AVATAR => {
+                    ("avatar", AVATAR_COLOUR, AVATAR_GLOVE, None)
+                }
                 Some(_) => ("body", AVATAR_COLOUR, AVATAR_COLOUR, None),
                 None => ("scenery", FLOOR_COLOUR, FLOOR_COLOUR, None),
             };
             let is_glove = s.body.is_some_and(|b| w.avatar.hand.contains(&b) || w.vh.hand.contains(&b));
             LookShape {
-                name: format!("{actor}/{}", s.name),
+                // The model names shapes `actor.part`.
+                name: format!("{actor}/{}", s.name.rsplit('.').next().unwrap_or(&s.name)),
                 shape: s.shape,
                 colour: if is_glove { glove } else { colour },
                 proxy,
@@ -49,7 +53,11 @@ pub(crate) fn look(scene: &BoxingScene) -> Look {
     let labels = vec![
         LookLabel { name: "left hand".into(), shape: shape_of(w.vh.hand[0]), states: hand_states.clone() },
         LookLabel { name: "right hand".into(), shape: shape_of(w.vh.hand[1]), states: hand_states },
-        LookLabel { name: "body".into(), shape: shape_of(w.vh.head), states: vec!["guard".into(), "avoid".into()] },
+        LookLabel {
+            name: "body".into(),
+            shape: shape_of(w.vh.head),
+            states: vec!["guard".into(), "avoid".into()],
+        },
     ];
     Look {
         shapes,
@@ -89,7 +97,8 @@ pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
         );
     }
     out.label(2, usize::from(mind.body == BodyBehaviour::Avoidance));
-    let counts = [mind.hits_taken, mind.hits_given, mind.attacks, mind.avoidances, mind.blocks, mind.predictions];
+    let counts =
+        [mind.hits_taken, mind.hits_given, mind.attacks, mind.avoidances, mind.blocks, mind.predictions];
     for (i, v) in counts.iter().enumerate() {
         out.counter(i, *v as f64);
     }

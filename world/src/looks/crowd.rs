@@ -27,7 +27,12 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
         .iter()
         .enumerate()
         .map(|(i, (shape, p))| {
-            let s = LookShape { name: format!("scenery/{i}"), shape: *shape, colour: [120, 120, 115], proxy: None };
+            let s = LookShape {
+                name: format!("scenery/{i}"),
+                shape: *shape,
+                colour: [120, 120, 115],
+                proxy: None,
+            };
             (s, p.pos_m, quat(&p.rot))
         })
         .collect();

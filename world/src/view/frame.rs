@@ -78,7 +78,12 @@ impl Layout {
     }
 
     /// The sections a scene writes, over a frame buffer of `max_words`, with the contact count.
-    pub fn poses<'a>(&self, buf: &'a mut [f32], counters: &'a mut [f64], contacts: &'a mut usize) -> Poses<'a> {
+    pub fn poses<'a>(
+        &self,
+        buf: &'a mut [f32],
+        counters: &'a mut [f64],
+        contacts: &'a mut usize,
+    ) -> Poses<'a> {
         let (head, rest) = buf.split_at_mut(self.shape_force_at);
         let shapes = &mut head[self.shapes_at..];
         let (shape_force, rest) = rest.split_at_mut(self.shapes);

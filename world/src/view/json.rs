@@ -144,7 +144,13 @@ pub struct StatusData {
 }
 
 /// The status message.
-pub fn status(d: &StatusData, counter_names: &[String], viewers: usize, published: u64, skipped: u64) -> String {
+pub fn status(
+    d: &StatusData,
+    counter_names: &[String],
+    viewers: usize,
+    published: u64,
+    skipped: u64,
+) -> String {
     let rig = d.rig.map(|r| {
         let f: Vec<[f64; 3]> = r.force_n.iter().map(|f| v3(*f)).collect();
         let fa: Vec<f64> = r.force_n.iter().map(|f| f.length()).collect();
@@ -172,11 +178,8 @@ pub fn status(d: &StatusData, counter_names: &[String], viewers: usize, publishe
     } else {
         "up"
     };
-    let counters: Vec<Value> = counter_names
-        .iter()
-        .zip(d.counters.iter())
-        .map(|(n, v)| json!({"name": n, "value": v}))
-        .collect();
+    let counters: Vec<Value> =
+        counter_names.iter().zip(d.counters.iter()).map(|(n, v)| json!({"name": n, "value": v})).collect();
     json!({
         "type": "status",
         "t_s": d.t_s,

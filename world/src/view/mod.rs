@@ -178,7 +178,13 @@ impl View {
             done: AtomicBool::new(false),
         });
         let description = json::scene(scene_name, look, &layout, opts.frame_hz);
-        let server = server::Server::start(opts, shared.clone(), description, look.counters.clone(), look.link_offset_m)?;
+        let server = server::Server::start(
+            opts,
+            shared.clone(),
+            description,
+            look.counters.clone(),
+            look.link_offset_m,
+        )?;
         let urls = (format!("http://{}", server.http_addr), format!("ws://{}", server.ws_addr));
         Ok(View {
             shared,
@@ -323,7 +329,8 @@ impl Observer for View {
         if self.rate_window.0.is_nan() {
             self.rate_window = (t, self.status.steps);
         } else if t - self.rate_window.0 >= 0.5 {
-            self.status.step_rate_hz = (self.status.steps - self.rate_window.1) as f64 / (t - self.rate_window.0);
+            self.status.step_rate_hz =
+                (self.status.steps - self.rate_window.1) as f64 / (t - self.rate_window.0);
             self.rate_window = (t, self.status.steps);
         }
         if let Some(r) = step.rig_status {

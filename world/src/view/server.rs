@@ -67,7 +67,8 @@ impl Server {
             0 => http_addr,
             p => SocketAddr::new(
                 http_addr.ip(),
-                p.checked_add(1).ok_or_else(|| ViewError::Address(format!("{http_addr} (no port after it)")))?,
+                p.checked_add(1)
+                    .ok_or_else(|| ViewError::Address(format!("{http_addr} (no port after it)")))?,
             ),
         };
         let ws_listener = bind(ws_want)?;
@@ -84,10 +85,12 @@ impl Server {
         let mut threads = Vec::new();
         {
             let (shared, latest) = (shared.clone(), latest.clone());
-            threads.push(spawn("spidar-view-http", Box::new(move || serve_http(http, index, shared, latest)))?);
+            threads
+                .push(spawn("spidar-view-http", Box::new(move || serve_http(http, index, shared, latest)))?);
         }
         {
-            let (shared, latest, viewers, opts) = (shared.clone(), latest.clone(), viewers.clone(), opts.clone());
+            let (shared, latest, viewers, opts) =
+                (shared.clone(), latest.clone(), viewers.clone(), opts.clone());
             threads.push(spawn(
                 "spidar-view-accept",
                 Box::new(move || accept_viewers(ws_listener, shared, latest, viewers, opts)),
@@ -159,7 +162,8 @@ fn accept_viewers(
     while !shared.stop.load(Ordering::Relaxed) {
         match listener.accept() {
             Ok((stream, _)) => {
-                let (shared, latest, viewers, opts) = (shared.clone(), latest.clone(), viewers.clone(), opts.clone());
+                let (shared, latest, viewers, opts) =
+                    (shared.clone(), latest.clone(), viewers.clone(), opts.clone());
                 let started = std::thread::Builder::new()
                     .name("spidar-view-viewer".into())
                     .spawn(move || serve_viewer(stream, shared, latest, viewers, &opts));
@@ -198,7 +202,11 @@ fn serve_viewer(
     // Each message goes out as it is sent (no batching behind the frame rate).
     let cfg = WebSocketConfig::default().write_buffer_size(0);
     let Ok(mut ws) = tungstenite::accept_with_config(stream, Some(cfg)) else { return };
-    let me = Arc::new(Viewer { slot: Mutex::new(Slot::default()), wake: Condvar::new(), gone: AtomicBool::new(false) });
+    let me = Arc::new(Viewer {
+        slot: Mutex::new(Slot::default()),
+        wake: Condvar::new(),
+        gone: AtomicBool::new(false),
+    });
     {
         let Ok(mut list) = viewers.lock() else { return };
         if list.len() >= opts.max_viewers {
@@ -295,7 +303,8 @@ fn broadcast(
         let (frame, status, rig, stopping) = {
             let Ok(mut mb) = shared.mailbox.lock() else { return };
             let deadline = Instant::now() + Duration::from_millis(250);
-            while !(mb.frame_fresh || mb.status_fresh || mb.rig_fresh || shared.stop.load(Ordering::Relaxed)) {
+            while !(mb.frame_fresh || mb.status_fresh || mb.rig_fresh || shared.stop.load(Ordering::Relaxed))
+            {
                 let left = deadline.saturating_duration_since(Instant::now());
                 if left.is_zero() {
                     break;
@@ -321,16 +330,17 @@ fn broadcast(
         };
         let viewer_count = c.viewers.load(Ordering::Relaxed);
         let rig_json = rig.map(|r| json::rig(&r, offset));
-        let status_json = status.filter(|s| s.ended || stopping || last_status.elapsed() >= status_every).map(|s| {
-            last_status = Instant::now();
-            json::status(
-                &s,
-                &counter_names,
-                viewer_count,
-                c.frames_published.load(Ordering::Relaxed),
-                c.frames_skipped.load(Ordering::Relaxed),
-            )
-        });
+        let status_json =
+            status.filter(|s| s.ended || stopping || last_status.elapsed() >= status_every).map(|s| {
+                last_status = Instant::now();
+                json::status(
+                    &s,
+                    &counter_names,
+                    viewer_count,
+                    c.frames_published.load(Ordering::Relaxed),
+                    c.frames_skipped.load(Ordering::Relaxed),
+                )
+            });
         if let Ok(mut l) = latest.lock() {
             if let Some(r) = &rig_json {
                 l.rig = Some(r.clone());

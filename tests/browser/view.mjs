@@ -1,0 +1,138 @@
+// The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
+// ASK lines): `node view.mjs boxing|crowd URL`, and `node view.mjs screenshot URL CAMERA FILE`
+// for the README's pictures.
+import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN, BLUE, ORANGE } from './harness.mjs';
+
+const [mode, url, ...rest] = process.argv.slice(2);
+const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+const describe = async () => (await fetch(`${url}/scene.json`)).json();
+
+async function shapes(page, names) {
+  return page.evaluate((names) => Object.fromEntries(names.map((n) => [n, spidarView.shape(n)])), names);
+}
+
+async function boxing(browser) {
+  const desc = await describe();
+  const vh = desc.shapes.filter((s) => s.name.startsWith('virtual human/')).map((s) => s.name);
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+
+  // 1. The virtual human is drawn where the world says it is.
+  const pa = await pause(a);
+  const A = await shapes(a, vh);
+  await ask({ ask: 'check_shapes', t: pa.t, shapes: Object.fromEntries(vh.map((n) => [n, A[n].frame])) });
+  for (const n of vh) check(dist(A[n].pos, A[n].frame.slice(0, 3)) < 1e-5, `${n} mesh is at its frame position`);
+  const head = A['virtual human/head'];
+  const atHead = await pixels(a, RED, around(head.screen, 45));
+  check(atHead.n > 400, `the head is drawn at its place on the screen (${atHead.n} red pixels within 45 px of (${head.screen.x.toFixed(0)}, ${head.screen.y.toFixed(0)}))`);
+  check(Math.hypot(atHead.cx - head.screen.x, atHead.cy - head.screen.y) < 20, `the red pixels there centre on the head (${atHead.cx.toFixed(0)}, ${atHead.cy.toFixed(0)})`);
+  const above = await pixels(a, RED, around({ x: head.screen.x, y: head.screen.y - 160 }, 45));
+  check(above.n < 40, `nothing red where the world has nothing, above the head (${above.n} pixels)`);
+  const maskA = (await pixels(a, RED)).mask;
+
+  // 2. A scripted punch moves it.
+  const { t_punch } = await ask({ ask: 'punch' });
+  await a.evaluate(() => spidarView.resume());
+  await untilTime(a, t_punch + 0.45);
+  const pb = await pause(a);
+  const B = await shapes(a, vh);
+  await ask({ ask: 'check_shapes', t: pb.t, shapes: Object.fromEntries(vh.map((n) => [n, B[n].frame])) });
+  let moved = vh[0];
+  for (const n of vh) if (dist(B[n].pos, A[n].pos) > dist(B[moved].pos, A[moved].pos)) moved = n;
+  const d = dist(B[moved].pos, A[moved].pos);
+  check(d > 0.03, `the punch moved the virtual human: ${moved} by ${(d * 100).toFixed(1)} cm`);
+  const atMoved = await pixels(a, RED, around(B[moved].screen, 25));
+  check(atMoved.n > 80, `${moved} is drawn at its new place (${atMoved.n} red pixels)`);
+  const maskB = (await pixels(a, RED)).mask;
+  const changed = maskA.reduce((s, v, i) => s + (v !== maskB[i] ? 1 : 0), 0);
+  check(changed > 30, `the drawing changed with it (${changed} cells of 4 px)`);
+
+  // 3. The heads-up display shows the world's numbers (the world held still), 4. in every browser.
+  await ask({ ask: 'hold' });
+  await a.evaluate(() => spidarView.resume());
+  const second = await launch(); // a second browser, not a tab: both draw all the time
+  const b = await open(second.browser, url, 'camera=orbit');
+  await sleep(1500);
+  for (const [name, p] of [['first', a], ['second', b]]) {
+    await ask({ ask: 'check_hud', browser: name, hud: await p.evaluate(() => spidarView.hud()) });
+  }
+  const [sa, sb] = [await pause(a), await pause(b)];
+  const [SA, SB] = [await shapes(a, vh), await shapes(b, vh)];
+  for (const n of vh) check(dist(SA[n].frame, SB[n].frame) < 1e-6, `both browsers show ${n} at the same pose`);
+  const [ma, mb] = [(await pixels(a, RED)).mask, (await pixels(b, RED)).mask];
+  const differ = ma.reduce((s, v, i) => s + (v !== mb[i] ? 1 : 0), 0);
+  const red = ma.reduce((s, v) => s + v, 0);
+  check(red > 100 && differ <= red * 0.02, `both browsers draw the same picture (${differ} of ${red} red cells differ; frames ${sa.seq} and ${sb.seq})`);
+  const [stA, stB] = [await state(a), await state(b)];
+  check(stA.status.viewers === 2 && stB.status.viewers === 2, 'both count two viewers');
+  await second.close();
+}
+
+async function crowd(browser) {
+  const desc = await describe();
+  const n = desc.crowd.characters;
+  const states = desc.crowd.states;
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+  const snap = async () => {
+    const p = await pause(a);
+    const chars = await a.evaluate((n) => Array.from({ length: n }, (_, i) => ({
+      f: spidarView.character(i), joints: spidarView.characterJoints(i) })), n);
+    await ask({ ask: 'check_characters', t: p.t, characters: chars.map((c) => c.f) });
+    return { t: p.t, chars };
+  };
+  const s1 = await snap();
+  await a.evaluate(() => spidarView.resume());
+  await untilTime(a, s1.t + 0.6);
+  const s2 = await snap();
+  // The character that walked farthest, still balancing.
+  let w = -1; let wd = 0;
+  for (let i = 0; i < n; i++) {
+    const [f1, f2] = [s1.chars[i].f, s2.chars[i].f];
+    const d = Math.hypot(f2[0] - f1[0], f2[2] - f1[2]);
+    if (f2[10] === 0 && d > wd) { w = i; wd = d; }
+  }
+  check(w >= 0 && wd > 0.15, `character ${w} walks (${wd.toFixed(2)} m in ${(s2.t - s1.t).toFixed(2)} s)`);
+  // Its drawn limbs move relative to its pelvis (the keyframe set's walk).
+  const rel = (s, j) => { const J = s.chars[w].joints; return J[j].pos.map((x, k) => x - J[0].pos[k]); };
+  const limbs = desc.crowd.joints.map((j, k) => [j.name, k]).filter(([name]) => /knee|elbow/.test(name));
+  const change = Math.max(...limbs.map(([, k]) => dist(rel(s1, k), rel(s2, k))));
+  check(change > 0.03, `its drawn pose changes as it walks (knees and elbows move ${(change * 100).toFixed(1)} cm relative to the pelvis)`);
+  const body2 = await a.evaluate((w) => spidarView.project(spidarView.character(w).slice(0, 3)), w);
+  const green = await pixels(a, GREEN, around(body2, 40));
+  check(green.n > 150, `it is drawn where the world has it, in the balancing colour (${green.n} green pixels)`);
+
+  // A push makes it fall: the world says when it is down.
+  const { t_down } = await ask({ ask: 'push', i: w });
+  await a.evaluate(() => spidarView.resume());
+  await untilTime(a, t_down);
+  const s3 = await snap();
+  const f3 = s3.chars[w].f;
+  const st = states[f3[10]];
+  check(st !== 'balance', `the frame says character ${w} is ${st} (the world said down at ${t_down.toFixed(3)} s, the frame is of ${s3.t.toFixed(3)} s)`);
+  const neck = desc.crowd.joints.findIndex((j) => j.name === 'neck');
+  const neckY = s3.chars[w].joints[neck].pos[1];
+  check(neckY < 0.6, `its drawn neck is near the floor (${neckY.toFixed(2)} m; standing it was ${s2.chars[w].joints[neck].pos[1].toFixed(2)} m)`);
+  const labels = await a.evaluate(() => spidarView.labels());
+  const lab = labels.find((l) => l.character === String(w));
+  check(lab && lab.state === st, `its label says ${lab && lab.text}`);
+  const body3 = await a.evaluate((w) => spidarView.project(spidarView.character(w).slice(0, 3)), w);
+  const cls = { fall: ORANGE, down: RED, 'stand-up': BLUE }[st];
+  const tinted = await pixels(a, cls, around(body3, 40));
+  check(tinted.n > 100, `it is drawn in the ${st} colour where it lies (${tinted.n} pixels)`);
+  await ask({ ask: 'hold' });
+  await a.evaluate(() => spidarView.resume());
+  await sleep(800);
+  await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
+}
+
+async function shot(browser) {
+  const [camera, file, seconds] = rest;
+  const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
+  await sleep(1000 * Number(seconds || 2));
+  await pause(p);
+  await screenshot(p, file);
+}
+
+run({ boxing, crowd, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
