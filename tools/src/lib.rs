@@ -3,6 +3,7 @@
 //! The binary (`main.rs`) only parses arguments and calls into here.
 
 pub mod bench;
+pub mod bench_view;
 pub mod calib;
 pub mod eval;
 pub mod eval_impacts;

@@ -218,6 +218,28 @@ fn start_view(
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// The world step's time with the live view off, on without viewers and on with viewers
+    /// reading every frame, in alternating blocks; and the viewers' frame rate.
+    View {
+        /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// `boxing` (the box script) or `crowd` (the spar script).
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Characters in the crowd scene.
+        #[arg(long, default_value_t = 1000)]
+        characters: usize,
+        /// Seconds of each block.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Rounds of the three blocks.
+        #[arg(long, default_value_t = 5)]
+        rounds: u32,
+        /// Viewers in the viewers' blocks.
+        #[arg(long, default_value_t = 3)]
+        viewers: usize,
+    },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
         #[command(flatten)]
@@ -324,6 +346,22 @@ fn main() -> anyhow::Result<()> {
             })?;
             eprintln!();
             println!("{report}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers } } => {
+            use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
+            if !(seconds.is_finite() && seconds > 0.0) || rounds == 0 {
+                bail!("--seconds must be a positive number and --rounds at least 1");
+            }
+            let r = match &rig {
+                Some(p) => Rig::load(p)?,
+                None => Rig::default_rig(),
+            };
+            eprintln!(
+                "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+            );
+            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers };
+            println!("{}", bench_view(&r, &o)?);
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {

@@ -543,19 +543,9 @@ fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) 
 fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let _one = one_at_a_time();
     // Big frames (400 characters, 90 kB) fill the stalled socket's buffers within seconds.
-    let text = spidar_sim::character::scene::SCENE_CROWD_RON
-        .replace("count: 8,", "count: 400,")
-        .replace("area_m: (-2.4, -3.0, 2.4, -0.3)", "area_m: (-14.0, -26.0, 14.0, -0.3)");
-    let crowd = spidar_sim::character::scene::build_crowd(&text, "400 characters", |name| {
-        let t = match name {
-            "body-character.ron" => spidar_sim::character::scene::BODY_CHARACTER_RON,
-            _ => spidar_sim::character::keyframe::KEYFRAMES_HUMANOID_RON,
-        };
-        Ok((t.to_string(), name.to_string()))
-    })
-    .unwrap();
+    let crowd = spidar_tools::bench_view::crowd_of(400).unwrap();
     let opts = ViewOptions { write_timeout: Duration::from_millis(800), ..any_port() };
-    let w = host(CrowdScene::new(crowd, "400 characters"), record_crowd, |_, _| {}, DVec3::ZERO, &opts);
+    let w = host(crowd, record_crowd, |_, _| {}, DVec3::ZERO, &opts);
     let c = w.view.counters();
     let steps = |w: &Hosting| w.counters.steps.load(Ordering::Relaxed);
     let late = |w: &Hosting| w.counters.late_steps.load(Ordering::Relaxed);

@@ -1,12 +1,12 @@
 //! The live view: a web page that draws the world in 3D (three.js), served by the world.
 //!
 //! [`View`] is an [`Observer`]: after a step it copies what a frame needs into a preallocated
-//! mailbox, at display rate and only while someone watches, and wakes the view's own threads.
+//! mailbox, at display rate and only while someone watches, and flags it for the view's threads.
 //! Those threads do everything else: an HTTP server (`tiny_http`) serves the page and the
 //! descriptions; a WebSocket listener (`tungstenite`, on the next port) accepts viewers, one
-//! thread each; a broadcaster turns the mailbox into binary frames (60 Hz) and status messages
-//! (4 Hz) and leaves the newest of each in every viewer's slot. A viewer that cannot take its
-//! frames for a while is dropped, never waited for.
+//! thread each; a broadcaster polls the mailbox (every 2 ms), turns it into binary frames (60 Hz)
+//! and status messages (4 Hz) and leaves the newest of each in every viewer's slot. A viewer that
+//! cannot take its frames for a while is dropped, never waited for.
 //!
 //! Must never: block, allocate or format on the stepping thread (the observer `try_lock`s the
 //! mailbox and skips a frame when the broadcaster is copying it).
@@ -17,7 +17,7 @@ mod server;
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use glam::DVec3;
@@ -118,7 +118,9 @@ struct Mailbox {
 
 struct Shared {
     mailbox: Mutex<Mailbox>,
-    wake: Condvar,
+    /// Set after the observer wrote the mailbox; the broadcaster polls it (a wake-up from the
+    /// stepping thread would be a system call, and the woken thread could preempt the step).
+    fresh: AtomicBool,
     counters: ViewCounters,
     /// Set when the view stops; `done` once the broadcaster has handed out the last status.
     stop: AtomicBool,
@@ -172,7 +174,7 @@ impl View {
                 rig: None,
                 rig_fresh: false,
             }),
-            wake: Condvar::new(),
+            fresh: AtomicBool::new(false),
             counters: ViewCounters::default(),
             stop: AtomicBool::new(false),
             done: AtomicBool::new(false),
@@ -311,7 +313,7 @@ impl View {
             }
         }
         drop(guard);
-        self.shared.wake.notify_one();
+        self.shared.fresh.store(true, Ordering::Release);
     }
 }
 
@@ -363,8 +365,8 @@ impl Drop for View {
             mb.status.ended = true;
             mb.status_fresh = true;
         }
+        self.shared.fresh.store(true, Ordering::Release);
         self.shared.stop.store(true, Ordering::Relaxed);
-        self.shared.wake.notify_all();
         if let Some(s) = self.server.take() {
             s.stop();
         }

@@ -43,6 +43,9 @@ struct Viewer {
 
 type Viewers = Arc<Mutex<Vec<Arc<Viewer>>>>;
 
+/// How often the broadcaster looks at the mailbox.
+const POLL: Duration = Duration::from_millis(2);
+
 pub(super) struct Server {
     pub http_addr: SocketAddr,
     pub ws_addr: SocketAddr,
@@ -301,19 +304,16 @@ fn broadcast(
     let mut last_status = Instant::now() - status_every;
     loop {
         let (frame, status, rig, stopping) = {
-            let Ok(mut mb) = shared.mailbox.lock() else { return };
-            let deadline = Instant::now() + Duration::from_millis(250);
-            while !(mb.frame_fresh || mb.status_fresh || mb.rig_fresh || shared.stop.load(Ordering::Relaxed))
+            // Poll: the stepping thread never wakes anyone.
+            let until = Instant::now() + Duration::from_millis(250);
+            while !shared.fresh.load(Ordering::Acquire)
+                && !shared.stop.load(Ordering::Relaxed)
+                && Instant::now() < until
             {
-                let left = deadline.saturating_duration_since(Instant::now());
-                if left.is_zero() {
-                    break;
-                }
-                mb = match shared.wake.wait_timeout(mb, left) {
-                    Ok((m, _)) => m,
-                    Err(_) => return,
-                };
+                std::thread::sleep(POLL);
             }
+            shared.fresh.store(false, Ordering::Relaxed);
+            let Ok(mut mb) = shared.mailbox.lock() else { return };
             let frame = mb.frame_fresh.then(|| {
                 bytes.clear();
                 for w in &mb.frame[..mb.frame_words] {
