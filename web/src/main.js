@@ -129,6 +129,8 @@ function frameLoop() {
     rateSince = now;
   }
   cameras.update();
+  // From the user's eye, their own avatar's head is in the way.
+  if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
   renderer.render(scene, cameras.camera);
   labelRenderer.render(scene, cameras.camera);
   renders++;

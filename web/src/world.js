@@ -73,6 +73,11 @@ export class World {
     this.white = new THREE.Color(0xfff2b0);
   }
 
+  // Hides the shapes within `r` of `p` (the user's own head, seen from their eye), or none.
+  hideNear(p, r) {
+    for (const m of this.meshes) m.visible = !p || m.position.distanceTo(p) > r;
+  }
+
   apply(f, dt) {
     const L = this.L;
     for (let k = 0; k < this.meshes.length; k++) {

@@ -644,3 +644,46 @@ fn view_observer_allocates_nothing_per_step() {
     drop(view);
     let _ = reader.join();
 }
+
+/// The README's pictures (`docs/img/`), taken by the same harness from `spidar run`'s path: the
+/// simulated rig, the rt-loop, the scene thread and the view.
+/// `cargo test -p spidar-tests --test hil view_screenshots -- --ignored`
+#[test]
+#[ignore = "writes docs/img: run by hand"]
+fn view_screenshots_for_the_readme() {
+    use spidar_rt::rt_thread::RtOptions;
+    use spidar_tools::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions};
+    if !browser_here("view_screenshots_for_the_readme") {
+        return;
+    }
+    let _one = one_at_a_time();
+    let img = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../docs/img");
+    for (scene_name, script, shots) in [
+        ("boxing", "box", vec![("eye", "boxing-eye.png", "4"), ("orbit", "boxing-side.png", "3")]),
+        ("crowd", "spar", vec![("orbit", "crowd.png", "5")]),
+    ] {
+        let r = rig();
+        let scene = spidar_world::load(scene_name).unwrap();
+        let view = View::start(scene.name(), &scene.look(), &any_port()).unwrap();
+        let url = view.url().to_string();
+        let dev = sim_device(&r, load_scripts(script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
+        let opts = LiveOptions {
+            seconds: Some(30.0),
+            rt: RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() },
+            spin_ns: 0,
+            status_every: None,
+            stop: Arc::new(AtomicBool::new(false)),
+            scene_name: scene_name.into(),
+            script_name: script.into(),
+            observers: vec![Box::new(view)],
+        };
+        let stop = opts.stop.clone();
+        let run = std::thread::spawn(move || run_live(dev, &r, scene, opts).map(|_| ()));
+        for (camera, file, wait) in shots {
+            let path = img.join(file);
+            node(&["screenshot", &url, camera, path.to_str().unwrap(), wait], |_| json!({"error": "no questions"}));
+        }
+        stop.store(true, Ordering::Relaxed);
+        run.join().unwrap().unwrap();
+    }
+}
