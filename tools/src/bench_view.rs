@@ -47,6 +47,8 @@ pub struct ViewBenchOptions {
     /// Rounds of the three blocks.
     pub rounds: u32,
     pub viewers: usize,
+    /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+    pub fifo: Option<u8>,
 }
 
 #[derive(Default)]
@@ -66,7 +68,10 @@ pub struct ViewBenchReport {
     pub frame_bytes: u64,
     pub phases: [(String, Phase); 3],
     pub load: String,
+    pub rt: String,
 }
+
+type Spawn = (String, Arc<AtomicBool>, Arc<AtomicU64>, Arc<AtomicU64>);
 
 /// One viewer: a WebSocket client that reads every message until told to stop.
 fn viewer(
@@ -114,6 +119,24 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     .context("starting the view")?;
     let handle = view.counters_handle();
     let info = rig_info(rig);
+    // Viewers are started by a thread of normal priority: threads inherit their creator's policy.
+    let (spawn_tx, spawn_rx) = std::sync::mpsc::channel::<Spawn>();
+    let (joined_tx, joined_rx) = std::sync::mpsc::channel();
+    let spawner = std::thread::spawn(move || {
+        for (url, stop, frames, bytes) in spawn_rx {
+            let _ = joined_tx.send(viewer(url, stop, frames, bytes));
+        }
+    });
+    let rt = match o.fifo {
+        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
+            fifo_priority: Some(p),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        })
+        .to_string(),
+        None => "normal priority".to_string(),
+    };
     let step_ns = (scene.step_s() * 1e9).round() as u64;
     let ticks_per_step = (scene.step_s() / rig.period_s).round().max(1.0) as u64;
     let mut phases: [(String, Phase); 3] = [
@@ -130,15 +153,10 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             let stop = Arc::new(AtomicBool::new(false));
             let want = if p == 2 { o.viewers } else { 0 };
             let counts: Vec<Arc<AtomicU64>> = (0..want).map(|_| Arc::new(AtomicU64::new(0))).collect();
-            let threads: Vec<_> = if p == 2 {
-                counts
-                    .iter()
-                    .map(|c| viewer(handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))
-                    .collect()
-            } else {
-                Vec::new()
-            };
-            let want = if p == 2 { o.viewers } else { 0 };
+            for c in &counts {
+                spawn_tx.send((handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))?;
+            }
+            let threads: Vec<_> = counts.iter().filter_map(|_| joined_rx.recv().ok()).collect();
             let until = Instant::now() + Duration::from_secs(5);
             while handle.counters().viewers.load(Ordering::Relaxed) != want && Instant::now() < until {
                 std::thread::sleep(Duration::from_millis(10));
@@ -196,6 +214,8 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             }
         }
     }
+    drop(spawn_tx);
+    let _ = spawner.join();
     let load = std::fs::read_to_string("/proc/loadavg")
         .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
         .unwrap_or_default();
@@ -204,6 +224,7 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         frame_bytes: bytes.load(Ordering::Relaxed),
         phases,
         load,
+        rt,
     })
 }
 
@@ -221,6 +242,7 @@ fn row(p: &Percentiles) -> String {
 impl std::fmt::Display for ViewBenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "spidar bench view: scene {}, world step = scene step + observers, blocks alternating (load average {})", self.scene, self.load)?;
+        writeln!(f, "  world thread: {}", self.rt)?;
         writeln!(
             f,
             "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   observer p99   frames/s per viewer",

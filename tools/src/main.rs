@@ -239,6 +239,9 @@ enum BenchCmd {
         /// Viewers in the viewers' blocks.
         #[arg(long, default_value_t = 3)]
         viewers: usize,
+        /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+        fifo: Option<u8>,
     },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
@@ -348,7 +351,7 @@ fn main() -> anyhow::Result<()> {
             println!("{report}");
             Ok(())
         }
-        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers } } => {
+        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
             use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
             if !(seconds.is_finite() && seconds > 0.0) || rounds == 0 {
                 bail!("--seconds must be a positive number and --rounds at least 1");
@@ -360,7 +363,7 @@ fn main() -> anyhow::Result<()> {
             eprintln!(
                 "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
             );
-            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers };
+            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
             println!("{}", bench_view(&r, &o)?);
             Ok(())
         }

@@ -681,7 +681,10 @@ fn view_screenshots_for_the_readme() {
         let run = std::thread::spawn(move || run_live(dev, &r, scene, opts).map(|_| ()));
         for (camera, file, wait) in shots {
             let path = img.join(file);
-            node(&["screenshot", &url, camera, path.to_str().unwrap(), wait], |_| json!({"error": "no questions"}));
+            node(
+                &["screenshot", &url, camera, path.to_str().unwrap(), wait],
+                |_| json!({"error": "no questions"}),
+            );
         }
         stop.store(true, Ordering::Relaxed);
         run.join().unwrap().unwrap();
