@@ -92,8 +92,8 @@ impl ConsoleOperator {
              For each request: put the grip there, let go of any jig clamp's play, hold it still and press Enter;\n\
              the tool then waits until the grip is still and records (about a second).\n\
              Keys: Enter = the grip is there, s + Enter = skip this free pose, q + Enter = abort (outputs off).\n\
-             If this program stalls, the boards' watchdog switches the motors off (after 50 ms on the UART \
-             boards): the strings go slack; keep hold of the grip.",
+             The boards have no watchdog: if this program stalls or dies, the motors keep their last \
+             command (minimum tension) until it ends or the boards are switched off; keep hold of the grip.",
             self.tension_min_n[0], self.tension_min_n[1]
         );
         self.say(&line);

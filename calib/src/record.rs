@@ -64,7 +64,7 @@ pub trait Operator<D: Device> {
     /// Ask for `req` on `hand`'s grip. Returns once the operator says the grip is there (a real
     /// operator: presses Enter) or that this free pose is skipped; stillness is then checked by
     /// the recorder. An operator who waits keeps `dev` exchanging (strings held at minimum
-    /// tension, board watchdogs fed); aborting returns [`CalibError::Aborted`].
+    /// tension, the tick's counts read); aborting returns [`CalibError::Aborted`].
     fn request(&mut self, dev: &mut D, hand: usize, req: &Request) -> Result<Answer, CalibError>;
     /// Progress lines and warnings for the operator.
     fn tell(&mut self, line: &str);

@@ -5,11 +5,15 @@
 use proptest::prelude::*;
 
 use crate::frame::{FrameError, Unwrap};
-use crate::uart::protocol::{self as up, BoardInfo, BoardParser, CurrentReply, HostCommand};
+use crate::uart::protocol::{self as up, BoardInfo, BoardParser, CurrentReply, HostCommand, ReplyLayout};
 use crate::usb::protocol as usbp;
 
 fn any_board() -> impl Strategy<Value = BoardInfo> {
-    (0u8..8, 1u8..=6).prop_map(|(id, m)| BoardInfo::of_model(id, m).unwrap())
+    (0u8..8, 1u8..=7).prop_map(|(id, m)| BoardInfo::of_model(id, m).unwrap())
+}
+
+fn any_layout() -> impl Strategy<Value = ReplyLayout> {
+    prop::sample::select(ReplyLayout::ALL.to_vec())
 }
 
 fn bytes(max: usize) -> impl Strategy<Value = Vec<u8>> {
@@ -38,59 +42,67 @@ proptest! {
     }
 
     #[test]
-    fn current_reply_accepts_only_its_exact_length_and_header(board in any_board(), b in bytes(40)) {
-        match up::decode_current_reply(&board, &b) {
+    fn current_reply_accepts_only_its_exact_length_and_header(
+        board in any_board(),
+        layout in any_layout(),
+        b in bytes(60),
+    ) {
+        let len = board.current_reply_len(layout);
+        match up::decode_current_reply(&board, layout, &b) {
             Ok(r) => {
-                prop_assert_eq!(b.len(), board.current_reply_len());
+                prop_assert_eq!(b.len(), len);
                 prop_assert_eq!(b[0], up::header(up::cmd::CURRENT, board.id));
-                let mut again = [0u8; 32];
-                let n = up::encode_current_reply(&board, &r, &mut again).unwrap();
+                let mut again = [0u8; 64];
+                let n = up::encode_current_reply(&board, layout, &r, &mut again).unwrap();
                 prop_assert_eq!(&again[..n], &b[..]);
             }
-            Err(_) => prop_assert!(b.len() != board.current_reply_len() || b[0] != up::header(up::cmd::CURRENT, board.id)),
+            Err(_) => prop_assert!(b.len() != len || b[0] != up::header(up::cmd::CURRENT, board.id)),
         }
     }
 
     #[test]
     fn truncated_or_misaddressed_current_replies_are_rejected(
         board in any_board(),
-        pos in proptest::array::uniform4(any::<i16>()),
-        cut in 0usize..25,
+        layout in any_layout(),
+        pos in proptest::array::uniform8(any::<i16>()),
+        cut in 0usize..49,
         wrong in any::<u8>(),
     ) {
-        let r = CurrentReply { positions: pos, velocities: pos, currents: pos };
-        let mut buf = [0u8; 32];
-        let n = up::encode_current_reply(&board, &r, &mut buf).unwrap();
-        prop_assert!(up::decode_current_reply(&board, &buf[..n]).is_ok());
+        let r = CurrentReply { positions: pos, velocities: pos, sensors: pos };
+        let mut buf = [0u8; 64];
+        let n = up::encode_current_reply(&board, layout, &r, &mut buf).unwrap();
+        prop_assert!(up::decode_current_reply(&board, layout, &buf[..n]).is_ok());
         let cut = cut.min(n - 1);
-        let is_short = matches!(up::decode_current_reply(&board, &buf[..cut]), Err(FrameError::Short { .. }));
+        let is_short =
+            matches!(up::decode_current_reply(&board, layout, &buf[..cut]), Err(FrameError::Short { .. }));
         prop_assert!(is_short);
         if wrong != buf[0] {
             buf[0] = wrong;
-            let is_header = matches!(up::decode_current_reply(&board, &buf[..n]), Err(FrameError::Header { .. }));
+            let is_header =
+                matches!(up::decode_current_reply(&board, layout, &buf[..n]), Err(FrameError::Header { .. }));
             prop_assert!(is_header);
         }
     }
 
     #[test]
-    fn boards_parser_never_panics_and_takes_commands_only_for_present_boards(
-        boards in proptest::collection::vec(any_board(), 1..4),
+    fn boards_parser_never_panics_and_takes_only_its_own_commands_and_length_tables(
+        me in any_board(),
         stream in bytes(600),
     ) {
-        let mut table = [None; up::MAX_BOARDS];
-        for b in &boards {
-            table[usize::from(b.id)] = Some(*b);
-        }
-        let mut p = BoardParser::new(table);
+        let mut p = BoardParser::new(&me);
         for &x in &stream {
-            if let Some(c) = p.push(x) {
-                let board = match c {
-                    HostCommand::BoardInfo { board }
-                    | HostCommand::SetCommandLengths { board, .. }
-                    | HostCommand::Current { board, .. }
-                    | HostCommand::Unsupported { board, .. } => board,
-                };
-                prop_assert!(table[usize::from(board)].is_some());
+            let step = p.push(x);
+            if let Some(c) = step.reply_to {
+                prop_assert!(usize::from(c) < up::COMMANDS);
+            }
+            match step.done {
+                Some(HostCommand::SetCommandLengths { board, lengths }) => {
+                    prop_assert_eq!(p.table(board), lengths);
+                }
+                Some(HostCommand::BoardInfo { board } | HostCommand::Current { board, .. } | HostCommand::Other { board, .. }) => {
+                    prop_assert_eq!(board, me.id);
+                }
+                None => {}
             }
         }
     }

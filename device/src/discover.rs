@@ -7,6 +7,7 @@
 
 use std::time::Duration;
 
+use crate::link::PortSetting;
 use crate::uart::{UartDevice, UartOptions};
 use crate::usb::rusb_link::{list_usb, UsbSeen};
 use crate::usb::UsbKind;
@@ -67,26 +68,67 @@ fn check_serial(path: &str, probe: bool) -> Result<String, String> {
     }
     let opts = UartOptions { enumerate_timeout: Duration::from_millis(10), ..UartOptions::default() };
     let mut dev = UartDevice::on_port(path, opts).map_err(|e| e.to_string())?;
-    match dev.open_detailed() {
-        Ok(()) => {
-            let boards: Vec<String> = dev
-                .boards()
-                .iter()
-                .map(|b| {
-                    format!(
-                        "id {} {} ({} motors, {} current sensors)",
-                        b.id,
-                        b.model_name(),
-                        b.n_motor,
-                        b.n_current
-                    )
-                })
-                .collect();
-            let motors: usize = dev.boards().iter().map(|b| usize::from(b.n_motor)).sum();
-            Ok(format!("UART boards: {}; {motors} channels", boards.join(", ")))
-        }
-        Err(e) => Err(e.to_string()),
+    dev.open_detailed().map_err(|e| e.to_string())?;
+    let r = probe_report(&dev);
+    // The probe leaves the boards as it found them: zero commands.
+    let _ = crate::Device::deactivate(&mut dev);
+    Ok(r)
+}
+
+/// What `spidar devices --probe` says about the UART boards on an opened link: each board's
+/// model, counts, firmware reply layout, the command lengths declared for it and what its
+/// commands mean; the port's latency settings; and what will not work.
+pub fn probe_report<C: crate::uart::Connector>(dev: &UartDevice<C>) -> String {
+    use std::fmt::Write;
+    let boards = dev.probed();
+    let motors: usize = boards.iter().map(|b| usize::from(b.info.n_motor)).sum();
+    let mut s = format!("UART boards: {}, {motors} channels", boards.len());
+    for b in &boards {
+        let i = &b.info;
+        let kinds: Vec<&str> = b.commands[..usize::from(i.n_motor)].iter().map(|k| k.name()).collect();
+        let mut kinds_dedup = kinds.clone();
+        kinds_dedup.dedup();
+        let _ = write!(
+            s,
+            "\n  id {} {}: {} motors ({}), {} current sensors, {} force sensors; {}, reply {} bytes\
+             \n    command lengths declared, ids 0..11: {}",
+            i.id,
+            i.model_name(),
+            i.n_motor,
+            kinds_dedup.join(" / "),
+            i.n_current,
+            i.n_force,
+            b.layout.firmware(),
+            i.current_reply_len(b.layout),
+            b.lengths.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(" ")
+        );
     }
+    let setting = |p: PortSetting, done: &str| match p {
+        PortSetting::Done => done.to_string(),
+        PortSetting::NotApplicable => "not applicable (no such setting: a pseudo-terminal?)".to_string(),
+        PortSetting::Failed(e) => format!("FAILED ({})", std::io::Error::from_raw_os_error(e)),
+    };
+    match dev.port_report() {
+        Some(p) => {
+            let _ = write!(
+                s,
+                "\n  port: low latency {}; DTR/RTS {}; adapter latency timer {}",
+                setting(p.low_latency, "set"),
+                setting(p.modem_lines_cleared, "cleared"),
+                dev.latency_timer_ms()
+                    .map_or("none (not a USB serial adapter with one)".into(), |ms| format!("{ms} ms"))
+            );
+        }
+        None => s.push_str("\n  port: not a serial port"),
+    }
+    let mut warnings: Vec<String> = dev.warnings().to_vec();
+    if motors < 8 {
+        warnings.push(format!("{motors} motors: a SPIDAR-H needs 8 (two 4-motor boards)"));
+    }
+    for w in warnings {
+        let _ = write!(s, "\n  warning: {w}");
+    }
+    s
 }
 
 /// One USB device, with what spidar makes of it.

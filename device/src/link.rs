@@ -6,6 +6,7 @@
 //! a libusb handle) are thin. What they must never do: allocate, lock or block past the deadline
 //! they are given, or panic; every failure becomes a `Copy` [`DeviceError`].
 
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
 
 use crate::DeviceError;
@@ -18,6 +19,10 @@ pub trait ByteLink: Send {
     fn read_exact(&mut self, buf: &mut [u8], deadline: Instant) -> Result<(), DeviceError>;
     /// Throws away whatever has been received and not read (late or extra replies).
     fn clear_input(&mut self) -> Result<(), DeviceError>;
+    /// What the port's set-up managed (serial ports only).
+    fn port_report(&self) -> Option<PortReport> {
+        None
+    }
 }
 
 /// USB bulk transfers with a timeout.
@@ -26,6 +31,9 @@ pub trait BulkLink: Send {
     fn bulk_write(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<(), DeviceError>;
     /// Reads one transfer from the IN endpoint `ep` into `buf`; returns the bytes received.
     fn bulk_read(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError>;
+    /// Resets the IN endpoint `ep` (clear halt: the data toggle restarts); stale packets are then
+    /// read away by the driver.
+    fn reset_in(&mut self, ep: u8) -> Result<(), DeviceError>;
 }
 
 /// The time left until `deadline`, rounded up to whole milliseconds for `poll` (0 when passed).
@@ -55,30 +63,55 @@ pub(crate) fn last_errno() -> i32 {
     std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
 }
 
-/// A serial port as a raw file descriptor, driven with `poll`/`read`/`write`: no allocation and a
+/// What the set-up of a serial port managed to do (plain data: reported, never allocated, so a
+/// reopen inside the tick can fill it too).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PortSetting {
+    /// Done (or already so).
+    Done,
+    /// The device has no such setting (a pseudo-terminal answers ENOTTY): nothing to do.
+    NotApplicable,
+    /// The device has the setting but refused it (the errno).
+    Failed(i32),
+}
+
+/// The serial-port settings the UART boards want, as far as the port allowed them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PortReport {
+    /// The kernel's low-latency flag (for FTDI adapters it sets the latency timer to 1 ms; by
+    /// default they hold received bytes for up to 16 ms, longer than a tick).
+    pub low_latency: PortSetting,
+    /// DTR and RTS cleared (the lab's driver clears both).
+    pub modem_lines_cleared: PortSetting,
+}
+
+/// A serial port as a file descriptor, driven with `poll`/`read`/`write`: no allocation and a
 /// deadline on every call, which a buffered port type does not give.
 #[derive(Debug)]
 pub struct FdLink {
-    fd: libc::c_int,
+    fd: OwnedFd,
     /// Set when an error showed the other end is gone: later calls fail fast.
     gone: bool,
+    port: Option<PortReport>,
 }
 
 impl FdLink {
-    /// Takes ownership of an open, configured (raw, non-blocking or blocking) descriptor.
-    pub fn from_raw_fd(fd: libc::c_int) -> FdLink {
-        // Non-blocking, so a read after `poll` said "readable" can never block the tick.
+    /// Takes ownership of an open, configured (raw) serial descriptor and makes it non-blocking,
+    /// so a read after `poll` said "readable" can never block the tick.
+    pub fn from_fd(fd: OwnedFd) -> FdLink {
+        let raw = fd.as_raw_fd();
+        // SAFETY: `raw` is the open descriptor `fd` owns; F_GETFL/F_SETFL touch only its flags.
         unsafe {
-            let flags = libc::fcntl(fd, libc::F_GETFL);
+            let flags = libc::fcntl(raw, libc::F_GETFL);
             if flags >= 0 {
-                libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
+                libc::fcntl(raw, libc::F_SETFL, flags | libc::O_NONBLOCK);
             }
         }
-        FdLink { fd, gone: false }
+        FdLink { fd, gone: false, port: None }
     }
 
     pub fn fd(&self) -> libc::c_int {
-        self.fd
+        self.fd.as_raw_fd()
     }
 
     fn wait(
@@ -91,7 +124,8 @@ impl FdLink {
             let Some(ms) = poll_ms(deadline) else {
                 return Err(DeviceError::Timeout { waited_us: waited_us(waited_from) });
             };
-            let mut p = libc::pollfd { fd: self.fd, events, revents: 0 };
+            let mut p = libc::pollfd { fd: self.fd(), events, revents: 0 };
+            // SAFETY: one valid pollfd for the duration of the call.
             let n = unsafe { libc::poll(&mut p, 1, ms) };
             if n < 0 {
                 let e = last_errno();
@@ -131,7 +165,7 @@ impl ByteLink for FdLink {
         }
         let from = Instant::now();
         while !bytes.is_empty() {
-            let n = unsafe { libc::write(self.fd, bytes.as_ptr().cast(), bytes.len()) };
+            let n = unsafe { libc::write(self.fd(), bytes.as_ptr().cast(), bytes.len()) };
             if n > 0 {
                 bytes = &bytes[n as usize..];
                 continue;
@@ -154,7 +188,7 @@ impl ByteLink for FdLink {
         let mut got = 0;
         while got < buf.len() {
             let rest = &mut buf[got..];
-            let n = unsafe { libc::read(self.fd, rest.as_mut_ptr().cast(), rest.len()) };
+            let n = unsafe { libc::read(self.fd(), rest.as_mut_ptr().cast(), rest.len()) };
             if n > 0 {
                 got += n as usize;
                 continue;
@@ -174,15 +208,20 @@ impl ByteLink for FdLink {
         Ok(())
     }
 
+    /// What [`open_serial`] set on the port (None for a descriptor given to [`FdLink::from_fd`]).
+    fn port_report(&self) -> Option<PortReport> {
+        self.port
+    }
+
     fn clear_input(&mut self) -> Result<(), DeviceError> {
         if self.gone {
             return Err(DeviceError::Disconnected { what: "serial port gone" });
         }
         // tcflush drops the kernel's queue; then read away anything that raced in, without waiting.
-        unsafe { libc::tcflush(self.fd, libc::TCIFLUSH) };
+        unsafe { libc::tcflush(self.fd(), libc::TCIFLUSH) };
         let mut scratch = [0u8; 256];
         loop {
-            let n = unsafe { libc::read(self.fd, scratch.as_mut_ptr().cast(), scratch.len()) };
+            let n = unsafe { libc::read(self.fd(), scratch.as_mut_ptr().cast(), scratch.len()) };
             if n > 0 {
                 continue;
             }
@@ -199,16 +238,13 @@ impl ByteLink for FdLink {
     }
 }
 
-impl Drop for FdLink {
-    fn drop(&mut self) {
-        unsafe { libc::close(self.fd) };
-    }
-}
-
-/// Opens a serial device (or a pty slave) by path in raw 8N1 mode at `baud`, without the modem
-/// lines (a pty has none) and without allocating: `path` is a prepared C string, so a driver can
-/// call this again from its reopen path inside the tick.
+/// Opens a serial device (or a pty slave) by path in raw 8N1 mode at `baud`, exclusive, and asks
+/// for what the UART boards want: the kernel's low-latency flag and DTR/RTS cleared (a pty has
+/// neither: that is not an error; [`FdLink::port_report`] says what happened). Allocates
+/// nothing: `path` is a prepared C string, so a driver can call this again from its reopen path
+/// inside the tick.
 pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceError> {
+    // SAFETY: a valid NUL-terminated path; the flags are plain open(2) flags.
     let fd = unsafe {
         libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC)
     };
@@ -225,17 +261,22 @@ pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceErr
             _ => DeviceError::Other { what: "cannot open the serial port" },
         });
     }
-    let link = FdLink::from_raw_fd(fd);
+    // SAFETY: `fd` was just opened and is owned by nothing else.
+    let mut link = FdLink::from_fd(unsafe { OwnedFd::from_raw_fd(fd) });
     // Exclusive use: two programs writing currents to the same boards is never right.
+    // SAFETY: TIOCEXCL takes no argument.
     unsafe { libc::ioctl(fd, libc::TIOCEXCL) };
+    // SAFETY: termios is plain data; tcgetattr fills it.
     let mut t: libc::termios = unsafe { std::mem::zeroed() };
     if unsafe { libc::tcgetattr(fd, &mut t) } != 0 {
         return Err(DeviceError::Other { what: "the path is not a serial port (tcgetattr failed)" });
     }
+    // SAFETY: `t` is a valid termios.
     unsafe { libc::cfmakeraw(&mut t) };
     t.c_cflag |= libc::CREAD | libc::CLOCAL;
     t.c_cflag &= !(libc::CSTOPB | libc::PARENB | libc::CRTSCTS);
     let speed = baud_constant(baud).ok_or(DeviceError::Other { what: "unsupported baud rate" })?;
+    // SAFETY: `t` is a valid termios; `speed` a termios speed constant.
     unsafe {
         libc::cfsetispeed(&mut t, speed);
         libc::cfsetospeed(&mut t, speed);
@@ -243,7 +284,92 @@ pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceErr
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) } != 0 {
         return Err(DeviceError::Other { what: "cannot configure the serial port (tcsetattr failed)" });
     }
+    link.port = Some(PortReport { low_latency: set_low_latency(fd), modem_lines_cleared: clear_dtr_rts(fd) });
     Ok(link)
+}
+
+/// An errno from a tty ioctl: the device lacks the feature (a pty), or refused it.
+fn setting_errno(e: i32) -> PortSetting {
+    match e {
+        libc::ENOTTY | libc::EINVAL => PortSetting::NotApplicable,
+        e => PortSetting::Failed(e),
+    }
+}
+
+/// Clears DTR and RTS (TIOCMBIC).
+fn clear_dtr_rts(fd: libc::c_int) -> PortSetting {
+    let bits: libc::c_int = libc::TIOCM_DTR | libc::TIOCM_RTS;
+    // SAFETY: TIOCMBIC reads one c_int through the pointer.
+    if unsafe { libc::ioctl(fd, libc::TIOCMBIC, &bits) } == 0 {
+        PortSetting::Done
+    } else {
+        setting_errno(last_errno())
+    }
+}
+
+/// Linux's `struct serial_struct` (TIOCGSERIAL/TIOCSSERIAL), which libc does not define.
+#[cfg(target_os = "linux")]
+#[repr(C)]
+struct SerialStruct {
+    kind: libc::c_int,
+    line: libc::c_int,
+    port: libc::c_uint,
+    irq: libc::c_int,
+    flags: libc::c_int,
+    xmit_fifo_size: libc::c_int,
+    custom_divisor: libc::c_int,
+    baud_base: libc::c_int,
+    close_delay: libc::c_ushort,
+    io_type: libc::c_char,
+    reserved_char: [libc::c_char; 1],
+    hub6: libc::c_int,
+    closing_wait: libc::c_ushort,
+    closing_wait2: libc::c_ushort,
+    iomem_base: *mut libc::c_uchar,
+    iomem_reg_shift: libc::c_ushort,
+    port_high: libc::c_uint,
+    iomap_base: libc::c_ulong,
+}
+
+/// `ASYNC_LOW_LATENCY` in `serial_struct.flags` (bit 13).
+#[cfg(target_os = "linux")]
+const ASYNC_LOW_LATENCY: libc::c_int = 1 << 13;
+
+/// Sets the kernel's low-latency flag on a serial port (FTDI adapters then use a 1 ms latency
+/// timer instead of 16 ms).
+#[cfg(target_os = "linux")]
+fn set_low_latency(fd: libc::c_int) -> PortSetting {
+    // SAFETY: SerialStruct is plain data with the kernel's layout; TIOCGSERIAL fills it.
+    let mut ss: SerialStruct = unsafe { std::mem::zeroed() };
+    if unsafe { libc::ioctl(fd, libc::TIOCGSERIAL, &mut ss) } != 0 {
+        return setting_errno(last_errno());
+    }
+    if ss.flags & ASYNC_LOW_LATENCY != 0 {
+        return PortSetting::Done;
+    }
+    ss.flags |= ASYNC_LOW_LATENCY;
+    // SAFETY: as above; TIOCSSERIAL reads the struct.
+    if unsafe { libc::ioctl(fd, libc::TIOCSSERIAL, &ss) } == 0 {
+        PortSetting::Done
+    } else {
+        // The port has the setting (the read worked) but refused the change.
+        PortSetting::Failed(last_errno())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn set_low_latency(_fd: libc::c_int) -> PortSetting {
+    PortSetting::NotApplicable
+}
+
+/// The latency timer of a USB serial adapter behind `port` (FTDI: sysfs `latency_timer`, in ms),
+/// None when the port has none (a pty, a built-in UART) or it cannot be read. Set-up time only
+/// (allocates).
+pub fn latency_timer_ms(port: &str) -> Option<u32> {
+    let real = std::fs::canonicalize(port).ok()?;
+    let name = real.file_name()?.to_str()?;
+    let text = std::fs::read_to_string(format!("/sys/class/tty/{name}/device/latency_timer")).ok()?;
+    text.trim().parse().ok()
 }
 
 fn baud_constant(baud: u32) -> Option<libc::speed_t> {

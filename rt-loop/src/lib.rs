@@ -6,6 +6,7 @@
 //! run: [`kinematics`], [`velocity`], [`render`], [`safety`], [`tension`]; [`tick`] strings them
 //! together with the lifecycle, [`runner`] adds the device, the clock and the channels.
 
+pub mod boards;
 pub mod clock;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;

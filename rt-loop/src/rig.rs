@@ -41,6 +41,10 @@ pub struct RigFile {
     /// absent in a rig file that was never calibrated.
     #[serde(default)]
     pub calibration: CalibrationFile,
+    /// Per kind of board: what a string's command is, its real range and scale
+    /// ([`crate::boards`]). Optional: every part has a default.
+    #[serde(default)]
+    pub boards: crate::boards::BoardsFile,
     /// The user's eye point (rig frame, m), for the live view's first-person camera; absent: the
     /// built-in [`DEFAULT_EYE_M`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -163,6 +167,8 @@ pub struct Rig {
     pub rig_to_world: RigToWorld,
     pub safety: SafetyFile,
     pub estimation: EstimationFile,
+    /// What the boards' commands mean and their ranges ([`crate::boards`]).
+    pub boards: crate::boards::BoardScales,
     /// The user's eye point (rig frame).
     pub eye_m: DVec3,
 }
@@ -498,6 +504,7 @@ impl Rig {
                 format!("{} Hz: must be in 0 .. {nyquist} Hz (half the tick rate)", e.velocity_cutoff_hz),
             ));
         }
+        let boards = crate::boards::validate(&f.boards, &hands, |field, key, msg| bad(field, key, 0, msg))?;
         let hands: [HandRig; 2] = hands.try_into().expect("two hands");
         Ok(Rig {
             name: f.name,
@@ -509,6 +516,7 @@ impl Rig {
             },
             safety: f.safety,
             estimation: f.estimation,
+            boards,
             eye_m: DVec3::from_array(eye),
         })
     }

@@ -191,7 +191,7 @@ enum Opened {
 
 /// Opens the device `--device` names, with the same options and messages as `spidar run`.
 fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
-    match d.hw.choice(d.device)? {
+    match d.hw.choice(d.device, rig)? {
         None => {
             let (dev, name) = sim_device(d, rig)?;
             Ok((Opened::Sim(Box::new(dev)), name))
@@ -208,7 +208,7 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
 }
 
 /// Recording on a board is paced by the wall clock (one exchange per tick period), which also
-/// keeps the boards' watchdogs fed.
+/// keeps the strings at minimum tension (the boards hold their last command: no watchdog).
 fn board_record_options() -> RecordOptions {
     RecordOptions { pace: true, ..RecordOptions::default() }
 }

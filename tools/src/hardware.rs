@@ -13,8 +13,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use spidar_device::emulator::{Control, Emulator, EmulatorOptions, PlantClock};
+use spidar_device::emulator::{link, Control, Emulator, EmulatorOptions, PlantClock};
 use spidar_device::sim::Script;
+use spidar_device::uart::protocol::ReplyLayout;
 use spidar_device::uart::{UartDevice, UartOptions};
 use spidar_device::usb::rusb_link::RusbOpener;
 use spidar_device::usb::{UsbBoard, UsbKind, UsbOptions};
@@ -25,8 +26,11 @@ use spidar_rt::{Command, Endpoints, MonotonicClock, Rig, RtLoop};
 
 use crate::session::{sim_device, SimOptions};
 
-/// The default link path of `spidar emulate` (a symlink to its pty).
-pub const DEFAULT_LINK: &str = "/tmp/spidar-uart";
+/// The default link of `spidar emulate` (a symlink to its pty in a directory private to the
+/// user: `$XDG_RUNTIME_DIR/spidar/uart`, or `/tmp/spidar-<uid>/uart`).
+pub fn default_link() -> anyhow::Result<PathBuf> {
+    Ok(link::default_link()?)
+}
 
 /// Which real board, with its options.
 #[derive(Clone, Debug)]
@@ -51,13 +55,15 @@ pub enum DeviceKind {
 /// Options of the real boards, shared by `spidar run` and `spidar calib`.
 #[derive(clap::Args, Clone, Debug)]
 pub struct HardwareArgs {
-    /// Serial port of the UART boards (e.g. /dev/ttyUSB0, or the emulator's /tmp/spidar-uart).
+    /// Serial port of the UART boards (e.g. /dev/ttyUSB0). Default: the link of a running
+    /// `spidar emulate` (it prints the path).
     #[arg(long)]
     pub port: Option<String>,
     /// Rotary switch of the USB board to use (0..15).
     #[arg(long, value_parser = clap::value_parser!(u8).range(0..=15))]
     pub switch: Option<u8>,
-    /// DA scale of the board in digits per volt (default: 4096/3.3 for UART, 415 for USB).
+    /// The board's command digits per volt, overriding the rig file's `boards:` section (for
+    /// UART boards both the PWM duty's and the current target's).
     #[arg(long)]
     pub digits_per_volt: Option<f64>,
     /// Deadline of one exchange with the board, in microseconds (keep it below the tick period).
@@ -66,8 +72,9 @@ pub struct HardwareArgs {
 }
 
 impl HardwareArgs {
-    /// The checked board choice; `None` for the simulated rig.
-    pub fn choice(&self, kind: DeviceKind) -> anyhow::Result<Option<HardwareChoice>> {
+    /// The checked board choice for `rig` (its `boards:` section gives each board's scale and
+    /// range); `None` for the simulated rig.
+    pub fn choice(&self, kind: DeviceKind, rig: &Rig) -> anyhow::Result<Option<HardwareChoice>> {
         if let Some(d) = self.digits_per_volt {
             if !(d.is_finite() && d > 0.0) {
                 bail!("--digits-per-volt must be a positive number");
@@ -77,25 +84,71 @@ impl HardwareArgs {
         Ok(match kind {
             DeviceKind::Sim => None,
             DeviceKind::Uart => {
-                let Some(port) = self.port.clone() else {
-                    bail!("--device uart needs --port PATH (see `spidar devices`, or start `spidar emulate`)")
+                let port = match self.port.clone() {
+                    Some(p) => p,
+                    None => {
+                        let l = default_link()?;
+                        if std::fs::symlink_metadata(&l).is_err() {
+                            bail!(
+                                "--device uart needs --port PATH (see `spidar devices`), or a running `spidar emulate` \
+                                 (its link {} is not there)",
+                                l.display()
+                            );
+                        }
+                        l.display().to_string()
+                    }
                 };
-                let mut opts = UartOptions { reply_timeout: timeout, ..UartOptions::default() };
+                let mut opts = uart_options(rig, timeout);
                 if let Some(d) = self.digits_per_volt {
-                    opts.digits_per_volt = d;
+                    opts.pwm_digits_per_volt = d;
+                    opts.current_digits_per_volt = d;
                 }
                 Some(HardwareChoice::Uart { port, opts })
             }
             DeviceKind::UsbSimple | DeviceKind::UsbSh4 => {
                 let kind = if kind == DeviceKind::UsbSimple { UsbKind::Simple } else { UsbKind::Sh4 };
-                let mut opts =
-                    UsbOptions { switch: self.switch, reply_timeout: timeout, ..UsbOptions::default() };
+                let mut opts = UsbOptions {
+                    switch: self.switch,
+                    reply_timeout: timeout,
+                    digits_per_volt: rig.boards.usb_digits_per_volt,
+                    volts_max: rig.boards.usb_limit_v,
+                    ..UsbOptions::default()
+                };
                 if let Some(d) = self.digits_per_volt {
                     opts.digits_per_volt = d;
                 }
                 Some(HardwareChoice::Usb { kind, opts })
             }
         })
+    }
+}
+
+/// The UART driver's options for `rig`: its boards' command scales, and a reply deadline.
+pub fn uart_options(rig: &Rig, reply_timeout: Duration) -> UartOptions {
+    UartOptions {
+        reply_timeout,
+        pwm_digits_per_volt: rig.boards.uart_pwm_digits_per_volt,
+        current_digits_per_volt: rig.boards.uart_current_digits_per_volt,
+        ..UartOptions::default()
+    }
+}
+
+/// The emulator's options for `rig`: the boards `models` with firmware `layout`, mapping their
+/// commands back to the rig's volts as the driver maps them out.
+pub fn emulator_options(
+    rig: &Rig,
+    models: Vec<u8>,
+    layout: ReplyLayout,
+    plant: PlantClock,
+) -> EmulatorOptions {
+    EmulatorOptions {
+        models,
+        plant,
+        layout,
+        pwm_digits_per_volt: rig.boards.uart_pwm_digits_per_volt,
+        current_digits_per_volt: rig.boards.uart_current_digits_per_volt,
+        counts_per_rev: f64::from(rig.boards.uart_counts_per_rev()),
+        ..EmulatorOptions::default()
     }
 }
 
@@ -106,6 +159,9 @@ pub fn open_hardware(choice: &HardwareChoice) -> anyhow::Result<Box<dyn Device>>
         HardwareChoice::Uart { port, opts } => {
             let mut d = UartDevice::on_port(port, opts.clone())?;
             d.open_detailed().with_context(|| format!("opening the UART boards on {port}"))?;
+            for w in d.warnings() {
+                eprintln!("warning: {w}");
+            }
             Box::new(d)
         }
         HardwareChoice::Usb { kind, opts } => {
@@ -206,7 +262,7 @@ pub fn emulate_command(c: &Control, line: &str) -> Option<String> {
         }
         ["silent", "on"] => {
             c.set_silent(true);
-            "boards silent (the watchdog will zero the motors)".into()
+            "boards cut off: they hear and answer nothing, and hold their last command (no watchdog)".into()
         }
         ["silent", "off"] => {
             c.set_silent(false);
@@ -230,14 +286,26 @@ fn status(c: &Control) -> String {
     let (up, n) = c.connection();
     let b = c.boards();
     let t = b.rig().truth();
+    let watchdog = match b.options().watchdog {
+        None => "none (as the real boards)".to_string(),
+        Some(w) if b.watchdog_tripped() => {
+            format!("{} ms, TRIPPED (motors at zero), {} trips", w.as_millis(), s.watchdog_trips)
+        }
+        Some(w) => format!("{} ms, {} trips", w.as_millis(), s.watchdog_trips),
+    };
+    let locked = b.locked();
+    let locked = if locked == 0 {
+        String::new()
+    } else {
+        format!("; LOCKED boards {locked:#010b} (a command of declared length 0: power-cycle, i.e. restart the emulator)")
+    };
+    let derated = b.heat().iter().filter(|h| h.duty_limit < 1.0).count();
     format!(
-        "{} (pty #{n}); {} ticks, {} plant steps, watchdog {} ({} trips); replies dropped {}, corrupted {}, delayed {}; \
-         rig t {:.2} s, left hand at ({:.3}, {:.3}, {:.3}) m",
+        "{} (pty #{n}); {} ticks, {} plant steps; watchdog {watchdog}; replies dropped {}, corrupted {}, delayed {}; \
+         {derated} motors thermally derated{locked}; rig t {:.2} s, left hand at ({:.3}, {:.3}, {:.3}) m",
         if up { "connected" } else { "disconnected" },
         s.ticks,
         s.plant_steps,
-        if b.watchdog_tripped() { "TRIPPED (motors at zero)" } else { "ok" },
-        s.watchdog_trips,
         s.replies_dropped,
         s.replies_corrupted,
         s.replies_delayed,
@@ -288,20 +356,28 @@ pub fn run_emulator(emu: Emulator, stop: Arc<AtomicBool>, seconds: Option<f64>) 
 pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
     use std::fmt::Write;
     let mut s = String::new();
-    let (ports, warn) = spidar_device::discover::serial_ports(extra_ports, probe);
+    // A running emulator's link is not listed by the OS: check it too.
+    let mut extra = extra_ports.to_vec();
+    let emulator = default_link().ok().map(|l| l.display().to_string());
+    if let Some(l) = emulator.as_ref() {
+        if std::fs::symlink_metadata(l).is_ok() && !extra.contains(l) {
+            extra.push(l.clone());
+        }
+    }
+    let (mut ports, warn) = spidar_device::discover::serial_ports(&extra, probe);
+    for p in ports.iter_mut().filter(|p| Some(&p.path) == emulator.as_ref()) {
+        p.kind = "spidar emulate's link".into();
+    }
     let _ = writeln!(s, "serial ports (UART boards, 2 Mbaud):");
     if let Some(w) = warn {
         let _ = writeln!(s, "  {w}");
     }
     if ports.is_empty() {
-        let _ = writeln!(
-            s,
-            "  none found (a pty from `spidar emulate` is not listed: add --port {DEFAULT_LINK})"
-        );
+        let _ = writeln!(s, "  none found (a pty is not listed by the OS: add it with --port PATH)");
     }
     for p in &ports {
         let status = match &p.status {
-            Ok(what) => what.clone(),
+            Ok(what) => what.replace('\n', "\n      "),
             Err(why) => format!("cannot use: {why}"),
         };
         let _ = writeln!(s, "  {:<22} {:<28} {}", p.path, p.kind, status);
@@ -419,20 +495,19 @@ pub fn bench_uart(
     rt: &RtOptions,
     reply_timeout: Duration,
 ) -> anyhow::Result<UartBenchReport> {
-    let link = std::env::temp_dir().join(format!("spidar-bench-uart-{}", std::process::id()));
+    let link = link::private_dir()?.join(format!("bench-uart-{}", std::process::id()));
     let opts = EmulateOptions {
         link: link.clone(),
         emulator: EmulatorOptions {
-            plant: PlantClock::RealTime,
             // Both ends real-time when the loop is, as a board answers at once.
             fifo_priority: rt.fifo_priority.map(|p| i32::from(p.saturating_sub(10).max(1))),
-            ..Default::default()
+            ..emulator_options(rig, vec![1, 1], ReplyLayout::Forces, PlantClock::RealTime)
         },
         sim: SimOptions::default(),
     };
     let emu = start_emulator(rig, scripts, &opts)?;
     // The board side as a real device process would be: its own real-time thread.
-    let uo = UartOptions { reply_timeout, ..UartOptions::default() };
+    let uo = uart_options(rig, reply_timeout);
     let port = link.to_string_lossy().into_owned();
     let rig2 = rig.clone();
     let rt2 = rt.clone();

@@ -91,12 +91,17 @@ struct EmulateArgs {
     /// Rig file (RON) whose geometry the simulated rig has. Default: the built-in one.
     #[arg(long)]
     rig: Option<PathBuf>,
-    /// The boards on the link, by model, ids 0, 1, ... in order (B1M, B1F, B2M, B2F, B3M, B3F).
+    /// The boards on the link, by model, ids 0, 1, ... in order (B1M, B1F, B2M, B2F, B3M, B3F, B5M).
     #[arg(long, default_value = "B1M,B1M")]
     boards: String,
-    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`).
-    #[arg(long, default_value = spidar_tools::hardware::DEFAULT_LINK)]
-    link: PathBuf,
+    /// The boards' firmware generation: 2021 (since 2021-08: forces in the reply) or 2020
+    /// (2020-01 to 2021-08: currents in the reply).
+    #[arg(long, default_value_t = 2021, value_parser = clap::value_parser!(u32).range(2020..=2021))]
+    firmware: u32,
+    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`). Default:
+    /// `uart` in a directory private to you ($XDG_RUNTIME_DIR/spidar, or /tmp/spidar-<uid>).
+    #[arg(long)]
+    link: Option<PathBuf>,
     /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
     #[arg(long, default_value = "tour")]
     script: String,
@@ -105,9 +110,10 @@ struct EmulateArgs {
     /// Encoder noise of the simulated rig, standard deviation in counts.
     #[arg(long, default_value_t = 0.0)]
     noise_counts: f64,
-    /// The boards zero their motor currents when no command came for this long.
-    #[arg(long, default_value_t = 50)]
-    watchdog_ms: u64,
+    /// Experiments only: zero the motors when no command came for this long. The real boards
+    /// have no watchdog (they hold their last command), so by default neither do these.
+    #[arg(long)]
+    watchdog_ms: Option<u64>,
     /// Advance the rig one period per servo tick received instead of with the wall clock.
     #[arg(long)]
     per_tick: bool,
@@ -399,31 +405,44 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     let models =
         spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let plant = if a.per_tick {
+        spidar_device::emulator::PlantClock::PerTick
+    } else {
+        spidar_device::emulator::PlantClock::RealTime
+    };
+    let layout = if a.firmware == 2020 {
+        spidar_device::uart::protocol::ReplyLayout::Currents
+    } else {
+        spidar_device::uart::protocol::ReplyLayout::Forces
+    };
+    let link = match a.link.clone() {
+        Some(l) => l,
+        None => hardware::default_link()?,
+    };
     let opts = hardware::EmulateOptions {
-        link: a.link.clone(),
+        link,
         emulator: spidar_device::emulator::EmulatorOptions {
-            models,
-            plant: if a.per_tick {
-                spidar_device::emulator::PlantClock::PerTick
-            } else {
-                spidar_device::emulator::PlantClock::RealTime
-            },
-            watchdog: Duration::from_millis(a.watchdog_ms),
+            watchdog: a.watchdog_ms.map(Duration::from_millis),
             fifo_priority: (!a.no_rt).then_some(70),
-            ..Default::default()
+            ..hardware::emulator_options(&rig, models, layout, plant)
         },
         sim: SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, ..Default::default() },
     };
     let emu = hardware::start_emulator(&rig, scripts, &opts)?;
     println!(
-        "spidar emulate: boards {} on {} (link {}), rig '{}', script {}",
+        "spidar emulate: boards {} ({}) on {} (link {}), rig '{}', script {}, watchdog {}",
         a.boards,
+        layout.firmware(),
         emu.pty_path().map_or("?".into(), |p| p.display().to_string()),
         emu.link().display(),
         rig.name,
-        a.script
+        a.script,
+        a.watchdog_ms.map_or("none (as the real boards)".to_string(), |w| format!("{w} ms (experiment)"))
     );
-    println!("run the stack against it: spidar run --device uart --port {}", emu.link().display());
+    println!(
+        "run the stack against it: spidar run --device uart   (--port {} is the default)",
+        emu.link().display()
+    );
     if !a.no_rt && !emu.control().fifo() {
         // The thread sets its policy as it starts; give it a moment before reporting.
         std::thread::sleep(Duration::from_millis(50));
@@ -465,7 +484,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         slack: a.slack,
         ..Default::default()
     };
-    let dev: Box<dyn Device> = match a.hw.choice(a.device)? {
+    let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
             eprintln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",

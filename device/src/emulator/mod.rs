@@ -1,29 +1,45 @@
 //! The UART board emulator: a set of UART motor-driver boards, backed by the simulated rig,
-//! serving the real wire protocol on a pseudo-terminal.
+//! serving the real wire protocol on a pseudo-terminal, and behaving as the boards' firmware
+//! does (`docs/protocols.md`).
 //!
 //! Why it exists: the serial driver ([`crate::uart`]) and everything above it must be proven end
-//! to end without hardware. `spidar emulate` runs this in its own process; tests run it on a
-//! thread of their own process ([`Emulator::spawn`]) and switch its faults through [`Control`].
+//! to end without hardware, against boards that fail the way real ones do. `spidar emulate` runs
+//! this in its own process; tests run it on a thread of their own process ([`Emulator::spawn`])
+//! and switch its faults through [`Control`].
 //!
 //! Two parts:
-//! - [`Boards`]: the boards themselves, bytes in and bytes out, no I/O: enumeration, command
-//!   lengths, the current command and its replies, a board-side watchdog that zeroes the motor
-//!   currents when commands stop for longer than `watchdog`, and the rig behind them.
-//! - [`Emulator`]: a pty, a symlink at a stable path (as udev gives a USB serial adapter), and a
+//! - [`Boards`]: the boards themselves, bytes in and bytes out, no I/O. Each board runs the
+//!   firmware's command parser ([`BoardParser`]): a command-length table per board id, a command
+//!   ends after its declared length, a declared 0 never ends (the board is lost until
+//!   power-off, [`Boards::locked`]). A board answers a header addressed to it at once, with the
+//!   state from before the command. The reply to the current command has the layout of the
+//!   firmware generation chosen ([`EmulatorOptions::layout`]). A motor without a current sensor
+//!   takes its command as a PWM duty clipped at +-1024, one with a sensor as a current target;
+//!   a motor held stalled at high duty is derated by the thermal limit ([`motor`]). **No
+//!   watchdog**: the last command is held whatever the host does; an optional one exists for
+//!   experiments ([`EmulatorOptions::watchdog`], off unless asked for).
+//! - [`Emulator`]: a pty, a symlink to it in a directory private to the user ([`link`]), and a
 //!   thread moving bytes between them, applying the faults: dropped replies, corrupted bytes,
-//!   extra delay, a board that stops answering, disconnect (the pty is closed and the link path
-//!   removed) and reconnect (a new pty behind the same link path).
+//!   extra delay, boards that hear nothing, disconnect (the pty is closed and the link removed)
+//!   and reconnect (a new pty behind the same link). The boards stay powered through a
+//!   disconnect: their parsers and tables keep their state, as real boards do.
 //!
 //! Plant time ([`PlantClock`]): `PerTick` advances the simulated rig by one period for each
-//! complete servo tick the host sends (every board's current command), so a run is the same as
-//! the in-process simulated rig whatever the machine's timing (tests); `RealTime` advances it
-//! every period of the wall clock with the latest commands, as real boards do (`spidar emulate`),
-//! from the first current command on (until then the simulated user holds the grips at home).
+//! complete servo tick the host sends (every board's current command), sampling the encoders at
+//! the tick's first current header, so a run is the same as the in-process simulated rig
+//! whatever the machine's timing (tests); `RealTime` advances it every period of the wall clock
+//! with the latest commands, as real boards do (`spidar emulate`), from the first current
+//! command on (until then the simulated user holds the grips at home).
 //!
 //! What it must never do: take commands for a board it did not announce, reply out of protocol
-//! (the host's decoder would accept garbage), or keep currents on after the watchdog expired.
+//! (the host's decoder would accept garbage), or let a test pass on a safety feature the boards
+//! lack (a watchdog, a tolerant parser, an unclipped PWM).
+
+pub mod link;
+pub mod motor;
 
 use std::ffi::CStr;
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -32,9 +48,11 @@ use std::time::{Duration, Instant};
 
 use crate::sim::{SimRig, Truth};
 use crate::uart::protocol::{
-    self, BoardInfo, BoardParser, CurrentReply, HostCommand, INFO_REPLY_LEN, MAX_BOARDS, MAX_MOTORS,
+    self, cmd, BoardInfo, BoardParser, CurrentReply, HostCommand, ReplyLayout, INFO_REPLY_LEN, MAX_BOARDS,
+    MAX_MOTORS,
 };
 use crate::{Device, Input, Output, MAX_CHANNELS};
+use motor::MotorHeat;
 
 /// When the simulated rig advances.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,26 +66,37 @@ pub enum PlantClock {
 /// What the emulated boards are.
 #[derive(Clone, Debug)]
 pub struct EmulatorOptions {
-    /// Board model numbers (1 = B1M ... 6 = B3F); board ids are 0, 1, ... in this order.
+    /// Board model numbers (1 = B1M ... 7 = B5M); board ids are 0, 1, ... in this order.
     pub models: Vec<u8>,
     pub plant: PlantClock,
-    /// The boards zero their currents when no current command came for this long.
-    pub watchdog: Duration,
-    /// Current-command digits per volt (as the host's driver).
-    pub digits_per_volt: f64,
+    /// The firmware generation: the layout of the reply to the current command.
+    pub layout: ReplyLayout,
+    /// Experiments only: zero the motors when no current command came for this long. The real
+    /// boards have no watchdog; None (the default) emulates them as they are.
+    pub watchdog: Option<Duration>,
+    /// How PWM-duty digits map back to the simulated rig's volts (as the host's driver maps them).
+    pub pwm_digits_per_volt: f64,
+    /// How current-target digits map back to the simulated rig's volts.
+    pub current_digits_per_volt: f64,
+    /// Position counts per motor revolution (the thermal limit watches the motor's speed).
+    pub counts_per_rev: f64,
     /// Run the serving thread at this SCHED_FIFO priority (as a board answers at once); falls
     /// back to the normal scheduler when not permitted ([`Control::fifo`] tells which).
     pub fifo_priority: Option<i32>,
 }
 
 impl Default for EmulatorOptions {
-    /// Two B1M boards (8 motors, a SPIDAR-H), real-time plant, 50 ms watchdog.
+    /// Two B1M boards (8 motors, a SPIDAR-H) with the current firmware, real-time plant, no
+    /// watchdog, the lab host driver's scale.
     fn default() -> Self {
         EmulatorOptions {
             models: vec![1, 1],
             plant: PlantClock::RealTime,
-            watchdog: Duration::from_millis(50),
-            digits_per_volt: protocol::DEFAULT_DIGITS_PER_VOLT,
+            layout: ReplyLayout::Forces,
+            watchdog: None,
+            pwm_digits_per_volt: protocol::HOST_DIGITS_PER_VOLT,
+            current_digits_per_volt: protocol::HOST_DIGITS_PER_VOLT,
+            counts_per_rev: f64::from(protocol::MAGNET_COUNTS_PER_REV),
             fifo_priority: None,
         }
     }
@@ -80,7 +109,7 @@ pub fn parse_models(list: &str) -> Result<Vec<u8>, String> {
         match BoardInfo::model_by_name(name) {
             Some(m) => v.push(m),
             None => {
-                let known: Vec<&str> = BoardInfo::MODELS.iter().map(|m| m.1).collect();
+                let known: Vec<&str> = protocol::MODELS.iter().map(|m| m.name).collect();
                 return Err(format!("unknown board '{name}': use {}", known.join(", ")));
             }
         }
@@ -96,6 +125,8 @@ pub fn parse_models(list: &str) -> Result<Vec<u8>, String> {
 pub struct BoardStats {
     pub info_requests: u64,
     pub current_commands: u64,
+    /// "Set command lengths" commands heard (counted once, whichever board they address).
+    pub length_tables: u64,
     /// Complete servo ticks (every board's current command received).
     pub ticks: u64,
     /// Plant periods advanced.
@@ -104,7 +135,7 @@ pub struct BoardStats {
     pub replies_dropped: u64,
     pub replies_corrupted: u64,
     pub replies_delayed: u64,
-    /// Bytes no board took (commands for absent boards, unknown commands).
+    /// Header bytes no board could take (a command id of 12 or more), summed over the boards.
     pub bytes_skipped: u64,
 }
 
@@ -112,19 +143,28 @@ pub struct BoardStats {
 #[derive(Debug)]
 pub struct Boards {
     boards: [Option<BoardInfo>; MAX_BOARDS],
+    parsers: [Option<BoardParser>; MAX_BOARDS],
     offsets: [usize; MAX_BOARDS],
     present: u8,
-    parser: BoardParser,
     rig: SimRig,
     opts: EmulatorOptions,
     period: Duration,
-    /// Current commands of this tick so far, and which boards sent theirs.
-    tick_currents: [[i16; MAX_MOTORS]; MAX_BOARDS],
+    /// Heat updates every this many plant steps.
+    heat_every: u64,
+    /// Commands of this tick so far, and which boards sent theirs.
+    tick_commands: [[i16; MAX_MOTORS]; MAX_BOARDS],
     tick_mask: u8,
-    /// The currents the motors are driven with (zeroed by the watchdog).
+    /// Where this tick's current replies start in the caller's output (for the fault layer).
+    tick_start: Option<usize>,
+    /// The commands the motors are driven with, as received (zeroed only by the opt-in watchdog).
     latched: [[i16; MAX_MOTORS]; MAX_BOARDS],
+    heat: [MotorHeat; MAX_CHANNELS],
+    /// What each motor is driven with after clipping and the thermal limit: command digits and duty.
+    driven: [(f64, f64); MAX_CHANNELS],
     counts: Input,
     prev_counts: [i64; MAX_CHANNELS],
+    /// PerTick: the encoders were sampled for this tick already.
+    sampled: bool,
     last_command: Option<Instant>,
     tripped: bool,
     next_plant: Option<Instant>,
@@ -133,17 +173,28 @@ pub struct Boards {
 
 impl Boards {
     /// The boards `opts.models` in front of `rig` (opened and activated here: the board drives its
-    /// motors whenever it has a current command).
+    /// motors whenever it has a command).
     pub fn new(mut rig: SimRig, opts: EmulatorOptions) -> Result<Boards, String> {
         let mut boards = [None; MAX_BOARDS];
+        let mut parsers = [const { None }; MAX_BOARDS];
         let mut offsets = [0; MAX_BOARDS];
         let mut off = 0;
         if opts.models.is_empty() || opts.models.len() > MAX_BOARDS {
             return Err(format!("the emulator needs 1 to {MAX_BOARDS} boards"));
         }
+        for (v, name) in [
+            (opts.pwm_digits_per_volt, "PWM digits per volt"),
+            (opts.current_digits_per_volt, "current digits per volt"),
+            (opts.counts_per_rev, "counts per revolution"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be a positive number, not {v}"));
+            }
+        }
         for (id, &m) in opts.models.iter().enumerate() {
             let b = BoardInfo::of_model(id as u8, m).ok_or_else(|| format!("unknown board model {m}"))?;
             boards[id] = Some(b);
+            parsers[id] = Some(BoardParser::new(&b));
             offsets[id] = off;
             off += usize::from(b.n_motor);
         }
@@ -156,21 +207,27 @@ impl Boards {
         // What the counters show before the first plant step (the rig's state at power-on).
         let mut counts = Input::default();
         let period = Duration::from_secs_f64(rig.params().period_s);
+        let heat_every = ((1.0 / motor::HEAT_RATE_HZ) / rig.params().period_s).round().max(1.0) as u64;
         let truth_counts = initial_counts(&rig);
         counts.counts = truth_counts;
         Ok(Boards {
             boards,
+            parsers,
             offsets,
             present,
-            parser: BoardParser::new(boards),
             rig,
             opts,
             period,
-            tick_currents: [[0; MAX_MOTORS]; MAX_BOARDS],
+            heat_every,
+            tick_commands: [[0; MAX_MOTORS]; MAX_BOARDS],
             tick_mask: 0,
+            tick_start: None,
             latched: [[0; MAX_MOTORS]; MAX_BOARDS],
+            heat: [MotorHeat::default(); MAX_CHANNELS],
+            driven: [(0.0, 0.0); MAX_CHANNELS],
             counts,
             prev_counts: truth_counts,
+            sampled: false,
             last_command: None,
             tripped: false,
             next_plant: None,
@@ -184,20 +241,38 @@ impl Boards {
     pub fn rig_mut(&mut self) -> &mut SimRig {
         &mut self.rig
     }
+    pub fn options(&self) -> &EmulatorOptions {
+        &self.opts
+    }
     pub fn stats(&self) -> BoardStats {
         let mut s = self.stats;
-        s.bytes_skipped = self.parser.skipped;
+        s.bytes_skipped = self.parsers.iter().flatten().map(|p| p.skipped).sum();
         s
     }
     pub fn board_infos(&self) -> impl Iterator<Item = &BoardInfo> {
         self.boards.iter().flatten()
     }
-    /// True while the watchdog holds the motors at zero.
+    /// The parser of board `id` (its length tables, whether it is locked).
+    pub fn parser(&self, id: u8) -> Option<&BoardParser> {
+        self.parsers.get(usize::from(id)).and_then(|p| p.as_ref())
+    }
+    /// Boards whose parser is lost after a command with a declared length of 0 (bit = board id):
+    /// they take no command again until power-off and hold their last one.
+    pub fn locked(&self) -> u8 {
+        let mut m = 0;
+        for (id, p) in self.parsers.iter().enumerate() {
+            if p.as_ref().is_some_and(BoardParser::is_locked) {
+                m |= 1 << id;
+            }
+        }
+        m
+    }
+    /// True while the opt-in watchdog holds the motors at zero.
     pub fn watchdog_tripped(&self) -> bool {
         self.tripped
     }
-    /// The currents the motors are driven with now, per channel (digits).
-    pub fn motor_currents(&self) -> [i16; MAX_CHANNELS] {
+    /// The commands the motors are driven with now, per channel (digits, as received).
+    pub fn motor_commands(&self) -> [i16; MAX_CHANNELS] {
         let mut c = [0; MAX_CHANNELS];
         for (id, b) in self.boards.iter().enumerate() {
             if let Some(b) = b {
@@ -208,67 +283,126 @@ impl Boards {
         }
         c
     }
+    /// The duty (0..1) each motor ran at in the last plant step, after clipping and the
+    /// thermal limit.
+    pub fn duties(&self) -> [f64; MAX_CHANNELS] {
+        self.driven.map(|(_, d)| d)
+    }
+    /// The thermal state of each motor.
+    pub fn heat(&self) -> [MotorHeat; MAX_CHANNELS] {
+        self.heat
+    }
 
-    /// A new link: forget any half-received command.
+    /// A new link (the pty was reopened): the boards keep their state (they stay powered), only
+    /// this emulator's bookkeeping of the tick restarts.
     pub fn reset_link(&mut self) {
-        self.parser.reset();
         self.tick_mask = 0;
+        self.tick_start = None;
     }
 
     /// Takes the host's bytes; appends the boards' replies to `out`, and to `ticks` the byte range
     /// in `out` of each servo tick's current replies (for the fault layer).
     pub fn feed(&mut self, bytes: &[u8], now: Instant, out: &mut Vec<u8>, ticks: &mut Vec<(usize, usize)>) {
         for &b in bytes {
-            let Some(c) = self.parser.push(b) else { continue };
-            match c {
-                HostCommand::BoardInfo { board } => {
-                    self.stats.info_requests += 1;
-                    if let Some(info) = self.boards[usize::from(board)] {
-                        let mut rep = [0u8; INFO_REPLY_LEN];
-                        protocol::encode_info_reply(&info, &mut rep);
-                        out.extend_from_slice(&rep);
-                    }
+            let mut length_table = false;
+            for id in 0..MAX_BOARDS {
+                let Some(p) = self.parsers[id].as_mut() else { continue };
+                let step = p.push(b);
+                if let Some(c) = step.reply_to {
+                    self.reply(id, c, out);
                 }
-                HostCommand::SetCommandLengths { .. } | HostCommand::Unsupported { .. } => {}
-                HostCommand::Current { board, currents } => {
-                    self.stats.current_commands += 1;
-                    self.last_command = Some(now);
-                    self.tripped = false;
-                    let id = usize::from(board);
-                    self.tick_currents[id] = currents;
-                    self.tick_mask |= 1 << id;
-                    if self.opts.plant == PlantClock::RealTime {
-                        // A real board applies its command and answers at once with what it has.
-                        self.latched[id] = currents;
-                        let start = out.len();
-                        self.reply(id, out);
-                        if self.tick_mask == self.present {
-                            self.tick_mask = 0;
-                            self.stats.ticks += 1;
-                        }
-                        ticks.push((start, out.len()));
-                    } else if self.tick_mask == self.present {
-                        self.tick_mask = 0;
-                        self.stats.ticks += 1;
-                        self.latched = self.tick_currents;
-                        self.step_plant();
-                        let start = out.len();
-                        for id in 0..MAX_BOARDS {
-                            if self.boards[id].is_some() {
-                                self.reply(id, out);
-                            }
-                        }
-                        ticks.push((start, out.len()));
+                match step.done {
+                    Some(HostCommand::Current { board, commands }) if usize::from(board) == id => {
+                        self.take_current(id, commands, now, out, ticks);
                     }
+                    Some(HostCommand::SetCommandLengths { .. }) => length_table = true,
+                    _ => {}
                 }
+            }
+            if length_table {
+                self.stats.length_tables += 1;
             }
         }
     }
 
-    /// Runs the watchdog and, on the real-time plant clock, the plant up to `now`.
+    /// Board `id`'s reply to a header for command `c`, at once (the state before the command).
+    fn reply(&mut self, id: usize, c: u8, out: &mut Vec<u8>) {
+        let Some(b) = self.boards[id] else { return };
+        match c {
+            cmd::BOARD_INFO => {
+                self.stats.info_requests += 1;
+                let mut rep = [0u8; INFO_REPLY_LEN];
+                protocol::encode_info_reply(&b, &mut rep);
+                out.extend_from_slice(&rep);
+            }
+            cmd::CURRENT => {
+                if self.opts.plant == PlantClock::PerTick && !self.sampled {
+                    self.prev_counts = self.counts.counts;
+                    let _ = self.rig.sample(&mut self.counts);
+                    self.sampled = true;
+                }
+                if self.tick_start.is_none() {
+                    self.tick_start = Some(out.len());
+                }
+                let mut r = CurrentReply::default();
+                for m in 0..usize::from(b.n_motor) {
+                    let ch = self.offsets[id] + m;
+                    // The board's counter is 16 bits: it wraps (the host extends it).
+                    r.positions[m] = self.counts.counts[ch] as i16;
+                    r.velocities[m] =
+                        (self.counts.counts[ch] - self.prev_counts[ch]).clamp(-32768, 32767) as i16;
+                }
+                if self.opts.layout == ReplyLayout::Currents {
+                    // The sensed current: the target as far as the board reaches it.
+                    for m in 0..usize::from(b.n_current).min(usize::from(b.n_motor)) {
+                        r.sensors[m] = self.driven[self.offsets[id] + m].0.round() as i16;
+                    }
+                } // Forces: the rig has no force sensors, they read 0.
+                let mut buf = [0u8; 64];
+                if let Ok(n) = protocol::encode_current_reply(&b, self.opts.layout, &r, &mut buf) {
+                    out.extend_from_slice(&buf[..n]);
+                }
+            }
+            // Other commands are not emulated (the driver never sends them): no reply.
+            _ => {}
+        }
+    }
+
+    fn take_current(
+        &mut self,
+        id: usize,
+        commands: [i16; MAX_MOTORS],
+        now: Instant,
+        out: &[u8],
+        ticks: &mut Vec<(usize, usize)>,
+    ) {
+        self.stats.current_commands += 1;
+        self.last_command = Some(now);
+        self.tripped = false;
+        self.tick_commands[id] = commands;
+        self.tick_mask |= 1 << id;
+        if self.opts.plant == PlantClock::RealTime {
+            // A real board applies its command at once.
+            self.latched[id] = commands;
+        }
+        if self.tick_mask == self.present {
+            self.tick_mask = 0;
+            self.stats.ticks += 1;
+            ticks.push((self.tick_start.take().unwrap_or(0).min(out.len()), out.len()));
+            if self.opts.plant == PlantClock::PerTick {
+                self.latched = self.tick_commands;
+                let drive = self.drive();
+                let _ = self.rig.apply(&drive);
+                self.after_step();
+                self.sampled = false;
+            }
+        }
+    }
+
+    /// Runs the opt-in watchdog and, on the real-time plant clock, the plant up to `now`.
     pub fn idle(&mut self, now: Instant) {
-        if let Some(last) = self.last_command {
-            if !self.tripped && now.duration_since(last) > self.opts.watchdog {
+        if let (Some(last), Some(wd)) = (self.last_command, self.opts.watchdog) {
+            if !self.tripped && now.duration_since(last) > wd {
                 self.tripped = true;
                 self.stats.watchdog_trips += 1;
                 self.latched = [[0; MAX_MOTORS]; MAX_BOARDS];
@@ -277,11 +411,13 @@ impl Boards {
         // The simulated user holds the grips at home until the host starts servoing (as an
         // operator does while the rig homes): the plant starts with the first current command.
         if self.opts.plant == PlantClock::RealTime && self.last_command.is_some() {
-            let next = *self.next_plant.get_or_insert(now);
-            let mut next = next;
+            let mut next = *self.next_plant.get_or_insert(now);
             let mut steps = 0;
             while now >= next && steps < 10 {
-                self.step_plant();
+                let drive = self.drive();
+                self.prev_counts = self.counts.counts;
+                let _ = self.rig.exchange(&drive, &mut self.counts);
+                self.after_step();
                 next += self.period;
                 steps += 1;
             }
@@ -300,36 +436,36 @@ impl Boards {
         }
     }
 
-    fn step_plant(&mut self) {
+    /// The rig's volts for this period: each motor's command through its board's clipping and
+    /// thermal limit, back in the host's volts.
+    fn drive(&mut self) -> Output {
         let mut out = Output::default();
         for (id, b) in self.boards.iter().enumerate() {
-            if let Some(b) = b {
-                for m in 0..usize::from(b.n_motor) {
-                    out.volts[self.offsets[id] + m] =
-                        f64::from(self.latched[id][m]) / self.opts.digits_per_volt;
-                }
+            let Some(b) = b else { continue };
+            for m in 0..usize::from(b.n_motor) {
+                let ch = self.offsets[id] + m;
+                let sensed = b.current_sensed(m);
+                let (digits, duty) = motor::drive(self.latched[id][m], sensed, self.heat[ch].duty_limit);
+                self.driven[ch] = (digits, duty);
+                let dpv =
+                    if sensed { self.opts.current_digits_per_volt } else { self.opts.pwm_digits_per_volt };
+                out.volts[ch] = digits / dpv;
             }
         }
-        self.prev_counts = self.counts.counts;
-        let _ = self.rig.exchange(&out, &mut self.counts);
-        self.stats.plant_steps += 1;
+        out
     }
 
-    fn reply(&mut self, id: usize, out: &mut Vec<u8>) {
-        let Some(b) = self.boards[id] else { return };
-        let mut r = CurrentReply::default();
-        for m in 0..usize::from(b.n_motor) {
-            let ch = self.offsets[id] + m;
-            // The board's counter is 16 bits: it wraps (the host extends it).
-            r.positions[m] = self.counts.counts[ch] as i16;
-            r.velocities[m] = (self.counts.counts[ch] - self.prev_counts[ch]).clamp(-32768, 32767) as i16;
-            if m < usize::from(b.n_current) {
-                r.currents[m] = self.latched[id][m];
-            }
+    /// After each plant step: the thermal limit's update every 0.1 s.
+    fn after_step(&mut self) {
+        self.stats.plant_steps += 1;
+        if !self.stats.plant_steps.is_multiple_of(self.heat_every) {
+            return;
         }
-        let mut buf = [0u8; 32];
-        if let Ok(n) = protocol::encode_current_reply(&b, &r, &mut buf) {
-            out.extend_from_slice(&buf[..n]);
+        let period_s = self.period.as_secs_f64();
+        for ch in 0..MAX_CHANNELS {
+            let dc = (self.counts.counts[ch] - self.prev_counts[ch]) as f64;
+            let speed = dc / self.opts.counts_per_rev / period_s;
+            self.heat[ch].update(self.driven[ch].1, speed);
         }
     }
 }
@@ -363,6 +499,8 @@ struct Faults {
     connections: AtomicU64,
     connected: AtomicBool,
     fifo: AtomicBool,
+    /// The pty the link points at now (the serving thread's), for removing the link at the end.
+    pty: Mutex<Option<PathBuf>>,
 }
 
 /// Switches the emulator's faults from another thread (tests, the stdin of `spidar emulate`).
@@ -386,7 +524,8 @@ impl Control {
         self.faults.delay_us.store(delay.as_micros().min(u32::MAX as u128) as u32, Ordering::SeqCst);
         self.faults.delay_n.store(n, Ordering::SeqCst);
     }
-    /// The boards stop answering (and stop taking commands, so their watchdog trips) until unset.
+    /// The boards hear nothing and answer nothing until unset (a cut cable): they hold their
+    /// last command meanwhile.
     pub fn set_silent(&self, silent: bool) {
         self.faults.silent.store(silent, Ordering::SeqCst);
     }
@@ -441,13 +580,18 @@ pub enum EmulatorError {
     Pty(std::io::Error),
     #[error("emulator: cannot create the link {path}: {source} (choose another path with --link)")]
     Link { path: String, source: std::io::Error },
+    #[error("emulator: will not replace {path}: {why}")]
+    LinkTaken { path: String, why: String },
+    #[error("emulator: the private directory {path} cannot be used: {why}")]
+    PrivateDir { path: String, why: String },
 }
 
 /// An open pty master and the path of its slave.
 struct Pty {
-    master: libc::c_int,
-    /// The emulator keeps the slave open too, so the master does not read EIO while no host is attached.
-    slave: libc::c_int,
+    master: OwnedFd,
+    /// The emulator keeps the slave open too, so the master does not read EIO while no host is
+    /// attached. Closed with the master when the pty is dropped.
+    _slave: OwnedFd,
     path: PathBuf,
 }
 
@@ -455,71 +599,54 @@ impl Pty {
     fn open() -> Result<Pty, std::io::Error> {
         let mut master = -1;
         let mut slave = -1;
+        // SAFETY: openpty writes two descriptors; the null name/termios/winsize are allowed.
         let r = unsafe {
             libc::openpty(&mut master, &mut slave, std::ptr::null_mut(), std::ptr::null(), std::ptr::null())
         };
         if r != 0 {
             return Err(std::io::Error::last_os_error());
         }
+        // SAFETY: both descriptors were just opened and belong to nothing else.
+        let (master, slave) = unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
         let mut name = [0 as libc::c_char; 128];
-        let r = unsafe { libc::ptsname_r(master, name.as_mut_ptr(), name.len()) };
+        // SAFETY: the buffer and its length are valid.
+        let r = unsafe { libc::ptsname_r(master.as_raw_fd(), name.as_mut_ptr(), name.len()) };
         if r != 0 {
-            let e = std::io::Error::from_raw_os_error(r);
-            unsafe {
-                libc::close(master);
-                libc::close(slave);
-            }
-            return Err(e);
+            return Err(std::io::Error::from_raw_os_error(r));
         }
+        // SAFETY: ptsname_r wrote a NUL-terminated name into `name`.
         let path = PathBuf::from(unsafe { CStr::from_ptr(name.as_ptr()) }.to_string_lossy().into_owned());
         // Raw, binary-transparent: no echo, no line discipline (the host sets the same).
+        // SAFETY: valid descriptors; termios is plain data.
         unsafe {
             let mut t: libc::termios = std::mem::zeroed();
-            if libc::tcgetattr(slave, &mut t) == 0 {
+            if libc::tcgetattr(slave.as_raw_fd(), &mut t) == 0 {
                 libc::cfmakeraw(&mut t);
-                libc::tcsetattr(slave, libc::TCSANOW, &t);
+                libc::tcsetattr(slave.as_raw_fd(), libc::TCSANOW, &t);
             }
-            let flags = libc::fcntl(master, libc::F_GETFL);
-            libc::fcntl(master, libc::F_SETFL, flags | libc::O_NONBLOCK);
+            let flags = libc::fcntl(master.as_raw_fd(), libc::F_GETFL);
+            libc::fcntl(master.as_raw_fd(), libc::F_SETFL, flags | libc::O_NONBLOCK);
         }
-        Ok(Pty { master, slave, path })
+        Ok(Pty { master, _slave: slave, path })
     }
-}
 
-impl Drop for Pty {
-    fn drop(&mut self) {
-        unsafe {
-            libc::close(self.slave);
-            libc::close(self.master);
-        }
+    fn fd(&self) -> libc::c_int {
+        self.master.as_raw_fd()
     }
-}
-
-/// Points the symlink `link` at `target`, replacing an old symlink but never anything else.
-fn point_link(link: &Path, target: &Path) -> Result<(), std::io::Error> {
-    match std::fs::symlink_metadata(link) {
-        Ok(m) if m.file_type().is_symlink() => std::fs::remove_file(link)?,
-        Ok(_) => {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::AlreadyExists,
-                "exists and is not a symlink (not replaced)",
-            ))
-        }
-        Err(_) => {}
-    }
-    std::os::unix::fs::symlink(target, link)
 }
 
 impl Emulator {
     /// Starts the boards in front of `rig` on a new pty, reachable at `link` (a symlink that
-    /// survives reconnects; it is replaced if it exists).
+    /// survives reconnects). Only a dangling link to a pty (an emulator that was killed) is
+    /// replaced; anything else at `link` is refused ([`link::claim`]).
     pub fn spawn(rig: SimRig, opts: EmulatorOptions, link: &Path) -> Result<Emulator, EmulatorError> {
         let opts_fifo = opts.fifo_priority;
         let boards = Boards::new(rig, opts).map_err(EmulatorError::Config)?;
+        link::claim(link)?;
         let pty = Pty::open().map_err(EmulatorError::Pty)?;
-        point_link(link, &pty.path)
-            .map_err(|source| EmulatorError::Link { path: link.display().to_string(), source })?;
+        link::publish(link, &pty.path)?;
         let faults = Arc::new(Faults::default());
+        *faults.pty.lock().unwrap_or_else(|p| p.into_inner()) = Some(pty.path.clone());
         faults.connections.store(1, Ordering::SeqCst);
         faults.connected.store(true, Ordering::SeqCst);
         let control = Control { faults, boards: Arc::new(Mutex::new(boards)) };
@@ -566,14 +693,10 @@ impl Emulator {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
-        remove_link(&self.link);
-    }
-}
-
-/// Removes the link if it is (still) a symlink.
-fn remove_link(link: &Path) {
-    if std::fs::symlink_metadata(link).is_ok_and(|m| m.file_type().is_symlink()) {
-        let _ = std::fs::remove_file(link);
+        // Also when the serving thread panicked: the link goes if it still points at our pty.
+        if let Some(p) = self.control.faults.pty.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            link::remove_if_ours(&self.link, &p);
+        }
     }
 }
 
@@ -592,14 +715,17 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
     let mut ticks = Vec::with_capacity(16);
     while !f.stop.load(Ordering::SeqCst) {
         if f.disconnect.swap(false, Ordering::SeqCst) {
-            pty = None; // closing the master hangs up the host's end
-            remove_link(&link);
+            if let Some(p) = pty.take() {
+                link::remove_if_ours(&link, &p.path);
+            } // dropping the pty closes the master, which hangs up the host's end
+            *f.pty.lock().unwrap_or_else(|p| p.into_inner()) = None;
             f.connected.store(false, Ordering::SeqCst);
         }
         if f.reconnect.swap(false, Ordering::SeqCst) && pty.is_none() {
             if let Ok(p) = Pty::open() {
-                if point_link(&link, &p.path).is_ok() {
+                if link::claim(&link).and_then(|()| link::publish(&link, &p.path)).is_ok() {
                     control.boards().reset_link();
+                    *f.pty.lock().unwrap_or_else(|p| p.into_inner()) = Some(p.path.clone());
                     pty = Some(p);
                     f.connections.fetch_add(1, Ordering::SeqCst);
                     f.connected.store(true, Ordering::SeqCst);
@@ -616,10 +742,10 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
             control.boards().idle(Instant::now());
             continue;
         };
-        let mut pfd = libc::pollfd { fd: p.master, events: libc::POLLIN, revents: 0 };
+        let mut pfd = libc::pollfd { fd: p.fd(), events: libc::POLLIN, revents: 0 };
         let n = unsafe { libc::poll(&mut pfd, 1, timeout_ms) };
         if n > 0 && pfd.revents & libc::POLLIN != 0 {
-            let r = unsafe { libc::read(p.master, inbuf.as_mut_ptr().cast(), inbuf.len()) };
+            let r = unsafe { libc::read(p.fd(), inbuf.as_mut_ptr().cast(), inbuf.len()) };
             if r > 0 {
                 let bytes = &inbuf[..r as usize];
                 if !f.silent.load(Ordering::SeqCst) {
@@ -630,7 +756,7 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
                     if let Some(d) = delay {
                         std::thread::sleep(d);
                     }
-                    write_all_nonblocking(p.master, &out);
+                    write_all_nonblocking(p.fd(), &out);
                 }
             }
         } else if n > 0 && pfd.revents & libc::POLLHUP != 0 {

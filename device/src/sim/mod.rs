@@ -44,8 +44,10 @@
 //!   open/close. `activate`/`deactivate` enable/disable the outputs (`deactivate` zeroes the
 //!   commands at once).
 //! - Fault injection ([`SimRig::fail_next`]): a failing exchange leaves `inp` untouched,
-//!   ignores `out`, and advances the plant with zero commands (a board whose watchdog zeroed
-//!   its outputs), as time goes on in the real world.
+//!   ignores `out` (the command did not reach the board) and advances the plant with the last
+//!   command held, as time goes on in the real world: no board has a watchdog.
+//! - [`SimRig::sample`] and [`SimRig::apply`] are the two halves of an exchange, for the board
+//!   emulator, whose boards answer a command with the counts they have before taking it.
 //!
 //! Scripts ([`Script`]) say where the simulated user wants each hand; see [`script`].
 
@@ -360,8 +362,8 @@ impl SimRig {
     }
 
     /// Fault injection: the next `n` exchanges fail with `error`; their outputs are not applied
-    /// and the plant advances with the motors at zero tension (a board whose watchdog zeroed
-    /// them). `n = 0` cancels pending failures.
+    /// and the plant advances with the last command held (the boards have no watchdog).
+    /// `n = 0` cancels pending failures.
     pub fn fail_next(&mut self, n: u32, error: DeviceError) {
         self.fail_remaining = n;
         self.fail_error = error;
@@ -376,6 +378,23 @@ impl SimRig {
             }
         }
         self.update_targets();
+    }
+
+    /// The first half of an exchange: the encoders of the current state, without advancing
+    /// (what a board answers before it takes its command).
+    pub fn sample(&mut self, inp: &mut Input) -> Result<(), DeviceError> {
+        crate::require_open(self.opened, "sample before open")?;
+        self.sample_encoders(inp);
+        Ok(())
+    }
+
+    /// The second half of an exchange: latch `out` and advance the plant by one period.
+    /// [`SimRig::sample`] then [`SimRig::apply`] is exactly one [`Device::exchange`].
+    pub fn apply(&mut self, out: &Output) -> Result<(), DeviceError> {
+        crate::require_open(self.opened, "apply before open")?;
+        self.latch_commands(Some(out));
+        self.advance();
+        Ok(())
     }
 
     /// True string length of string `i` of `hand` (rig geometry, no slack).
@@ -509,7 +528,6 @@ impl Device for SimRig {
         crate::require_open(self.opened, "exchange before open")?;
         if self.fail_remaining > 0 {
             self.fail_remaining -= 1;
-            self.latch_commands(None);
             self.advance();
             return Err(self.fail_error);
         }

@@ -354,7 +354,7 @@ fn slack_strings_read_longer() {
 }
 
 #[test]
-fn fail_next_fails_n_times_with_zero_tension_then_recovers() {
+fn fail_next_fails_n_times_holding_the_last_command_then_recovers() {
     let p = cube_params();
     let mut rig = opened(p.clone(), holds(&p));
     rig.activate().unwrap();
@@ -363,14 +363,15 @@ fn fail_next_fails_n_times_with_zero_tension_then_recovers() {
     let error = DeviceError::Timeout { waited_us: 900 };
     rig.fail_next(3, error);
     let mut inp = Input { counts: [123; crate::MAX_CHANNELS], status: 77 };
+    let lower = volts_for(&rig, 0, [2.0; 4]);
     for k in 0..3 {
-        assert_eq!(rig.exchange(&out, &mut inp), Err(error), "exchange {k}");
-        assert_eq!(rig.truth().hands[0].tension_n, [0.0; 4], "watchdog must zero the motors");
+        assert_eq!(rig.exchange(&lower, &mut inp), Err(error), "exchange {k}");
+        assert_eq!(rig.truth().hands[0].tension_n, [5.0; 4], "no watchdog: the last command is held");
         assert_eq!(inp.counts[0], 123, "a failed exchange must not write the input");
     }
     assert!((rig.truth().t_s - 0.008).abs() < 1e-12, "the plant keeps running through faults");
-    rig.exchange(&out, &mut inp).unwrap();
-    assert_eq!(rig.truth().hands[0].tension_n, [5.0; 4]);
+    rig.exchange(&lower, &mut inp).unwrap();
+    assert_eq!(rig.truth().hands[0].tension_n, [2.0; 4]);
     assert_eq!(inp.status, STATUS_ACTIVE);
 }
 

@@ -1,5 +1,5 @@
 //! The `usb_simple` and `usb_sh4` backends: the USB 2.0 amplifier boards of the original
-//! SPIDAR-H rigs (reference/boards.md sections 1 and 2), 8 DA channels and 8 counters each.
+//! SPIDAR-H rigs (`docs/protocols.md`), 8 DA channels and 8 counters each.
 //!
 //! Why it exists: labs still run rigs on these boards. The byte layouts are in [`protocol`]; this
 //! module identifies the board (by USB id and rotary switch), moves one OUT and one IN transfer
@@ -9,6 +9,15 @@
 //! block past the deadline (libusb's timeouts have a 1 ms resolution, so a transfer may take up
 //! to 1 ms). libusb's synchronous transfers allocate inside C; a lost USB board is not reopened
 //! from the tick (finding it again means enumerating the bus, which allocates): restart spidar.
+//!
+//! At open the IN endpoint is reset (clear halt) and any packet still waiting in it is read away,
+//! on both boards: a reply left by a process that was killed between its request and its read
+//! would otherwise shift every later reply by one tick.
+//!
+//! Counter signs: this driver reports both boards' counters as they come off the wire. The lab's
+//! SH-4 host code stored the count negated and its Simple-board code did not, so a rig file
+//! ported from the lab's code for an SH-4 rig needs the sign of each string's `metres_per_count`
+//! flipped (one written for the Simple board needs nothing).
 
 pub mod protocol;
 pub mod rusb_link;
@@ -62,6 +71,13 @@ pub trait UsbOpener: Send {
     fn seen(&mut self) -> String;
 }
 
+/// Default DA limit: what the lab's SPIDAR-H needs (20 N at 0.2 V/N is 4 V; the lab never
+/// commanded more than about 3.65 V). The tools take the limit from the rig file.
+pub const DEFAULT_DA_LIMIT_V: f64 = 4.0;
+
+/// Most stale packets read away from the IN endpoint at open.
+const STALE_PACKETS_MAX: usize = 8;
+
 /// Settings of a USB board driver.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct UsbOptions {
@@ -82,7 +98,7 @@ impl Default for UsbOptions {
         UsbOptions {
             switch: None,
             digits_per_volt: protocol::DEFAULT_DIGITS_PER_VOLT,
-            volts_max: 10.0,
+            volts_max: DEFAULT_DA_LIMIT_V,
             reply_timeout: Duration::from_micros(800),
             max_step_counts: 4096,
         }
@@ -103,6 +119,8 @@ pub struct UsbBoard<O: UsbOpener> {
     pio: u16,
     adc: [u16; CHANNELS],
     unknown: u32,
+    /// Packets found waiting in the IN endpoint at open (left by an earlier process).
+    stale_packets: u32,
     small: [u8; SIMPLE_LEN],
     big: [u8; SH4_LEN],
 }
@@ -128,6 +146,7 @@ impl<O: UsbOpener> UsbBoard<O> {
             pio: 0,
             adc: [0; CHANNELS],
             unknown: 0,
+            stale_packets: 0,
             small: [0; SIMPLE_LEN],
             big: [0; SH4_LEN],
         }
@@ -143,6 +162,10 @@ impl<O: UsbOpener> UsbBoard<O> {
     /// SH-4 A/D readings in volts (motor supply / voltage sense); zeros on the Simple board.
     pub fn adc_volts(&self) -> [f64; CHANNELS] {
         self.adc.map(|d| f64::from(d) * protocol::SH4_ADC_VOLTS_PER_DIGIT)
+    }
+    /// Packets that were waiting in the IN endpoint at open and were read away.
+    pub fn stale_packets(&self) -> u32 {
+        self.stale_packets
     }
     /// SH-4: the last value of the IN packet's field of unknown meaning (bytes 50..53), for logs.
     pub fn unknown_field(&self) -> u32 {
@@ -212,12 +235,21 @@ impl<O: UsbOpener> UsbBoard<O> {
         Ok(())
     }
 
-    /// Resets the board, reads its counters once (restarting the wrap extension) and returns
-    /// the switch. Leaves the DA at zero.
+    /// Resets the IN endpoint and reads away stale packets, resets the board, reads its counters
+    /// once (restarting the wrap extension) and returns the switch. Leaves the DA at zero.
     fn identify(&mut self, link: &mut O::Link) -> Result<u8, DeviceError> {
         let t = Duration::from_millis(100);
         self.wrap24 = [Unwrap::new(); CHANNELS];
         self.wrap16 = [Unwrap::new(); CHANNELS];
+        link.reset_in(EP_IN)?;
+        self.stale_packets = 0;
+        for _ in 0..STALE_PACKETS_MAX {
+            match link.bulk_read(EP_IN, &mut self.big[..], Duration::from_millis(1)) {
+                Ok(_) => self.stale_packets += 1,
+                Err(DeviceError::Timeout { .. }) => break,
+                Err(e) => return Err(e),
+            }
+        }
         match self.kind {
             UsbKind::Simple => {
                 protocol::simple_reset(&mut self.small);

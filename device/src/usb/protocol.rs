@@ -1,4 +1,4 @@
-//! The USB boards' transfer layouts (reference/boards.md sections 1 and 2) as pure,
+//! The USB boards' transfer layouts (`docs/protocols.md`) as pure,
 //! allocation-free encode/decode functions: the host side for the drivers, the board side for
 //! the fake boards of the tests.
 //!

@@ -44,6 +44,9 @@ impl BulkLink for RusbLink {
     fn bulk_read(&mut self, ep: u8, buf: &mut [u8], timeout: Duration) -> Result<usize, DeviceError> {
         self.handle.read_bulk(ep, buf, timeout).map_err(|e| map(e, "USB bulk read failed"))
     }
+    fn reset_in(&mut self, ep: u8) -> Result<(), DeviceError> {
+        self.handle.clear_halt(ep).map_err(|e| map(e, "USB clear halt on the IN endpoint failed"))
+    }
 }
 
 /// Opens boards through libusb.

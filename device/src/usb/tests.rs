@@ -1,4 +1,4 @@
-//! The USB layouts byte by byte against reference/boards.md sections 1 and 2, and the drivers
+//! The USB layouts byte by byte (docs/protocols.md, the USB sections), and the drivers
 //! against fake boards that play the board's side of the bulk transfers.
 
 use std::time::Duration;
@@ -80,6 +80,9 @@ struct FakeBoard {
     pending: bool,
     short_reply: bool,
     unplugged: bool,
+    /// Replies left in the IN endpoint by an earlier process (counts it had then).
+    stale: Vec<[i64; CHANNELS]>,
+    in_resets: u32,
 }
 
 struct FakeLink(std::sync::Arc<std::sync::Mutex<FakeBoard>>);
@@ -110,14 +113,18 @@ impl BulkLink for FakeLink {
         if b.unplugged {
             return Err(DeviceError::Disconnected { what: "fake unplugged" });
         }
-        if !std::mem::take(&mut b.pending) {
+        let counts = if !b.stale.is_empty() {
+            b.stale.remove(0)
+        } else if std::mem::take(&mut b.pending) {
+            b.counts
+        } else {
             return Err(DeviceError::Timeout { waited_us: 0 });
-        }
+        };
         let pio = u16::from(b.switch) << 4;
         let n = if b.sh4 {
             let r = Sh4In {
                 da_echo: b.da,
-                counts: b.counts.map(|c| c as u16),
+                counts: counts.map(|c| c as u16),
                 pio,
                 unknown: 42,
                 ..Default::default()
@@ -127,13 +134,18 @@ impl BulkLink for FakeLink {
             buf[..SH4_LEN].copy_from_slice(&p);
             SH4_LEN
         } else {
-            let r = SimpleCounters { counts: b.counts.map(|c| c as i32), pio: pio as u8 };
+            let r = SimpleCounters { counts: counts.map(|c| c as i32), pio: pio as u8 };
             let mut p = [0u8; SIMPLE_LEN];
             simple_encode_counters(&r, &mut p);
             buf[..SIMPLE_LEN].copy_from_slice(&p);
             SIMPLE_LEN
         };
         Ok(if b.short_reply { n - 1 } else { n })
+    }
+    fn reset_in(&mut self, ep: u8) -> Result<(), DeviceError> {
+        assert_eq!(ep, EP_IN);
+        self.0.lock().unwrap().in_resets += 1;
+        Ok(())
     }
 }
 
@@ -287,4 +299,34 @@ fn usb_exchange_allocates_nothing_in_the_driver() {
         }
     });
     assert_eq!(n, 0);
+}
+
+#[test]
+fn a_stale_reply_left_in_the_in_endpoint_is_read_away_at_open_on_both_boards() {
+    for sh4 in [true, false] {
+        let b = board(sh4, 1);
+        // A killed process asked for the counters and never read them: two packets wait.
+        b.lock().unwrap().stale = vec![[9000; CHANNELS], [9001; CHANNELS]];
+        let kind = if sh4 { UsbKind::Sh4 } else { UsbKind::Simple };
+        let pid = kind.product_id();
+        let bus = FakeBus { boards: vec![(pid, b.clone())], denied: false };
+        let mut d = UsbBoard::new(kind, bus, UsbOptions::default());
+        d.open_detailed().unwrap();
+        assert_eq!(b.lock().unwrap().in_resets, 1, "the IN endpoint is reset at open");
+        assert_eq!(d.stale_packets(), 2);
+        let mut inp = Input::default();
+        for step in 1..20i64 {
+            b.lock().unwrap().counts[0] = 10 * step;
+            d.exchange(&Output::default(), &mut inp).unwrap();
+            assert_eq!(inp.counts[0], 10 * step, "each reply is this tick's, not one behind");
+        }
+    }
+}
+
+#[test]
+fn the_default_da_limit_is_what_the_spidar_h_needs_not_10_volts() {
+    let o = UsbOptions::default();
+    assert_eq!(o.volts_max, DEFAULT_DA_LIMIT_V);
+    assert!(o.volts_max < 5.0);
+    assert_eq!(volts_to_da(10.0, o.digits_per_volt, o.volts_max), 1660);
 }

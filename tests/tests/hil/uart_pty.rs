@@ -1,19 +1,24 @@
 //! Hardware-in-the-loop through the real serial path: the rt-loop drives the `uart` driver, which
 //! talks over a pseudo-terminal to the board emulator (on a thread of this process), which runs
-//! the simulated rig. The emulator advances the rig one 1 ms period per servo tick it receives
-//! (`PlantClock::PerTick`) and the loop runs on the virtual clock at 1 kHz, so results do not
-//! depend on this machine's timing; the bytes really cross the pty. No wall-clock assertion.
+//! the simulated rig behind boards that behave as the firmware does (no watchdog, the
+//! command-length parser, PWM clipping, both reply layouts). The emulator advances the rig one
+//! 1 ms period per servo tick it receives (`PlantClock::PerTick`) and the loop runs on the
+//! virtual clock at 1 kHz, so results do not depend on this machine's timing; the bytes really
+//! cross the pty. No wall-clock assertion. Nothing here relies on the boards stopping their
+//! motors by themselves: every way out leaves them at zero because the host says so.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use glam::DVec3;
-use spidar_device::emulator::{Control, Emulator, EmulatorOptions, PlantClock};
+use spidar_device::emulator::{link, Control, Emulator, PlantClock};
 use spidar_device::sim::Script;
-use spidar_device::uart::{SerialPath, UartDevice, UartOptions};
+use spidar_device::uart::protocol::ReplyLayout;
+use spidar_device::uart::{SerialPath, UartDevice};
 use spidar_device::ErrorKind;
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Command, FaultReason, Lifecycle};
+use spidar_tools::hardware::{emulator_options, uart_options};
 use spidar_tools::session::{sim_device, SimOptions, VirtualRun};
 
 use super::{front_wall, left_hand_pressing_the_wall, reach_and_hold, rig, HOLD_AT_HOME_S, WALL_Z_M};
@@ -32,13 +37,25 @@ impl PtySession {
 }
 
 fn link(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("spidar-hil-{}-{name}", std::process::id()))
+    link::private_dir().unwrap().join(format!("hil-{}-{name}", std::process::id()))
 }
 
-/// The left hand pressing the front wall (as `left_hand_pressing_the_wall`), through the pty.
+/// The left hand pressing the front wall (as `left_hand_pressing_the_wall`), through the pty,
+/// on two B1M boards with the current firmware.
 /// `reply_timeout`: generous for force tests (no spurious timeouts on a loaded machine), shorter
 /// for fault tests (each injected timeout costs one deadline of real time).
 fn pressing_through_the_pty(name: &str, k: f64, reply_timeout: Duration) -> PtySession {
+    pressing_on(name, k, reply_timeout, vec![1, 1], ReplyLayout::Forces)
+}
+
+/// The same on the boards `models` with firmware `layout`.
+fn pressing_on(
+    name: &str,
+    k: f64,
+    reply_timeout: Duration,
+    models: Vec<u8>,
+    layout: ReplyLayout,
+) -> PtySession {
     let r = rig();
     let home = [r.hands[0].home_m, r.hands[1].home_m];
     let press = DVec3::new(home[0].x, 0.0, WALL_Z_M + 0.04 - 0.015);
@@ -47,10 +64,10 @@ fn pressing_through_the_pty(name: &str, k: f64, reply_timeout: Duration) -> PtyS
         s.with_start_hold(hold)
     });
     let sim = sim_device(&r, scripts, &SimOptions::default()).unwrap();
-    let opts = EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() };
+    let opts = emulator_options(&r, models, layout, PlantClock::PerTick);
+    assert_eq!(opts.watchdog, None, "the boards have no watchdog");
     let emu = Emulator::spawn(sim, opts, &link(name)).unwrap();
-    let uo = UartOptions { reply_timeout, ..UartOptions::default() };
-    let dev = UartDevice::on_port(emu.link().to_str().unwrap(), uo).unwrap();
+    let dev = UartDevice::on_port(emu.link().to_str().unwrap(), uart_options(&r, reply_timeout)).unwrap();
     let mut v = VirtualRun::new(dev, &r, Some(Box::new(front_wall(k, 5.0)))).unwrap();
     v.home_and_activate();
     PtySession { v, emu }
@@ -85,9 +102,83 @@ fn wall_through_the_uart_driver_and_the_emulator_feels_k_times_depth_as_in_proce
     assert!(t.hands[0].pos_m.distance(ti.hands[0].pos_m) < 1e-4);
     assert_eq!(
         s.control().stats().ticks,
-        s.v.counters().ticks + 1,
-        "one servo tick per loop tick (+ priming)"
+        s.v.counters().ticks + 2,
+        "one servo tick per loop tick (+ the open's layout measurement and priming)"
     );
+}
+
+/// Stops the loop (as `spidar run` does on Ctrl-C, SIGTERM or the end of --seconds) and checks
+/// that the emulated boards, which have no watchdog, end with every motor at zero.
+fn stop_leaves_the_motors_at_zero(s: &mut PtySession) {
+    s.v.rt.command(Command::Stop);
+    let mut n = 0;
+    while !s.v.rt.is_finished() {
+        run_checked(s, 1);
+        n += 1;
+        assert!(n < 2000, "the stop never finished");
+    }
+    let c = s.control();
+    let b = c.boards();
+    assert_eq!(b.options().watchdog, None);
+    assert!(!b.watchdog_tripped());
+    assert_eq!(b.motor_commands(), [0; spidar_device::MAX_CHANNELS], "the host's zero reached every motor");
+    assert_eq!(b.locked(), 0);
+}
+
+#[test]
+fn wall_force_within_5_percent_on_b1m_and_b3m_boards_in_both_firmware_generations_and_stop_zeroes() {
+    let r = rig();
+    let k = 2000.0;
+    for (models, layout) in [
+        (vec![1, 1], ReplyLayout::Forces),
+        (vec![1, 1], ReplyLayout::Currents),
+        (vec![5, 5], ReplyLayout::Forces),
+        (vec![5, 5], ReplyLayout::Currents),
+    ] {
+        let what = format!("{models:?} {layout:?}");
+        let mut s = pressing_on(&format!("gen-{}-{layout:?}", models[0]), k, FORCE_TIMEOUT, models, layout);
+        assert!(s.v.rt.device().layouts().iter().all(|l| *l == layout || models_ambiguous(&s, l)), "{what}");
+        run_checked(&mut s, 4000);
+        let t = s.control().truth();
+        let depth = r.hands[0].grip_radius_m - (t.hands[0].pos_m.z - WALL_Z_M);
+        let felt = t.hands[0].string_force_n;
+        let expected = k * depth;
+        assert!(depth > 0.5e-3, "{what}: the hand should be in the wall: depth {depth}");
+        assert!(
+            (felt.z - expected).abs() < 0.05 * expected,
+            "{what}: felt {felt} N, k x depth = {expected} N"
+        );
+        assert_eq!(s.v.counters().faults, 0, "{what}");
+        stop_leaves_the_motors_at_zero(&mut s);
+    }
+}
+
+/// Where a board's two reply layouts have the same length (no sensors in either), the driver
+/// cannot tell them apart and either is right.
+fn models_ambiguous(s: &PtySession, l: &ReplyLayout) -> bool {
+    s.v.rt.device().boards().iter().all(|b| {
+        b.current_reply_len(*l) == b.current_reply_len(ReplyLayout::Forces)
+            && b.current_reply_len(*l) == b.current_reply_len(ReplyLayout::Currents)
+    })
+}
+
+#[test]
+fn a_device_fault_then_stop_leaves_the_motors_at_zero_without_a_watchdog() {
+    let mut s = pressing_through_the_pty("fault-stop", 2000.0, FORCE_TIMEOUT);
+    run_checked(&mut s, 2500);
+    assert!(s.control().boards().motor_commands()[..4].iter().any(|c| *c > 100), "pressing the wall");
+    // Every reply from now on is corrupt: the rig faults and stays faulted (the boards still
+    // hear every command), writing the safe output: strings at minimum tension, not zero.
+    let c = s.control();
+    c.corrupt_replies(100_000);
+    let rec = s.v.tick();
+    assert_safe(&rec, ErrorKind::Corrupt);
+    run_checked(&mut s, 100);
+    assert_eq!(s.v.rt.state(), Lifecycle::Faulted);
+    assert!(c.boards().motor_commands()[..8].iter().all(|c| *c > 0), "minimum tension while faulted");
+    // Stopping while faulted (Ctrl-C, the end of --seconds) switches the motors off.
+    stop_leaves_the_motors_at_zero(&mut s);
+    assert!(c.pending_faults() > 0, "the fault lasted to the end");
 }
 
 /// Checks the safe output of a faulted tick, and every tension of every tick, against the rig.
@@ -122,16 +213,17 @@ fn run_checked(s: &mut PtySession, n: u64) -> TickRecord {
 
 /// Runs a faulted tick, then one more whose exchange writes its output: the boards must then
 /// drive exactly that safe output (zero net force, every string at or above minimum tension),
-/// converted at 0.2 V/N and 4096/3.3 digits per volt.
+/// converted at 0.2 V/N and the rig file's PWM-duty digits per volt.
 fn boards_drive_the_safe_output(s: &mut PtySession) {
     let safe = run_checked(s, 1);
     assert_eq!(safe.state, Lifecycle::Faulted);
     run_checked(s, 1);
-    let cur = s.control().boards().motor_currents();
+    let cur = s.control().boards().motor_commands();
+    let dpv = rig().boards.uart_pwm_digits_per_volt;
     for (h, hr) in safe.hands.iter().enumerate() {
         assert!(hr.output_n.length() < 1e-9);
         for (i, t) in hr.tensions_n.iter().enumerate() {
-            let want = (t * 0.2 * 4096.0 / 3.3).round() as i16;
+            let want = (t * 0.2 * dpv).round() as i16;
             assert!(
                 (cur[4 * h + i] - want).abs() <= 1,
                 "board currents {cur:?}, safe tensions {:?}",
