@@ -39,7 +39,7 @@ pub fn crowd_of(n: usize) -> anyhow::Result<CrowdScene> {
 }
 
 pub struct ViewBenchOptions {
-    /// `boxing` or `crowd`.
+    /// `boxing`, `boxing-passive` or `crowd`.
     pub scene: String,
     /// Characters of the crowd scene.
     pub characters: usize,
@@ -102,9 +102,9 @@ fn viewer(
 
 pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchReport> {
     let (mut scene, script): (Box<dyn Scene>, &str) = match o.scene.as_str() {
-        "boxing" => (spidar_world::load("boxing")?, "box"),
+        "boxing" | "boxing-passive" => (spidar_world::load(&o.scene)?, "box"),
         "crowd" => (Box::new(crowd_of(o.characters)?), "spar"),
-        other => anyhow::bail!("unknown scene '{other}' for the view bench: use boxing or crowd"),
+        other => anyhow::bail!("unknown scene '{other}' for the view bench: use boxing, boxing-passive or crowd"),
     };
     let scripts = load_scripts(script, rig, 1)?;
     let dev = sim_device(rig, scripts, &SimOptions::default())?;

@@ -230,7 +230,8 @@ enum BenchCmd {
         /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
         #[arg(long)]
         rig: Option<PathBuf>,
-        /// `boxing` (the box script) or `crowd` (the spar script).
+        /// `boxing` (the box script), `boxing-passive` (no predictions: the step's time is steady)
+        /// or `crowd` (the spar script).
         #[arg(long, default_value = "boxing")]
         scene: String,
         /// Characters in the crowd scene.

@@ -334,8 +334,12 @@ impl View {
 impl Observer for View {
     fn after_step(&mut self, step: &StepView<'_>) {
         let t = step.t_s;
-        let k = (step.model.seq as usize) % KEPT_MODELS;
-        self.models[k] = *step.model;
+        let watched = self.shared.counters.viewers.load(Ordering::Relaxed) > 0;
+        if watched {
+            // The models the rendered contacts of the coming samples refer to.
+            let k = (step.model.seq as usize) % KEPT_MODELS;
+            self.models[k] = *step.model;
+        }
         if let Some(s) = step.samples.last() {
             self.hands = s.hands;
             self.status.sample_t_s = t;
@@ -355,7 +359,6 @@ impl Observer for View {
             }
             self.status.rig = Some(*r);
         }
-        let watched = self.shared.counters.viewers.load(Ordering::Relaxed) > 0;
         if watched {
             self.gather_rendered(step);
         }
