@@ -104,7 +104,9 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     let (mut scene, script): (Box<dyn Scene>, &str) = match o.scene.as_str() {
         "boxing" | "boxing-passive" => (spidar_world::load(&o.scene)?, "box"),
         "crowd" => (Box::new(crowd_of(o.characters)?), "spar"),
-        other => anyhow::bail!("unknown scene '{other}' for the view bench: use boxing, boxing-passive or crowd"),
+        other => {
+            anyhow::bail!("unknown scene '{other}' for the view bench: use boxing, boxing-passive or crowd")
+        }
     };
     let scripts = load_scripts(script, rig, 1)?;
     let dev = sim_device(rig, scripts, &SimOptions::default())?;

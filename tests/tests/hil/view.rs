@@ -220,7 +220,7 @@ fn host<S: Scene + 'static>(
     };
     let scene = scene_thread::spawn(
         Box::new(hosted),
-        clock.clone(),
+        clock,
         samples_rx,
         models_tx,
         stop.clone(),
@@ -230,7 +230,7 @@ fn host<S: Scene + 'static>(
     .unwrap();
     // The user's hands at 1 kHz on the scene's clock.
     let feeder = {
-        let (stop, ctl, clock) = (stop.clone(), ctl.clone(), clock.clone());
+        let (stop, ctl) = (stop.clone(), ctl.clone());
         std::thread::spawn(move || {
             let mut tick = 0;
             while !stop.load(Ordering::Relaxed) {

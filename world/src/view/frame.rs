@@ -103,17 +103,20 @@ impl Layout {
     }
 }
 
+/// What every frame carries besides the scene's poses.
+pub struct Common<'a> {
+    pub seq: u32,
+    pub t_s: f64,
+    pub hands: &'a [HandState; HANDS],
+    pub tensions_n: Option<&'a [[f64; STRINGS]; HANDS]>,
+    pub model: &'a ContactModel,
+    /// The link's frame in the scene's (added to every position from the link).
+    pub offset: DVec3,
+}
+
 /// Writes the header and the sections every scene has (hands, tensions, proxies).
-pub fn write_common(
-    buf: &mut [f32],
-    layout: &Layout,
-    seq: u32,
-    t_s: f64,
-    hands: &[HandState; HANDS],
-    tensions_n: Option<&[[f64; STRINGS]; HANDS]>,
-    model: &ContactModel,
-    offset: DVec3,
-) {
+pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
+    let Common { seq, t_s, hands, tensions_n, model, offset } = *c;
     buf[0] = f32::from_bits(MAGIC);
     buf[1] = f32::from_bits(layout.id);
     buf[2] = f32::from_bits(seq);

@@ -288,8 +288,15 @@ impl View {
             self.seq = self.seq.wrapping_add(1);
         }
         self.next_counters_t_s = step.t_s + 1.0;
-        let tensions = step.rig_status.map(|r| &r.tensions_n);
-        frame::write_common(buf, &l, self.seq, step.t_s, &self.hands, tensions, step.model, self.offset);
+        let common = frame::Common {
+            seq: self.seq,
+            t_s: step.t_s,
+            hands: &self.hands,
+            tensions_n: step.rig_status.map(|r| &r.tensions_n),
+            model: step.model,
+            offset: self.offset,
+        };
+        frame::write_common(buf, &l, &common);
         let mut contacts = 0usize;
         {
             let mut poses = l.poses(buf, &mut self.status.counters, &mut contacts);
