@@ -75,8 +75,6 @@ export async function pause(page) {
 // Pixel classes: a colour family under any lighting.
 export const RED = { r: 1 }; // red dominant: the virtual human, a character lying down
 export const GREEN = { g: 1 }; // green dominant: a balancing character
-export const BLUE = { b: 1 }; // blue dominant: a character standing up
-export const ORANGE = { o: 1 }; // orange: a character falling
 
 // Counts the pixels of class `cls` in `rect` (CSS px) of the WebGL canvas, with their centroid, and
 // a coarse mask (cells of `cell` px: 1 where the cell has any such pixel).
@@ -92,10 +90,7 @@ export function pixels(page, cls, rect = null, cell = 4) {
     const x0 = Math.max(0, Math.floor(r.x * s)); const y0 = Math.max(0, Math.floor(r.y * s));
     const x1 = Math.min(c.width, Math.ceil((r.x + r.w) * s)); const y1 = Math.min(c.height, Math.ceil((r.y + r.h) * s));
     const d = g.getImageData(0, 0, c.width, c.height).data;
-    const is = (R, G, B) => (cls.r ? R >= 70 && R > 1.8 * G && R > 1.8 * B
-      : cls.g ? G >= 60 && G > 1.25 * R && G > 1.15 * B
-        : cls.b ? B >= 70 && B > 1.3 * R && B > 1.1 * G
-          : R >= 90 && G > 0.45 * R && G < 0.85 * R && B < 0.4 * R);
+    const is = (R, G, B) => (cls.r ? R >= 70 && R > 1.8 * G && R > 1.8 * B : G >= 60 && G > 1.25 * R && G > 1.15 * B);
     let n = 0; let sx = 0; let sy = 0;
     const cw = Math.ceil(c.width / (cell * s)); const ch = Math.ceil(c.height / (cell * s));
     const mask = new Array(cw * ch).fill(0);

@@ -118,3 +118,39 @@ impl RigStatusFeed {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use spidar_rt::telemetry::HandRecord;
+
+    #[test]
+    fn the_rig_status_summarises_the_telemetry_in_the_world_frame() {
+        let rig = Rig::default_rig();
+        let (mut feed, rx) = RigStatusFeed::new(&rig);
+        for tick in 0..=EVERY_TICKS {
+            let mut r = TickRecord {
+                tick,
+                t_s: tick as f64 * 0.001,
+                lateness_s: if tick == 5 { 0.002 } else { 20e-6 },
+                state: Lifecycle::Active,
+                hands: [HandRecord { output_n: DVec3::new(0.0, 0.0, -2.0), ..Default::default() }; 2],
+                ..Default::default()
+            };
+            if (10..12).contains(&tick) {
+                r.fault = Some(FaultReason::Residual { hand: 0 });
+                r.state = Lifecycle::Faulted;
+            }
+            feed.add(&r);
+        }
+        let s = rx.try_recv().expect("a status after 33 ticks");
+        assert!((s.rate_hz - 1000.0).abs() < 1e-6, "{}", s.rate_hz);
+        assert_eq!((s.faults, s.device_errors, s.misses), (1, 0, 1));
+        assert_eq!(s.force_n[0], rig.rig_to_world.vector(DVec3::new(0.0, 0.0, -2.0)));
+        assert_eq!(s.state, RigState::Active);
+        let info = rig_info(&rig);
+        assert_eq!(info.anchors_m[1][2], rig.rig_to_world.point(rig.hands[1].anchors_m[2]));
+        assert_eq!(info.eye_m, rig.rig_to_world.point(rig.eye_m));
+    }
+}

@@ -440,3 +440,58 @@ fn layout_id(look: &Look) -> u32 {
     }
     h
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_addresses_default_to_the_loopback_host() {
+        let a = |s: &str| parse_addr(s).unwrap().to_string();
+        assert_eq!(a("8080"), "127.0.0.1:8080");
+        assert_eq!(a(":9000"), "127.0.0.1:9000");
+        assert_eq!(a("http://localhost:8080/"), "127.0.0.1:8080");
+        assert_eq!(a("0.0.0.0:8080"), "0.0.0.0:8080");
+        let e = parse_addr("here").unwrap_err().to_string();
+        assert!(e.contains("HOST:PORT"), "{e}");
+    }
+
+    #[test]
+    fn a_frame_carries_the_scene_poses_at_the_layout_offsets() {
+        let scene = crate::boxing::BoxingScene::new(Default::default()).unwrap();
+        let look = crate::Scene::look(&scene);
+        let l = Layout::of(&look, 7);
+        let mut buf = vec![f32::NAN; l.max_words];
+        let hands =
+            [HandState { pos_m: DVec3::new(0.1, 1.1, 0.0), valid: true, ..Default::default() }; HANDS];
+        let model = ContactModel::default();
+        let common = frame::Common {
+            seq: 3,
+            t_s: 1.5,
+            hands: &hands,
+            tensions_n: None,
+            model: &model,
+            offset: look.link_offset_m,
+        };
+        frame::write_common(&mut buf, &l, &common);
+        let mut counters = [0.0; crate::look::MAX_COUNTERS];
+        let mut contacts = 0;
+        crate::Scene::pose(&scene, &mut l.poses(&mut buf, &mut counters, &mut contacts));
+        assert_eq!((buf[0].to_bits(), buf[1].to_bits(), buf[2].to_bits()), (MAGIC, 7, 3));
+        assert_eq!(buf[frame::GLOBALS_AT], 1.5);
+        // Hands are moved into the scene frame.
+        let h = &buf[frame::HANDS_AT..frame::HANDS_AT + 3];
+        assert!((h[1] as f64 - (1.1 + look.link_offset_m.y)).abs() < 1e-6);
+        // Every shape is at its pose in the world, with a unit rotation.
+        for (k, p) in scene.world.ws.shape_pose.iter().enumerate() {
+            let s = &buf[l.shapes_at + 7 * k..l.shapes_at + 7 * k + 7];
+            let d = DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64) - p.pos_m;
+            assert!(d.length() < 1e-5, "shape {k}");
+            let n: f32 = s[3..7].iter().map(|x| x * x).sum();
+            assert!((n - 1.0).abs() < 1e-5, "shape {k}");
+        }
+        // Nothing written past the scene's sections but the proxies (all empty here).
+        assert!(buf[l.proxies_at..l.contacts_at].iter().all(|x| *x == 0.0));
+        assert!(buf[l.contacts_at..].iter().all(|x| x.is_nan()));
+    }
+}
