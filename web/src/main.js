@@ -113,8 +113,14 @@ window.addEventListener('keydown', (e) => {
   else if (e.key === ' ') paused = !paused;
 });
 
-function frameLoop() {
+// `?fps=N` caps the drawing rate (a slow machine, or one shared with other work).
+const minFrameMs = params.get('fps') ? 1000 / Number(params.get('fps')) : 0;
+let lastDraw = 0;
+
+function frameLoop(now) {
   requestAnimationFrame(frameLoop);
+  if (minFrameMs && now - lastDraw < minFrameMs - 1) return;
+  lastDraw = now;
   if (!paused && latest && latest !== applied) {
     const dt = applied ? Math.max(0, latest.t - applied.t) : 0;
     world.apply(latest.f, dt);
@@ -122,7 +128,6 @@ function frameLoop() {
     rig.apply(latest.f, desc.layout);
     applied = latest;
   }
-  const now = performance.now();
   if (now - rateSince >= 1000) {
     hud.setFrameRate((rateCount * 1000) / (now - rateSince));
     rateCount = 0;
