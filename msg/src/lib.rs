@@ -1,14 +1,21 @@
-//! Plain-data messages that cross between the 1 kHz rt-loop and the scene (simulation) thread.
+//! Plain-data messages that cross between the rig (the 1 kHz rt-loop) and the world (the scene,
+//! in its own process or on a thread), and their wire encoding ([`wire`]).
 //!
 //! Both sides import this crate and nothing else of each other, so `device` and `sim` stay leaves.
-//! Everything here is `Copy`, fixed-size and allocation-free: a message is moved through a bounded
-//! `crossbeam-channel` with `try_send`/`try_recv` and never blocks the tick.
+//! Everything here is `Copy`, fixed-size and allocation-free: a message goes through the link
+//! (`spidar-link`: a bounded channel in one process, a datagram between processes) and never
+//! blocks the tick.
 //!
 //! Frame: every position, velocity and force here is in the **world frame** (metres, y up, floor
 //! at y = 0, the user at the origin facing -z). The rt-loop maps its rig frame to the world with
 //! the rig file's `rig_to_world` transform before sending and back after receiving.
-//! Time: `t_s` / `stamp_s` are seconds on the loop clock shared by both threads (the real
-//! monotonic clock since the loop started, or the virtual clock in tests).
+//! Time: `t_s` / `stamp_s` are seconds on the **rig's** loop clock (the real monotonic clock
+//! since the loop started, or the virtual clock in tests). A world in another process has its
+//! own clock; it stamps a model with the rig time it estimates from the newest sample (see
+//! `docs/link.md`).
+
+pub mod handshake;
+pub mod wire;
 
 use glam::DVec3;
 

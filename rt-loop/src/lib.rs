@@ -4,7 +4,8 @@
 //! forces against the contact proxies the scene sent, applies the safety rules and allocates
 //! string tensions, then writes DA volts. Phases live in their own modules, in the order they
 //! run: [`kinematics`], [`velocity`], [`render`], [`safety`], [`tension`]; [`tick`] strings them
-//! together with the lifecycle, [`runner`] adds the device, the clock and the channels.
+//! together with the lifecycle, [`runner`] adds the device, the clock, the channels and the link
+//! to the world ([`status`]: what the rig tells the world about itself).
 
 pub mod boards;
 pub mod clock;
@@ -16,6 +17,7 @@ pub mod rig;
 pub mod rt_thread;
 pub mod runner;
 pub mod safety;
+pub mod status;
 pub mod telemetry;
 pub mod tension;
 pub mod tick;

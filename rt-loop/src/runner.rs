@@ -1,10 +1,21 @@
 //! The loop around a [`TickCore`]: wait for the absolute deadline, take commands and the newest
 //! contact model, exchange with the device, compute, publish the hand sample and the telemetry.
 //!
-//! Channels are bounded and used only with `try_send`/`try_recv` on this side, so the tick never
-//! blocks and never allocates. The other side must *poll* too (never block in `recv` on a
-//! channel this loop sends to): crossbeam wakes a blocked receiver through a mutex, and this loop
-//! must take no lock. The consumers in `spidar` poll at a few milliseconds.
+//! The world is reached through a [`RigLink`] (`spidar-link`): bounded channels to a world
+//! thread in this process, or datagrams to a world process. Either way the loop only polls it and
+//! hands it the tick's sample (and every `STATUS_EVERY` ticks a status): it never blocks, never
+//! allocates. The control side's channels are bounded and used only with `try_send`/`try_recv`
+//! here; the other side must *poll* too (never block in `recv` on a channel this loop sends to):
+//! crossbeam wakes a blocked receiver through a mutex, and this loop must take no lock. The
+//! consumers in `spidar` poll at a few milliseconds.
+//!
+//! A model stamped in the loop's future is taken as stamped now, whatever link it came by: a
+//! wrong stamp must never keep a model fresh past the staleness fade.
+//!
+//! A sample the link cannot take (the world is not draining: a full socket queue or channel) is
+//! not the end of its impulses: they are carried into the next sample of the same model, or sent
+//! on their own first when the model changed, so the world gets every impulse the rig applied
+//! while it stalled. Only what still cannot go is counted lost.
 //!
 //! Deadlines advance by exactly one period; if the loop falls more than `MAX_BEHIND` periods
 //! behind (the machine stalled), the deadline is re-based on now and the skipped periods are
@@ -14,10 +25,12 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use spidar_device::{Device, DeviceError, ErrorKind, Input, Output};
-use spidar_msg::{ContactModel, HandSample};
+use spidar_link::{channel, RigLink, Sent};
+use spidar_msg::{ContactModel, HandSample, RigStatus};
 
 use crate::clock::Clock;
 use crate::rig::Rig;
+use crate::status::{StatusWindow, STATUS_EVERY};
 use crate::telemetry::TickRecord;
 use crate::tick::{Command, Event, Lifecycle, TickCore};
 
@@ -25,51 +38,94 @@ const MAX_BEHIND: u64 = 10;
 /// Ticks at minimum tension after the ramp-out, before the device is switched off.
 const STOP_HOLD_TICKS: u32 = 20;
 
-/// The loop's ends of its channels. Any of them may be absent.
+/// The loop's ends of its channels and its link to the world. Any of them may be absent.
 #[derive(Default)]
 pub struct Endpoints {
     pub commands: Option<Receiver<Command>>,
     pub events: Option<Sender<Event>>,
-    pub models: Option<Receiver<ContactModel>>,
-    pub samples: Option<Sender<HandSample>>,
+    /// The world: a channel link from [`Endpoints::pair`], or a socket link put in its place.
+    pub link: Option<Box<dyn RigLink>>,
     pub telemetry: Option<Sender<TickRecord>>,
 }
 
-/// Bounded channel capacities used by [`Endpoints::pair`].
+/// Bounded channel capacities used by [`Endpoints::pair`] (the link's are in `spidar_link::channel`).
 pub const COMMAND_CAPACITY: usize = 16;
 pub const EVENT_CAPACITY: usize = 64;
-pub const MODEL_CAPACITY: usize = 8;
-pub const SAMPLE_CAPACITY: usize = 64;
 pub const TELEMETRY_CAPACITY: usize = 4096;
 
-/// The far ends of the channels, for the control side, the scene and the telemetry consumer.
+/// The far ends of the channels, for the control side, an in-process world and the telemetry
+/// consumer. With a socket link in place of the channel link, `models`, `samples` and `status`
+/// lead nowhere.
 pub struct FarEnds {
     pub commands: Sender<Command>,
     pub events: Receiver<Event>,
     pub models: Sender<ContactModel>,
     pub samples: Receiver<HandSample>,
+    pub status: Receiver<RigStatus>,
     pub telemetry: Receiver<TickRecord>,
 }
 
 impl Endpoints {
-    /// Creates every channel with the default capacities.
+    /// Creates every channel with the default capacities; the world is an in-process channel link.
     pub fn pair() -> (Endpoints, FarEnds) {
         use crossbeam_channel::bounded;
         let (ct, cr) = bounded(COMMAND_CAPACITY);
         let (et, er) = bounded(EVENT_CAPACITY);
-        let (mt, mr) = bounded(MODEL_CAPACITY);
-        let (st, sr) = bounded(SAMPLE_CAPACITY);
         let (tt, tr) = bounded(TELEMETRY_CAPACITY);
+        let (link, world) = channel::pair();
         (
             Endpoints {
                 commands: Some(cr),
                 events: Some(et),
-                models: Some(mr),
-                samples: Some(st),
+                link: Some(Box::new(link)),
                 telemetry: Some(tt),
             },
-            FarEnds { commands: ct, events: er, models: mt, samples: sr, telemetry: tr },
+            FarEnds {
+                commands: ct,
+                events: er,
+                models: world.models,
+                samples: world.samples,
+                status: world.status,
+                telemetry: tr,
+            },
         )
+    }
+}
+
+/// Sends `s`, with the impulses of an earlier sample the link could not take (`carry`).
+fn send_with_carry(
+    link: &mut dyn RigLink,
+    mut s: HandSample,
+    carry: &mut Option<HandSample>,
+    c: &mut crate::tick::Counters,
+) {
+    if let Some(old) = carry.take() {
+        if old.model_seq == s.model_seq {
+            for (a, b) in s.proxy_impulse_n_s.iter_mut().zip(old.proxy_impulse_n_s.iter()) {
+                *a += *b;
+            }
+            for (a, b) in s.proxy_contact_impulse_n_s.iter_mut().zip(old.proxy_contact_impulse_n_s.iter()) {
+                *a += *b;
+            }
+        } else if link.send_sample(&old) != Sent::Queued {
+            c.impulses_lost += 1; // of another model, and still no way through
+        }
+    }
+    match link.send_sample(&s) {
+        Sent::Queued => {}
+        Sent::Dropped => {
+            c.samples_dropped += 1;
+            *carry = Some(s);
+        }
+        Sent::NoPeer => {
+            if s.proxy_impulse_n_s
+                .iter()
+                .chain(s.proxy_contact_impulse_n_s.iter())
+                .any(|i| *i != glam::DVec3::ZERO)
+            {
+                c.impulses_lost += 1;
+            }
+        }
     }
 }
 
@@ -94,6 +150,9 @@ pub struct RtLoop<D: Device, C: Clock> {
     reopen_every: u32,
     reopen_wait: u32,
     reopen_budget: Duration,
+    status: StatusWindow,
+    /// A sample the link could not take, waiting to go with the next one.
+    carry: Option<HandSample>,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -119,6 +178,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             reopen_wait: 0,
             // Half a tick: the attempt, the compute and the sleep must all fit in the period.
             reopen_budget: Duration::from_secs_f64(rig.period_s * 0.5),
+            status: StatusWindow::default(),
+            carry: None,
         })
     }
 
@@ -182,11 +243,11 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         while let Some(c) = self.ep.commands.as_ref().and_then(|r| r.try_recv().ok()) {
             self.command(c);
         }
-        let mut newest = None;
-        while let Some(m) = self.ep.models.as_ref().and_then(|r| r.try_recv().ok()) {
-            newest = Some(m);
-        }
-        if let Some(m) = newest {
+        let now_s = wake as f64 * 1e-9;
+        if let Some(mut m) = self.ep.link.as_mut().and_then(|l| l.poll(now_s)) {
+            if m.stamp_s > now_s {
+                m.stamp_s = now_s;
+            }
             self.core.set_contact_model(m);
         }
 
@@ -206,7 +267,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         let t_compute = Instant::now();
         let mut sample = HandSample::default();
         let mut rec = TickRecord::default();
-        self.core.step(wake as f64 * 1e-9, io, &self.inp, &mut self.out, &mut sample, &mut rec);
+        self.core.step(now_s, io, &self.inp, &mut self.out, &mut sample, &mut rec);
         let compute_s = t_compute.elapsed().as_secs_f64();
 
         rec.lateness_s = lateness_ns as f64 * 1e-9;
@@ -215,9 +276,13 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if lateness_ns > self.period_ns {
             self.core.counters_mut().misses += 1;
         }
-        if let Some(tx) = self.ep.samples.as_ref() {
-            if let Err(TrySendError::Full(_)) = tx.try_send(sample) {
-                self.core.counters_mut().samples_dropped += 1;
+        self.status.add(&rec);
+        if let Some(link) = self.ep.link.as_mut() {
+            let c = self.core.counters_mut();
+            send_with_carry(&mut **link, sample, &mut self.carry, c);
+            if rec.tick % STATUS_EVERY == 0 {
+                let st = self.status.status(&rec, self.core.counters(), self.stopping, self.core.rig());
+                link.send_status(&st);
             }
         }
         if let Some(tx) = self.ep.telemetry.as_ref() {
@@ -233,6 +298,9 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 // Strings have been at minimum tension with zero net force; now switch off.
                 let _ = self.dev.deactivate();
                 self.finished = true;
+                if let Some(link) = self.ep.link.as_mut() {
+                    link.close();
+                }
                 self.core_event(Event::Stopped);
             }
         }
@@ -292,8 +360,85 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         while self.tick() {}
     }
 
+    /// The link to the world (to inspect or wait on it between ticks).
+    pub fn link(&self) -> Option<&dyn RigLink> {
+        self.ep.link.as_deref()
+    }
+
+    /// Puts another link to the world in place (between ticks; a benchmark switching worlds) and
+    /// returns the one it replaces.
+    pub fn replace_link(&mut self, link: Option<Box<dyn RigLink>>) -> Option<Box<dyn RigLink>> {
+        self.carry = None;
+        std::mem::replace(&mut self.ep.link, link)
+    }
+
     /// Gives the device back (after the loop finished), e.g. to inspect a simulated rig.
     pub fn into_device(self) -> D {
         self.dev
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// A link whose way is full for the first `full` sends; it keeps what got through.
+    struct Narrow {
+        full: u32,
+        got: Vec<HandSample>,
+    }
+    impl RigLink for Narrow {
+        fn poll(&mut self, _: f64) -> Option<ContactModel> {
+            None
+        }
+        fn send_sample(&mut self, s: &HandSample) -> Sent {
+            if self.full > 0 {
+                self.full -= 1;
+                return Sent::Dropped;
+            }
+            self.got.push(*s);
+            Sent::Queued
+        }
+        fn send_status(&mut self, _: &RigStatus) {}
+    }
+
+    fn sample(tick: u64, model_seq: u64, x: f64) -> HandSample {
+        let mut s = HandSample { tick, model_seq, ..Default::default() };
+        s.proxy_impulse_n_s[1] = DVec3::X * x;
+        s.proxy_contact_impulse_n_s[2] = DVec3::Y * x;
+        s
+    }
+
+    #[test]
+    fn impulses_of_samples_the_link_could_not_take_go_with_the_next_one() {
+        let mut link = Narrow { full: 3, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        for tick in 0..5 {
+            send_with_carry(&mut link, sample(tick, 7, 1.0), &mut carry, &mut c);
+        }
+        // Ticks 0-2 did not fit; tick 3 carried their impulses, tick 4 its own.
+        assert_eq!(link.got.iter().map(|s| s.tick).collect::<Vec<_>>(), [3, 4]);
+        assert_eq!(link.got[0].proxy_impulse_n_s[1], DVec3::X * 4.0);
+        assert_eq!(link.got[0].proxy_contact_impulse_n_s[2], DVec3::Y * 4.0);
+        assert_eq!(link.got[1].proxy_impulse_n_s[1], DVec3::X);
+        assert_eq!((c.samples_dropped, c.impulses_lost), (3, 0));
+
+        // The model changes while a sample waits: the old one goes first, on its own.
+        let mut link = Narrow { full: 1, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        send_with_carry(&mut link, sample(0, 7, 1.0), &mut carry, &mut c);
+        send_with_carry(&mut link, sample(1, 8, 2.0), &mut carry, &mut c);
+        assert_eq!(link.got.iter().map(|s| (s.tick, s.model_seq)).collect::<Vec<_>>(), [(0, 7), (1, 8)]);
+        assert_eq!(link.got[1].proxy_impulse_n_s[1], DVec3::X * 2.0);
+        assert_eq!(c.impulses_lost, 0);
+
+        // ... unless the way is still full: then that one is counted lost.
+        let mut link = Narrow { full: 2, got: Vec::new() };
+        let (mut carry, mut c) = (None, crate::tick::Counters::default());
+        send_with_carry(&mut link, sample(0, 7, 1.0), &mut carry, &mut c);
+        send_with_carry(&mut link, sample(1, 8, 2.0), &mut carry, &mut c);
+        assert_eq!(link.got.iter().map(|s| s.tick).collect::<Vec<_>>(), [1]);
+        assert_eq!(c.impulses_lost, 1);
     }
 }

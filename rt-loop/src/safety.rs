@@ -75,6 +75,44 @@ impl Ramp {
     }
 }
 
+/// Once the contact model was lost while active (its force faded all the way to zero), force
+/// comes back no faster than the activation ramp when models arrive again: a world that
+/// reconnects, is restarted or replaced never steps force into the user's hand. A model that is
+/// merely late (fading, not gone) returns at once, as before.
+#[derive(Clone, Copy, Debug)]
+pub struct ReturnRamp {
+    limit: f64,
+    per_tick: f64,
+    lost: bool,
+}
+
+impl ReturnRamp {
+    pub fn new(ramp_in_s: f64, dt_s: f64) -> ReturnRamp {
+        ReturnRamp { limit: 1.0, per_tick: if ramp_in_s > 0.0 { dt_s / ramp_in_s } else { 1.0 }, lost: false }
+    }
+
+    /// The staleness gain to apply this tick, given the fade's (`stale_gain`); `active_with_model`:
+    /// the rig is active and has had a model (one that faded to zero is then a lost one).
+    pub fn step(&mut self, stale_gain: f64, active_with_model: bool) -> f64 {
+        if active_with_model && stale_gain == 0.0 {
+            self.lost = true;
+        }
+        if !self.lost {
+            return stale_gain;
+        }
+        if stale_gain == 0.0 {
+            self.limit = 0.0;
+            return 0.0;
+        }
+        self.limit = (self.limit + self.per_tick).min(1.0);
+        if self.limit > 1.0 - 1e-9 {
+            self.limit = 1.0;
+            self.lost = false;
+        }
+        stale_gain.min(self.limit)
+    }
+}
+
 /// What the safety phase did to one hand's force this tick.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Guarded {
@@ -115,6 +153,31 @@ mod tests {
         assert_eq!(staleness_gain(Some(0.5), 0.03, 0.1), 0.0);
         assert_eq!(staleness_gain(Some(0.031), 0.03, 0.0), 0.0);
         assert_eq!(staleness_gain(Some(f64::NAN), 0.03, 0.1), 0.0);
+    }
+
+    #[test]
+    fn force_returns_over_the_ramp_after_the_model_was_lost_and_at_once_after_a_short_fade() {
+        let mut r = ReturnRamp::new(0.5, 0.001);
+        // Not active: a missing model is no loss (start-up).
+        assert_eq!(r.step(0.0, false), 0.0);
+        assert_eq!(r.step(1.0, true), 1.0);
+        // Late, fading, back: no ramp.
+        assert_eq!(r.step(0.4, true), 0.4);
+        assert_eq!(r.step(1.0, true), 1.0);
+        // Gone (zero while active), back: 500 ticks to full, never above the fade's gain.
+        assert_eq!(r.step(0.0, true), 0.0);
+        assert_eq!(r.step(0.0, true), 0.0);
+        let mut n = 1;
+        let mut prev = r.step(1.0, true);
+        assert!((prev - 0.002).abs() < 1e-12);
+        while prev < 1.0 {
+            let g = r.step(1.0, true);
+            assert!(g > prev && g - prev < 0.0021);
+            prev = g;
+            n += 1;
+        }
+        assert_eq!(n, 500);
+        assert_eq!(r.step(0.3, true), 0.3, "after the ramp, the fade alone again");
     }
 
     #[test]

@@ -21,7 +21,7 @@ use spidar_msg::{ContactModel, HandSample, HandState, HANDS, MAX_PROXIES};
 use crate::kinematics::{Kinematics, Pose};
 use crate::render::{self, Rendered};
 use crate::rig::{HandRig, Rig};
-use crate::safety::{self, Ramp};
+use crate::safety::{self, Ramp, ReturnRamp};
 use crate::telemetry::{HandRecord, TickRecord};
 use crate::tension::{Allocation, Allocator, Method, TensionLimits};
 use crate::velocity::VelocityFilter;
@@ -139,7 +139,12 @@ pub struct Counters {
     /// Deadline misses (woke more than one period late), counted by the loop.
     pub misses: u64,
     pub telemetry_dropped: u64,
+    /// Samples the link could not take at once (the world not draining); their impulses went
+    /// with the next sample that got through.
     pub samples_dropped: u64,
+    /// Samples whose impulses could not be carried either (the model changed meanwhile and the
+    /// way was still full, or no world was connected).
+    pub impulses_lost: u64,
     pub events_dropped: u64,
     /// Contact models received.
     pub models: u64,
@@ -174,6 +179,8 @@ pub struct TickCore {
     reopened: bool,
     good_ticks: u32,
     ramp: Ramp,
+    /// Force comes back over a ramp after the contact model was lost (a world restarted).
+    model_return: ReturnRamp,
     deactivating: bool,
     /// Ticks left before a requested homing takes the counts.
     homing_wait: Option<u32>,
@@ -211,6 +218,7 @@ impl TickCore {
             reopened: false,
             good_ticks: 0,
             ramp: Ramp::new(rig.safety.ramp_in_s, rig.safety.ramp_out_s, rig.period_s),
+            model_return: ReturnRamp::new(rig.safety.ramp_in_s, rig.period_s),
             deactivating: false,
             homing_wait: None,
             activate_after_homing: false,
@@ -503,6 +511,8 @@ impl TickCore {
         );
         let ramp_gain = self.ramp.step();
         let active = self.state == Lifecycle::Active;
+        // Only a model that existed and faded out counts as lost (start-up has none yet).
+        let stale_gain = self.model_return.step(stale_gain, active && age.is_some());
         if active {
             self.counters.active_ticks += 1;
             if stale_gain < 1.0 {
@@ -785,7 +795,10 @@ mod tests {
             let applied = s.proxy_impulse_n_s[0].length() / dt;
             assert!(applied <= limit + 1e-9 && applied > 0.9 * limit, "{applied} N applied");
             assert!(s.proxy_contact_impulse_n_s[1..].iter().all(|i| *i == DVec3::ZERO));
-            run(&mut c, 600, Ok(()));
+            // Keep the model fresh to full gain (a model that faded out would ramp back in).
+            for _ in 0..600 {
+                tick_with(&mut c, Some(m));
+            }
         }
         // The model goes stale and fades: the contact fades with it, to exactly zero.
         let fade = c.rig().safety.contact_stale_after_s + c.rig().safety.contact_fade_s;

@@ -76,11 +76,15 @@ fn rig() -> Rig {
 
 /// A scene with only the front wall of the rig-check scene: plane z = -0.30 m (world and rig).
 fn front_wall(k_n_per_m: f64, d_n_s_per_m: f64) -> WallsScene {
-    let text = format!(
+    WallsScene::from_str(&front_wall_text(k_n_per_m, d_n_s_per_m), "test wall").unwrap()
+}
+
+/// The scene file of `front_wall`.
+fn front_wall_text(k_n_per_m: f64, d_n_s_per_m: f64) -> String {
+    format!(
         "(version: 1, name: \"front wall\", step_s: 0.003, planes: [(label: \"wall\", point_m: (0.0, 1.1, -0.30), \
          normal: (0.0, 0.0, 1.0), k_n_per_m: {k_n_per_m:?}, d_n_s_per_m: {d_n_s_per_m:?})], spheres: [])"
-    );
-    WallsScene::from_str(&text, "test wall").unwrap()
+    )
 }
 
 const WALL_Z_M: f64 = -0.30;
@@ -635,6 +639,80 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     assert_eq!(v.rt.state(), Lifecycle::Active);
 }
 
+/// The same guard over ticks whose world is a socket away: models and samples as datagrams, a
+/// status every 16 ticks, the world leaving (goodbye, then hellos that find nobody) and a new
+/// world's welcome. The world runs on a thread here (it may allocate: the guard is per thread).
+#[test]
+fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation() {
+    use spidar_link::world::{WorldLink, WorldOffer};
+    use spidar_link::{Endpoint, LinkStats, PrivateDir};
+    use spidar_world::host::{serve, ServeOptions, Stepper};
+    use std::sync::atomic::AtomicBool;
+    use std::sync::Arc;
+    let r = rig();
+    let dir = PrivateDir::for_process().unwrap();
+    let at = Endpoint::unix(&dir.join("world.sock"));
+    let start_world = |at: &Endpoint| {
+        let offer = WorldOffer {
+            scene: "walls".into(),
+            step_s: 0.003,
+            rig_lost_after: std::time::Duration::from_secs(3600),
+        };
+        let mut link = WorldLink::bind(at, offer).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        let h = std::thread::spawn(move || {
+            let mut st = Stepper::new(Box::new(WallsScene::builtin()));
+            serve(
+                &mut st,
+                &mut link,
+                &ServeOptions { lockstep: true },
+                &|| s.load(Ordering::Relaxed),
+                &mut |_| {},
+            );
+        });
+        (h, stop)
+    };
+    let mut world = Some(start_world(&at));
+    let scripts = load_scripts("spar", &r, 3).unwrap();
+    let opts = SimOptions { seed: 3, encoder_noise_counts: 0.5, slack: true, ..Default::default() };
+    let dev = sim_device(&r, scripts, &opts).unwrap();
+    let mut v =
+        VirtualRun::with_world_process(dev, &r, &at, None, std::time::Duration::from_secs(30)).unwrap();
+    v.home_and_activate();
+    v.run_ticks(1000); // warm-up
+    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    for i in 0..8000u32 {
+        match i {
+            3000 => {
+                let (h, stop) = world.take().unwrap();
+                stop.store(true, Ordering::Relaxed);
+                h.join().unwrap();
+            }
+            4000 => world = Some(start_world(&at)),
+            _ => {}
+        }
+        no_alloc(|| v.rt.tick());
+        v.after_tick();
+    }
+    let forbidden = FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before;
+    assert_eq!(
+        forbidden,
+        0,
+        "the tick allocated {forbidden} times (first: {} bytes)",
+        FIRST_FORBIDDEN_SIZE.load(Ordering::SeqCst)
+    );
+    let st = v.link_stats().unwrap();
+    let g = |c: &std::sync::atomic::AtomicU64| LinkStats::get(c);
+    assert_eq!(g(&st.connects), 2, "{}", st.summary());
+    assert!(g(&st.byes) == 1 && g(&st.lost) == 1 && g(&st.sends_unanswered) > 5, "{}", st.summary());
+    assert!(g(&st.models) > 2000 && g(&st.statuses_sent) > 300, "{}", st.summary());
+    assert!(v.counters().stale > 0 && v.counters().clamped.iter().sum::<u64>() > 0);
+    let (h, stop) = world.take().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    h.join().unwrap();
+}
+
 #[test]
 fn the_guard_allocator_does_catch_an_allocation() {
     // Proves the allocator test above can fail.
@@ -722,3 +800,7 @@ mod uart_pty;
 
 #[path = "hil/boxing.rs"]
 mod boxing;
+
+// The rig and the world as two processes.
+#[path = "hil/link.rs"]
+mod link;

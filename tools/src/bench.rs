@@ -133,3 +133,293 @@ impl std::fmt::Display for RtBenchReport {
         write!(f, "  sim-rig I/O  {}", self.io)
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// `spidar bench link`
+
+/// What `spidar bench link` runs.
+pub struct LinkBenchOptions {
+    /// Seconds of the loop with each kind of world.
+    pub seconds_each: f64,
+    /// Alternations between the world as a process and as a thread.
+    pub blocks: u32,
+    pub rt: RtOptions,
+    /// The scene of both worlds.
+    pub scene: String,
+    /// Samples echoed for the round-trip figures, per transport.
+    pub echoes: u64,
+    /// How to start a world process (`spidar world` from this executable).
+    pub world: crate::child_world::ChildWorldSpec,
+    /// SCHED_FIFO priority of both worlds (None: the normal scheduler).
+    pub world_priority: Option<u8>,
+}
+
+/// Latency of one transport.
+pub struct EchoResult {
+    pub transport: String,
+    pub round_trip: Percentiles,
+    pub one_way: Percentiles,
+    pub unanswered: u64,
+}
+
+/// The loop with one kind of world.
+pub struct WorldBlock {
+    pub lateness: LoopResult,
+    /// Age of the contact model each active tick used.
+    pub model_age: Percentiles,
+    pub models: u64,
+    pub stale_ticks: u64,
+}
+
+pub struct LinkBenchReport {
+    pub rt: RtReport,
+    pub world_priority: Option<u8>,
+    pub scene: String,
+    pub step_s: f64,
+    pub echo: Vec<EchoResult>,
+    pub process: WorldBlock,
+    pub thread: WorldBlock,
+}
+
+/// Round trips at 1 kHz through an echo world process at `at`: send a sample on the deadline,
+/// wait for its echo (up to 0.9 ms), record; the echo carries the rig-to-world trip as the
+/// world's kernel stamped the sample's arrival.
+fn echo_round_trips(
+    rig: &Rig,
+    spec: &crate::child_world::ChildWorldSpec,
+    at: &spidar_link::Endpoint,
+    dir: &spidar_link::PrivateDir,
+    n: u64,
+) -> anyhow::Result<EchoResult> {
+    use spidar_link::RigLink;
+    let mut spec = spec.clone();
+    spec.extra.push("--echo".into());
+    let mut clock = MonotonicClock::new();
+    let (mut child, mut link, _) =
+        crate::session::start_child_world_at(rig, spec, at, dir, &clock, std::time::Duration::from_secs(30))?;
+    let waiter = link.waiter()?;
+    let (mut rtt, mut one_way) = (DurationHist::default(), DurationHist::default());
+    let mut unanswered = 0;
+    let period_ns = 1_000_000;
+    let mut deadline = clock.now_ns() + period_ns;
+    for k in 1..=n {
+        clock.sleep_until(deadline);
+        deadline += period_ns;
+        let sent_ns = clock.now_ns();
+        let now_s = sent_ns as f64 * 1e-9;
+        let _ = link.poll(now_s); // late echoes of earlier samples
+        link.send_sample(&crate::world_process::echo_sample(k, now_s));
+        let mut answered = false;
+        loop {
+            let left = (sent_ns + 900_000).saturating_sub(clock.now_ns());
+            if left == 0 || !waiter.wait(std::time::Duration::from_nanos(left)) {
+                break;
+            }
+            if let Some(m) = link.poll(clock.now_ns() as f64 * 1e-9) {
+                if m.seq == k {
+                    rtt.record((clock.now_ns() - sent_ns) as f64 * 1e-9);
+                    one_way.record(m.extra_force_n[0].x);
+                    answered = true;
+                    break;
+                }
+            }
+        }
+        unanswered += !answered as u64;
+    }
+    link.close();
+    child.stop(std::time::Duration::from_secs(2), &mut |_| {});
+    Ok(EchoResult {
+        transport: match at {
+            spidar_link::Endpoint::Unix(_) => "Unix datagram socket".into(),
+            spidar_link::Endpoint::Udp(a) => format!("UDP on {}", a.ip()),
+        },
+        round_trip: rtt.percentiles(),
+        one_way: one_way.percentiles(),
+        unanswered,
+    })
+}
+
+/// `spidar bench link`: the link's round trip and one-way latency at 1 kHz (Unix socket and UDP
+/// on localhost, through an echo world process), then the rig's wake-up lateness and the model
+/// age at the rig with the world as a process and as a thread, in alternating blocks on one
+/// real-time thread: `spidar run`'s path (simulated rig, rt-loop, the same world code).
+pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenchReport> {
+    use spidar_link::{channel, Endpoint, PrivateDir};
+    let script = if opts.scene.starts_with("boxing") { "box" } else { "tour" };
+    let scripts = load_scripts(script, rig, 1)?;
+    let dev = sim_device(rig, scripts, &SimOptions::default())?;
+    // The thread's scene is built here, where the world thread will run.
+    let scene = spidar_world::load(&opts.scene)?;
+    let rig = rig.clone();
+    let rt_opts = opts.rt.clone();
+    let blocks = opts.blocks.max(1);
+    let per_block = ((opts.seconds_each / blocks as f64) / rig.period_s).round().max(1.0) as u64;
+    let world_spec = opts.world.clone();
+    let echoes = opts.echoes;
+    let world_priority = opts.world_priority;
+    let scene_name = opts.scene.clone();
+    // Everything runs on one thread set up for real time; the worlds it starts (process and
+    // thread) run with the normal scheduler.
+    let handle = std::thread::Builder::new().name("spidar-bench-link".into()).spawn(
+        move || -> anyhow::Result<LinkBenchReport> {
+            let report = rt_thread::setup_current_thread(&rt_opts);
+            let dir = PrivateDir::for_process()?;
+            let mut echo = Vec::new();
+            if echoes > 0 {
+                echo.push(echo_round_trips(
+                    &rig,
+                    &world_spec,
+                    &Endpoint::unix(&dir.join("echo.sock")),
+                    &dir,
+                    echoes,
+                )?);
+                let port = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?.port();
+                let udp = Endpoint::Udp(([127, 0, 0, 1], port).into());
+                echo.push(echo_round_trips(&rig, &world_spec, &udp, &dir, echoes)?);
+            }
+
+            let clock = MonotonicClock::new();
+            let mut spec = world_spec.clone();
+            spec.scene = scene_name.clone();
+            if let Some(p) = world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
+            let (mut child, plink, welcome) = crate::session::start_child_world(
+                &rig,
+                spec,
+                &dir,
+                &clock,
+                std::time::Duration::from_secs(60),
+            )?;
+            let (ep, _far) = Endpoints::pair();
+            let mut rt = RtLoop::new(dev, clock, &rig, ep)?;
+            rt.configure().map_err(|e| anyhow::anyhow!("opening the simulated rig: {e}"))?;
+            rt.command(Command::Home);
+            rt.command(Command::Activate);
+            let mut process_link: Option<Box<dyn spidar_link::RigLink>> = Some(Box::new(plink));
+            let mut stepper = Some(spidar_world::host::Stepper::new(scene));
+            let info = spidar_rt::status::rig_info(&rig);
+            let (mut late, mut age) = (
+                [DurationHist::default(), DurationHist::default()],
+                [DurationHist::default(), DurationHist::default()],
+            );
+            let mut models = [0u64; 2];
+            let mut stale = [0u64; 2];
+            const PROCESS: usize = 0;
+            const THREAD: usize = 1;
+            for b in 0..blocks {
+                let order = if b % 2 == 0 { [PROCESS, THREAD] } else { [THREAD, PROCESS] };
+                for mode in order {
+                    let mut thread = None;
+                    if mode == PROCESS {
+                        // The link was closed at the end of its last block: it says hello again.
+                        rt.replace_link(process_link.take());
+                    } else {
+                        let (rig_end, world_end) = channel::pair();
+                        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+                        let counters = std::sync::Arc::new(crate::scene_thread::SceneCounters::default());
+                        let h = crate::scene_thread::spawn(
+                            stepper.take().expect("the thread's scene"),
+                            clock,
+                            world_end,
+                            info,
+                            stop.clone(),
+                            counters,
+                            world_priority,
+                        )?;
+                        thread = Some((h, stop));
+                        rt.replace_link(Some(Box::new(rig_end)));
+                    }
+                    // Settle: the world connects again and its models are fresh.
+                    for _ in 0..300 {
+                        rt.tick();
+                    }
+                    rt.resync();
+                    let (m0, s0) = (rt.core().counters().models, rt.core().counters().stale);
+                    for _ in 0..per_block {
+                        rt.tick();
+                        let r = rt.last_record();
+                        late[mode].record(r.lateness_s);
+                        if r.state == spidar_rt::Lifecycle::Active && r.contact_age_s.is_finite() {
+                            age[mode].record(r.contact_age_s.max(0.0));
+                        }
+                    }
+                    models[mode] += rt.core().counters().models - m0;
+                    stale[mode] += rt.core().counters().stale - s0;
+                    let link = rt.replace_link(None);
+                    if let Some((h, stop)) = thread {
+                        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                        stepper = Some(h.join().map_err(|_| anyhow::anyhow!("the scene thread panicked"))?);
+                    } else if let Some(mut l) = link {
+                        l.close(); // the world pauses until the next process block
+                        process_link = Some(l);
+                    }
+                }
+            }
+            rt.command(Command::Stop);
+            while rt.tick() {}
+            child.stop(std::time::Duration::from_secs(3), &mut |_| {});
+            let block = |m: usize| WorldBlock {
+                lateness: result(&late[m]),
+                model_age: age[m].percentiles(),
+                models: models[m],
+                stale_ticks: stale[m],
+            };
+            Ok(LinkBenchReport {
+                rt: report,
+                world_priority,
+                scene: format!("{} ({})", scene_name, welcome.scene),
+                step_s: welcome.step_s,
+                echo,
+                process: block(PROCESS),
+                thread: block(THREAD),
+            })
+        },
+    )?;
+    handle.join().map_err(|_| anyhow::anyhow!("the benchmark thread panicked"))?
+}
+
+impl std::fmt::Display for LinkBenchReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "spidar bench link: spidar run's path (simulated rig, rt-loop, world {}), at 1 kHz",
+            self.scene
+        )?;
+        writeln!(
+            f,
+            "  worlds      {}",
+            self.world_priority.map_or("normal scheduler".to_string(), |p| format!("SCHED_FIFO {p}"))
+        )?;
+        writeln!(f, "  real time   {}", self.rt)?;
+        for w in &self.rt.warnings {
+            writeln!(f, "  warning     {w}")?;
+        }
+        for e in &self.echo {
+            writeln!(
+                f,
+                "  {}: round trip {} ({} samples, {} unanswered within 0.9 ms)",
+                e.transport, e.round_trip, e.round_trip.count, e.unanswered
+            )?;
+            writeln!(f, "      one way rig -> world {}", e.one_way)?;
+        }
+        for (name, b) in [("world as a process", &self.process), ("world as a thread ", &self.thread)] {
+            writeln!(
+                f,
+                "  {name}: lateness {}; > 500 us {}, > 1 ms {} of {} ticks",
+                b.lateness.lateness, b.lateness.over_500us, b.lateness.over_1ms, b.lateness.cycles
+            )?;
+            writeln!(
+                f,
+                "      model age at the rig {}; {} models, {} stale ticks",
+                b.model_age, b.models, b.stale_ticks
+            )?;
+        }
+        write!(
+            f,
+            "  goal: model age p99 <= one world step ({:.1} ms) + 1 ms = {:.1} ms",
+            self.step_s * 1e3,
+            self.step_s * 1e3 + 1.0
+        )
+    }
+}

@@ -12,9 +12,14 @@ use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
-use spidar_tools::bench::{bench_rt, RtBenchOptions};
+use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
+use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::session::{self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun};
+use spidar_tools::session::{
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+};
+use spidar_tools::signals::Stop;
+use spidar_tools::world_process::WorldArgs;
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -25,8 +30,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a scene behind it (Ctrl-C stops cleanly).
+    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
+    /// world runs as a child process unless --world says otherwise.
     Run(RunArgs),
+    /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
+    /// ADDR`), on this host or another.
+    World(WorldArgs),
     /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
     Calib {
         #[command(subcommand)]
@@ -154,12 +163,28 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000), `boxing-passive`
-    /// (its cognitive model off), a boxer file like configs/boxer.ron, `crowd` (keyframe
-    /// characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the rig check)
-    /// or a walls scene file (.ron).
-    #[arg(long, default_value = "boxing")]
-    scene: String,
+    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
+    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
+    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
+    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
+    /// (default: whatever it runs).
+    #[arg(long)]
+    scene: Option<String>,
+    /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
+    /// dies; the default), `thread` (inside this process), or the address of a world already
+    /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
+    #[arg(long, default_value = "child")]
+    world: String,
+    /// How many times a child world that dies is restarted.
+    #[arg(long, default_value_t = 3)]
+    world_restarts: u32,
+    /// How long to wait for the world's first answer, in seconds.
+    #[arg(long, default_value_t = 30.0)]
+    world_timeout_s: f64,
+    /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
+    /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    world_priority: Option<u8>,
     /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
     /// tour (for `walls`), or a script file (.ron).
     #[arg(long, default_value = "box")]
@@ -183,43 +208,9 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// The live view of the world (served by the world: the child process or the thread).
     #[command(flatten)]
-    view: ViewArgs,
-}
-
-#[derive(clap::Args)]
-struct ViewArgs {
-    /// Serve the live 3D view at this address (HOST:PORT, :PORT or http://HOST:PORT; frames on the
-    /// next port). Default http://127.0.0.1:8080, or a free port when that one is taken.
-    #[arg(long, value_name = "ADDR")]
-    view: Option<String>,
-    /// No live view.
-    #[arg(long, conflicts_with = "view")]
-    no_view: bool,
-}
-
-/// Starts the live view for `scene` as `--view`/`--no-view` say, and prints its address.
-fn start_view(
-    a: &ViewArgs,
-    scene: &dyn spidar_world::Scene,
-) -> anyhow::Result<Option<spidar_world::view::View>> {
-    use spidar_world::view::{parse_addr, View, ViewOptions};
-    if a.no_view {
-        return Ok(None);
-    }
-    let look = scene.look();
-    let view = match &a.view {
-        Some(addr) => {
-            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
-        }
-        // The default port may be taken (another spidar): then any free one.
-        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
-            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
-            View::start(scene.name(), &look, &any)
-        })?,
-    };
-    eprintln!("spidar: live view at {} (frames on {})", view.url(), view.ws_url());
-    Ok(Some(view))
+    view: spidar_tools::world_process::ViewArgs,
 }
 
 #[derive(Subcommand)]
@@ -261,6 +252,28 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10)]
         blocks: u32,
     },
+    /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
+    /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
+    /// rig with the world as a process and as a thread, alternating in one run.
+    Link {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of the loop with each kind of world.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Alternations between the two kinds of world.
+        #[arg(long, default_value_t = 10)]
+        blocks: u32,
+        /// The scene of both worlds.
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Samples echoed per transport for the round-trip figures (at 1 kHz).
+        #[arg(long, default_value_t = 5000)]
+        echoes: u64,
+        /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+        world_priority: Option<u8>,
+    },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
         #[command(flatten)]
@@ -296,6 +309,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Cmd::Run(a) => run(a),
+        Cmd::World(a) => {
+            let stop = Stop::install()?;
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+        }
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
         Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
@@ -356,6 +373,29 @@ fn main() -> anyhow::Result<()> {
             })?;
             eprintln!();
             println!("{report}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!(
+                "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
+            );
+            let rep = bench_link(
+                &r,
+                &LinkBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    echoes,
+                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world_priority,
+                },
+            )?;
+            println!("{rep}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
@@ -475,9 +515,58 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
         bail!("--noise-counts must be >= 0");
     }
+    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
+        bail!("--world-timeout-s must be a positive number of seconds");
+    }
     let rig = load_rig(&a.rig)?;
-    let scene = spidar_world::load(&a.scene)?;
-    let scene_name = format!("{} ({})", a.scene, scene.name());
+    if let Some(p) = a.world_priority {
+        if !a.rig.no_rt && p >= a.rig.priority {
+            bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
+        }
+    }
+    let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
+    // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
+    // in the world process otherwise (the rig process stays small).
+    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+        (true, "child" | "thread") | (false, "thread") => {
+            let scene = spidar_world::load(&scene_arg)?;
+            let name = format!("{scene_arg} ({})", scene.name());
+            // The live view runs on the real clock only.
+            let view = if a.virtual_clock {
+                if a.view.view.is_some() {
+                    eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
+                }
+                None
+            } else {
+                spidar_tools::world_process::start_view(&a.view, &*scene)?
+            };
+            let mut stepper = spidar_world::host::Stepper::new(scene);
+            if let Some(v) = view {
+                stepper.add_observer(Box::new(v));
+            }
+            (WorldChoice::Thread(stepper), name)
+        }
+        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
+        (false, "child") => {
+            let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
+            if let Some(p) = a.world_priority {
+                spec.extra.extend(["--priority".into(), p.to_string().into()]);
+            }
+            spec.extra.extend(a.view.child_args());
+            (WorldChoice::Child(spec), scene_arg.clone())
+        }
+        (false, addr) => {
+            if a.view.view.is_some() || a.view.no_view {
+                eprintln!(
+                    "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
+                );
+            }
+            let at = spidar_link::Endpoint::parse(addr)
+                .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
+            let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
+            (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
+        }
+    };
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
@@ -512,10 +601,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        if a.view.view.is_some() {
-            eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
-        }
-        let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
+        let WorldChoice::Thread(stepper) = world else {
+            unreachable!("--virtual runs the world in this process")
+        };
+        let mut v = VirtualRun::new(dev, &rig, Some(stepper.into_scene()))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();
@@ -552,20 +641,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         return Ok(());
     }
 
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
-    let observers: Vec<Box<dyn spidar_world::Observer>> = match start_view(&a.view, &*scene)? {
-        Some(v) => vec![Box::new(v)],
-        None => Vec::new(),
-    };
+    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
-        scene,
+        world,
         LiveOptions {
             seconds: a.seconds,
             rt: rt_options(&a.rig),
@@ -574,7 +654,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             stop,
             scene_name,
             script_name: a.script.clone(),
-            observers,
+            connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
+            world_priority: a.world_priority,
         },
     )?;
     println!("{summary}");

@@ -1,29 +1,44 @@
-//! A session: a device, the rt-loop, a scene and the telemetry consumer wired together.
+//! A session: a device, the rt-loop, a world and the telemetry consumer wired together.
 //!
 //! Two ways to run one:
-//! - [`run_live`]: the real clock; the loop on its own real-time thread, the scene on another,
-//!   telemetry and the status line on the calling thread. This is `spidar run`.
-//! - [`VirtualRun`]: the virtual clock; loop ticks and scene steps interleaved on the calling
+//! - [`LiveSession`] ([`run_live`] around it): the real clock; the loop on its own real-time
+//!   thread; the world in a child process (`spidar world`, the default), in a world process
+//!   already running (`--world ADDR`), or on a thread of this process (`--world thread`);
+//!   telemetry, the world's health and the status line on the calling thread. This is
+//!   `spidar run`.
+//! - [`VirtualRun`]: the virtual clock; loop ticks and world steps interleaved on the calling
 //!   thread in a fixed order, so a run is bit-identical for a seed. Hardware-in-the-loop tests and
-//!   `spidar run --virtual` use it.
+//!   `spidar run --virtual` use it, with the scene in this process, or
+//!   ([`VirtualRun::with_world_process`]) in a world process stepping in lockstep.
 
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use crossbeam_channel::{Receiver, Sender};
 use spidar_device::sim::{builtin_script, Script, ScriptFile, SimRig, SimRigParams, BUILTIN_SCRIPTS};
 use spidar_device::Device;
-use spidar_msg::HandSample;
+use spidar_link::channel::ChannelWorldEnd;
+use spidar_link::rig::{hello, RigLinkOptions, SocketRigLink};
+use spidar_link::sock::Waiter;
+use spidar_link::{Endpoint, LinkError, LinkState, LinkStats, PrivateDir};
+use spidar_msg::handshake::Welcome;
+use spidar_msg::{HandSample, RigInfo};
 use spidar_rt::rt_thread::{self, RtOptions, RtReport};
+use spidar_rt::status::rig_info;
 use spidar_rt::telemetry::{fmt_dur, Stats, TickRecord};
 use spidar_rt::{
     Clock, Command, Counters, Endpoints, Event, FarEnds, Lifecycle, MonotonicClock, Rig, RtLoop, VirtualClock,
 };
+use spidar_world::host::Stepper;
+use spidar_world::{Observer, Scene, StepView};
 
+use crate::child_world::{ChildWorld, ChildWorldSpec};
 use crate::scene_thread::{self, SceneCounters};
-use spidar_world::Scene;
+use crate::signals::Stop;
 
 /// How long the simulated user holds the grips still at their home points before a script
 /// starts, as an operator does while the rig homes (`spidar_rt::tick::HOMING_SETTLE_S` plus margin).
@@ -83,30 +98,150 @@ pub fn sim_device(rig: &Rig, scripts: [Script; 2], opts: &SimOptions) -> anyhow:
     SimRig::new(p, scripts).context("building the simulated rig")
 }
 
-/// Loop and scene interleaved on the virtual clock, on the calling thread.
+/// The rig's link timing for `rig`: the world is lost once its last model has faded out.
+pub fn link_options(rig: &Rig) -> RigLinkOptions {
+    RigLinkOptions {
+        lost_after_s: (rig.safety.contact_stale_after_s + rig.safety.contact_fade_s).max(0.25),
+        ..Default::default()
+    }
+}
+
+/// Opens a socket link to the world at `at` and shakes hands, for at most `timeout` (not
+/// real-time: before the loop starts). The rig's own Unix socket goes into `dir`. `scene`: the
+/// scene to insist on (None: whatever the world runs). `rig_now_s`: the rig's clock now.
+pub fn connect_world(
+    rig: &Rig,
+    at: &Endpoint,
+    dir: &PrivateDir,
+    scene: Option<&str>,
+    rig_now_s: f64,
+    timeout: Duration,
+) -> Result<(SocketRigLink, Welcome), LinkError> {
+    let own = dir.join("rig.sock");
+    let h = hello(spidar_link::private_dir::random_u64(), rig_info(rig), scene.unwrap_or(""));
+    let mut link = SocketRigLink::open(at, Some(&own), h, link_options(rig))?;
+    let w = link.connect(timeout, rig_now_s)?;
+    Ok((link, w))
+}
+
+/// A world process stepping in lockstep with a virtual run: after each tick that should get an
+/// answer (a hello the world received, a sample that makes a step due), the run waits for the
+/// world's datagram before the next tick, so the next tick takes it exactly as the in-process
+/// scene's model would be taken.
+struct Lockstep {
+    waiter: Waiter,
+    stats: Arc<LinkStats>,
+    /// hellos, unanswered sends, samples sent, connects: as of the last tick.
+    seen: [u64; 4],
+    step_ns: u64,
+    next_ns: u64,
+    timeout: Duration,
+    timeouts: u64,
+}
+
+impl Lockstep {
+    fn after_tick(&mut self, now_ns: u64) {
+        let s = &self.stats;
+        let now = [
+            LinkStats::get(&s.hellos),
+            LinkStats::get(&s.sends_unanswered),
+            LinkStats::get(&s.samples_sent),
+            LinkStats::get(&s.connects),
+        ];
+        if now[3] != self.seen[3] {
+            self.next_ns = 0; // a world starts its schedule at each connection
+        }
+        // A hello that reached a socket is answered (welcome or refusal).
+        let mut expect = now[0] != self.seen[0];
+        // A world answers samples only once it has welcomed the rig (a lost link still sends).
+        if now[2] != self.seen[2] && s.state() == LinkState::Connected && now_ns >= self.next_ns {
+            self.next_ns = now_ns + self.step_ns;
+            expect = true;
+        }
+        self.seen = now;
+        if expect && !self.waiter.wait(self.timeout) {
+            self.timeouts += 1;
+        }
+    }
+}
+
+/// Loop and world interleaved on the virtual clock, on the calling thread.
 pub struct VirtualRun<D: Device> {
     pub rt: RtLoop<D, VirtualClock>,
     pub far: FarEnds,
+    /// The scene stepped in this process (None: none, or a world process).
     pub scene: Option<Box<dyn Scene>>,
     pub clock: VirtualClock,
     pub stats: Stats,
-    /// The newest hand sample the loop sent (for inspection).
+    /// The newest hand sample the loop sent (for inspection; in-process worlds only).
     pub last_sample: Option<HandSample>,
+    /// Called after every step of the in-process scene.
+    pub observers: Vec<Box<dyn Observer>>,
+    rig_info: RigInfo,
     scene_step_ns: u64,
     next_scene_ns: u64,
     samples: Vec<HandSample>,
+    lockstep: Option<Lockstep>,
+    _dir: Option<PrivateDir>,
 }
 
 impl<D: Device> VirtualRun<D> {
     /// Configures the device (Inactive). Does not home or activate.
     pub fn new(dev: D, rig: &Rig, scene: Option<Box<dyn Scene>>) -> anyhow::Result<VirtualRun<D>> {
+        let scene_step_ns = scene.as_ref().map_or(3_000_000, |s| (s.step_s() * 1e9).round() as u64);
+        Self::build(dev, rig, scene, None, scene_step_ns, None)
+    }
+
+    /// The world in its own process at `at`, started with `--lockstep` (`spidar world
+    /// --lockstep`): connects now (waiting at most `timeout`), then waits for the world's answer
+    /// whenever one is due, so the run is the same as with the scene in this process.
+    pub fn with_world_process(
+        dev: D,
+        rig: &Rig,
+        at: &Endpoint,
+        scene: Option<&str>,
+        timeout: Duration,
+    ) -> anyhow::Result<VirtualRun<D>> {
+        let dir = PrivateDir::for_process()?;
+        let (link, w) = connect_world(rig, at, &dir, scene, 0.0, timeout)?;
+        let step_ns = (w.step_s * 1e9).round() as u64;
+        let stats = link.shared_stats();
+        let lockstep = Lockstep {
+            waiter: link.waiter().context("waiting on the link")?,
+            seen: [
+                LinkStats::get(&stats.hellos),
+                LinkStats::get(&stats.sends_unanswered),
+                0,
+                LinkStats::get(&stats.connects),
+            ],
+            stats,
+            step_ns,
+            next_ns: 0,
+            timeout: timeout.max(Duration::from_secs(1)),
+            timeouts: 0,
+        };
+        let mut v = Self::build(dev, rig, None, Some(Box::new(link)), step_ns, Some(lockstep))?;
+        v._dir = Some(dir);
+        Ok(v)
+    }
+
+    fn build(
+        dev: D,
+        rig: &Rig,
+        scene: Option<Box<dyn Scene>>,
+        link: Option<Box<dyn spidar_link::RigLink>>,
+        scene_step_ns: u64,
+        lockstep: Option<Lockstep>,
+    ) -> anyhow::Result<VirtualRun<D>> {
         let clock = VirtualClock::new();
         let (mut ep, far) = Endpoints::pair();
         ep.telemetry = None; // records are read directly, tick by tick
         ep.events = None;
+        if link.is_some() {
+            ep.link = link;
+        }
         let mut rt = RtLoop::new(dev, clock.clone(), rig, ep)?;
         rt.configure().map_err(|e| anyhow::anyhow!("opening the device: {e}"))?;
-        let scene_step_ns = scene.as_ref().map_or(3_000_000, |s| (s.step_s() * 1e9).round() as u64);
         Ok(VirtualRun {
             rt,
             far,
@@ -114,9 +249,13 @@ impl<D: Device> VirtualRun<D> {
             clock,
             stats: Stats::new(),
             last_sample: None,
+            observers: Vec::new(),
+            rig_info: rig_info(rig),
             scene_step_ns,
             next_scene_ns: 0,
             samples: Vec::with_capacity(64),
+            lockstep,
+            _dir: None,
         })
     }
 
@@ -126,12 +265,23 @@ impl<D: Device> VirtualRun<D> {
         self.rt.command(Command::Activate);
     }
 
-    /// One loop tick, then a scene step if one is due. Returns the tick's record.
+    /// One loop tick, then a world step if one is due. Returns the tick's record.
     pub fn tick(&mut self) -> TickRecord {
         self.rt.tick();
         let rec = *self.rt.last_record();
         self.stats.add(&rec);
+        self.after_tick();
+        rec
+    }
+
+    /// The world's side of a tick (for callers that run `rt.tick()` themselves): the in-process
+    /// scene steps if a step is due, or a world process is given time to answer.
+    pub fn after_tick(&mut self) {
         let now = self.clock.now_ns();
+        if let Some(l) = self.lockstep.as_mut() {
+            l.after_tick(now);
+            return;
+        }
         let scene_due = self.scene.is_some() && now >= self.next_scene_ns;
         if scene_due || self.scene.is_none() {
             self.samples.clear();
@@ -141,11 +291,24 @@ impl<D: Device> VirtualRun<D> {
             }
         }
         if let (true, Some(scene)) = (scene_due, self.scene.as_mut()) {
-            let m = scene.step(now as f64 * 1e-9, &self.samples);
+            let t_s = now as f64 * 1e-9;
+            let m = scene.step(t_s, &self.samples);
+            if !self.observers.is_empty() {
+                let status = self.far.status.try_iter().last();
+                for o in self.observers.iter_mut() {
+                    o.after_step(&StepView {
+                        t_s,
+                        scene: &**scene,
+                        samples: &self.samples,
+                        model: &m,
+                        rig_info: Some(&self.rig_info),
+                        rig_status: status.as_ref(),
+                    });
+                }
+            }
             let _ = self.far.models.try_send(m);
             self.next_scene_ns = now + self.scene_step_ns;
         }
-        rec
     }
 
     pub fn run_ticks(&mut self, n: u64) {
@@ -162,6 +325,16 @@ impl<D: Device> VirtualRun<D> {
     pub fn counters(&self) -> &Counters {
         self.rt.core().counters()
     }
+
+    /// The socket link's counters (a world process), if any.
+    pub fn link_stats(&self) -> Option<Arc<LinkStats>> {
+        self.lockstep.as_ref().map(|l| l.stats.clone())
+    }
+
+    /// Lockstep answers that did not come in time (a world process only).
+    pub fn lockstep_timeouts(&self) -> u64 {
+        self.lockstep.as_ref().map_or(0, |l| l.timeouts)
+    }
 }
 
 /// What a live run reports at the end.
@@ -175,10 +348,17 @@ pub struct Summary {
     pub stats: Stats,
     pub counters: Counters,
     pub scene_steps: u64,
-    pub scene_late: u64,
+    /// Steps that started late (known for a thread world; a world process reports its own).
+    pub scene_late: Option<u64>,
     pub models_dropped: u64,
     /// The scene's own status at the end (`Scene::status`).
     pub scene_status: String,
+    /// Where the world ran, and what became of it.
+    pub world: String,
+    /// The link's counters (a world process).
+    pub link: Option<String>,
+    /// The world process's own report.
+    pub world_report: Option<String>,
     pub final_state: Lifecycle,
     pub faults_seen: Vec<String>,
     pub clean_stop: bool,
@@ -232,18 +412,26 @@ impl std::fmt::Display for Summary {
         for fault in &self.faults_seen {
             writeln!(f, "  fault        {fault}")?;
         }
+        let late = self.scene_late.map_or(String::new(), |n| format!(" ({n} late)"));
         writeln!(
             f,
-            "  scene        {} steps ({} late), {} models received, {} dropped",
-            self.scene_steps, self.scene_late, c.models, self.models_dropped
+            "  scene        {} steps{late}, {} models received, {} dropped",
+            self.scene_steps, c.models, self.models_dropped
         )?;
         if !self.scene_status.is_empty() {
             writeln!(f, "               {}", self.scene_status)?;
         }
+        writeln!(f, "  world        {}", self.world)?;
+        if let Some(l) = &self.link {
+            writeln!(f, "  link         {l}")?;
+        }
+        if let Some(r) = &self.world_report {
+            writeln!(f, "  world said   {r}")?;
+        }
         writeln!(
             f,
-            "  dropped      telemetry {}, samples {}, events {}",
-            c.telemetry_dropped, c.samples_dropped, c.events_dropped
+            "  dropped      telemetry {}, samples {} (their impulses went with the next), impulses {}, events {}",
+            c.telemetry_dropped, c.samples_dropped, c.impulses_lost, c.events_dropped
         )?;
         write!(
             f,
@@ -258,6 +446,17 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// Where the world of a live run is.
+pub enum WorldChoice {
+    /// A thread of the rig's process, stepping this scene (with its observers: the live view).
+    Thread(Stepper),
+    /// A world process started (and restarted) by the session, on a Unix socket in a private
+    /// directory.
+    Child(ChildWorldSpec),
+    /// A world process already running at this address; `scene`: the scene to insist on.
+    Connect { at: Endpoint, scene: Option<String> },
+}
+
 /// What `run_live` needs.
 pub struct LiveOptions {
     pub seconds: Option<f64>,
@@ -266,128 +465,434 @@ pub struct LiveOptions {
     pub spin_ns: u64,
     /// Print the status line (to stderr) every this often; None: quiet.
     pub status_every: Option<Duration>,
-    pub stop: Arc<AtomicBool>,
+    pub stop: Stop,
     pub scene_name: String,
     pub script_name: String,
-    /// Watch the scene thread's steps (the live view); they get the rig's geometry and status.
-    pub observers: Vec<Box<dyn spidar_world::Observer>>,
+    /// How long to wait for the world's first answer.
+    pub connect_timeout: Duration,
+    /// SCHED_FIFO priority of a thread world (a child world gets its own `--priority`).
+    pub world_priority: Option<u8>,
 }
 
-/// Runs a session on the real clock until `seconds` pass or `stop` is set (Ctrl-C), then stops
-/// cleanly: force ramps out, strings hold minimum tension, the device is switched off.
-pub fn run_live<D: Device + 'static>(
-    dev: D,
+/// One per session: its size does not matter.
+#[allow(clippy::large_enum_variant)]
+enum LiveWorld {
+    Thread {
+        handle: Option<JoinHandle<Stepper>>,
+        stop: Arc<AtomicBool>,
+        counters: Arc<SceneCounters>,
+    },
+    Process {
+        stats: Arc<LinkStats>,
+        at: Endpoint,
+        scene: String,
+        child: Option<ChildWorld>,
+        last_state: LinkState,
+        _dir: PrivateDir,
+    },
+}
+
+type RtHandle<D> = JoinHandle<(RtReport, RtLoop<D, MonotonicClock>)>;
+
+/// A live run under way: poll it until it ends, then `finish` it.
+pub struct LiveSession<D: Device + 'static> {
+    rt_handle: Option<RtHandle<D>>,
+    commands: Sender<Command>,
+    events: Receiver<Event>,
+    telemetry: Receiver<TickRecord>,
+    world: LiveWorld,
+    pub stats: Stats,
+    pub faults_seen: Vec<String>,
+    start: Instant,
+    stop_deadline: Option<Instant>,
+    stopped: bool,
+    device: String,
+    scene_name: String,
+    script_name: String,
+}
+
+/// Starts a world process listening in `dir` and connects to it, retrying while it starts
+/// (loading a scene takes a moment); an early exit is an error with what it said.
+pub fn start_child_world(
     rig: &Rig,
-    scene: Box<dyn Scene>,
-    opts: LiveOptions,
-) -> anyhow::Result<Summary> {
-    let device_name = format!("{} ({})", dev.info().board, dev.info().identity);
-    let clock = MonotonicClock::new();
-    let (ep, far) = Endpoints::pair();
-    let mut rt = RtLoop::new(dev, clock.with_spin(opts.spin_ns), rig, ep)?;
-    rt.configure().map_err(|e| anyhow::anyhow!("opening the device: {e}"))?;
+    spec: ChildWorldSpec,
+    dir: &PrivateDir,
+    clock: &MonotonicClock,
+    timeout: Duration,
+) -> anyhow::Result<(ChildWorld, SocketRigLink, Welcome)> {
+    start_child_world_at(rig, spec, &Endpoint::unix(&dir.join("world.sock")), dir, clock, timeout)
+}
 
-    let scene_stop = Arc::new(AtomicBool::new(false));
-    let scene_counters = Arc::new(SceneCounters::default());
-    let FarEnds { commands, events, models, samples, telemetry } = far;
-    // The viewers' rig status comes from the telemetry read below (the world's link will carry it).
-    let mut rig_feed = None;
-    let mut observers = scene_thread::Observers::default();
-    if !opts.observers.is_empty() {
-        let (feed, rx) = crate::rig_view::RigStatusFeed::new(rig);
-        rig_feed = Some(feed);
-        observers = scene_thread::Observers {
-            list: opts.observers,
-            rig_info: Some(crate::rig_view::rig_info(rig)),
-            rig_status: Some(rx),
-        };
-    }
-    let scene_handle = scene_thread::spawn(
-        scene,
-        clock,
-        samples,
-        models,
-        scene_stop.clone(),
-        scene_counters.clone(),
-        observers,
-    )
-    .context("starting the scene thread")?;
-
-    let rt_opts = opts.rt.clone();
-    let rt_handle = std::thread::Builder::new()
-        .name("spidar-rt".into())
-        .spawn(move || {
-            let report = rt_thread::setup_current_thread(&rt_opts);
-            rt.run();
-            (report, rt)
-        })
-        .context("starting the real-time thread")?;
-
-    // The grips start at their home points on the simulated rig; a real rig's operator holds them
-    // there before starting (see README).
-    let _ = commands.try_send(Command::Home);
-    let _ = commands.try_send(Command::Activate);
-
-    let start = Instant::now();
-    let mut stats = Stats::new();
-    let mut last_status = Instant::now();
-    let mut stop_sent = false;
-    let mut faults_seen = Vec::new();
-    let mut stopped = false;
-    let mut stop_deadline = None;
-    let status_every = opts.status_every;
-    let mut printed_status = false;
+/// The same at any address (a UDP one for benchmarks).
+pub fn start_child_world_at(
+    rig: &Rig,
+    spec: ChildWorldSpec,
+    at: &Endpoint,
+    dir: &PrivateDir,
+    clock: &MonotonicClock,
+    timeout: Duration,
+) -> anyhow::Result<(ChildWorld, SocketRigLink, Welcome)> {
+    let at = at.clone();
+    let mut child = ChildWorld::start(spec, &at)?;
+    let until = Instant::now() + timeout;
+    let mut said = Vec::new();
     loop {
-        // Poll (never block on) the loop's channels: see spidar_rt::runner.
-        for r in telemetry.try_iter() {
-            stats.add(&r);
-            if let Some(f) = rig_feed.as_mut() {
-                f.add(&r);
-            }
-        }
-        for e in events.try_iter() {
-            match e {
-                Event::Fault(why) => faults_seen.push(format!("{why}")),
-                Event::Refused { command, why } => faults_seen.push(format!("{command:?} refused: {why}")),
-                Event::DeviceReopened => {
-                    faults_seen.push("device reopened after a disconnect: home again".into())
+        let try_for = until.saturating_duration_since(Instant::now()).min(Duration::from_millis(200));
+        match connect_world(rig, &at, dir, None, clock.now_ns() as f64 * 1e-9, try_for) {
+            Ok((link, w)) => {
+                // What the world said as it started (where its live view is).
+                child.read_lines(&mut |l| said.push(l));
+                for l in said {
+                    eprintln!("world: {l}");
                 }
-                Event::Stopped => stopped = true,
+                return Ok((child, link, w));
+            }
+            Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}
+            // Not there yet: the socket file does not exist or nobody listens on it.
+            Err(LinkError::Io { .. }) if Instant::now() < until => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            Err(e) => return Err(e).context("connecting to the world process"),
+        }
+        if let Some(how) = child.try_exit(&mut |l| said.push(l)) {
+            bail!("the world process {how} before it answered: {}", said.join(" | "));
+        }
+        child.read_lines(&mut |l| said.push(l));
+    }
+}
+
+impl<D: Device + 'static> LiveSession<D> {
+    /// Opens the device, starts or connects to the world, starts the loop, homes and activates.
+    pub fn start(
+        dev: D,
+        rig: &Rig,
+        world: WorldChoice,
+        opts: &LiveOptions,
+    ) -> anyhow::Result<LiveSession<D>> {
+        let device = format!("{} ({})", dev.info().board, dev.info().identity);
+        let clock = MonotonicClock::new();
+        let (mut ep, far) = Endpoints::pair();
+        let FarEnds { commands, events, models, samples, status, telemetry } = far;
+        let live_world = match world {
+            WorldChoice::Thread(stepper) => {
+                let stop = Arc::new(AtomicBool::new(false));
+                let counters = Arc::new(SceneCounters::default());
+                let handle = scene_thread::spawn(
+                    stepper,
+                    clock,
+                    ChannelWorldEnd { models, samples, status },
+                    rig_info(rig),
+                    stop.clone(),
+                    counters.clone(),
+                    opts.world_priority,
+                )
+                .context("starting the scene thread")?;
+                LiveWorld::Thread { handle: Some(handle), stop, counters }
+            }
+            WorldChoice::Child(spec) => {
+                let dir =
+                    PrivateDir::for_process().context("making a private directory for the world's socket")?;
+                let (child, link, w) = start_child_world(rig, spec, &dir, &clock, opts.connect_timeout)?;
+                let stats = link.shared_stats();
+                ep.link = Some(Box::new(link));
+                LiveWorld::Process {
+                    stats,
+                    at: Endpoint::unix(&dir.join("world.sock")),
+                    scene: w.scene.as_str().to_string(),
+                    child: Some(child),
+                    last_state: LinkState::Connected,
+                    _dir: dir,
+                }
+            }
+            WorldChoice::Connect { at, scene } => {
+                let dir =
+                    PrivateDir::for_process().context("making a private directory for the rig's socket")?;
+                let (link, w) = connect_world(
+                    rig,
+                    &at,
+                    &dir,
+                    scene.as_deref(),
+                    clock.now_ns() as f64 * 1e-9,
+                    opts.connect_timeout,
+                )?;
+                let stats = link.shared_stats();
+                ep.link = Some(Box::new(link));
+                LiveWorld::Process {
+                    stats,
+                    at,
+                    scene: w.scene.as_str().to_string(),
+                    child: None,
+                    last_state: LinkState::Connected,
+                    _dir: dir,
+                }
+            }
+        };
+        let mut rt = RtLoop::new(dev, clock.with_spin(opts.spin_ns), rig, ep)?;
+        rt.configure().map_err(|e| anyhow::anyhow!("opening the device: {e}"))?;
+        let rt_opts = opts.rt.clone();
+        let rt_handle = std::thread::Builder::new()
+            .name("spidar-rt".into())
+            .spawn(move || {
+                let report = rt_thread::setup_current_thread(&rt_opts);
+                rt.run();
+                (report, rt)
+            })
+            .context("starting the real-time thread")?;
+        // The grips start at their home points on the simulated rig; a real rig's operator holds
+        // them there before starting (see README).
+        let _ = commands.try_send(Command::Home);
+        let _ = commands.try_send(Command::Activate);
+        Ok(LiveSession {
+            rt_handle: Some(rt_handle),
+            commands,
+            events,
+            telemetry,
+            world: live_world,
+            stats: Stats::new(),
+            faults_seen: Vec::new(),
+            start: Instant::now(),
+            stop_deadline: None,
+            stopped: false,
+            device,
+            scene_name: opts.scene_name.clone(),
+            script_name: opts.script_name.clone(),
+        })
+    }
+
+    /// Takes the loop's telemetry (each record to `each`) and events, and watches the world
+    /// (restarting a child world that ended; `say` gets what is worth a line). Never blocks.
+    /// False once the loop has stopped.
+    pub fn poll(&mut self, each: &mut dyn FnMut(&TickRecord), say: &mut dyn FnMut(String)) -> bool {
+        for r in self.telemetry.try_iter() {
+            self.stats.add(&r);
+            each(&r);
+        }
+        for e in self.events.try_iter() {
+            match e {
+                Event::Fault(why) => self.faults_seen.push(format!("{why}")),
+                Event::Refused { command, why } => {
+                    self.faults_seen.push(format!("{command:?} refused: {why}"))
+                }
+                Event::DeviceReopened => {
+                    self.faults_seen.push("device reopened after a disconnect: home again".into())
+                }
+                Event::Stopped => self.stopped = true,
                 _ => {}
             }
         }
-        if stopped || rt_handle.is_finished() {
+        if let LiveWorld::Process { stats, child, last_state, .. } = &mut self.world {
+            if let Some(c) = child.as_mut() {
+                if self.stop_deadline.is_none() {
+                    c.check(say);
+                } else {
+                    c.read_lines(say);
+                }
+            }
+            let state = stats.state();
+            // Once stopping, the rig says goodbye itself: nothing to announce.
+            if state != *last_state && self.stop_deadline.is_none() {
+                match state {
+                    LinkState::Lost => say(
+                        "world lost: its force fades to zero, the strings hold minimum tension, the rig stays homed; \
+                         waiting for a world"
+                            .into(),
+                    ),
+                    LinkState::Connected => say("world connected: force ramps back in".into()),
+                    LinkState::Refused => {
+                        let why = stats.handshake.read().and_then(|(_, d)| match spidar_msg::wire::decode(&d) {
+                            Ok((_, spidar_msg::wire::Message::Refuse(r))) => Some(r.reason.as_str().to_string()),
+                            _ => None,
+                        });
+                        say(format!("the world refused this rig: {}", why.unwrap_or_else(|| "no reason given".into())))
+                    }
+                    LinkState::Connecting => {}
+                }
+                *last_state = state;
+            }
+        }
+        !(self.stopped || self.rt_handle.as_ref().is_none_or(|h| h.is_finished()))
+    }
+
+    /// Asks the loop to ramp out and stop.
+    pub fn request_stop(&mut self) {
+        if self.stop_deadline.is_none() {
+            let _ = self.commands.try_send(Command::Stop);
+            self.stop_deadline = Some(Instant::now() + Duration::from_secs(5));
+        }
+    }
+
+    /// The stop was asked for more than 5 s ago and the loop still runs.
+    pub fn stop_overdue(&self) -> bool {
+        self.stop_deadline.is_some_and(|d| Instant::now() > d)
+    }
+
+    pub fn elapsed_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+
+    /// The world process's id (a child world).
+    pub fn world_pid(&self) -> Option<u32> {
+        match &self.world {
+            LiveWorld::Process { child: Some(c), .. } => c.pid(),
+            _ => None,
+        }
+    }
+
+    /// The world process's starts so far (a child world).
+    pub fn world_starts(&self) -> u32 {
+        match &self.world {
+            LiveWorld::Process { child: Some(c), .. } => c.starts,
+            _ => 0,
+        }
+    }
+
+    pub fn link_stats(&self) -> Option<&LinkStats> {
+        match &self.world {
+            LiveWorld::Process { stats, .. } => Some(stats),
+            LiveWorld::Thread { .. } => None,
+        }
+    }
+
+    /// The status line: the loop's state, rate, lateness, forces, and the world's.
+    pub fn status_line(&mut self) -> String {
+        let faults = self.faults_seen.len();
+        let (steps, world, scene) = match &self.world {
+            LiveWorld::Thread { counters, .. } => (
+                counters.steps.load(Ordering::Relaxed),
+                String::new(),
+                counters.status.lock().map(|s| s.clone()).unwrap_or_default(),
+            ),
+            LiveWorld::Process { stats, child, .. } => {
+                let state = stats.state();
+                let world = match state {
+                    LinkState::Connected => String::new(),
+                    LinkState::Lost => "  WORLD LOST".into(),
+                    s => format!("  world {}", s.name()),
+                };
+                let (steps, scene) = child.as_ref().and_then(|c| c.status.clone()).unwrap_or_default();
+                let steps = if child.is_some() { steps } else { LinkStats::get(&stats.models) };
+                (steps, world, scene)
+            }
+        };
+        let mut line = status_line(&self.stats, faults, steps);
+        line.push_str(&world);
+        if !scene.is_empty() {
+            line.push_str("  | ");
+            line.push_str(&scene);
+        }
+        line
+    }
+
+    /// Waits for the loop to end (after a stop), ends the world, and reports.
+    pub fn finish(mut self, say: &mut dyn FnMut(String)) -> anyhow::Result<Summary> {
+        let handle = self.rt_handle.take().context("the loop was already finished")?;
+        let (report, rt) = handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
+        for r in self.telemetry.try_iter() {
+            self.stats.add(&r);
+        }
+        let c = *rt.core().counters();
+        let (scene_steps, scene_late, models_dropped, scene_status, world, link, world_report) =
+            match &mut self.world {
+                LiveWorld::Thread { handle, stop, counters } => {
+                    stop.store(true, Ordering::Relaxed);
+                    let stepper = handle
+                        .take()
+                        .context("the scene thread")?
+                        .join()
+                        .map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
+                    (
+                        counters.steps.load(Ordering::Relaxed),
+                        Some(counters.late_steps.load(Ordering::Relaxed)),
+                        counters.models_dropped.load(Ordering::Relaxed),
+                        stepper.scene().status(),
+                        "a thread of this process".to_string(),
+                        None,
+                        None,
+                    )
+                }
+                LiveWorld::Process { stats, at, scene, child, .. } => {
+                    let mut world = format!("process at {at}, scene {scene}");
+                    let (mut steps, mut status, mut report) =
+                        (LinkStats::get(&stats.models), String::new(), None);
+                    if let Some(ch) = child.as_mut() {
+                        // The rig said goodbye as it stopped; now end the world and keep its last words.
+                        ch.stop(Duration::from_secs(3), say);
+                        if let Some((n, s)) = ch.status.clone() {
+                            (steps, status) = (n, s);
+                        }
+                        report = ch.report.clone();
+                        world.push_str(&format!(
+                            " (a child of this process, pid {}; starts {}{})",
+                            ch.last_pid,
+                            ch.starts,
+                            if ch.exits.is_empty() {
+                                String::new()
+                            } else {
+                                format!(": it {}", ch.exits.join(", then "))
+                            }
+                        ));
+                    }
+                    (steps, None, 0, status, world, Some(stats.summary()), report)
+                }
+            };
+        Ok(Summary {
+            scene_status,
+            device: self.device.clone(),
+            scene: self.scene_name.clone(),
+            script: self.script_name.clone(),
+            wall_s: self.start.elapsed().as_secs_f64(),
+            rt: report,
+            stats: std::mem::replace(&mut self.stats, Stats::new()),
+            counters: c,
+            scene_steps,
+            scene_late,
+            models_dropped,
+            world,
+            link,
+            world_report,
+            final_state: rt.state(),
+            faults_seen: std::mem::take(&mut self.faults_seen),
+            clean_stop: rt.is_finished(),
+        })
+    }
+}
+
+/// Runs a session on the real clock until `seconds` pass or a stop is requested (a signal), then
+/// stops cleanly: force ramps out, strings hold minimum tension, the device is switched off, the
+/// world ends.
+pub fn run_live<D: Device + 'static>(
+    dev: D,
+    rig: &Rig,
+    world: WorldChoice,
+    opts: LiveOptions,
+) -> anyhow::Result<Summary> {
+    let mut s = LiveSession::start(dev, rig, world, &opts)?;
+    let mut last_status = Instant::now();
+    let mut printed_status = false;
+    let mut say = |line: String| {
+        let mut err = std::io::stderr().lock();
+        let _ = writeln!(err, "\r\x1b[Kworld: {line}");
+    };
+    loop {
+        if !s.poll(&mut |_| {}, &mut say) {
             break;
         }
-        let elapsed = start.elapsed().as_secs_f64();
-        let time_up = opts.seconds.is_some_and(|s| elapsed >= s);
-        if !stop_sent && (time_up || opts.stop.load(Ordering::Relaxed)) {
-            let _ = commands.try_send(Command::Stop);
-            stop_sent = true;
-            if let Some(f) = rig_feed.as_mut() {
-                f.stopping();
-            }
-            stop_deadline = Some(Instant::now() + Duration::from_secs(5));
+        let time_up = opts.seconds.is_some_and(|t| s.elapsed_s() >= t);
+        if time_up || opts.stop.requested() {
+            s.request_stop();
         }
-        if stop_deadline.is_some_and(|d| Instant::now() > d) {
+        if s.stop_overdue() {
             bail!("the real-time loop did not stop within 5 s of the stop command");
         }
-        if let Some(every) = status_every {
+        if let Some(every) = opts.status_every {
             if last_status.elapsed() >= every {
                 last_status = Instant::now();
-                let mut line =
-                    status_line(&stats, faults_seen.len(), scene_counters.steps.load(Ordering::Relaxed));
-                if let Ok(st) = scene_counters.status.lock() {
-                    if !st.is_empty() {
-                        line.push_str("  | ");
-                        line.push_str(&st);
-                    }
-                }
+                let line = s.status_line();
                 let mut err = std::io::stderr().lock();
                 let _ = write!(err, "\r{line}\x1b[K");
                 let _ = err.flush();
                 printed_status = true;
-                stats.reset_window();
+                s.stats.reset_window();
             }
         }
         std::thread::sleep(Duration::from_millis(5));
@@ -395,30 +900,8 @@ pub fn run_live<D: Device + 'static>(
     if printed_status {
         eprintln!();
     }
-    let (report, rt) = rt_handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
-    for r in telemetry.try_iter() {
-        stats.add(&r);
-    }
-    scene_stop.store(true, Ordering::Relaxed);
-    let scene = scene_handle.join().map_err(|_| anyhow::anyhow!("the scene thread panicked"))?;
-    Ok(Summary {
-        scene_status: scene.status(),
-        device: device_name,
-        scene: opts.scene_name,
-        script: opts.script_name,
-        wall_s: start.elapsed().as_secs_f64(),
-        rt: report,
-        stats,
-        counters: *rt.core().counters(),
-        scene_steps: scene_counters.steps.load(Ordering::Relaxed),
-        scene_late: scene_counters.late_steps.load(Ordering::Relaxed),
-        models_dropped: scene_counters.models_dropped.load(Ordering::Relaxed),
-        final_state: rt.state(),
-        faults_seen,
-        clean_stop: rt.is_finished(),
-    })
+    s.finish(&mut say)
 }
-
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
 pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let w = &stats.window;

@@ -5,11 +5,14 @@
 //! receives every `HandSample` (positions, velocities, and the impulses the rt-loop applied to
 //! each proxy), steps, and sends one `ContactModel` stamped with the loop-clock time it is valid at.
 //! The boxing scene ([`boxing`]) runs the reactive virtual human, the crowd scene ([`crowd`]) the
-//! keyframe characters. A scene runs on its own thread on the real clock or interleaved with the
-//! loop on the virtual clock (both wired in `spidar_tools::session`).
+//! keyframe characters. Whatever hosts a scene steps it through a [`host::Stepper`]: the world
+//! process ([`host::serve`], `spidar world`), a thread in the rig's process on the real clock, or
+//! the loop's own thread interleaved with it on the virtual clock (both wired in
+//! `spidar_tools::session`).
 
 pub mod boxing;
 pub mod crowd;
+pub mod host;
 pub mod look;
 mod looks;
 pub mod view;

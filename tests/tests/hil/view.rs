@@ -17,14 +17,16 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender};
 use glam::{DQuat, DVec3};
 use serde_json::{json, Value};
+use spidar_link::channel::ChannelWorldEnd;
 use spidar_msg::{ContactModel, HandSample, HandState, RigState, RigStatus};
+use spidar_rt::status::rig_info;
 use spidar_rt::{Clock, MonotonicClock};
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::keyframe::Pose as SkeletonPose;
-use spidar_tools::rig_view::rig_info;
-use spidar_tools::scene_thread::{self, Observers, SceneCounters};
+use spidar_tools::scene_thread::{self, SceneCounters};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
+use spidar_world::host::Stepper;
 use spidar_world::view::{View, ViewHandle, ViewOptions};
 use spidar_world::{Observer, Scene, StepView};
 
@@ -144,7 +146,7 @@ fn known_rig_status() -> RigStatus {
 
 struct Hosting {
     stop: Arc<AtomicBool>,
-    scene: Option<JoinHandle<Box<dyn Scene>>>,
+    scene: Option<JoinHandle<Stepper>>,
     feeder: Option<JoinHandle<()>>,
     counters: Arc<SceneCounters>,
     view: ViewHandle,
@@ -214,19 +216,17 @@ fn host<S: Scene + 'static>(
     let clock = MonotonicClock::new();
     let stop = Arc::new(AtomicBool::new(false));
     let counters = Arc::new(SceneCounters::default());
-    let observers = Observers {
-        list: vec![Box::new(view)],
-        rig_info: Some(rig_info(&rig())),
-        rig_status: Some(status_rx),
-    };
+    let mut stepper = Stepper::new(Box::new(hosted));
+    stepper.add_observer(Box::new(view));
+    // The world as `spidar run --world thread` hosts it.
     let scene = scene_thread::spawn(
-        Box::new(hosted),
+        stepper,
         clock,
-        samples_rx,
-        models_tx,
+        ChannelWorldEnd { models: models_tx, samples: samples_rx, status: status_rx },
+        rig_info(&rig()),
         stop.clone(),
         counters.clone(),
-        observers,
+        None,
     )
     .unwrap();
     // The user's hands at 1 kHz on the scene's clock.
@@ -669,7 +669,8 @@ fn view_observer_allocates_nothing_per_step() {
 #[ignore = "writes docs/img: run by hand"]
 fn view_screenshots_for_the_readme() {
     use spidar_rt::rt_thread::RtOptions;
-    use spidar_tools::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions};
+    use spidar_tools::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions, WorldChoice};
+    use spidar_tools::signals::Stop;
     if !browser_here("view_screenshots_for_the_readme") {
         return;
     }
@@ -684,18 +685,23 @@ fn view_screenshots_for_the_readme() {
         let view = View::start(scene.name(), &scene.look(), &any_port()).unwrap();
         let url = view.url().to_string();
         let dev = sim_device(&r, load_scripts(script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
+        let stop = Stop::detached();
         let opts = LiveOptions {
             seconds: Some(30.0),
             rt: RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() },
             spin_ns: 0,
             status_every: None,
-            stop: Arc::new(AtomicBool::new(false)),
+            stop: stop.clone(),
             scene_name: scene_name.into(),
             script_name: script.into(),
-            observers: vec![Box::new(view)],
+            connect_timeout: Duration::from_secs(10),
+            world_priority: None,
         };
-        let stop = opts.stop.clone();
-        let run = std::thread::spawn(move || run_live(dev, &r, scene, opts).map(|_| ()));
+        // The world on a thread of `spidar run`, with the view as its observer.
+        let mut stepper = Stepper::new(scene);
+        stepper.add_observer(Box::new(view));
+        let run =
+            std::thread::spawn(move || run_live(dev, &r, WorldChoice::Thread(stepper), opts).map(|_| ()));
         for (camera, file, wait) in shots {
             let path = img.join(file);
             node(
@@ -703,7 +709,7 @@ fn view_screenshots_for_the_readme() {
                 |_| json!({"error": "no questions"}),
             );
         }
-        stop.store(true, Ordering::Relaxed);
+        stop.request();
         run.join().unwrap().unwrap();
     }
 }

@@ -1,0 +1,244 @@
+//! `spidar world`: the world process. It loads a scene, listens for a rig (a Unix socket in a
+//! private directory by default, or UDP for a rig on another host), and steps the scene while a
+//! rig is connected; a rig that leaves or goes silent pauses it until one connects again.
+//!
+//! It runs with the normal scheduler, below the rig's real-time loop, and may allocate. The first
+//! line on stdout is where it listens. On stderr it says what happens on the link; with
+//! `--report-status` (as the child of `spidar run`) it also writes machine-readable lines that
+//! the rig shows in its status line: `@status <steps>\t<scene status>` twice a second and
+//! `@report <summary>` at the end.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use spidar_link::world::{WorldLink, WorldOffer};
+use spidar_link::{Endpoint, PrivateDir};
+use spidar_world::host::{serve, ServeOptions, ServeReport, Stepper};
+use spidar_world::{Observer, StepView};
+
+use crate::signals::Stop;
+
+/// Marks a status line on a child world's stderr.
+pub const STATUS_PREFIX: &str = "@status ";
+/// Marks the final report line on a child world's stderr.
+pub const REPORT_PREFIX: &str = "@report ";
+
+/// The world process's options (`spidar world --help`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct WorldArgs {
+    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, a boxer file like
+    /// configs/boxer.ron, `crowd` or a crowd scene file (*crowd*.ron), `walls` (the rig check) or
+    /// a walls scene file (.ron).
+    #[arg(long, default_value = "boxing")]
+    pub scene: String,
+    /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host
+    /// (udp://:PORT listens on 127.0.0.1 only; udp://0.0.0.0:PORT on every interface). Default:
+    /// unix:$XDG_RUNTIME_DIR/spidar/world.sock, or a new private directory (printed).
+    #[arg(long)]
+    pub listen: Option<String>,
+    /// The rig is taken as gone (and the scene paused) after this long without a datagram.
+    #[arg(long, default_value_t = 0.5)]
+    pub rig_lost_s: f64,
+    /// Step when a virtual-clock rig's samples say a step is due, instead of on this clock
+    /// (bit-identical runs through two processes; for tests).
+    #[arg(long, hide = true)]
+    pub lockstep: bool,
+    /// Step with SCHED_FIFO at this priority: keeps the model fresh on a busy machine. Keep it
+    /// below the rig's loop (80 by default). Default: the normal scheduler.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
+    pub priority: Option<u8>,
+    /// Write `@status` lines for a parent `spidar run` to show (set by it).
+    #[arg(long, hide = true)]
+    pub report_status: bool,
+    /// No scene: answer every sample at once with a model carrying its times (`spidar bench
+    /// link` measures the link's round trip with it).
+    #[arg(long, hide = true)]
+    pub echo: bool,
+    #[command(flatten)]
+    pub view: ViewArgs,
+}
+
+/// Where the live view is served (`spidar world`, and `spidar run` for its world).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ViewArgs {
+    /// Serve the live 3D view at this address (HOST:PORT, :PORT or http://HOST:PORT; frames on the
+    /// next port). Default http://127.0.0.1:8080, or a free port when that one is taken.
+    #[arg(long, value_name = "ADDR")]
+    pub view: Option<String>,
+    /// No live view.
+    #[arg(long, conflicts_with = "view")]
+    pub no_view: bool,
+}
+
+impl ViewArgs {
+    /// The same choice as arguments of a child `spidar world`.
+    pub fn child_args(&self) -> Vec<std::ffi::OsString> {
+        match (&self.view, self.no_view) {
+            (_, true) => vec!["--no-view".into()],
+            (Some(a), false) => vec!["--view".into(), a.into()],
+            (None, false) => Vec::new(),
+        }
+    }
+}
+
+/// Starts the live view of `scene` as `--view`/`--no-view` say, and says where it is on stderr.
+pub fn start_view(
+    a: &ViewArgs,
+    scene: &dyn spidar_world::Scene,
+) -> anyhow::Result<Option<spidar_world::view::View>> {
+    use spidar_world::view::{parse_addr, View, ViewOptions};
+    if a.no_view {
+        return Ok(None);
+    }
+    let look = scene.look();
+    let view = match &a.view {
+        Some(addr) => {
+            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
+        }
+        // The default port may be taken (another spidar): then any free one.
+        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
+            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
+            View::start(scene.name(), &look, &any)
+        })?,
+    };
+    eprintln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
+    Ok(Some(view))
+}
+
+/// Where an echo world puts what it measured in the model it answers with: the sample's tick
+/// in `seq`, its `t_s` in `stamp_s`, and the rig-to-world trip (kernel arrival time minus the
+/// send time the sample carried in `ECHO_SENT_AT`) in seconds in `extra_force_n[0].x`.
+pub const ECHO_MODULO_NS: i64 = 1_000_000_000_000;
+
+/// The CLOCK_REALTIME nanoseconds (modulo `ECHO_MODULO_NS`, exact in an f64) an echo sample was
+/// sent at travel in `hands[0].pos_m.x`.
+pub fn echo_sample(tick: u64, t_s: f64) -> spidar_msg::HandSample {
+    let mut s = spidar_msg::HandSample { tick, t_s, ..Default::default() };
+    s.hands[0].pos_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
+    s
+}
+
+fn run_echo(link: &mut WorldLink, stop: &Stop) {
+    let (mut arrived, mut events) = (Vec::new(), Vec::new());
+    while !stop.requested() {
+        link.wait(Duration::from_millis(50));
+        link.drain(&mut arrived, &mut events);
+        events.clear();
+        for a in arrived.drain(..) {
+            let s = a.sample;
+            let sent = s.hands[0].pos_m.x as i64;
+            let trip = (a.arrived_ns % ECHO_MODULO_NS - sent).rem_euclid(ECHO_MODULO_NS);
+            let mut m = spidar_msg::ContactModel { seq: s.tick, stamp_s: s.t_s, ..Default::default() };
+            m.extra_force_n[0].x = trip as f64 * 1e-9;
+            link.send_model(&m, &mut events);
+        }
+    }
+    link.close();
+}
+
+/// Writes `@status` lines every half second.
+struct StatusLines {
+    last: Option<Instant>,
+    steps: u64,
+}
+
+impl Observer for StatusLines {
+    fn after_step(&mut self, step: &StepView<'_>) {
+        self.steps += 1;
+        if self.last.is_none_or(|t| t.elapsed() >= Duration::from_millis(500)) {
+            self.last = Some(Instant::now());
+            let _ =
+                writeln!(std::io::stderr().lock(), "{STATUS_PREFIX}{}\t{}", self.steps, step.scene.status());
+        }
+    }
+}
+
+/// Sets the calling world thread's scheduling: SCHED_FIFO at `priority`, or the normal scheduler
+/// (threads inherit their creator's policy: a world started from the rig's loop must not keep it).
+pub fn setup_world_thread(priority: Option<u8>) -> spidar_rt::rt_thread::RtReport {
+    match priority {
+        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
+            fifo_priority: Some(p),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        }),
+        None => {
+            let normal = libc::sched_param { sched_priority: 0 };
+            // SAFETY: sets the calling thread's policy; a valid sched_param.
+            unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &normal) };
+            spidar_rt::rt_thread::RtReport { policy: "SCHED_OTHER (normal)".into(), ..Default::default() }
+        }
+    }
+}
+
+/// Runs the world until `stop` is requested (SIGINT, SIGTERM, SIGHUP, or the parent rig's end).
+pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
+    if !(a.rig_lost_s.is_finite() && a.rig_lost_s > 0.0) {
+        bail!("--rig-lost-s must be a positive number of seconds");
+    }
+    if a.echo {
+        let listen = Endpoint::parse(a.listen.as_deref().unwrap_or(""))?;
+        let offer =
+            WorldOffer { scene: "echo".into(), step_s: 0.001, rig_lost_after: Duration::from_secs(3600) };
+        let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
+        println!("spidar world: echo listening on {}", link.listening());
+        let _ = std::io::stdout().flush();
+        run_echo(&mut link, stop);
+        return Ok(ServeReport { link: *link.stats(), ..Default::default() });
+    }
+    let scene = spidar_world::load(&a.scene)?;
+    let step_s = scene.step_s();
+    let scene_label = format!("{} ({})", a.scene, scene.name());
+    // The default directory lives as long as the world.
+    let mut _dir = None;
+    let listen = match &a.listen {
+        Some(s) => Endpoint::parse(s)?,
+        None => {
+            let d =
+                PrivateDir::user_default().context("making a private directory for the world's socket")?;
+            let ep = Endpoint::unix(&d.join("world.sock"));
+            _dir = Some(d);
+            ep
+        }
+    };
+    let offer =
+        WorldOffer { scene: a.scene.clone(), step_s, rig_lost_after: Duration::from_secs_f64(a.rig_lost_s) };
+    let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
+    let at = link.listening().clone();
+    if let Some(p) = a.priority {
+        let rep = setup_world_thread(Some(p));
+        for w in &rep.warnings {
+            eprintln!("spidar world: warning: {w}");
+        }
+    }
+    println!("spidar world: scene {scene_label} listening on {at}");
+    let _ = std::io::stdout().flush();
+    if !a.report_status {
+        eprintln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
+    }
+    let view = start_view(&a.view, &*scene)?;
+    let mut stepper = Stepper::new(scene);
+    if let Some(v) = view {
+        stepper.add_observer(Box::new(v));
+    }
+    if a.report_status {
+        stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
+    }
+    let stop_fn = || stop.requested();
+    let rep = serve(&mut stepper, &mut link, &ServeOptions { lockstep: a.lockstep }, &stop_fn, &mut |line| {
+        eprintln!("spidar world: {line}")
+    });
+    if a.report_status {
+        eprintln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
+        eprintln!("{REPORT_PREFIX}{rep}");
+    } else {
+        eprintln!("spidar world: {rep}");
+        let status = stepper.scene().status();
+        if !status.is_empty() {
+            eprintln!("spidar world: {status}");
+        }
+    }
+    Ok(rep)
+}
