@@ -391,7 +391,10 @@ fn main() -> anyhow::Result<()> {
                     rt: rt_options(&rig),
                     scene,
                     echoes,
-                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world: ChildWorldSpec {
+                        extra: vec!["--no-view".into()],
+                        ..ChildWorldSpec::this_executable("walls", 0)?
+                    },
                     world_priority,
                 },
             )?;
