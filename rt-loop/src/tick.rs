@@ -620,6 +620,8 @@ impl TickCore {
                 method: alloc.method,
                 contacts: rendered.contacts,
                 clamped: g.clamped,
+                stiffness_limited: rendered.stiffness_limited,
+                non_finite: g.non_finite,
             };
         }
         sample.tick = tick;

@@ -801,6 +801,9 @@ mod uart_pty;
 #[path = "hil/boxing.rs"]
 mod boxing;
 
+#[path = "hil/record.rs"]
+mod record;
+
 // The rig and the world as two processes.
 #[path = "hil/link.rs"]
 mod link;

@@ -15,6 +15,7 @@ use spidar_rt::Rig;
 use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
 use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_tools::report;
 use spidar_tools::session::{
     self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
 };
@@ -62,7 +63,17 @@ enum Cmd {
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
+        /// Print the results as JSON, for scripts.
+        #[arg(long, global = true)]
+        json: bool,
     },
+    /// Print what a recording (`run --record`) holds; with --verify, re-run the rt-loop from its
+    /// recorded inputs and check every output bit for bit.
+    Replay(spidar_tools::recording::ReplayArgs),
+    /// Write one CSV file per channel of a recording, each with a header line.
+    Export(spidar_tools::recording::ExportArgs),
+    /// Plot a recording as SVG: force per hand, tensions per string, lateness, events and hits.
+    Plot(spidar_tools::recording::PlotArgs),
 }
 
 #[derive(Subcommand)]
@@ -211,6 +222,13 @@ struct RunArgs {
     /// The live view of the world (served by the world: the child process or the thread).
     #[command(flatten)]
     view: spidar_tools::world_process::ViewArgs,
+    /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
+    /// contact model, the events, and the files that made the session. See docs/recording.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
+    /// Print the summary as JSON, for scripts.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -251,6 +269,22 @@ enum BenchCmd {
         /// Alternations between the two loops.
         #[arg(long, default_value_t = 10)]
         blocks: u32,
+    },
+    /// Wake-up lateness of live sessions with and without --record (alternating blocks), and the
+    /// recording's size per hour.
+    Record {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of session for each arm.
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        /// Alternations between the two arms.
+        #[arg(long, default_value_t = 6)]
+        blocks: u32,
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        #[arg(long, default_value = "box")]
+        script: String,
     },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
     /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
@@ -315,19 +349,29 @@ fn main() -> anyhow::Result<()> {
         }
         Cmd::Calib { what } => spidar_tools::calib::run(what),
         Cmd::Emulate(a) => emulate(a),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+        Cmd::Replay(a) => spidar_tools::recording::replay(&a),
+        Cmd::Export(a) => spidar_tools::recording::export(&a),
+        Cmd::Plot(a) => spidar_tools::recording::plot(&a),
+        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            let mut bout = None;
             if bout_seconds > 0.0 {
                 eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
-                println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
-                println!("  world step   {}", b.step);
-                println!("  prediction   {}", b.prediction);
-                println!("  step+predict {}", b.step_with_prediction);
-                let [med, p99, max] = b.prediction_steps;
-                println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
-                println!("  rt misses    {}", b.misses);
-                println!("  scene        {}\n", b.status);
+                if !json {
+                    println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                    println!("  world step   {}", b.step);
+                    println!("  prediction   {}", b.prediction);
+                    println!("  step+predict {}", b.step_with_prediction);
+                    let [med, p99, max] = b.prediction_steps;
+                    println!(
+                        "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead",
+                        b.horizon_steps
+                    );
+                    println!("  rt misses    {}", b.misses);
+                    println!("  scene        {}\n", b.status);
+                }
+                bout = Some(b);
             }
             let r = eval::reactions(trials, seed, |done, total| {
                 if done % 16 == 0 || done == total {
@@ -335,7 +379,12 @@ fn main() -> anyhow::Result<()> {
                 }
             })?;
             eprintln!();
-            println!("{r}");
+            if json {
+                let j = serde_json::json!({ "command": "eval reactions", "bout": bout, "reactions": r });
+                println!("{j:#}");
+            } else {
+                println!("{r}");
+            }
             Ok(())
         }
         Cmd::Devices { probe, port } => {
@@ -360,7 +409,7 @@ fn main() -> anyhow::Result<()> {
             println!("{rep}");
             Ok(())
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed } } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             if trials == 0 || practice == 0 {
                 bail!("--trials and --practice must be at least 1");
@@ -372,7 +421,31 @@ fn main() -> anyhow::Result<()> {
                 }
             })?;
             eprintln!();
-            println!("{report}");
+            if json {
+                println!("{:#}", serde_json::json!({ "command": "eval impacts", "report": report }));
+            } else {
+                println!("{report}");
+            }
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
+            if !(seconds.is_finite() && seconds > 0.0) {
+                bail!("--seconds must be a positive number");
+            }
+            let r = load_rig(&rig)?;
+            eprintln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
+            let rep = spidar_tools::bench_record::bench_record(
+                &r,
+                &spidar_tools::bench_record::RecordBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig),
+                    scene,
+                    script,
+                    dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
+                },
+            )?;
+            println!("{rep}");
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
@@ -577,6 +650,21 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         slack: a.slack,
         ..Default::default()
     };
+    // Created before the device opens: a path that cannot be written stops the run here.
+    let mut recorder = match &a.record {
+        Some(path) => {
+            let info = spidar_tools::recording::session_info(
+                a.rig.rig.as_deref(),
+                &scene_arg,
+                &a.script,
+                &format!("{:?}", a.device),
+                a.seed,
+                a.virtual_clock,
+            )?;
+            Some(spidar_tools::recording::create(path, &info)?)
+        }
+        None => None,
+    };
     let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
             eprintln!(
@@ -611,37 +699,77 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();
-        v.run_ticks(ticks);
-        v.rt.command(spidar_rt::Command::Stop);
-        while v.rt.tick() {}
-        let wall = t0.elapsed().as_secs_f64();
-        let c = v.counters();
-        println!(
-            "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
-            c.ticks,
-            wall,
-            seconds / wall
-        );
-        println!("  compute      {}", v.stats.compute.percentiles());
-        if let Some(s) = v.scene.as_ref() {
-            println!("  scene        {}", s.status());
+        for _ in 0..ticks {
+            let r = v.tick();
+            if let Some(rec) = recorder.as_mut() {
+                rec.write_tick(&r);
+            }
         }
-        println!(
-            "  max force    left {:.2} N, right {:.2} N",
-            v.stats.max_force_n[0], v.stats.max_force_n[1]
-        );
-        println!(
-            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
-            c.faults
-        );
-        println!("  end          {}", v.rt.state().name());
-        return Ok(());
+        v.rt.command(spidar_rt::Command::Stop);
+        loop {
+            let more = v.rt.tick();
+            if let Some(rec) = recorder.as_mut() {
+                rec.write_tick(v.rt.last_record());
+            }
+            if !more {
+                break;
+            }
+        }
+        let wall = t0.elapsed().as_secs_f64();
+        let c = *v.counters();
+        let recording = recorder.map(|r| {
+            r.finish(&spidar_record::writer::EndInfo {
+                ticks: c.ticks,
+                telemetry_dropped: 0,
+                final_state: v.rt.state().name().into(),
+                clean_stop: v.rt.is_finished(),
+                faults: c.faults,
+            })
+        });
+        let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
+        if a.json {
+            let j = report::virtual_json(&report::VirtualRunReport {
+                ticks: c.ticks,
+                rig_seconds: seconds,
+                wall_s: wall,
+                stats: &v.stats,
+                counters: &c,
+                scene_status: &status,
+                end: v.rt.state(),
+                recording: recording.as_ref(),
+            });
+            println!("{j:#}");
+        } else {
+            println!(
+                "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
+                c.ticks,
+                wall,
+                seconds / wall
+            );
+            println!("  compute      {}", v.stats.compute.percentiles());
+            if !status.is_empty() {
+                println!("  scene        {status}");
+            }
+            println!(
+                "  max force    left {:.2} N, right {:.2} N",
+                v.stats.max_force_n[0], v.stats.max_force_n[1]
+            );
+            println!(
+                "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
+                c.clamped[0],
+                c.clamped[1],
+                c.infeasible[0],
+                c.infeasible[1],
+                c.fallback[0],
+                c.fallback[1],
+                c.faults
+            );
+            if let Some(r) = &recording {
+                println!("  recording    {r}");
+            }
+            println!("  end          {}", v.rt.state().name());
+        }
+        return report::check_outcome(v.rt.state(), &c, &[]);
     }
 
     let stop = Stop::install()?;
@@ -659,9 +787,21 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             script_name: a.script.clone(),
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
+            recorder: match recorder {
+                Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
+                None => None,
+            },
         },
     )?;
-    println!("{summary}");
+    let recording = summary.recording.clone();
+    if a.json {
+        println!("{:#}", report::run_json(&summary, recording.as_ref()));
+    } else {
+        println!("{summary}");
+        if let Some(r) = &recording {
+            println!("  recording    {r}");
+        }
+    }
     let lat = summary.stats.lateness.percentiles();
     if summary.counters.misses > 0 {
         eprintln!(
@@ -673,5 +813,5 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !summary.clean_stop {
         bail!("the loop did not stop cleanly");
     }
-    Ok(())
+    report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)
 }

@@ -362,6 +362,8 @@ pub struct Summary {
     pub final_state: Lifecycle,
     pub faults_seen: Vec<String>,
     pub clean_stop: bool,
+    /// What `LiveOptions::recorder` wrote.
+    pub recording: Option<spidar_record::writer::RecordingReport>,
 }
 
 impl std::fmt::Display for Summary {
@@ -472,6 +474,8 @@ pub struct LiveOptions {
     pub connect_timeout: Duration,
     /// SCHED_FIFO priority of a thread world (a child world gets its own `--priority`).
     pub world_priority: Option<u8>,
+    /// Records every tick (`spidar run --record`): `run_live` feeds it the telemetry.
+    pub recorder: Option<spidar_record::writer::RecorderThread>,
 }
 
 /// One per session: its size does not matter.
@@ -853,6 +857,7 @@ impl<D: Device + 'static> LiveSession<D> {
             final_state: rt.state(),
             faults_seen: std::mem::take(&mut self.faults_seen),
             clean_stop: rt.is_finished(),
+            recording: None,
         })
     }
 }
@@ -864,9 +869,15 @@ pub fn run_live<D: Device + 'static>(
     dev: D,
     rig: &Rig,
     world: WorldChoice,
-    opts: LiveOptions,
+    mut opts: LiveOptions,
 ) -> anyhow::Result<Summary> {
     let mut s = LiveSession::start(dev, rig, world, &opts)?;
+    let mut recorder = opts.recorder.take();
+    let mut each = |r: &TickRecord| {
+        if let Some(rec) = recorder.as_mut() {
+            rec.push(r);
+        }
+    };
     let mut last_status = Instant::now();
     let mut printed_status = false;
     let mut say = |line: String| {
@@ -874,7 +885,7 @@ pub fn run_live<D: Device + 'static>(
         let _ = writeln!(err, "\r\x1b[Kworld: {line}");
     };
     loop {
-        if !s.poll(&mut |_| {}, &mut say) {
+        if !s.poll(&mut each, &mut say) {
             break;
         }
         let time_up = opts.seconds.is_some_and(|t| s.elapsed_s() >= t);
@@ -900,7 +911,13 @@ pub fn run_live<D: Device + 'static>(
     if printed_status {
         eprintln!();
     }
-    s.finish(&mut say)
+    // The loop's last records (sent before its `Stopped`) may still be queued.
+    s.poll(&mut each, &mut say);
+    let mut summary = s.finish(&mut say)?;
+    if let Some(r) = recorder {
+        summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
+    }
+    Ok(summary)
 }
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
 pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {

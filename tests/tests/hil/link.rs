@@ -444,6 +444,7 @@ fn live_options(scene: &str) -> LiveOptions {
         script_name: "press".into(),
         connect_timeout: WAIT,
         world_priority: None,
+        recorder: None,
     }
 }
 

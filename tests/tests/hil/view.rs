@@ -696,6 +696,7 @@ fn view_screenshots_for_the_readme() {
             script_name: script.into(),
             connect_timeout: Duration::from_secs(10),
             world_priority: None,
+            recorder: None,
         };
         // The world on a thread of `spidar run`, with the view as its observer.
         let mut stepper = Stepper::new(scene);
