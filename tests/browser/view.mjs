@@ -1,5 +1,5 @@
 // The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
-// ASK lines): `node view.mjs boxing|crowd URL`, and `node view.mjs screenshot URL CAMERA FILE`
+// ASK lines): `node view.mjs boxing|crowd|live URL`, and `node view.mjs screenshot URL CAMERA FILE`
 // for the README's pictures.
 import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
 
@@ -175,6 +175,28 @@ async function crowd(browser) {
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
 }
 
+// The page as a user opens it from the address `spidar run`'s world process printed: frames flow,
+// the virtual human is drawn where they put it, the grips are shown, the HUD shows the rig and the
+// world's link (checked against the world's own /status.json by the Rust test).
+async function live(browser) {
+  const a = await open(browser, url, 'camera=orbit');
+  await a.waitForFunction(() => { const s = spidarView.state().status; return s && s.rig && s.rig.state === 'active' && s.link.state === 'up'; },
+    { timeout: 60000, polling: 100 });
+  const t0 = (await state(a)).t;
+  await untilTime(a, t0 + 1.0);
+  const st = await state(a);
+  check(st.scene === 'boxing' && st.hasRig, `the page has the world's scene (${st.scene}) and the rig's geometry`);
+  check(st.framesReceived > 10, `frames arrive (${st.framesReceived} received)`);
+  const p = await pause(a);
+  const head = await a.evaluate(() => spidarView.shape('virtual human/head'));
+  check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');
+  const px = await pixels(a, RED, around(head.screen, 45));
+  check(px.n > 400, `the virtual human's head is drawn at its place (${px.n} red pixels)`);
+  const grips = await a.evaluate(() => spidarView.grips());
+  check(grips.length === 2 && grips.every((g) => g.visible), 'both grips are shown');
+  await ask({ ask: 'check_live', t: p.t, hud: await a.evaluate(() => spidarView.hud()), page_steps: st.status.steps });
+}
+
 async function shot(browser) {
   const [camera, file, seconds] = rest;
   const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
@@ -183,4 +205,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

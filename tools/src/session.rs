@@ -561,11 +561,9 @@ pub fn start_child_world_at(
         let try_for = until.saturating_duration_since(Instant::now()).min(Duration::from_millis(200));
         match connect_world(rig, &at, dir, None, clock.now_ns() as f64 * 1e-9, try_for) {
             Ok((link, w)) => {
-                // What the world said as it started (where its live view is).
-                child.read_lines(&mut |l| said.push(l));
-                for l in said {
-                    eprintln!("world: {l}");
-                }
+                // What the world said as it started (where its live view is) goes to the
+                // session's next `poll`, with the world's later lines.
+                child.hold_lines(said);
                 return Ok((child, link, w));
             }
             Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}

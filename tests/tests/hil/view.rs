@@ -663,15 +663,166 @@ fn view_observer_allocates_nothing_per_step() {
     let _ = reader.join();
 }
 
+// ---------------------------------------------------------------------------------------------
+// `spidar run`'s path: the view served by its child world process.
+
+/// `spidar run --scene SCENE --script SCRIPT --view 127.0.0.1:0` on the simulated rig: the
+/// rt-loop, and the child world process (this package's `spidar world`) started, watched and
+/// linked by the session as `spidar run` does, with the view option passed through. The session
+/// is polled on its own thread until `stop`.
+struct RunPath {
+    /// The view's address, as the world printed it.
+    url: String,
+    stop: spidar_tools::signals::Stop,
+    run: Option<JoinHandle<spidar_tools::session::Summary>>,
+    said: Arc<Mutex<Vec<String>>>,
+}
+
+impl RunPath {
+    fn start(scene: &str, script: &str) -> RunPath {
+        use spidar_rt::rt_thread::RtOptions;
+        use spidar_tools::child_world::ChildWorldSpec;
+        use spidar_tools::session::{
+            load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice,
+        };
+        let stop = spidar_tools::signals::Stop::detached();
+        let said = Arc::new(Mutex::new(Vec::<String>::new()));
+        let (url_tx, url_rx) = crossbeam_channel::bounded(1);
+        let opts = LiveOptions {
+            seconds: None,
+            rt: RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() },
+            spin_ns: 0,
+            status_every: None,
+            stop: stop.clone(),
+            scene_name: scene.into(),
+            script_name: script.into(),
+            connect_timeout: Duration::from_secs(60),
+            world_priority: None,
+            recorder: None,
+        };
+        let spec = ChildWorldSpec {
+            program: env!("CARGO_BIN_EXE_spidar-hil-world").into(),
+            prefix: Vec::new(),
+            scene: scene.into(),
+            restarts: 0,
+            extra: vec!["--view".into(), "127.0.0.1:0".into()],
+        };
+        let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
+        let run = std::thread::spawn(move || {
+            let r = rig();
+            let dev = sim_device(&r, load_scripts(&script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
+            let mut s = LiveSession::start(dev, &r, WorldChoice::Child(spec), &opts).unwrap();
+            let mut url_tx = Some(url_tx);
+            let mut say = |l: String| {
+                // "live view at http://127.0.0.1:PORT (frames on ws://...)"
+                if let Some(at) = l.split("live view at ").nth(1) {
+                    if let Some(tx) = url_tx.take() {
+                        let _ = tx.send(at.split(' ').next().unwrap_or("").to_string());
+                    }
+                }
+                sd.lock().unwrap().push(l);
+            };
+            while s.poll(&mut |_| {}, &mut say) {
+                if st.requested() {
+                    s.request_stop();
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            s.finish(&mut say).unwrap()
+        });
+        let url = url_rx.recv_timeout(Duration::from_secs(90)).unwrap_or_else(|_| {
+            stop.request();
+            panic!("the world process printed no view address; it said {:?}", said.lock().unwrap())
+        });
+        RunPath { url, stop, run: Some(run), said }
+    }
+
+    /// Stops the run (the rig stops, the world process ends) and gives its summary.
+    fn finish(mut self) -> spidar_tools::session::Summary {
+        self.stop.request();
+        self.run.take().unwrap().join().expect("the session")
+    }
+
+    /// `GET path` from the world process's view server: the JSON it answers.
+    fn get(&self, path: &str) -> Value {
+        use std::io::Read;
+        let host = self.url.trim_start_matches("http://");
+        let mut c = std::net::TcpStream::connect(host).unwrap();
+        write!(c, "GET {path} HTTP/1.0\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+        let mut text = String::new();
+        c.read_to_string(&mut text).unwrap();
+        let (head, body) = text.split_once("\r\n\r\n").expect("an HTTP answer");
+        assert!(head.starts_with("HTTP/1.") && head.contains(" 200 "), "GET {path}: {head}");
+        serde_json::from_str(body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
+    }
+
+    fn answer(&self, q: &Value) -> Value {
+        match q["ask"].as_str().unwrap() {
+            "check_live" => {
+                let hud = q["hud"].as_object().unwrap();
+                let text = |k: &str| hud.get(k).and_then(|v| v.as_str()).unwrap_or("(missing)").to_string();
+                let world = self.get("/status.json");
+                assert_eq!(world["rig"]["state"], "active", "the world's status: {world}");
+                assert_eq!(world["link"]["state"], "up", "the world's status: {world}");
+                assert_eq!(
+                    text("rig_state"),
+                    "active",
+                    "the HUD's rig state; the world says {}",
+                    world["rig"]["state"]
+                );
+                assert_eq!(
+                    text("link"),
+                    "up",
+                    "the HUD's world link; the world says {}",
+                    world["link"]["state"]
+                );
+                assert!(text("scene").ends_with("boxing"), "the HUD's scene: {}", text("scene"));
+                assert_eq!(world["viewers"], 1, "the world counts the browser");
+                assert_eq!(text("viewers"), "1", "the HUD's viewers");
+                let (page, steps) = (q["page_steps"].as_u64().unwrap(), world["steps"].as_u64().unwrap());
+                assert!(steps >= page && page > 0, "the world's steps ({steps}) and the page's ({page})");
+                let scene = self.get("/scene.json");
+                assert_eq!(scene["name"], "boxing");
+                json!({"ok": true})
+            }
+            other => json!({"error": format!("unknown question {other}")}),
+        }
+    }
+}
+
+impl Drop for RunPath {
+    fn drop(&mut self) {
+        self.stop.request();
+        if let Some(r) = self.run.take() {
+            let _ = r.join();
+        }
+    }
+}
+
+/// The page as a user opens it: `spidar run --view` passes the address to its child world
+/// process, which serves the view there and prints where; a browser opened at that address
+/// draws the virtual human, the grips and a HUD that agrees with the world's `/status.json`.
+#[test]
+fn view_served_by_spidar_runs_child_world_process() {
+    let _one = one_at_a_time();
+    if !browser_here("view_served_by_spidar_runs_child_world_process") {
+        return;
+    }
+    let run = RunPath::start("boxing", "box");
+    assert!(run.url.starts_with("http://127.0.0.1:") && !run.url.ends_with(":0"), "printed {}", run.url);
+    node(&["live", &run.url], |q| run.answer(q));
+    let said = run.said.clone();
+    let sum = run.finish();
+    assert!(sum.clean_stop, "{sum}");
+    assert_eq!(sum.counters.faults, 0, "{sum}; the world said {:?}", said.lock().unwrap());
+}
+
 /// The README's pictures (`docs/img/`), taken by the same harness from `spidar run`'s path: the
-/// simulated rig, the rt-loop, the scene thread and the view.
+/// simulated rig, the rt-loop and the child world process serving the view.
 /// `cargo test -p spidar-tests --test hil view_screenshots -- --ignored`
 #[test]
 #[ignore = "writes docs/img: run by hand"]
 fn view_screenshots_for_the_readme() {
-    use spidar_rt::rt_thread::RtOptions;
-    use spidar_tools::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions, WorldChoice};
-    use spidar_tools::signals::Stop;
     if !browser_here("view_screenshots_for_the_readme") {
         return;
     }
@@ -681,37 +832,15 @@ fn view_screenshots_for_the_readme() {
         ("boxing", "box", vec![("eye", "boxing-eye.png", "4"), ("orbit", "boxing-side.png", "3")]),
         ("crowd", "spar", vec![("orbit", "crowd.png", "5")]),
     ] {
-        let r = rig();
-        let scene = spidar_world::load(scene_name).unwrap();
-        let view = View::start(scene.name(), &scene.look(), &any_port()).unwrap();
-        let url = view.url().to_string();
-        let dev = sim_device(&r, load_scripts(script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
-        let stop = Stop::detached();
-        let opts = LiveOptions {
-            seconds: Some(30.0),
-            rt: RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() },
-            spin_ns: 0,
-            status_every: None,
-            stop: stop.clone(),
-            scene_name: scene_name.into(),
-            script_name: script.into(),
-            connect_timeout: Duration::from_secs(10),
-            world_priority: None,
-            recorder: None,
-        };
-        // The world on a thread of `spidar run`, with the view as its observer.
-        let mut stepper = Stepper::new(scene);
-        stepper.add_observer(Box::new(view));
-        let run =
-            std::thread::spawn(move || run_live(dev, &r, WorldChoice::Thread(stepper), opts).map(|_| ()));
+        let run = RunPath::start(scene_name, script);
         for (camera, file, wait) in shots {
             let path = img.join(file);
             node(
-                &["screenshot", &url, camera, path.to_str().unwrap(), wait],
+                &["screenshot", &run.url, camera, path.to_str().unwrap(), wait],
                 |_| json!({"error": "no questions"}),
             );
         }
-        stop.request();
-        run.join().unwrap().unwrap();
+        let sum = run.finish();
+        assert!(sum.clean_stop, "{sum}");
     }
 }
