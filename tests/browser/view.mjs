@@ -8,6 +8,13 @@ const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 const describe = async () => (await fetch(`${url}/scene.json`)).json();
 
+// Waits until the page has a status (its HUD shows it) composed at world time >= t with the link
+// up: a status of the world as it is now, not one on its way since before.
+const statusAfter = (page, t) => page.waitForFunction((t) => {
+  const s = spidarView.state().status;
+  return s && s.t_s >= t && s.link.state === 'up';
+}, { timeout: 60000, polling: 50 }, t);
+
 async function shapes(page, names) {
   return page.evaluate((names) => Object.fromEntries(names.map((n) => [n, spidarView.shape(n)])), names);
 }
@@ -60,7 +67,9 @@ async function boxing(browser) {
   await a.evaluate(() => spidarView.resume());
   const second = await launch(); // a second browser, not a tab: both draw all the time
   const b = await open(second.browser, url, 'camera=orbit');
-  await sleep(1500);
+  // A status composed after the second browser came (and after the hold): both count it.
+  const tb = (await state(b)).t + 0.3;
+  for (const p of [a, b]) await statusAfter(p, tb);
   for (const [name, p] of [['first', a], ['second', b]]) {
     await ask({ ask: 'check_hud', browser: name, hud: await p.evaluate(() => spidarView.hud()) });
   }
@@ -146,7 +155,7 @@ async function crowd(browser) {
   check(green.n > 150, `it is drawn where the world has it, in the balancing colour (${green.n} green pixels)`);
 
   // A push makes it fall: the world holds still once it is down.
-  await ask({ ask: 'push', i: w });
+  const { t_down } = await ask({ ask: 'push', i: w });
   await a.evaluate(() => spidarView.resume());
   const s3 = await (async () => {
     const { t } = await state(a);
@@ -171,7 +180,7 @@ async function crowd(browser) {
   const red = await pixels(a, RED, around(at3, 30));
   check(red.n > 300, `it is drawn lying there in the down colour (${red.n} red pixels around its chest)`);
   await a.evaluate(() => spidarView.resume());
-  await sleep(800);
+  await statusAfter(a, t_down + 0.3);
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
 }
 

@@ -300,6 +300,18 @@ impl Hosting {
         r.clone()
     }
 
+    /// Holds the world still; gives the loop time of a step taken after the hold (every status
+    /// from then on shows the held world's numbers).
+    fn hold(&self) -> f64 {
+        self.ctl.hold.store(true, Ordering::Relaxed);
+        // The step under way may have read the flag before: two more steps.
+        let n = self.log.lock().unwrap().len();
+        while self.log.lock().unwrap().len() < n + 2 {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.latest().t
+    }
+
     fn latest(&self) -> Rec {
         self.log.lock().unwrap().last().cloned().expect("no step recorded")
     }
@@ -371,8 +383,7 @@ impl Hosting {
                     }
                     let r = self.latest();
                     if r.skeletons[i].1 == Policy::Down {
-                        self.ctl.hold.store(true, Ordering::Relaxed);
-                        return json!({"t_down": self.latest().t});
+                        return json!({"t_down": self.hold()});
                     }
                     if Instant::now() > until {
                         return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
@@ -380,11 +391,7 @@ impl Hosting {
                     std::thread::sleep(Duration::from_millis(20));
                 }
             }
-            "hold" => {
-                self.ctl.hold.store(true, Ordering::Relaxed);
-                std::thread::sleep(Duration::from_millis(300));
-                json!({"ok": true})
-            }
+            "hold" => json!({"t_hold": self.hold()}),
             "check_hud" => {
                 let hud = q["hud"].as_object().unwrap();
                 let text = |k: &str| {
