@@ -25,12 +25,30 @@ use spidar_rt::status::rig_info;
 pub fn crowd_of(n: usize) -> anyhow::Result<CrowdScene> {
     use spidar_sim::character::keyframe::KEYFRAMES_HUMANOID_RON;
     use spidar_sim::character::scene::{build_crowd, BODY_CHARACTER_RON, SCENE_CROWD_RON};
-    // 1.2 m apart on a grid in front of the user.
+    // The built-in scene with `n` characters on a square area 1.2 m apart in front of the user,
+    // its near edge where the built-in scene has it.
     let side = ((n as f64).sqrt().ceil() * 1.2 + 1.2).max(4.8);
-    let text = SCENE_CROWD_RON.replace("count: 8,", &format!("count: {n},")).replace(
-        "area_m: (-2.4, -3.0, 2.4, -0.3)",
-        &format!("area_m: ({:.1}, {:.1}, {:.1}, -0.3)", -side / 2.0, -side - 0.3, side / 2.0),
-    );
+    let field = |key: &str| -> anyhow::Result<(usize, usize)> {
+        let at = SCENE_CROWD_RON.find(key).ok_or_else(|| anyhow::anyhow!("no {key} in the crowd scene"))?;
+        let end = at + SCENE_CROWD_RON[at..].find(',').unwrap_or(0);
+        let end = if key == "area_m:" { at + SCENE_CROWD_RON[at..].find(')').unwrap_or(0) + 1 } else { end };
+        Ok((at, end))
+    };
+    let (area_at, area_end) = field("area_m:")?;
+    let near: f64 = SCENE_CROWD_RON[area_at..area_end - 1]
+        .rsplit(',')
+        .next()
+        .and_then(|v| v.trim().parse().ok())
+        .ok_or_else(|| anyhow::anyhow!("the crowd scene's area_m is not four numbers"))?;
+    let (count_at, count_end) = field("count:")?;
+    let area = format!("area_m: ({:.1}, {:.1}, {:.1}, {near})", -side / 2.0, near - side, side / 2.0);
+    let mut text = SCENE_CROWD_RON.to_string();
+    // The later field first: the earlier one's offsets stay valid.
+    let mut edits = [(area_at, area_end, area), (count_at, count_end, format!("count: {n}"))];
+    edits.sort_by_key(|e| std::cmp::Reverse(e.0));
+    for (a, b, with) in edits {
+        text.replace_range(a..b, &with);
+    }
     let crowd = build_crowd(&text, &format!("the built-in crowd with {n} characters"), |name| {
         let t = if name == "body-character.ron" { BODY_CHARACTER_RON } else { KEYFRAMES_HUMANOID_RON };
         Ok((t.to_string(), name.to_string()))

@@ -59,7 +59,8 @@ enum Cmd {
         what: BenchCmd,
     },
     /// Evaluations against the papers: `reactions` (seed 000: timing during a bout and the
-    /// reaction experiment), `impacts` (seed 002: impact-force estimation).
+    /// reaction experiment), `impacts` (seed 002: impact-force estimation), `poses` (seed 002:
+    /// contact sheets of the characters as drawn).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -90,6 +91,18 @@ enum EvalCmd {
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// rig: hands push the character through the simulated rig, the rt-loop and the crowd
+        /// scene (the user's path); stepper: a force on the crowd stepper's character (the paper's
+        /// heights, down to the feet).
+        #[arg(long, value_enum, default_value = "rig")]
+        path: spidar_tools::eval_impacts::ImpactPath,
+    },
+    /// Seed 002: contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
+    /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
+    Poses {
+        /// Folder the sheets are written to.
+        #[arg(long, default_value = "docs/poses")]
+        out: PathBuf,
     },
     /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
     /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
@@ -200,10 +213,11 @@ struct RunArgs {
     /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
-    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
-    /// tour (for `walls`), or a script file (.ron).
-    #[arg(long, default_value = "box")]
-    script: String,
+    /// The simulated user's hands: box (jabs and hooks at the virtual human), crowd (pushes at the
+    /// crowd's front row), hold, circle, spar, tour (for `walls`), or a script file (.ron).
+    /// Default: the scene's own (crowd for a crowd scene, box otherwise).
+    #[arg(long)]
+    script: Option<String>,
     /// Stop after this many seconds (default: run until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
@@ -398,6 +412,15 @@ fn main() -> anyhow::Result<()> {
             }
             Ok(())
         }
+        Cmd::Eval { what: EvalCmd::Poses { out }, json } => {
+            let report = spidar_tools::eval_poses::eval_poses(&out)?;
+            if json {
+                println!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
+            } else {
+                println!("{report}");
+            }
+            Ok(())
+        }
         Cmd::Devices { probe, port } => {
             print!("{}", hardware::devices_report(&port, probe));
             Ok(())
@@ -420,12 +443,18 @@ fn main() -> anyhow::Result<()> {
             println!("{rep}");
             Ok(())
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed, path }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             if trials == 0 || practice == 0 {
                 bail!("--trials and --practice must be at least 1");
             }
-            let o = ImpactOptions { trials, practice_per_combo: practice, seed, ..ImpactOptions::default() };
+            let o = ImpactOptions {
+                trials,
+                practice_per_combo: practice,
+                seed,
+                path,
+                ..ImpactOptions::default()
+            };
             let report = eval_impacts(&o, |done, total| {
                 if done % 50 == 0 || done == total {
                     eprint!("\r  simulated {done}/{total} hits");
@@ -654,7 +683,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
         }
     };
-    let scripts = load_scripts(&a.script, &rig, a.seed)?;
+    let script = a.script.clone().unwrap_or_else(|| session::default_script(&scene_arg).to_string());
+    let scripts = load_scripts(&script, &rig, a.seed)?;
     let sim_opts = SimOptions {
         seed: a.seed,
         encoder_noise_counts: a.noise_counts,
@@ -667,7 +697,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             let info = spidar_tools::recording::session_info(
                 a.rig.rig.as_deref(),
                 &scene_arg,
-                &a.script,
+                &script,
                 &format!("{:?}", a.device),
                 a.seed,
                 a.virtual_clock,
@@ -680,7 +710,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         None => {
             eprintln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
-                rig.name, a.seed, scene_name, a.script
+                rig.name, a.seed, scene_name, script
             );
             Box::new(sim_device(&rig, scripts, &sim_opts)?)
         }
@@ -793,7 +823,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
             scene_name,
-            script_name: a.script.clone(),
+            script_name: script.clone(),
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
             recorder: match recorder {
