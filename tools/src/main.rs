@@ -245,6 +245,9 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// The live view of the world (served by the world: the child process or the thread).
+    #[command(flatten)]
+    view: spidar_tools::world_process::ViewArgs,
     /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
     /// contact model, the events, and the files that made the session. See docs/recording.md.
     #[arg(long, value_name = "FILE.mcap")]
@@ -256,6 +259,32 @@ struct RunArgs {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// The world step's time with the live view off, on without viewers and on with viewers
+    /// reading every frame, in alternating blocks; and the viewers' frame rate.
+    View {
+        /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// `boxing` (the box script), `boxing-passive` (no predictions: the step's time is steady)
+        /// or `crowd` (the spar script).
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Characters in the crowd scene.
+        #[arg(long, default_value_t = 1000)]
+        characters: usize,
+        /// Seconds of each block.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Rounds of the three blocks.
+        #[arg(long, default_value_t = 5)]
+        rounds: u32,
+        /// Viewers in the viewers' blocks.
+        #[arg(long, default_value_t = 3)]
+        viewers: usize,
+        /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+        fifo: Option<u8>,
+    },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
         #[command(flatten)]
@@ -494,11 +523,30 @@ fn main() -> anyhow::Result<()> {
                     rt: rt_options(&rig)?,
                     scene,
                     echoes,
-                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world: ChildWorldSpec {
+                        extra: vec!["--no-view".into()],
+                        ..ChildWorldSpec::this_executable("walls", 0)?
+                    },
                     world_priority,
                 },
             )?;
             println!("{rep}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
+            use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
+            if !(seconds.is_finite() && seconds > 0.0) || rounds == 0 {
+                bail!("--seconds must be a positive number and --rounds at least 1");
+            }
+            let r = match &rig {
+                Some(p) => Rig::load(p)?,
+                None => Rig::default_rig(),
+            };
+            eprintln!(
+                "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+            );
+            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
+            println!("{}", bench_view(&r, &o)?);
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
@@ -620,7 +668,20 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         (true, "child" | "thread") | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
-            (WorldChoice::Thread(scene), name)
+            // The live view runs on the real clock only.
+            let view = if a.virtual_clock {
+                if a.view.view.is_some() {
+                    eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
+                }
+                None
+            } else {
+                spidar_tools::world_process::start_view(&a.view, &*scene)?
+            };
+            let mut stepper = spidar_world::host::Stepper::new(scene);
+            if let Some(v) = view {
+                stepper.add_observer(Box::new(v));
+            }
+            (WorldChoice::Thread(stepper), name)
         }
         (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
         (false, "child") => {
@@ -628,9 +689,15 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             if let Some(p) = a.world_priority {
                 spec.extra.extend(["--priority".into(), p.to_string().into()]);
             }
+            spec.extra.extend(a.view.child_args());
             (WorldChoice::Child(spec), scene_arg.clone())
         }
         (false, addr) => {
+            if a.view.view.is_some() || a.view.no_view {
+                eprintln!(
+                    "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
+                );
+            }
             let at = spidar_link::Endpoint::parse(addr)
                 .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
             let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
@@ -685,10 +752,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        let WorldChoice::Thread(scene) = world else {
+        let WorldChoice::Thread(stepper) = world else {
             unreachable!("--virtual runs the world in this process")
         };
-        let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
+        let mut v = VirtualRun::new(dev, &rig, Some(stepper.into_scene()))?;
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();

@@ -492,8 +492,8 @@ impl std::fmt::Display for Summary {
 
 /// Where the world of a live run is.
 pub enum WorldChoice {
-    /// A thread of the rig's process, stepping this scene.
-    Thread(Box<dyn Scene>),
+    /// A thread of the rig's process, stepping this scene (with its observers: the live view).
+    Thread(Stepper),
     /// A world process started (and restarted) by the session, on a Unix socket in a private
     /// directory.
     Child(ChildWorldSpec),
@@ -585,7 +585,12 @@ pub fn start_child_world_at(
     loop {
         let try_for = until.saturating_duration_since(Instant::now()).min(Duration::from_millis(200));
         match connect_world(rig, &at, dir, None, clock.now_ns() as f64 * 1e-9, try_for) {
-            Ok((link, w)) => return Ok((child, link, w)),
+            Ok((link, w)) => {
+                // What the world said as it started (where its live view is) goes to the
+                // session's next `poll`, with the world's later lines.
+                child.hold_lines(said);
+                return Ok((child, link, w));
+            }
             Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}
             // Not there yet: the socket file does not exist or nobody listens on it.
             Err(LinkError::Io { .. }) if Instant::now() < until => {
@@ -613,11 +618,11 @@ impl<D: Device + 'static> LiveSession<D> {
         let (mut ep, far) = Endpoints::pair();
         let FarEnds { commands, events, models, samples, status, telemetry } = far;
         let live_world = match world {
-            WorldChoice::Thread(scene) => {
+            WorldChoice::Thread(stepper) => {
                 let stop = Arc::new(AtomicBool::new(false));
                 let counters = Arc::new(SceneCounters::default());
                 let handle = scene_thread::spawn(
-                    Stepper::new(scene),
+                    stepper,
                     clock,
                     ChannelWorldEnd { models, samples, status },
                     rig_info(rig),

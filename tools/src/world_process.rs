@@ -55,6 +55,55 @@ pub struct WorldArgs {
     /// link` measures the link's round trip with it).
     #[arg(long, hide = true)]
     pub echo: bool,
+    #[command(flatten)]
+    pub view: ViewArgs,
+}
+
+/// Where the live view is served (`spidar world`, and `spidar run` for its world).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ViewArgs {
+    /// Serve the live 3D view at this address (HOST:PORT, :PORT or http://HOST:PORT; frames on the
+    /// next port). Default http://127.0.0.1:8080, or a free port when that one is taken.
+    #[arg(long, value_name = "ADDR")]
+    pub view: Option<String>,
+    /// No live view.
+    #[arg(long, conflicts_with = "view")]
+    pub no_view: bool,
+}
+
+impl ViewArgs {
+    /// The same choice as arguments of a child `spidar world`.
+    pub fn child_args(&self) -> Vec<std::ffi::OsString> {
+        match (&self.view, self.no_view) {
+            (_, true) => vec!["--no-view".into()],
+            (Some(a), false) => vec!["--view".into(), a.into()],
+            (None, false) => Vec::new(),
+        }
+    }
+}
+
+/// Starts the live view of `scene` as `--view`/`--no-view` say, and says where it is on stderr.
+pub fn start_view(
+    a: &ViewArgs,
+    scene: &dyn spidar_world::Scene,
+) -> anyhow::Result<Option<spidar_world::view::View>> {
+    use spidar_world::view::{parse_addr, View, ViewOptions};
+    if a.no_view {
+        return Ok(None);
+    }
+    let look = scene.look();
+    let view = match &a.view {
+        Some(addr) => {
+            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
+        }
+        // The default port may be taken (another spidar): then any free one.
+        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
+            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
+            View::start(scene.name(), &look, &any)
+        })?,
+    };
+    eprintln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
+    Ok(Some(view))
 }
 
 /// Where an echo world puts what it measured in the model it answers with: the sample's tick
@@ -169,7 +218,11 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if !a.report_status {
         eprintln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
     }
+    let view = start_view(&a.view, &*scene)?;
     let mut stepper = Stepper::new(scene);
+    if let Some(v) = view {
+        stepper.add_observer(Box::new(v));
+    }
     if a.report_status {
         stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
     }

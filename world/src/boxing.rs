@@ -122,4 +122,12 @@ impl Scene for BoxingScene {
     fn status(&self) -> String {
         self.status_text()
     }
+
+    fn look(&self) -> crate::look::Look {
+        crate::looks::boxing::look(self)
+    }
+
+    fn pose(&self, out: &mut crate::look::Poses<'_>) {
+        crate::looks::boxing::pose(self, out)
+    }
 }

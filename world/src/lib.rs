@@ -13,6 +13,9 @@
 pub mod boxing;
 pub mod crowd;
 pub mod host;
+pub mod look;
+mod looks;
+pub mod view;
 pub mod walls;
 
 use spidar_msg::{ContactModel, HandSample, RigInfo, RigStatus};
@@ -28,6 +31,14 @@ pub trait Scene: Send {
     fn status(&self) -> String {
         String::new()
     }
+    /// What the scene looks like to a viewer (called once, when a view starts). The default draws
+    /// only what every scene has: the rig, the hands and the contact proxies.
+    fn look(&self) -> look::Look {
+        look::Look::default()
+    }
+    /// Writes the poses of what [`Scene::look`] described, after a step, at display rate. Runs on
+    /// the stepping thread: it only copies numbers (no allocation, no locks).
+    fn pose(&self, _out: &mut look::Poses<'_>) {}
 }
 
 /// What a world step shows an [`Observer`].
