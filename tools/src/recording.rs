@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use anyhow::Context;
+use spidar_record::world::{WorldInfo, WorldRecorder, WorldRecording};
 use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
 use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
 
@@ -50,6 +51,33 @@ pub fn session_info(
 /// before the rig moves.
 pub fn create(path: &Path, info: &SessionInfo) -> anyhow::Result<Recorder> {
     Ok(Recorder::create(path, info)?)
+}
+
+/// Starts the world's recording of `scene` (asked as `scene_arg`) into `path`: the file is
+/// created here (an unwritable path fails before the session starts). Returns the recording (to
+/// finish when the world stops) and the observer to add to the scene's host.
+pub fn start_world_recording(
+    path: &Path,
+    scene_arg: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    start_unix_ns: Option<u64>,
+) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
+    let mut files = Vec::new();
+    if scene_arg.ends_with(".ron") {
+        let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
+        let name =
+            Path::new(scene_arg).file_name().map_or(scene_arg.to_string(), |n| n.to_string_lossy().into_owned());
+        files.push((name, text));
+    }
+    let info = WorldInfo {
+        scene: format!("{scene_arg} ({})", scene.name()),
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        clock: if virtual_clock { "virtual" } else { "real" }.into(),
+        start_unix_ns,
+        files,
+    };
+    Ok(WorldRecording::start(path, &info, &scene.look())?)
 }
 
 /// How a live session ended, for the recording's `spidar.end` record.
