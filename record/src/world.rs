@@ -883,3 +883,111 @@ fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> 
         ..Default::default()
     }
 }
+
+/// What a world recording holds (`spidar replay` prints it with the rig's).
+#[derive(Clone, Debug, Default)]
+pub struct WorldSummary {
+    pub recording: crate::reader::Recording,
+    pub steps: u64,
+    pub first_t_s: f64,
+    pub last_t_s: f64,
+    /// Steps the recorder had dropped by the last recorded step.
+    pub dropped: u64,
+    /// The virtual human's last state (scenes with one).
+    pub boxer: Option<Decisions>,
+    /// Steps with each hand attacking, blocking; with the body avoiding.
+    pub attack_steps: [u64; 2],
+    pub block_steps: [u64; 2],
+    pub avoid_steps: u64,
+    pub hits_taken: u64,
+    pub hits_given: u64,
+    pub events: u64,
+    /// Crowd: characters, and the most not balancing at once.
+    pub characters: usize,
+    pub most_not_balancing: u32,
+    pub drawing_messages: u64,
+}
+
+/// Reads a world recording through.
+pub fn summarize(path: &Path) -> Result<WorldSummary, RecordError> {
+    let mut s = WorldSummary::default();
+    let recording = crate::reader::read(path, |_, m| {
+        let crate::reader::Msg::Other { channel, data, .. } = m else { return Ok(crate::reader::Flow::Continue) };
+        let Some(msg) = decode(&channel.topic, &channel.schema, data) else {
+            return Ok(crate::reader::Flow::Continue);
+        };
+        let msg = msg.map_err(|e| RecordError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!("a message on {}: {e}", channel.topic),
+        })?;
+        match msg {
+            WorldMsg::Step(st) => {
+                if s.steps == 0 {
+                    s.first_t_s = st.t_s;
+                }
+                s.steps += 1;
+                s.last_t_s = st.t_s;
+                s.dropped = st.dropped;
+            }
+            WorldMsg::Boxer(b) => {
+                for h in 0..2 {
+                    s.attack_steps[h] += u64::from(b.d.hands[h] == 1);
+                    s.block_steps[h] += u64::from(b.d.hands[h] == 2);
+                }
+                s.avoid_steps += u64::from(b.d.body == 1);
+                s.boxer = Some(b.d);
+            }
+            WorldMsg::Crowd(c) => {
+                s.characters = c.states.len();
+                s.most_not_balancing = s.most_not_balancing.max(c.not_balancing);
+            }
+            WorldMsg::Event(e) => {
+                s.events += 1;
+                s.hits_taken += u64::from(e.kind == EVENT_HIT_TAKEN);
+                s.hits_given += u64::from(e.kind == EVENT_HIT_GIVEN);
+            }
+            WorldMsg::Drawing => s.drawing_messages += 1,
+        }
+        Ok(crate::reader::Flow::Continue)
+    })?;
+    s.recording = recording;
+    Ok(s)
+}
+
+impl std::fmt::Display for WorldSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let r = &self.recording;
+        writeln!(f, "world recording {}", r.path.display())?;
+        writeln!(f, "  scene        {} ({} clock), spidar {}", r.meta("scene"), r.meta("clock"), r.meta("spidar_version"))?;
+        writeln!(
+            f,
+            "  steps        {} from t = {:.3} s to {:.3} s; {} dropped while recording; {} drawing messages (/world/tf, /world/scene)",
+            self.steps, self.first_t_s, self.last_t_s, self.dropped, self.drawing_messages
+        )?;
+        if let Some(d) = &self.boxer {
+            writeln!(
+                f,
+                "  virtual human {}: attacks {}, blocks {}, avoidances {}, predictions {}; steps attacking L/R {}/{}, blocking {}/{}, avoiding {}",
+                if d.active { "active" } else { "passive" },
+                d.attacks,
+                d.blocks,
+                d.avoidances,
+                d.predictions,
+                self.attack_steps[0],
+                self.attack_steps[1],
+                self.block_steps[0],
+                self.block_steps[1],
+                self.avoid_steps
+            )?;
+        }
+        if self.characters > 0 {
+            writeln!(f, "  crowd        {} characters, at most {} not balancing at once", self.characters, self.most_not_balancing)?;
+        }
+        writeln!(f, "  events       {} (hits taken {}, given {})", self.events, self.hits_taken, self.hits_given)?;
+        let e = match &r.ending {
+            Some(e) => e.to_string(),
+            None => "not read to its end".into(),
+        };
+        write!(f, "  ends         {e}; last step read at t = {:.3} s", self.last_t_s)
+    }
+}

@@ -149,6 +149,19 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
+    // A world recording given alone, or the world's file next to the rig's.
+    let world_file = spidar_record::world::world_path(&a.file);
+    let is_world = a.file.to_string_lossy().ends_with(".world.mcap");
+    if is_world {
+        let w = spidar_record::world::summarize(&a.file)?;
+        if a.json {
+            println!("{:#}", world_json(&w));
+        } else {
+            println!("{w}");
+        }
+        return Ok(());
+    }
+    let world = if world_file.exists() { Some(spidar_record::world::summarize(&world_file)?) } else { None };
     let s = spidar_record::summary::summarize(&a.file)?;
     if a.json {
         let r = &s.recording;
@@ -173,12 +186,37 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
             "faults": s.faults,
             "ends": r.ends(),
             "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+            "world": world.as_ref().map(world_json),
         });
         println!("{j:#}");
     } else {
         println!("{s}");
+        if let Some(w) = &world {
+            println!("{w}");
+        }
     }
     Ok(())
+}
+
+fn world_json(w: &spidar_record::world::WorldSummary) -> serde_json::Value {
+    let r = &w.recording;
+    serde_json::json!({
+        "file": r.path.display().to_string(),
+        "session": r.session,
+        "end": r.end_meta,
+        "channels": r.channels.iter().map(|c| serde_json::json!({
+            "topic": c.topic, "schema": c.schema, "messages": c.messages,
+        })).collect::<Vec<_>>(),
+        "steps": w.steps,
+        "first_t_s": w.first_t_s,
+        "last_t_s": w.last_t_s,
+        "dropped": w.dropped,
+        "events": w.events,
+        "hits_taken": w.hits_taken,
+        "hits_given": w.hits_given,
+        "characters": w.characters,
+        "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+    })
 }
 
 /// `spidar export`.
