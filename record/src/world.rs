@@ -337,7 +337,7 @@ impl std::fmt::Display for WorldRecordingReport {
 }
 
 /// One step's numbers, copied on the stepping thread into a pooled buffer.
-struct Snap {
+pub(crate) struct Snap {
     step: u64,
     t_s: f64,
     samples: u32,
@@ -358,7 +358,7 @@ enum ToWriter {
 pub struct WorldRecorder {
     layout: Layout,
     full: Sender<ToWriter>,
-    free: Receiver<Box<Snap>>,
+    pub(crate) free: Receiver<Box<Snap>>,
     dropped: Arc<AtomicU64>,
     steps: u64,
 }
@@ -423,6 +423,11 @@ impl WorldRecording {
             .map_err(|e| RecordError::Write { path: path.to_path_buf(), why: format!("starting the recorder thread: {e}") })?;
         let rec = WorldRecorder { layout, full: full_tx.clone(), free: free_rx, dropped: dropped.clone(), steps: 0 };
         Ok((WorldRecording { tx: full_tx, dropped, handle: Some(handle) }, rec))
+    }
+
+    /// Steps queued to the writer and not yet written.
+    pub fn queued(&self) -> usize {
+        self.tx.len()
     }
 
     /// Steps dropped so far.
