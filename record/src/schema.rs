@@ -132,7 +132,7 @@ impl Field for Option<FaultReason> {
     }
     fn definition() -> Option<String> {
         Some(
-            "# 0 none, 1 device error, 2 pose could not be computed, 3 string lengths disagree\nuint8 kind\n\
+            "# 0 none, 1 device error, 2 pose could not be computed, 3 string lengths disagree, 4 counts jumped\nuint8 kind\n\
              # device error: 1 timeout, 2 corrupt, 3 disconnected, 4 protocol, 5 other; else the hand\nuint8 detail\n"
                 .into(),
         )
@@ -143,6 +143,7 @@ impl Field for Option<FaultReason> {
             Some(FaultReason::Device(e)) => (1, Some(e).code()),
             Some(FaultReason::PoseInvalid { hand }) => (2, hand),
             Some(FaultReason::Residual { hand }) => (3, hand),
+            Some(FaultReason::CountJump { hand }) => (4, hand),
         };
         w.u8(k);
         w.u8(d);
@@ -158,6 +159,7 @@ impl Field for Option<FaultReason> {
             },
             2 => Ok(Some(FaultReason::PoseInvalid { hand: d })),
             3 => Ok(Some(FaultReason::Residual { hand: d })),
+            4 => Ok(Some(FaultReason::CountJump { hand: d })),
             _ => Err(DecodeError { what: format!("unknown fault kind {k}"), at: 0 }),
         }
     }
@@ -174,6 +176,7 @@ impl Field for Option<FaultReason> {
             }
             Some(FaultReason::PoseInvalid { hand }) => out.push_str(&format!("pose_invalid_hand{hand}")),
             Some(FaultReason::Residual { hand }) => out.push_str(&format!("residual_hand{hand}")),
+            Some(FaultReason::CountJump { hand }) => out.push_str(&format!("count_jump_hand{hand}")),
         }
     }
 }
@@ -369,6 +372,8 @@ message!(HandRecord = "spidar/HandTick" {
     clamped: bool,
     stiffness_limited: bool,
     non_finite: bool,
+    /// the output repeats the last tick's (a late, missing or rejected reply, or a high residual)
+    held: bool,
 });
 
 message!(TickRecord = "spidar/Tick" {
@@ -391,6 +396,8 @@ message!(TickRecord = "spidar/Tick" {
     io_error: Option<ErrorKind>,
     input: Input,
     output: Output,
+    /// homing was lost: waiting for the grips to be held still at home (or for Home)
+    awaiting_home: bool,
 } skip { model, sample, events });
 
 /// One event of the rig, with the tick it happened in.
@@ -398,7 +405,7 @@ message!(TickRecord = "spidar/Tick" {
 pub struct EventMsg {
     pub tick: u64,
     pub t_s: f64,
-    /// 1 state, 2 fault, 3 homed, 4 refused, 5 device reopened, 6 stopped
+    /// 1 state, 2 fault, 3 homed, 4 refused, 5 device reopened, 6 stopped, 7 homing lost
     pub kind: u8,
     pub state: Lifecycle,
     pub fault: Option<FaultReason>,
@@ -411,7 +418,7 @@ pub struct EventMsg {
 message!(EventMsg = "spidar/Event" {
     tick: u64,
     t_s: f64,
-    /// 1 lifecycle state, 2 fault, 3 homed, 4 command refused, 5 device reopened, 6 stopped
+    /// 1 lifecycle state, 2 fault, 3 homed, 4 command refused, 5 device reopened, 6 stopped, 7 homing lost
     kind: u8,
     state: Lifecycle,
     fault: Option<FaultReason>,
@@ -458,6 +465,10 @@ impl EventMsg {
             Event::Stopped => {
                 m.kind = 6;
                 m.text = "stopped".into();
+            }
+            Event::HomeNeeded => {
+                m.kind = 7;
+                m.text = "homing lost: hold both grips still at their home points, or send Home".into();
             }
         }
         m

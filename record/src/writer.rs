@@ -17,6 +17,8 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{Seek, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{bounded, Sender, TrySendError};
@@ -124,7 +126,10 @@ impl std::fmt::Display for RecordingReport {
 
 /// One open recording.
 pub struct Recorder<W: Write + Seek = File> {
-    w: Option<Writer<W>>,
+    w: Option<Writer<Counted<W>>>,
+    /// Bytes the sink has taken, and how many of them end the last chunk written whole.
+    written: Arc<AtomicU64>,
+    kept_bytes: u64,
     path: PathBuf,
     channels: [u16; 4],
     seq: [u32; 4],
@@ -151,6 +156,30 @@ fn describe(e: &dyn std::error::Error) -> String {
         cause = c.source();
     }
     s
+}
+
+/// A sink that counts the bytes it takes, so a failed recording can be cut back to its last
+/// whole chunk.
+struct Counted<W> {
+    inner: W,
+    n: Arc<AtomicU64>,
+}
+
+impl<W: Write> Write for Counted<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let k = self.inner.write(buf)?;
+        self.n.fetch_add(k as u64, Ordering::Relaxed);
+        Ok(k)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl<W: Seek> Seek for Counted<W> {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(pos)
+    }
 }
 
 fn unix_now_ns() -> u64 {
@@ -187,7 +216,8 @@ impl<W: Write + Seek> Recorder<W> {
             // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
             .chunk_size(None);
         let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
-        let mut w = opts.create(sink).map_err(write)?;
+        let written = Arc::new(AtomicU64::new(0));
+        let mut w = opts.create(Counted { inner: sink, n: written.clone() }).map_err(write)?;
         let start_unix_ns = unix_now_ns();
         let mut meta = BTreeMap::new();
         for (k, v) in [
@@ -233,8 +263,11 @@ impl<W: Write + Seek> Recorder<W> {
         }
         // The preamble reaches the disk before the session starts.
         w.flush().map_err(write)?;
+        let kept_bytes = written.load(Ordering::Relaxed);
         Ok(Recorder {
             w: Some(w),
+            written,
+            kept_bytes,
             path: path.to_path_buf(),
             channels,
             seq: [0; 4],
@@ -272,9 +305,25 @@ impl<W: Write + Seek> Recorder<W> {
 
     /// Stops writing after an I/O error (the writer's state is then unknown). The file keeps
     /// every chunk finished before; the ticks of the chunk being filled are lost and counted.
+    ///
+    /// A chunk whose write failed may still have reached the disk whole (only the index records
+    /// after it missing), so the file is cut back to the end of the last chunk written whole:
+    /// it then holds exactly the ticks reported kept.
     fn fail(&mut self, why: String) {
         self.report.error.get_or_insert(why);
         self.w = None;
+        if self.written.load(Ordering::Relaxed) > self.kept_bytes {
+            let cut = std::fs::OpenOptions::new()
+                .write(true)
+                .open(&self.path)
+                .and_then(|f| f.set_len(self.kept_bytes));
+            if let Err(e) = cut {
+                let note = format!(" (cutting the file back to its last whole chunk failed too: {e})");
+                if let Some(err) = self.report.error.as_mut() {
+                    err.push_str(&note);
+                }
+            }
+        }
         self.report.write_failed += self.pending[TICK];
         self.pending = [0; 4];
     }
@@ -290,6 +339,7 @@ impl<W: Write + Seek> Recorder<W> {
                 self.report.models += m;
                 self.report.events += e;
                 self.chunk_bytes = 0;
+                self.kept_bytes = self.written.load(Ordering::Relaxed);
             }
             Err(e) => self.fail(describe(&e)),
         }

@@ -37,6 +37,8 @@ use crate::tick::{Command, Event, Lifecycle, TickCore};
 const MAX_BEHIND: u64 = 10;
 /// Ticks at minimum tension after the ramp-out, before the device is switched off.
 const STOP_HOLD_TICKS: u32 = 20;
+/// Exchanges tried when priming the counters at start before a late or corrupt reply fails it.
+pub const PRIME_TRIES: u32 = 10;
 
 /// The loop's ends of its channels and its link to the world. Any of them may be absent.
 #[derive(Default)]
@@ -194,9 +196,16 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     pub fn configure(&mut self) -> Result<(), DeviceError> {
         self.dev.open()?;
         self.dev.activate()?;
-        // Prime with zero output and one read so the first tick starts from real counts.
+        // Prime with zero output and one read so the first tick starts from real counts. A late
+        // or garbled reply is no reason to give up here either: a few more tries.
         self.out = Output::default();
-        self.dev.exchange(&self.out, &mut self.inp)?;
+        let mut tries = 1;
+        while let Err(e) = self.dev.exchange(&self.out, &mut self.inp) {
+            if !matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Corrupt) || tries >= PRIME_TRIES {
+                return Err(e);
+            }
+            tries += 1;
+        }
         self.core.observe_counts(&self.inp);
         self.configured = true;
         self.deadline_ns = self.clock.now_ns() + self.period_ns;

@@ -40,6 +40,9 @@ pub struct HandRecord {
     pub stiffness_limited: bool,
     /// The asked force was not finite and was replaced by zero.
     pub non_finite: bool,
+    /// This hand's output was held from the last tick (late, missing or rejected reply, or a
+    /// pose above the residual limit): every other field repeats that tick's.
+    pub held: bool,
 }
 
 impl Default for HandRecord {
@@ -59,6 +62,7 @@ impl Default for HandRecord {
             clamped: false,
             stiffness_limited: false,
             non_finite: false,
+            held: false,
         }
     }
 }
@@ -156,6 +160,9 @@ pub struct TickRecord {
     pub sample: HandSample,
     /// What the core and the loop reported during this tick, in order.
     pub events: EventLog,
+    /// Homing was lost (a fault during homing, a reopened device): the rig waits for both grips
+    /// to be held still at their home points, or for the Home command.
+    pub awaiting_home: bool,
 }
 
 /// Percentiles of a distribution, in seconds.

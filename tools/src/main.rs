@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use spidar_device::Device;
-use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
@@ -159,6 +159,10 @@ struct RigArgs {
     /// Pin the loop thread to this CPU.
     #[arg(long)]
     cpu: Option<usize>,
+    /// Accept a rig value beyond its physical bound (a key of the rig file's `overrides`, e.g.
+    /// board_range); repeatable. The summary shows every override in effect.
+    #[arg(long = "override", value_name = "KEY")]
+    overrides: Vec<String>,
     /// Sleep to this many microseconds before each deadline, then busy-wait: hides the kernel's
     /// wake-up latency at the cost of that much CPU per millisecond.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=900))]
@@ -326,17 +330,24 @@ enum BenchCmd {
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
     Ok(match &args.rig {
-        Some(p) => Rig::load(p)?,
-        None => Rig::default_rig(),
+        Some(p) => Rig::load_with_overrides(p, &args.overrides)?,
+        None => Rig::from_str_with_overrides(
+            spidar_rt::rig::DEFAULT_RIG_RON,
+            spidar_rt::rig::DEFAULT_RIG_NAME,
+            &args.overrides,
+        )?,
     })
 }
 
-fn rt_options(args: &RigArgs) -> RtOptions {
-    if args.no_rt {
+fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
+    if let Some(cpu) = args.cpu {
+        rt_thread::check_cpu(cpu).map_err(|e| anyhow::anyhow!("--cpu {cpu}: {e}"))?;
+    }
+    Ok(if args.no_rt {
         RtOptions { fifo_priority: None, lock_memory: false, cpu: args.cpu, ..RtOptions::default() }
     } else {
         RtOptions { fifo_priority: Some(args.priority), cpu: args.cpu, ..RtOptions::default() }
-    }
+    })
 }
 
 fn main() -> anyhow::Result<()> {
@@ -403,7 +414,7 @@ fn main() -> anyhow::Result<()> {
                 scripts,
                 exchanges,
                 seconds,
-                &rt_options(&rig),
+                &rt_options(&rig)?,
                 Duration::from_micros(reply_timeout_us),
             )?;
             println!("{rep}");
@@ -439,7 +450,7 @@ fn main() -> anyhow::Result<()> {
                 &spidar_tools::bench_record::RecordBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     scene,
                     script,
                     dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
@@ -461,7 +472,7 @@ fn main() -> anyhow::Result<()> {
                 &LinkBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     scene,
                     echoes,
                     world: ChildWorldSpec {
@@ -501,7 +512,7 @@ fn main() -> anyhow::Result<()> {
                 &RtBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     spin_ns: rig.spin_us * 1000,
                 },
             )?;
@@ -716,9 +727,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 dev.info().identity,
                 scene_name
             );
-            for w in hardware::check_rig_against(&rig, dev.info()) {
-                eprintln!("warning: {w}");
-            }
+            hardware::check_rig_against(&rig, dev.info())?;
             eprintln!("hold each grip at its home point: the rig homes as it starts");
             dev
         }
@@ -820,7 +829,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         world,
         LiveOptions {
             seconds: a.seconds,
-            rt: rt_options(&a.rig),
+            rt: rt_options(&a.rig)?,
             spin_ns: a.rig.spin_us * 1000,
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,

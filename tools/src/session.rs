@@ -364,6 +364,8 @@ pub struct Summary {
     pub clean_stop: bool,
     /// What `LiveOptions::recorder` wrote.
     pub recording: Option<spidar_record::writer::RecordingReport>,
+    /// Rig-file bounds overridden for this run (shown, never silent).
+    pub overrides: Vec<String>,
 }
 
 impl std::fmt::Display for Summary {
@@ -379,6 +381,9 @@ impl std::fmt::Display for Summary {
             self.wall_s, self.device, self.scene, self.script
         )?;
         writeln!(f, "  real time    {}", self.rt)?;
+        if !self.overrides.is_empty() {
+            writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
+        }
         for w in &self.rt.warnings {
             writeln!(f, "  warning      {w}")?;
         }
@@ -410,6 +415,18 @@ impl std::fmt::Display for Summary {
             f,
             "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
+        )?;
+        writeln!(
+            f,
+            "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
+            c.held[0],
+            c.held[1],
+            c.late_replies,
+            c.count_jumps[0],
+            c.count_jumps[1],
+            c.residual_high[0],
+            c.residual_high[1],
+            c.rehomes
         )?;
         for fault in &self.faults_seen {
             writeln!(f, "  fault        {fault}")?;
@@ -680,6 +697,10 @@ impl<D: Device + 'static> LiveSession<D> {
                 Event::DeviceReopened => {
                     self.faults_seen.push("device reopened after a disconnect: home again".into())
                 }
+                Event::HomeNeeded => self.faults_seen.push(
+                    "homing lost: hold both grips still at their home points (the rig homes itself) or send Home"
+                        .into(),
+                ),
                 Event::Stopped => self.stopped = true,
                 _ => {}
             }
@@ -858,6 +879,7 @@ impl<D: Device + 'static> LiveSession<D> {
             faults_seen: std::mem::take(&mut self.faults_seen),
             clean_stop: rt.is_finished(),
             recording: None,
+            overrides: Vec::new(),
         })
     }
 }
@@ -914,6 +936,7 @@ pub fn run_live<D: Device + 'static>(
     // The loop's last records (sent before its `Stopped`) may still be queued.
     s.poll(&mut each, &mut say);
     let mut summary = s.finish(&mut say)?;
+    summary.overrides = rig.overrides.clone();
     if let Some(r) = recorder {
         summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
     }
@@ -925,7 +948,10 @@ pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let Some(last) = w.last else { return "waiting for the first tick".into() };
     let p = w.lateness.percentiles();
     let f = |h: usize| last.hands[h].output_n.length();
-    let fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    let mut fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    if last.awaiting_home {
+        fault.push_str(" (hold both grips still at home to re-home)");
+    }
     format!(
         "t {:6.1} s  {}{}  {:6.1} Hz  late p99 {:>8}  force L {:4.1} N R {:4.1} N (max {:4.1}/{:4.1})  gain {:.2}  faults {}  scene steps {}",
         last.t_s,
