@@ -184,8 +184,10 @@ fn behaviour(
         .map_err(|e| err(e.to_string()))?;
     }
     for (hits, col, lo) in [(&w.hits_taken, RED, 0.5), (&w.hits_given, BLACK, 0.15)] {
-        c.draw_series(hits.iter().map(|t| PathElement::new(vec![(*t, lo), (*t, lo + 0.35)], col.stroke_width(2))))
-            .map_err(|e| err(e.to_string()))?;
+        c.draw_series(
+            hits.iter().map(|t| PathElement::new(vec![(*t, lo), (*t, lo + 0.35)], col.stroke_width(2))),
+        )
+        .map_err(|e| err(e.to_string()))?;
     }
     Ok(())
 }
@@ -208,13 +210,13 @@ impl std::fmt::Display for PlotReport {
             writeln!(f, "  wrote        {}", self.file.display())?;
         } else {
             writeln!(
-            f,
-            "  wrote        {} (force and tension: peak per {:.0} ms; {} / {} hits, {} faults)",
-            self.file.display(),
-            self.bucket_s * 1e3,
-            self.hits[0],
-            self.hits[1],
-            self.faults
+                f,
+                "  wrote        {} (force and tension: peak per {:.0} ms; {} / {} hits, {} faults)",
+                self.file.display(),
+                self.bucket_s * 1e3,
+                self.hits[0],
+                self.hits[1],
+                self.faults
             )?;
         }
         if let Some((p, [taken, given])) = &self.world {

@@ -314,7 +314,6 @@ pub struct WorldRecordingReport {
     pub bytes: u64,
 }
 
-
 impl std::fmt::Display for WorldRecordingReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
@@ -397,7 +396,11 @@ pub struct WorldRecording {
 impl WorldRecording {
     /// Creates the file (an unwritable path fails here, before any step) and starts the writer
     /// thread; returns it and the observer to add to the scene's host.
-    pub fn start(path: &Path, info: &WorldInfo, look: &Look) -> Result<(WorldRecording, WorldRecorder), RecordError> {
+    pub fn start(
+        path: &Path,
+        info: &WorldInfo,
+        look: &Look,
+    ) -> Result<(WorldRecording, WorldRecorder), RecordError> {
         let w = WorldWriter::create(path, info, look)?;
         let layout = Layout::of(look, 0);
         let (full_tx, full_rx) = bounded::<ToWriter>(QUEUE_STEPS + 1);
@@ -420,8 +423,17 @@ impl WorldRecording {
         let handle = std::thread::Builder::new()
             .name("spidar-world-recorder".into())
             .spawn(move || w.run(full_rx, free_tx, d))
-            .map_err(|e| RecordError::Write { path: path.to_path_buf(), why: format!("starting the recorder thread: {e}") })?;
-        let rec = WorldRecorder { layout, full: full_tx.clone(), free: free_rx, dropped: dropped.clone(), steps: 0 };
+            .map_err(|e| RecordError::Write {
+                path: path.to_path_buf(),
+                why: format!("starting the recorder thread: {e}"),
+            })?;
+        let rec = WorldRecorder {
+            layout,
+            full: full_tx.clone(),
+            free: free_rx,
+            dropped: dropped.clone(),
+            steps: 0,
+        };
         Ok((WorldRecording { tx: full_tx, dropped, handle: Some(handle) }, rec))
     }
 
@@ -546,7 +558,11 @@ fn draw_shape(e: &mut SceneEntity, shape: &Shape, at: Pose, colour: Color) {
             }
         }
         Shape::Box { half_extents_m: h } => {
-            e.cubes.push(CubePrimitive { pose: at, size: v3(2.0 * h.x, 2.0 * h.y, 2.0 * h.z), color: colour });
+            e.cubes.push(CubePrimitive {
+                pose: at,
+                size: v3(2.0 * h.x, 2.0 * h.y, 2.0 * h.z),
+                color: colour,
+            });
         }
         Shape::Plane => {
             // The solid is below the plane through the origin with normal +y: a thin wide slab.
@@ -580,7 +596,9 @@ impl WorldWriter {
             .chunk_size(Some(CHUNK_BYTES));
         let mut w = opts.create(file).map_err(write)?;
         let start_ns = info.start_unix_ns.unwrap_or_else(|| {
-            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64)
         });
         let mut meta = BTreeMap::new();
         for (k, v) in [
@@ -651,7 +669,12 @@ impl WorldWriter {
         })
     }
 
-    fn run(mut self, rx: Receiver<ToWriter>, free: Sender<Box<Snap>>, dropped: Arc<AtomicU64>) -> WorldRecordingReport {
+    fn run(
+        mut self,
+        rx: Receiver<ToWriter>,
+        free: Sender<Box<Snap>>,
+        dropped: Arc<AtomicU64>,
+    ) -> WorldRecordingReport {
         for m in rx {
             match m {
                 ToWriter::Step(snap) => {
@@ -673,7 +696,12 @@ impl WorldWriter {
         let Some(w) = self.w.as_mut() else { return false };
         cdr::encode(x, &mut self.buf);
         self.seq[ch] = self.seq[ch].wrapping_add(1);
-        let h = MessageHeader { channel_id: self.channels[ch], sequence: self.seq[ch], log_time: t, publish_time: t };
+        let h = MessageHeader {
+            channel_id: self.channels[ch],
+            sequence: self.seq[ch],
+            log_time: t,
+            publish_time: t,
+        };
         match w.write_to_known_channel(&h, &self.buf) {
             Ok(()) => {
                 self.report.messages += 1;
@@ -734,8 +762,7 @@ impl WorldWriter {
         ok = ok && self.put(TF, s.t_s, &tf);
         // What the bodies look like: every entity now and then; labels when they change; the
         // crowd's skeletons every step (they move within their frames).
-        let labels: Vec<u8> =
-            (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
+        let labels: Vec<u8> = (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
         let full = s.t_s >= self.next_scene_t_s;
         let mut update = SceneUpdate::default();
         if full {
@@ -773,7 +800,8 @@ impl WorldWriter {
         if let Some(crowd) = self.look.crowd.as_ref().filter(|_| skeletons) {
             self.next_skeleton_t_s = s.t_s + SKELETON_EVERY_S;
             for (i, state) in states.iter().enumerate() {
-                let c = &s.frame[l.characters_at + i * l.character_floats..(i + 1) * l.character_floats + l.characters_at];
+                let c = &s.frame[l.characters_at + i * l.character_floats
+                    ..(i + 1) * l.character_floats + l.characters_at];
                 let colour = crowd.colours.get(*state as usize).copied().unwrap_or([200, 200, 200]);
                 update.entities.push(SceneEntity {
                     timestamp: stamp,
@@ -794,15 +822,36 @@ impl WorldWriter {
             let p = self.prev.unwrap_or_default();
             let mut events = Vec::new();
             if d.hits_taken > p.hits_taken {
-                events.push((EVENT_HIT_TAKEN, 0, 0, format!("hit taken (the user's hand on the virtual human's head or chest), {} so far", d.hits_taken)));
+                events.push((
+                    EVENT_HIT_TAKEN,
+                    0,
+                    0,
+                    format!(
+                        "hit taken (the user's hand on the virtual human's head or chest), {} so far",
+                        d.hits_taken
+                    ),
+                ));
             }
             if d.hits_given > p.hits_given {
-                events.push((EVENT_HIT_GIVEN, 0, 0, format!("hit given (the virtual human's hand on the avatar's head or chest), {} so far", d.hits_given)));
+                events.push((
+                    EVENT_HIT_GIVEN,
+                    0,
+                    0,
+                    format!(
+                        "hit given (the virtual human's hand on the avatar's head or chest), {} so far",
+                        d.hits_given
+                    ),
+                ));
             }
             for h in 0..2 {
                 if d.hands[h] != p.hands[h] || self.prev.is_none() {
                     let name = HAND_BEHAVIOURS.get(d.hands[h] as usize).unwrap_or(&"?");
-                    events.push((EVENT_HAND, h as u16, d.hands[h], format!("{} hand: {name}", ["left", "right"][h])));
+                    events.push((
+                        EVENT_HAND,
+                        h as u16,
+                        d.hands[h],
+                        format!("{} hand: {name}", ["left", "right"][h]),
+                    ));
                 }
             }
             if d.body != p.body || self.prev.is_none() {
@@ -819,13 +868,20 @@ impl WorldWriter {
             for (i, st) in states.iter().enumerate() {
                 if self.prev_states.get(i) != Some(st) {
                     let name = CROWD_STATES.get(*st as usize).unwrap_or(&"?");
-                    let e = WorldEventMsg { t_s: s.t_s, kind: EVENT_CHARACTER, index: i as u16, state: *st, text: format!("character {i}: {name}") };
+                    let e = WorldEventMsg {
+                        t_s: s.t_s,
+                        kind: EVENT_CHARACTER,
+                        index: i as u16,
+                        state: *st,
+                        text: format!("character {i}: {name}"),
+                    };
                     ok = ok && self.put(EVENT, s.t_s, &e);
                     self.report.events += 1;
                 }
             }
             let not_balancing = states.iter().filter(|s| **s != 0).count() as u32;
-            ok = ok && self.put(CROWD, s.t_s, &CrowdMsg { t_s: s.t_s, states: states.clone(), not_balancing });
+            ok =
+                ok && self.put(CROWD, s.t_s, &CrowdMsg { t_s: s.t_s, states: states.clone(), not_balancing });
             self.prev_states = states;
         }
         self.prev_labels = labels;
@@ -842,7 +898,9 @@ impl WorldWriter {
             meta.insert("steps_recorded".to_string(), self.report.steps.to_string());
             meta.insert("steps_dropped".to_string(), dropped.to_string());
             meta.insert("steps_write_failed".to_string(), self.report.write_failed.to_string());
-            let r = w.write_metadata(&Metadata { name: META_END.into(), metadata: meta }).and_then(|_| w.finish());
+            let r = w
+                .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
+                .and_then(|_| w.finish());
             if let Err(e) = r {
                 self.report.error.get_or_insert(describe(&e));
             }
@@ -917,7 +975,9 @@ pub struct WorldSummary {
 pub fn summarize(path: &Path) -> Result<WorldSummary, RecordError> {
     let mut s = WorldSummary::default();
     let recording = crate::reader::read(path, |_, m| {
-        let crate::reader::Msg::Other { channel, data, .. } = m else { return Ok(crate::reader::Flow::Continue) };
+        let crate::reader::Msg::Other { channel, data, .. } = m else {
+            return Ok(crate::reader::Flow::Continue);
+        };
         let Some(msg) = decode(&channel.topic, &channel.schema, data) else {
             return Ok(crate::reader::Flow::Continue);
         };
@@ -963,7 +1023,13 @@ impl std::fmt::Display for WorldSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let r = &self.recording;
         writeln!(f, "world recording {}", r.path.display())?;
-        writeln!(f, "  scene        {} ({} clock), spidar {}", r.meta("scene"), r.meta("clock"), r.meta("spidar_version"))?;
+        writeln!(
+            f,
+            "  scene        {} ({} clock), spidar {}",
+            r.meta("scene"),
+            r.meta("clock"),
+            r.meta("spidar_version")
+        )?;
         writeln!(
             f,
             "  steps        {} from t = {:.3} s to {:.3} s; {} dropped while recording; {} drawing messages (/world/tf, /world/scene)",
@@ -986,9 +1052,17 @@ impl std::fmt::Display for WorldSummary {
             )?;
         }
         if self.characters > 0 {
-            writeln!(f, "  crowd        {} characters, at most {} not balancing at once", self.characters, self.most_not_balancing)?;
+            writeln!(
+                f,
+                "  crowd        {} characters, at most {} not balancing at once",
+                self.characters, self.most_not_balancing
+            )?;
         }
-        writeln!(f, "  events       {} (hits taken {}, given {})", self.events, self.hits_taken, self.hits_given)?;
+        writeln!(
+            f,
+            "  events       {} (hits taken {}, given {})",
+            self.events, self.hits_taken, self.hits_given
+        )?;
         let e = match &r.ending {
             Some(e) => e.to_string(),
             None => "not read to its end".into(),

@@ -119,8 +119,15 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     }
     // The Foxglove schemas name their nested types the ROS 2 way.
     let s = cdr::schema_text::<SceneUpdate>();
-    assert!(s.starts_with("foxglove_msgs/SceneEntityDeletion[] deletions\nfoxglove_msgs/SceneEntity[] entities\n"));
-    for t in ["foxglove_msgs/SceneEntity", "foxglove_msgs/CylinderPrimitive", "geometry_msgs/Pose", "builtin_interfaces/Time"] {
+    assert!(s.starts_with(
+        "foxglove_msgs/SceneEntityDeletion[] deletions\nfoxglove_msgs/SceneEntity[] entities\n"
+    ));
+    for t in [
+        "foxglove_msgs/SceneEntity",
+        "foxglove_msgs/CylinderPrimitive",
+        "geometry_msgs/Pose",
+        "builtin_interfaces/Time",
+    ] {
         assert_eq!(s.matches(&format!("MSG: {t}\n")).count(), 1, "{t}");
     }
     assert!(s.contains("\nuint8 type\n"), "the raw identifier is named as the schema names it");
@@ -261,7 +268,10 @@ fn docs_list_every_world_schema_as_implemented() {
             println!("### `{name}`\n\n```\n{text}```\n");
             continue;
         }
-        assert!(docs.contains(&text), "docs/recording.md does not list the schema of {name} as written:\n{text}");
+        assert!(
+            docs.contains(&text),
+            "docs/recording.md does not list the schema of {name} as written:\n{text}"
+        );
     }
     let _ = BoxerMsg::ros_type();
 }

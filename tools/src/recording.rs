@@ -66,8 +66,9 @@ pub fn start_world_recording(
     let mut files = Vec::new();
     if scene_arg.ends_with(".ron") {
         let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
-        let name =
-            Path::new(scene_arg).file_name().map_or(scene_arg.to_string(), |n| n.to_string_lossy().into_owned());
+        let name = Path::new(scene_arg)
+            .file_name()
+            .map_or(scene_arg.to_string(), |n| n.to_string_lossy().into_owned());
         files.push((name, text));
     }
     let info = WorldInfo {
@@ -231,8 +232,16 @@ pub struct ExportArgs {
 
 pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
-    let r = spidar_record::export::export_csv(&a.file, &a.csv)?;
-    println!("{r}");
+    if a.file.to_string_lossy().ends_with(".world.mcap") {
+        println!("{}", spidar_record::export::export_world_csv(&a.file, &a.csv)?);
+    } else {
+        println!("{}", spidar_record::export::export_csv(&a.file, &a.csv)?);
+        // The world's file next to it goes into the same directory (world_*.csv).
+        let w = spidar_record::world::world_path(&a.file);
+        if w.exists() {
+            println!("{}", spidar_record::export::export_world_csv(&w, &a.csv)?);
+        }
+    }
     println!("  took         {:.2} s", t0.elapsed().as_secs_f64());
     Ok(())
 }
