@@ -664,7 +664,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
-    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+    let (mut world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
         (true, "child" | "thread") | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
@@ -727,6 +727,40 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    // The world's share: FILE.world.mcap next to FILE.mcap, written by the world wherever it
+    // runs (this process or the child), on the rig recording's time line.
+    let mut world_recording = None;
+    let mut world_observer = None;
+    if let Some(path) = &a.record {
+        let wpath = spidar_record::world::world_path(path);
+        let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
+        match &mut world {
+            WorldChoice::Thread(stepper) => {
+                let (rec, obs) = spidar_tools::recording::start_world_recording(
+                    &wpath,
+                    &scene_arg,
+                    stepper.scene(),
+                    a.virtual_clock,
+                    start_ns,
+                )?;
+                world_recording = Some(rec);
+                if a.virtual_clock {
+                    world_observer = Some(obs);
+                } else {
+                    stepper.add_observer(Box::new(obs));
+                }
+            }
+            WorldChoice::Child(spec) => {
+                spec.extra.extend(["--record".into(), wpath.into_os_string()]);
+                if let Some(ns) = start_ns {
+                    spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
+                }
+            }
+            WorldChoice::Connect { at, .. } => eprintln!(
+                "spidar: the world at {at} is not recorded here; record it where it runs (spidar world --record FILE.mcap)"
+            ),
+        }
+    }
     let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
             eprintln!(
@@ -756,6 +790,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             unreachable!("--virtual runs the world in this process")
         };
         let mut v = VirtualRun::new(dev, &rig, Some(stepper.into_scene()))?;
+        if let Some(o) = world_observer.take() {
+            v.observers.push(Box::new(o));
+        }
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();
@@ -786,6 +823,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 faults: c.faults,
             })
         });
+        let world_rec = world_recording.take().map(|r| r.finish());
         let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
         if a.json {
             let j = report::virtual_json(&report::VirtualRunReport {
@@ -829,6 +867,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             if let Some(r) = &recording {
                 println!("  recording    {r}");
             }
+            if let Some(r) = &world_rec {
+                println!("  world rec.   {r}");
+            }
             println!("  end          {}", v.rt.state().name());
         }
         return report::check_outcome(v.rt.state(), &c, &[]);
@@ -858,12 +899,17 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let mut summary = summary;
     summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
+    // The scene thread has stopped: the world's recording ends with its last step.
+    let world_rec = world_recording.take().map(|r| r.finish());
     if a.json {
         println!("{:#}", report::run_json(&summary, recording.as_ref()));
     } else {
         println!("{summary}");
         if let Some(r) = &recording {
             println!("  recording    {r}");
+        }
+        if let Some(r) = &world_rec {
+            println!("  world rec.   {r}");
         }
     }
     let lat = summary.stats.lateness.percentiles();

@@ -57,6 +57,15 @@ pub struct WorldArgs {
     pub echo: bool,
     #[command(flatten)]
     pub view: ViewArgs,
+    /// Record the world into this MCAP file (zstd chunks): every step's body poses (Foxglove
+    /// FrameTransforms and SceneUpdate, for a 3D panel), the virtual human's decisions, the
+    /// crowd's control states and the world's events (hits). See docs/recording.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<std::path::PathBuf>,
+    /// Unix time (ns) of scene time zero in the recording (set by `spidar run --record`, so the
+    /// rig's file and the world's share one time line).
+    #[arg(long, hide = true, requires = "record")]
+    pub record_start_unix_ns: Option<u64>,
 }
 
 /// Where the live view is served (`spidar world`, and `spidar run` for its world).
@@ -191,6 +200,18 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let scene = spidar_world::load(&a.scene)?;
     let step_s = scene.step_s();
     let scene_label = format!("{} ({})", a.scene, scene.name());
+    // Created before the world listens: a path that cannot be written is refused before any rig
+    // connects.
+    let recording = match &a.record {
+        Some(p) => Some(crate::recording::start_world_recording(
+            p,
+            &a.scene,
+            &*scene,
+            a.lockstep,
+            a.record_start_unix_ns,
+        )?),
+        None => None,
+    };
     // The default directory lives as long as the world.
     let mut _dir = None;
     let listen = match &a.listen {
@@ -226,10 +247,17 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if a.report_status {
         stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
     }
+    let recording = recording.map(|(rec, observer)| {
+        stepper.add_observer(Box::new(observer));
+        rec
+    });
     let stop_fn = || stop.requested();
     let rep = serve(&mut stepper, &mut link, &ServeOptions { lockstep: a.lockstep }, &stop_fn, &mut |line| {
         eprintln!("spidar world: {line}")
     });
+    if let Some(r) = recording {
+        eprintln!("spidar world: recording {}", r.finish());
+    }
     if a.report_status {
         eprintln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
         eprintln!("{REPORT_PREFIX}{rep}");

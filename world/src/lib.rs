@@ -12,6 +12,7 @@
 
 pub mod boxing;
 pub mod crowd;
+pub mod decisions;
 pub mod host;
 pub mod look;
 mod looks;
@@ -39,6 +40,11 @@ pub trait Scene: Send {
     /// Writes the poses of what [`Scene::look`] described, after a step, at display rate. Runs on
     /// the stepping thread: it only copies numbers (no allocation, no locks).
     fn pose(&self, _out: &mut look::Poses<'_>) {}
+    /// What the scene's virtual human decided (recorded after every step); `None` for scenes
+    /// without one. Runs on the stepping thread: it only copies numbers.
+    fn decisions(&self) -> Option<decisions::Decisions> {
+        None
+    }
 }
 
 /// What a world step shows an [`Observer`].
