@@ -144,7 +144,8 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
     let (_, _, rep) = record_scene("crowd", &p, 200);
     assert_eq!(rep.steps, 200, "{rep}");
     // As many as the shipped crowd scene holds (its look says how many).
-    let n = spidar_world::load("crowd").unwrap().look().crowd.expect("the crowd scene has a crowd").characters;
+    let n =
+        spidar_world::load("crowd").unwrap().look().crowd.expect("the crowd scene has a crowd").characters;
     assert!(n >= 2, "{n} characters");
     let w = summarize(&p).unwrap();
     assert_eq!(w.characters, n);

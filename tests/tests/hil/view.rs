@@ -148,7 +148,6 @@ struct Hosting {
     stop: Arc<AtomicBool>,
     scene: Option<JoinHandle<Stepper>>,
     feeder: Option<JoinHandle<()>>,
-    counters: Arc<SceneCounters>,
     view: ViewHandle,
     ctl: Arc<Ctl>,
     log: Arc<Mutex<Vec<Rec>>>,
@@ -249,7 +248,6 @@ fn host<S: Scene + 'static>(
         stop,
         scene: Some(scene),
         feeder: Some(feeder),
-        counters,
         view: handle,
         ctl,
         log,
@@ -556,70 +554,81 @@ fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) 
     })
 }
 
-/// A viewer that never reads: the world steps on (no more late steps than without it, every step
-/// taken), the viewer that reads gets its frames all along, and the stalled one is dropped.
+/// A viewer that never reads does not hold the world back: with it connected (and never dropped:
+/// the write timeout is an hour), the world takes 4,000 steps whose frames (about 65 MB) are far
+/// more than its socket can buffer, every frame is published, and the viewer that reads gets its
+/// frames all along. A world that waited for the stalled viewer would block inside a step once its
+/// socket filled. Judged by counts; the only clock is a ten-minute bound that turns such a block
+/// into a failure instead of a hang.
 #[test]
 fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let _one = one_at_a_time();
-    // Big frames (400 characters, 90 kB) fill the stalled socket's buffers within seconds.
-    let crowd = spidar_tools::bench_view::crowd_of(400).unwrap();
-    // The default write timeout (2 s): a world that waited for the stalled viewer would lose
-    // about half of phase B's steps.
-    let opts = any_port();
-    let w = host(crowd, record_crowd, |_, _| {}, DVec3::ZERO, &opts);
-    let c = w.view.counters();
-    let steps = |w: &Hosting| w.counters.steps.load(Ordering::Relaxed);
-    let late = |w: &Hosting| w.counters.late_steps.load(Ordering::Relaxed);
+    // Big frames (400 characters, about 90 kB each).
+    let mut scene = spidar_tools::bench_view::crowd_of(400).unwrap();
+    let look = scene.look();
+    let opts = ViewOptions { write_timeout: Duration::from_secs(3600), ..any_port() };
+    let mut view = View::start("crowd", &look, &opts).unwrap();
+    let handle = view.counters_handle();
     let stop = Arc::new(AtomicBool::new(false));
-    let frames = Arc::new(AtomicU64::new(0));
-    let reader = viewer(w.view.ws_url(), true, frames.clone(), stop.clone());
-    let published = || c.frames_published.load(Ordering::Relaxed);
-    let mark = |w: &Hosting| (Instant::now(), steps(w), late(w), frames.load(Ordering::Relaxed), published());
-    // A: one viewer reading, 3 s.
-    std::thread::sleep(Duration::from_millis(500));
-    let a0 = mark(&w);
-    std::thread::sleep(Duration::from_secs(3));
-    let a1 = mark(&w);
-    // B: and one that never reads, until the view drops it, and a second more.
-    let stalled = viewer(w.view.ws_url(), false, Arc::new(AtomicU64::new(0)), stop.clone());
-    let until = Instant::now() + Duration::from_secs(30);
-    while c.viewers_dropped.load(Ordering::Relaxed) == 0 && Instant::now() < until {
-        std::thread::sleep(Duration::from_millis(50));
+    let (read, stalled_read) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
+    let reader = viewer(view.ws_url(), true, read.clone(), stop.clone());
+    let stalled = viewer(view.ws_url(), false, stalled_read, stop.clone());
+    let c = handle.counters();
+    let mut waited = 0;
+    while c.viewers.load(Ordering::Relaxed) < 2 {
+        std::thread::sleep(Duration::from_millis(10));
+        waited += 1;
+        assert!(waited < 6000, "the two viewers never connected");
     }
-    std::thread::sleep(Duration::from_secs(1));
-    let b1 = mark(&w);
+    const STEPS: usize = 4000;
+    let (done_tx, done_rx) = crossbeam_channel::bounded(1);
+    let info = rig_info(&rig());
+    let status = known_rig_status();
+    let stepping = std::thread::spawn(move || {
+        let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
+        for i in 0..STEPS {
+            let t = i as f64 * 0.003;
+            sample.t_s = t;
+            let m = scene.step(t, std::slice::from_ref(&sample));
+            let v = StepView {
+                t_s: t,
+                scene: &scene,
+                samples: std::slice::from_ref(&sample),
+                model: &m,
+                rig_info: Some(&info),
+                rig_status: Some(&status),
+            };
+            view.after_step(&v);
+        }
+        let _ = done_tx.send(());
+        view
+    });
+    assert!(
+        done_rx.recv_timeout(Duration::from_secs(600)).is_ok(),
+        "the world did not finish {STEPS} steps with a stalled viewer connected: it waits for viewers"
+    );
+    let view = stepping.join().unwrap();
+    let c = handle.counters();
+    let offered = c.frames_published.load(Ordering::Relaxed) + c.frames_skipped.load(Ordering::Relaxed);
+    // A frame is due at the first step at or past each 1/60 s: every sixth 3 ms step.
+    let due = (STEPS / (1.0 / (opts.frame_hz * 0.003)).ceil() as usize) as u64;
+    assert!(offered + 1 >= due, "{offered} frames offered in {STEPS} steps, {due} due");
+    assert_eq!(
+        c.viewers_dropped.load(Ordering::Relaxed),
+        0,
+        "the stalled viewer stayed connected throughout"
+    );
+    assert_eq!(c.viewers.load(Ordering::Relaxed), 2);
+    // The reading viewer gets frames while the stalled one holds its socket full.
+    let mut waited = 0;
+    while read.load(Ordering::Relaxed) < 10 {
+        std::thread::sleep(Duration::from_millis(10));
+        waited += 1;
+        assert!(waited < 6000, "the reading viewer got {} frames", read.load(Ordering::Relaxed));
+    }
     stop.store(true, Ordering::Relaxed);
+    drop(view);
     let _ = (reader.join(), stalled.join());
-    let phase = |p: (Instant, u64, u64, u64, u64), q: (Instant, u64, u64, u64, u64)| {
-        let secs = (q.0 - p.0).as_secs_f64();
-        (secs, q.1 - p.1, q.2 - p.2, q.3 - p.3, q.4 - p.4)
-    };
-    let (sa, steps_a, late_a, frames_a, pub_a) = phase(a0, a1);
-    let (sb, steps_b, late_b, frames_b, pub_b) = phase(a1, b1);
-    eprintln!(
-        "A (one reader, {sa:.1} s): {steps_a} steps, {late_a} late, {pub_a} frames published, {frames_a} read; \
-         B (and a stalled viewer, {sb:.1} s): {steps_b} steps, {late_b} late, {pub_b} frames published, {frames_b} read; dropped {}",
-        c.viewers_dropped.load(Ordering::Relaxed)
-    );
-    assert_eq!(c.viewers_dropped.load(Ordering::Relaxed), 1, "the stalled viewer is dropped");
-    // A world that waited for the stalled viewer would lose its steps while the socket was full
-    // (the scene thread does not catch up more than 10 steps) and publish no frames.
-    let (rate_a, rate_b) = (steps_a as f64 * 0.003 / sa, steps_b as f64 * 0.003 / sb);
-    assert!(
-        rate_b >= rate_a - 0.2,
-        "steps taken: {rate_b:.2} of the 3 ms steps with the stalled viewer, {rate_a:.2} without"
-    );
-    // Late steps follow the machine's load (this thread is not real time, and the stalled viewer's
-    // socket takes megabytes of copying before it fills): only a gross change fails.
-    let late_rate_a = late_a as f64 / steps_a as f64;
-    assert!(
-        late_b as f64 <= (2.0 * late_rate_a + 0.15) * steps_b as f64 + 20.0,
-        "late steps with the stalled viewer: {late_b} of {steps_b}, without: {late_a} of {steps_a}"
-    );
-    assert!(
-        pub_b as f64 >= 20.0 * sb && frames_b as f64 >= 10.0 * sb,
-        "frames published {pub_b} and read {frames_b} in {sb:.1} s"
-    );
 }
 
 /// The observer's call after a step allocates nothing, with viewers connected and frames flowing.
