@@ -134,10 +134,10 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let worker = std::thread::spawn(move || {
         let keyboard = BufReader::new(Keyboard { rx: key_rx, pending: Vec::new() });
         let screen = Box::new(Screen { tx: screen_tx, partial: String::new() });
-        let mut op = ConsoleOperator::new(keyboard, screen, &rig, false).unwrap();
+        let mut op = ConsoleOperator::new(keyboard, screen, &rig).unwrap();
         op.introduce();
         let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
-        let r = rec.record_plan(&mut op, &plan, "simulated rig behind a console");
+        let r = rec.record_session(&mut op, &plan, "simulated rig behind a console");
         // As `spidar calib record`: outputs off when the recording ends, whichever way.
         if r.is_ok() {
             rec.finish().unwrap();

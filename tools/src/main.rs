@@ -166,7 +166,8 @@ struct EmulateArgs {
 
 #[derive(clap::Args)]
 struct RigArgs {
-    /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+    /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron, made by `spidar calib home`) if
+    /// it exists, else the built-in configs/rig-spidar-h.ron.
     #[arg(long)]
     rig: Option<PathBuf>,
     /// Do not ask for SCHED_FIFO and locked memory.
@@ -244,6 +245,9 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// The live view of the world (served by the world: the child process or the thread).
+    #[command(flatten)]
+    view: spidar_tools::world_process::ViewArgs,
     /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
     /// contact model, the events, and the files that made the session. See docs/recording.md.
     #[arg(long, value_name = "FILE.mcap")]
@@ -255,6 +259,32 @@ struct RunArgs {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// The world step's time with the live view off, on without viewers and on with viewers
+    /// reading every frame, in alternating blocks; and the viewers' frame rate.
+    View {
+        /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// `boxing` (the box script), `boxing-passive` (no predictions: the step's time is steady)
+        /// or `crowd` (the spar script).
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Characters in the crowd scene.
+        #[arg(long, default_value_t = 1000)]
+        characters: usize,
+        /// Seconds of each block.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Rounds of the three blocks.
+        #[arg(long, default_value_t = 5)]
+        rounds: u32,
+        /// Viewers in the viewers' blocks.
+        #[arg(long, default_value_t = 3)]
+        viewers: usize,
+        /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+        fifo: Option<u8>,
+    },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
         #[command(flatten)]
@@ -321,14 +351,7 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    Ok(match &args.rig {
-        Some(p) => Rig::load_with_overrides(p, &args.overrides)?,
-        None => Rig::from_str_with_overrides(
-            spidar_rt::rig::DEFAULT_RIG_RON,
-            spidar_rt::rig::DEFAULT_RIG_NAME,
-            &args.overrides,
-        )?,
-    })
+    spidar_tools::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
 }
 
 fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
@@ -500,11 +523,30 @@ fn main() -> anyhow::Result<()> {
                     rt: rt_options(&rig)?,
                     scene,
                     echoes,
-                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world: ChildWorldSpec {
+                        extra: vec!["--no-view".into()],
+                        ..ChildWorldSpec::this_executable("walls", 0)?
+                    },
                     world_priority,
                 },
             )?;
             println!("{rep}");
+            Ok(())
+        }
+        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
+            use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
+            if !(seconds.is_finite() && seconds > 0.0) || rounds == 0 {
+                bail!("--seconds must be a positive number and --rounds at least 1");
+            }
+            let r = match &rig {
+                Some(p) => Rig::load(p)?,
+                None => Rig::default_rig(),
+            };
+            eprintln!(
+                "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+            );
+            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
+            println!("{}", bench_view(&r, &o)?);
             Ok(())
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
@@ -612,6 +654,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         bail!("--world-timeout-s must be a positive number of seconds");
     }
     let rig = load_rig(&a.rig)?;
+    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
+    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     if let Some(p) = a.world_priority {
         if !a.rig.no_rt && p >= a.rig.priority {
             bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
@@ -620,11 +664,24 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
-    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+    let (mut world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
         (true, "child" | "thread") | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
-            (WorldChoice::Thread(scene), name)
+            // The live view runs on the real clock only.
+            let view = if a.virtual_clock {
+                if a.view.view.is_some() {
+                    eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
+                }
+                None
+            } else {
+                spidar_tools::world_process::start_view(&a.view, &*scene)?
+            };
+            let mut stepper = spidar_world::host::Stepper::new(scene);
+            if let Some(v) = view {
+                stepper.add_observer(Box::new(v));
+            }
+            (WorldChoice::Thread(stepper), name)
         }
         (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
         (false, "child") => {
@@ -632,9 +689,15 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             if let Some(p) = a.world_priority {
                 spec.extra.extend(["--priority".into(), p.to_string().into()]);
             }
+            spec.extra.extend(a.view.child_args());
             (WorldChoice::Child(spec), scene_arg.clone())
         }
         (false, addr) => {
+            if a.view.view.is_some() || a.view.no_view {
+                eprintln!(
+                    "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
+                );
+            }
             let at = spidar_link::Endpoint::parse(addr)
                 .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
             let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
@@ -653,7 +716,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     let mut recorder = match &a.record {
         Some(path) => {
             let info = spidar_tools::recording::session_info(
-                a.rig.rig.as_deref(),
+                rig_src.path(),
                 &scene_arg,
                 &script,
                 &format!("{:?}", a.device),
@@ -664,6 +727,40 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         }
         None => None,
     };
+    // The world's share: FILE.world.mcap next to FILE.mcap, written by the world wherever it
+    // runs (this process or the child), on the rig recording's time line.
+    let mut world_recording = None;
+    let mut world_observer = None;
+    if let Some(path) = &a.record {
+        let wpath = spidar_record::world::world_path(path);
+        let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
+        match &mut world {
+            WorldChoice::Thread(stepper) => {
+                let (rec, obs) = spidar_tools::recording::start_world_recording(
+                    &wpath,
+                    &scene_arg,
+                    stepper.scene(),
+                    a.virtual_clock,
+                    start_ns,
+                )?;
+                world_recording = Some(rec);
+                if a.virtual_clock {
+                    world_observer = Some(obs);
+                } else {
+                    stepper.add_observer(Box::new(obs));
+                }
+            }
+            WorldChoice::Child(spec) => {
+                spec.extra.extend(["--record".into(), wpath.into_os_string()]);
+                if let Some(ns) = start_ns {
+                    spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
+                }
+            }
+            WorldChoice::Connect { at, .. } => eprintln!(
+                "spidar: the world at {at} is not recorded here; record it where it runs (spidar world --record FILE.mcap)"
+            ),
+        }
+    }
     let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
         None => {
             eprintln!(
@@ -689,10 +786,13 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        let WorldChoice::Thread(scene) = world else {
+        let WorldChoice::Thread(stepper) = world else {
             unreachable!("--virtual runs the world in this process")
         };
-        let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
+        let mut v = VirtualRun::new(dev, &rig, Some(stepper.into_scene()))?;
+        if let Some(o) = world_observer.take() {
+            v.observers.push(Box::new(o));
+        }
         v.home_and_activate();
         let ticks = (seconds / rig.period_s).round() as u64;
         let t0 = std::time::Instant::now();
@@ -723,6 +823,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 faults: c.faults,
             })
         });
+        let world_rec = world_recording.take().map(|r| r.finish());
         let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
         if a.json {
             let j = report::virtual_json(&report::VirtualRunReport {
@@ -734,6 +835,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 scene_status: &status,
                 end: v.rt.state(),
                 recording: recording.as_ref(),
+                rig_file: &rig_src.describe(),
             });
             println!("{j:#}");
         } else {
@@ -743,6 +845,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 wall,
                 seconds / wall
             );
+            println!("  rig file     {}", rig_src.describe());
             println!("  compute      {}", v.stats.compute.percentiles());
             if !status.is_empty() {
                 println!("  scene        {status}");
@@ -763,6 +866,9 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             );
             if let Some(r) = &recording {
                 println!("  recording    {r}");
+            }
+            if let Some(r) = &world_rec {
+                println!("  world rec.   {r}");
             }
             println!("  end          {}", v.rt.state().name());
         }
@@ -790,13 +896,20 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             },
         },
     )?;
+    let mut summary = summary;
+    summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
+    // The scene thread has stopped: the world's recording ends with its last step.
+    let world_rec = world_recording.take().map(|r| r.finish());
     if a.json {
         println!("{:#}", report::run_json(&summary, recording.as_ref()));
     } else {
         println!("{summary}");
         if let Some(r) = &recording {
             println!("  recording    {r}");
+        }
+        if let Some(r) = &world_rec {
+            println!("  world rec.   {r}");
         }
     }
     let lat = summary.stats.lateness.percentiles();

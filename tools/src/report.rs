@@ -81,6 +81,7 @@ pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
         "device": s.device,
         "scene": s.scene,
         "script": s.script,
+        "rig_file": s.rig_file,
         "wall_s": s.wall_s,
         "real_time": {
             "policy": s.rt.policy,
@@ -120,6 +121,8 @@ pub struct VirtualRunReport<'a> {
     pub scene_status: &'a str,
     pub end: Lifecycle,
     pub recording: Option<&'a RecordingReport>,
+    /// The rig file the run used (`RigSource::describe`).
+    pub rig_file: &'a str,
 }
 
 /// `spidar run --virtual --json`.
@@ -129,6 +132,7 @@ pub fn virtual_json(r: &VirtualRunReport<'_>) -> Value {
         "measured": "the virtual clock: device, rt-loop and scene interleaved on one thread",
         "ticks": r.ticks,
         "rig_seconds": r.rig_seconds,
+        "rig_file": r.rig_file,
         "wall_s": r.wall_s,
         "active_ticks": r.counters.active_ticks,
         "compute_s": pct(&r.stats.compute.percentiles()),

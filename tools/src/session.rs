@@ -381,6 +381,8 @@ pub struct Summary {
     pub recording: Option<spidar_record::writer::RecordingReport>,
     /// Rig-file bounds overridden for this run (shown, never silent).
     pub overrides: Vec<String>,
+    /// The rig file the run used (`RigSource::describe`; empty: not said).
+    pub rig_file: String,
 }
 
 impl std::fmt::Display for Summary {
@@ -395,6 +397,9 @@ impl std::fmt::Display for Summary {
             "spidar run: {:.2} s on {}, scene {}, script {}",
             self.wall_s, self.device, self.scene, self.script
         )?;
+        if !self.rig_file.is_empty() {
+            writeln!(f, "  rig file     {}", self.rig_file)?;
+        }
         writeln!(f, "  real time    {}", self.rt)?;
         if !self.overrides.is_empty() {
             writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
@@ -487,8 +492,8 @@ impl std::fmt::Display for Summary {
 
 /// Where the world of a live run is.
 pub enum WorldChoice {
-    /// A thread of the rig's process, stepping this scene.
-    Thread(Box<dyn Scene>),
+    /// A thread of the rig's process, stepping this scene (with its observers: the live view).
+    Thread(Stepper),
     /// A world process started (and restarted) by the session, on a Unix socket in a private
     /// directory.
     Child(ChildWorldSpec),
@@ -580,7 +585,12 @@ pub fn start_child_world_at(
     loop {
         let try_for = until.saturating_duration_since(Instant::now()).min(Duration::from_millis(200));
         match connect_world(rig, &at, dir, None, clock.now_ns() as f64 * 1e-9, try_for) {
-            Ok((link, w)) => return Ok((child, link, w)),
+            Ok((link, w)) => {
+                // What the world said as it started (where its live view is) goes to the
+                // session's next `poll`, with the world's later lines.
+                child.hold_lines(said);
+                return Ok((child, link, w));
+            }
             Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}
             // Not there yet: the socket file does not exist or nobody listens on it.
             Err(LinkError::Io { .. }) if Instant::now() < until => {
@@ -608,11 +618,11 @@ impl<D: Device + 'static> LiveSession<D> {
         let (mut ep, far) = Endpoints::pair();
         let FarEnds { commands, events, models, samples, status, telemetry } = far;
         let live_world = match world {
-            WorldChoice::Thread(scene) => {
+            WorldChoice::Thread(stepper) => {
                 let stop = Arc::new(AtomicBool::new(false));
                 let counters = Arc::new(SceneCounters::default());
                 let handle = scene_thread::spawn(
-                    Stepper::new(scene),
+                    stepper,
                     clock,
                     ChannelWorldEnd { models, samples, status },
                     rig_info(rig),
@@ -893,6 +903,7 @@ impl<D: Device + 'static> LiveSession<D> {
             clean_stop: rt.is_finished(),
             recording: None,
             overrides: Vec::new(),
+            rig_file: String::new(),
         })
     }
 }
