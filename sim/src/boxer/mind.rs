@@ -228,14 +228,6 @@ pub struct Mind {
     /// extrapolation.
     prev_vel: [Option<DVec3>; 2],
     pub hand_acc_m_per_s2: [DVec3; 2],
-    /// The virtual human's feet: where the base spring holds its waist (world). It steps back
-    /// with a lean and while a fist comes (never forward then), and returns to
-    /// [`Mind::stance_home_m`] only while no fist comes and no defence is under way.
-    pub waist_home_m: DVec3,
-    /// The waist's home in the scene (where the stance returns to).
-    pub stance_home_m: DVec3,
-    /// Unit vector from the virtual human's waist home toward the avatar's, horizontal.
-    toward_avatar: DVec3,
     vh: Parts,
     av: Parts,
     rng: Pcg64Mcg,
@@ -243,29 +235,10 @@ pub struct Mind {
 
 /// Time constant of the smoothing of the user's hand acceleration (s).
 const ACC_SMOOTH_S: f64 = 0.006;
-/// The stance returns to its place at this speed once no fist comes (m/s): a step forward.
-const STANCE_RETURN_M_PER_S: f64 = 0.2;
-/// The stance steps back at most this far from its place (m).
-const STANCE_BACK_MAX_M: f64 = 0.08;
-
-/// Position part of a free root's home in the model's default pose.
-fn root_home(model: &Model, body: usize) -> DVec3 {
-    let qa = model.bodies[body].q_at;
-    DVec3::new(model.q_default[qa], model.q_default[qa + 1], model.q_default[qa + 2])
-}
 
 impl Mind {
     pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
-        // The home is in the root's joint frame (the actor's frame); the direction too.
-        let stance = root_home(model, vh.waist);
-        let world = |b: usize| model.bodies[b].x_tree.point_to_parent(root_home(model, b));
-        let to = world(av.waist) - world(vh.waist);
-        let toward_avatar =
-            model.bodies[vh.waist].x_tree.e * DVec3::new(to.x, 0.0, to.z).normalize_or(DVec3::Z);
         Mind {
-            waist_home_m: stance,
-            stance_home_m: stance,
-            toward_avatar,
             params: p.mind,
             active: p.active,
             hands: [Behaviour::Standby; 2],
@@ -723,7 +696,6 @@ impl Mind {
                 });
             }
         }
-        self.place_stance(model, state, approaching);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
         let idle =
@@ -756,31 +728,6 @@ impl Mind {
             ));
             self.hands[h] = Behaviour::Attack;
             self.attacks += 1;
-        }
-    }
-
-    /// Moves the waist's home (the anchor of the base spring, [`Mind::waist_home_m`]) as a boxer
-    /// moves his feet. A reach is a force inside the body, so no lean or hold can keep the base
-    /// spring from pulling the whole body back to its home, toward the avatar, while a fist is
-    /// out. So while a fist comes at it or a defence is under way, the home follows the waist
-    /// whenever the waist is further from the avatar than the home (a step back; the spring
-    /// then pulls nothing toward the fist) and never moves forward; once no fist comes and no
-    /// defence is under way it steps back to its place at [`STANCE_RETURN_M_PER_S`].
-    fn place_stance(&mut self, model: &Model, state: &State, approaching: bool) {
-        let qa = model.bodies[self.vh.waist].q_at;
-        let waist = DVec3::new(state.q[qa], state.q[qa + 1], state.q[qa + 2]);
-        let guarding = approaching || self.defence.is_some();
-        if guarding {
-            if (waist - self.waist_home_m).dot(self.toward_avatar) < 0.0 {
-                let back = waist - self.stance_home_m;
-                let home = self.stance_home_m + back.clamp_length_max(STANCE_BACK_MAX_M);
-                if home.is_finite() {
-                    self.waist_home_m = home;
-                }
-            }
-        } else {
-            let e = self.stance_home_m - self.waist_home_m;
-            self.waist_home_m += e.clamp_length_max(STANCE_RETURN_M_PER_S * model.dt_s);
         }
     }
 

@@ -260,10 +260,6 @@ impl BoxingWorld {
         }
         // The virtual human thinks (prediction on a copy) and acts (its reaches).
         self.mind.think(m, &self.state, &self.ws, targets, &self.params);
-        // Its stance: the base spring holds the waist where the mind has put its feet.
-        let qa = self.model.bodies[self.vh.waist].q_at;
-        self.model.q_default[qa..qa + 3].copy_from_slice(&self.mind.waist_home_m.to_array());
-        let m = &self.model;
         self.mind.act(m, &mut self.ws, self.state.t_s);
         // The contacts of this state are already in the workspace (`begin_step`).
         passive_forces(m, &self.state, &mut self.ws);
