@@ -56,7 +56,8 @@ pub struct SessionFile {
 impl SessionFile {
     pub fn load(path: &Path) -> Result<SessionFile, CalibError> {
         let text = crate::read_text(path, "cannot read the session file")?;
-        let f: SessionFile = crate::parse_ron(&text, &path.display().to_string())?;
+        let f: SessionFile =
+            crate::parse_ron_kind(&text, &path.display().to_string(), spidar_config::FileKind::CalibrationSession)?;
         if f.version != SESSION_FILE_VERSION {
             return Err(CalibError::BadFile {
                 file: path.display().to_string(),
@@ -74,6 +75,7 @@ impl SessionFile {
         let pretty = ron::ser::PrettyConfig::new().depth_limit(3);
         let body = ron::ser::to_string_pretty(self, pretty)
             .map_err(|e| CalibError::BadFile { file: path.display().to_string(), message: e.to_string() })?;
+        let body = spidar_config::with_kind(&body, spidar_config::FileKind::CalibrationSession);
         let text = format!(
             "// spidar calib session: averaged encoder counts per pose, as recorded. Refit with\n\
              // `spidar calib fit --session {}`.\n{body}\n",

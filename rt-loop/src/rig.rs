@@ -214,7 +214,7 @@ impl RigToWorld {
 impl Rig {
     /// Loads and validates a rig file.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
-        let (file, text) = config::load_file::<RigFile>(path)?;
+        let (file, text) = config::load_file_kind::<RigFile>(path, config::FileKind::Rig)?;
         Rig::validate(file, &text, &path.display().to_string())
     }
 
@@ -224,7 +224,7 @@ impl Rig {
     }
 
     pub fn from_str(text: &str, origin: &str) -> Result<Rig, ConfigError> {
-        let file = config::parse::<RigFile>(text, origin)?;
+        let file = config::parse_kind::<RigFile>(text, origin, config::FileKind::Rig)?;
         Rig::validate(file, text, origin)
     }
 
@@ -579,7 +579,7 @@ mod tests {
 
     #[test]
     fn coplanar_anchors_are_rejected() {
-        let mut f: RigFile = config::parse(DEFAULT_RIG_RON, "x").unwrap();
+        let mut f: RigFile = config::parse_kind(DEFAULT_RIG_RON, "x", config::FileKind::Rig).unwrap();
         for s in f.hands[1].strings.iter_mut() {
             s.anchor_m[2] = 0.5;
         }

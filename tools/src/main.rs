@@ -1,13 +1,17 @@
 //! `spidar`: run a SPIDAR-H (real or simulated) with a scene behind it, and benchmark the loop.
 //! Arguments are parsed here and checked into parameters; the work is in the library.
+//!
+//! Exit status: 0 done; 1 an error, or a session that ended faulted or never became active; 2 a
+//! command line that cannot be used; 3 the rig process died or hung on real boards and its
+//! supervisor wrote zero to them; 4 the supervisor could not (use the emergency stop).
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
-use clap::{Parser, Subcommand};
+use anyhow::bail;
+use clap::parser::ValueSource;
+use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use spidar_device::Device;
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::fmt_dur;
@@ -16,10 +20,48 @@ use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions
 use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
 use spidar_tools::session::{
-    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualOptions, WorldChoice,
 };
 use spidar_tools::signals::Stop;
 use spidar_tools::world_process::WorldArgs;
+use spidar_tools::{errln, outln, supervisor, term};
+
+/// Longest `spidar run` or `spidar emulate` (a week): a number that would run for ever is a typo.
+const MAX_RUN_S: f64 = 7.0 * 24.0 * 3600.0;
+/// Longest benchmark or evaluation phase.
+const MAX_BENCH_S: f64 = 3600.0;
+
+/// A number of seconds in (0, `max`].
+fn seconds_upto(s: &str, max: f64) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= max {
+        Ok(v)
+    } else {
+        Err(format!("must be more than 0 and at most {max} s"))
+    }
+}
+fn run_seconds(s: &str) -> Result<f64, String> {
+    seconds_upto(s, MAX_RUN_S)
+}
+fn bench_seconds(s: &str) -> Result<f64, String> {
+    seconds_upto(s, MAX_BENCH_S)
+}
+/// 0 (skip) or a number of seconds up to an hour.
+fn bout_seconds(s: &str) -> Result<f64, String> {
+    if s.trim().parse::<f64>().is_ok_and(|v| v == 0.0) {
+        return Ok(0.0);
+    }
+    seconds_upto(s, MAX_BENCH_S)
+}
+/// Encoder noise: 0 to 1000 counts.
+fn noise_counts(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number of counts"))?;
+    if v.is_finite() && (0.0..=1000.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err("must be between 0 and 1000 counts".into())
+    }
+}
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -30,8 +72,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
-    /// world runs as a child process unless --world says otherwise.
+    /// Run the 1 kHz haptic loop on a rig with a world behind it. Ctrl-C, SIGTERM or SIGHUP stop
+    /// cleanly (force ramps out, strings at minimum tension, boards off, summary); a second one
+    /// stops at once with the outputs zeroed. The world runs as a child process unless --world
+    /// says otherwise. On real boards a supervisor process writes zero to them if the rig process
+    /// dies or hangs.
     Run(RunArgs),
     /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
     /// ADDR`), on this host or another.
@@ -41,7 +86,8 @@ enum Cmd {
         #[command(subcommand)]
         what: spidar_tools::calib::CalibCmd,
     },
-    /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig.
+    /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig (Ctrl-C,
+    /// SIGTERM or SIGHUP print the final status and remove the link).
     Emulate(EmulateArgs),
     /// List serial ports and USB devices, what each is and whether it can be opened.
     Devices {
@@ -57,8 +103,9 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
-    /// Evaluations against the papers: `reactions` (seed 000: timing during a bout and the
-    /// reaction experiment), `impacts` (seed 002: impact-force estimation).
+    /// Evaluations: `reactions` (the virtual boxer's timing during a bout, and how readable its
+    /// reactions to jabs are), `impacts` (how well impact forces can be told from the keyframe
+    /// characters' motion).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -67,30 +114,33 @@ enum Cmd {
 
 #[derive(Subcommand)]
 enum EvalCmd {
-    /// Seed 002 section 6.2: an automated estimator guesses impact forces from the keyframe
-    /// characters' motion; prints accuracy, mean and std per parameter next to the paper's Table 1.
+    /// Keyframe characters are hit with random strengths, heights and directions; an automated
+    /// estimator that practised on other hits guesses each hit's parameters from the character's
+    /// motion alone. Prints accuracy, mean and standard deviation per parameter, next to the
+    /// figures people reached in the published study this repeats.
     Impacts {
-        /// Scored hits (the paper: 6 subjects x 20).
-        #[arg(long, default_value_t = 120)]
-        trials: usize,
+        /// Scored hits (the published study: 6 subjects x 20).
+        #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        trials: u64,
         /// Practice hits per parameter combination (54 combinations) for the estimator.
-        #[arg(long, default_value_t = 4)]
-        practice: usize,
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        practice: u64,
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
-    /// Sim step and prediction cost during a bout on the simulated rig, then the section 4.3
-    /// experiment: jabs at four targets, an observer guesses each from the virtual human's motion.
+    /// Sim step and prediction cost during a bout on the simulated rig, then the reaction
+    /// experiment: jabs at four targets, an observer guesses each target from the virtual
+    /// human's motion alone, with its cognitive model on and off.
     Reactions {
         /// Jabs per target and mode (active, passive).
-        #[arg(long, default_value_t = 24)]
-        trials: usize,
+        #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        trials: u64,
         /// Seed of the jabs (aim, hand, speed) and of the bout.
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Length of the timed bout (s of rig time, virtual clock); 0 skips it.
-        #[arg(long, default_value_t = 60.0)]
+        /// Length of the timed bout (s of rig time, virtual clock; at most 3600); 0 skips it.
+        #[arg(long, default_value_t = 60.0, value_parser = bout_seconds)]
         bout_seconds: f64,
     },
 }
@@ -116,18 +166,19 @@ struct EmulateArgs {
     script: String,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Encoder noise of the simulated rig, standard deviation in counts.
-    #[arg(long, default_value_t = 0.0)]
+    /// Encoder noise of the simulated rig, standard deviation in counts (0 to 1000).
+    #[arg(long, default_value_t = 0.0, value_parser = noise_counts)]
     noise_counts: f64,
     /// Experiments only: zero the motors when no command came for this long. The real boards
     /// have no watchdog (they hold their last command), so by default neither do these.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     watchdog_ms: Option<u64>,
     /// Advance the rig one period per servo tick received instead of with the wall clock.
     #[arg(long)]
     per_tick: bool,
-    /// Stop after this many seconds (default: until Ctrl-C or `quit` on stdin).
-    #[arg(long)]
+    /// Stop after this many seconds, at most a week (default: until Ctrl-C, SIGTERM, SIGHUP or
+    /// `quit` on stdin).
+    #[arg(long, value_parser = run_seconds)]
     seconds: Option<f64>,
     /// Serve at normal priority instead of SCHED_FIFO 70.
     #[arg(long)]
@@ -163,11 +214,12 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
-    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
-    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
-    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
-    /// (default: whatever it runs).
+    /// Scene behind the loop: `boxing` (a virtual human who predicts your punches and blocks,
+    /// dodges or hits back; the default), `boxing-passive` (the same body with its mind off),
+    /// `crowd` (keyframe characters to push, who stagger, step, fall and get up), `walls` (the rig
+    /// check), or a boxer, crowd scene or walls scene file of any name (it says what it is: see
+    /// configs/ and docs/formats.md). With --world ADDR: the scene that world must run (default:
+    /// whatever it runs).
     #[arg(long)]
     scene: Option<String>,
     /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
@@ -175,34 +227,37 @@ struct RunArgs {
     /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
     #[arg(long, default_value = "child")]
     world: String,
-    /// How many times a child world that dies is restarted.
-    #[arg(long, default_value_t = 3)]
+    /// How many times a child world that dies is restarted (at most 100).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=100))]
     world_restarts: u32,
-    /// How long to wait for the world's first answer, in seconds.
-    #[arg(long, default_value_t = 30.0)]
+    /// How long to wait for the world's first answer, in seconds (at most 3600).
+    #[arg(long, default_value_t = 30.0, value_parser = bench_seconds)]
     world_timeout_s: f64,
     /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
     /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
-    /// The simulated user's hands: box (jabs and hooks at the virtual human), hold, circle, spar,
-    /// tour (for `walls`), or a script file (.ron).
+    /// The simulated user's hands (--device sim only): box (jabs and hooks at the virtual
+    /// human), hold, circle, spar, tour (for `walls`), or a script file of any name (see
+    /// configs/script-example.ron).
     #[arg(long, default_value = "box")]
     script: String,
-    /// Stop after this many seconds (default: run until Ctrl-C).
-    #[arg(long)]
+    /// Stop after this many seconds, at most a week (default: run until Ctrl-C, SIGTERM or SIGHUP).
+    #[arg(long, value_parser = run_seconds)]
     seconds: Option<f64>,
-    /// Seed of the simulated rig and of random scripts; the same seed gives the same run on the
-    /// virtual clock.
+    /// Seed of the simulated rig and of random scripts (--device sim only); the same seed gives
+    /// the same run on the virtual clock.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Encoder noise of the simulated rig, standard deviation in counts.
-    #[arg(long, default_value_t = 0.0)]
+    /// Encoder noise of the simulated rig, standard deviation in counts, 0 to 1000 (--device sim
+    /// only).
+    #[arg(long, default_value_t = 0.0, value_parser = noise_counts)]
     noise_counts: f64,
-    /// Simulate string sag when a tension drops below 0.3 N.
+    /// Simulate string sag when a tension drops below 0.3 N (--device sim only).
     #[arg(long)]
     slack: bool,
-    /// Run on the virtual clock, as fast as the machine computes (needs --seconds).
+    /// Run on the virtual clock, as fast as the machine computes (needs --seconds; the world
+    /// runs in this process).
     #[arg(long = "virtual")]
     virtual_clock: bool,
     /// No live status line.
@@ -216,11 +271,11 @@ enum BenchCmd {
     Rt {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds for each of the two loops.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds for each of the two loops (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two loops.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
     },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
@@ -229,17 +284,17 @@ enum BenchCmd {
     Link {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds of the loop with each kind of world.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds of the loop with each kind of world (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two kinds of world.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
         /// The scene of both worlds.
         #[arg(long, default_value = "boxing")]
         scene: String,
         /// Samples echoed per transport for the round-trip figures (at 1 kHz).
-        #[arg(long, default_value_t = 5000)]
+        #[arg(long, default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
         echoes: u64,
         /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
@@ -250,13 +305,13 @@ enum BenchCmd {
         #[command(flatten)]
         rig: RigArgs,
         /// Back-to-back exchanges for the round-trip figures.
-        #[arg(long, default_value_t = 20_000)]
+        #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
         exchanges: u64,
-        /// Seconds of the 1 kHz loop through the link.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds of the 1 kHz loop through the link (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Deadline of one exchange, in microseconds.
-        #[arg(long, default_value_t = 800)]
+        #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(u64).range(50..=100_000))]
         reply_timeout_us: u64,
     },
 }
@@ -276,50 +331,64 @@ fn rt_options(args: &RigArgs) -> RtOptions {
     }
 }
 
-fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
+fn main() -> ExitCode {
+    // A rig process started by its supervisor finds the shared page before any thread starts.
+    if let Err(e) = supervisor::attach_from_env() {
+        errln!("Error: {e:?}");
+        return ExitCode::FAILURE;
+    }
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    match dispatch(cli, &matches) {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            errln!("Error: {e:?}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs a command; the exit status (0 unless a supervisor took the boards over).
+fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
     match cli.command {
-        Cmd::Run(a) => run(a),
+        Cmd::Run(a) => run(a, matches.subcommand_matches("run").unwrap_or(matches)),
         Cmd::World(a) => {
             let stop = Stop::install()?;
-            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| 0)
         }
-        Cmd::Calib { what } => spidar_tools::calib::run(what),
-        Cmd::Emulate(a) => emulate(a),
+        Cmd::Calib { what } => spidar_tools::calib::run(what).map(|_| 0),
+        Cmd::Emulate(a) => emulate(a).map(|_| 0),
         Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
             use spidar_tools::eval;
             if bout_seconds > 0.0 {
-                eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
+                errln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
-                println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
-                println!("  world step   {}", b.step);
-                println!("  prediction   {}", b.prediction);
-                println!("  step+predict {}", b.step_with_prediction);
+                outln!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                outln!("  world step   {}", b.step);
+                outln!("  prediction   {}", b.prediction);
+                outln!("  step+predict {}", b.step_with_prediction);
                 let [med, p99, max] = b.prediction_steps;
-                println!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
-                println!("  rt misses    {}", b.misses);
-                println!("  scene        {}\n", b.status);
+                outln!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
+                outln!("  rt misses    {}", b.misses);
+                outln!("  scene        {}\n", b.status);
             }
-            let r = eval::reactions(trials, seed, |done, total| {
+            let r = eval::reactions(trials as usize, seed, |done, total| {
                 if done % 16 == 0 || done == total {
-                    eprint!("\rjabs {done}/{total}\x1b[K");
+                    term::progress(&format!("jabs {done}/{total}"));
                 }
             })?;
-            eprintln!();
-            println!("{r}");
-            Ok(())
+            term::progress_done();
+            outln!("{r}");
+            Ok(0)
         }
         Cmd::Devices { probe, port } => {
-            print!("{}", hardware::devices_report(&port, probe));
-            Ok(())
+            outln!("{}", hardware::devices_report(&port, probe).trim_end());
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Uart { rig, exchanges, seconds, reply_timeout_us } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
             let scripts = load_scripts("hold", &r, 1)?;
-            eprintln!("{exchanges} round trips, then {seconds} s of the 1 kHz loop through the emulator ...");
+            errln!("{exchanges} round trips, then {seconds} s of the 1 kHz loop through the emulator ...");
             let rep = hardware::bench_uart(
                 &r,
                 scripts,
@@ -328,30 +397,29 @@ fn main() -> anyhow::Result<()> {
                 &rt_options(&rig),
                 Duration::from_micros(reply_timeout_us),
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
         Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed } } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
-            if trials == 0 || practice == 0 {
-                bail!("--trials and --practice must be at least 1");
-            }
-            let o = ImpactOptions { trials, practice_per_combo: practice, seed, ..ImpactOptions::default() };
+            let o = ImpactOptions {
+                trials: trials as usize,
+                practice_per_combo: practice as usize,
+                seed,
+                ..ImpactOptions::default()
+            };
             let report = eval_impacts(&o, |done, total| {
                 if done % 50 == 0 || done == total {
-                    eprint!("\r  simulated {done}/{total} hits");
+                    term::progress(&format!("  simulated {done}/{total} hits"));
                 }
             })?;
-            eprintln!();
-            println!("{report}");
-            Ok(())
+            term::progress_done();
+            outln!("{report}");
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
-            eprintln!(
+            errln!(
                 "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
             );
             let rep = bench_link(
@@ -366,15 +434,12 @@ fn main() -> anyhow::Result<()> {
                     world_priority,
                 },
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
-            eprintln!("running each loop for {seconds} s in {blocks} blocks ...");
+            errln!("running each loop for {seconds} s in {blocks} blocks ...");
             let rep = bench_rt(
                 &r,
                 &RtBenchOptions {
@@ -384,8 +449,8 @@ fn main() -> anyhow::Result<()> {
                     spin_ns: rig.spin_us * 1000,
                 },
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
     }
 }
@@ -395,9 +460,6 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         Some(p) => Rig::load(p)?,
         None => Rig::default_rig(),
     };
-    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
-        bail!("--noise-counts must be >= 0");
-    }
     let models =
         spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
@@ -415,6 +477,8 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         Some(l) => l,
         None => hardware::default_link()?,
     };
+    // Signals end the emulator cleanly (status, link removed) from here on.
+    let stop = Stop::install()?;
     let opts = hardware::EmulateOptions {
         link,
         emulator: spidar_device::emulator::EmulatorOptions {
@@ -425,7 +489,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         sim: SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, ..Default::default() },
     };
     let emu = hardware::start_emulator(&rig, scripts, &opts)?;
-    println!(
+    outln!(
         "spidar emulate: boards {} ({}) on {} (link {}), rig '{}', script {}, watchdog {}",
         a.boards,
         layout.firmware(),
@@ -435,7 +499,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         a.script,
         a.watchdog_ms.map_or("none (as the real boards)".to_string(), |w| format!("{w} ms (experiment)"))
     );
-    println!(
+    outln!(
         "run the stack against it: spidar run --device uart   (--port {} is the default)",
         emu.link().display()
     );
@@ -443,7 +507,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         // The thread sets its policy as it starts; give it a moment before reporting.
         std::thread::sleep(Duration::from_millis(50));
     }
-    println!(
+    outln!(
         "serving thread: {}",
         if emu.control().fifo() {
             "SCHED_FIFO 70"
@@ -451,44 +515,131 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
             "normal priority (SCHED_FIFO not permitted or not asked)"
         }
     );
-    println!("{}", hardware::EMULATE_HELP);
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
-    hardware::run_emulator(emu, stop, a.seconds)
+    outln!("{}", hardware::EMULATE_HELP);
+    hardware::run_emulator(emu, &stop, a.seconds)
 }
 
-fn run(a: RunArgs) -> anyhow::Result<()> {
-    if let Some(s) = a.seconds {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("--seconds must be a positive number of seconds");
+/// The option `id` was given on the command line (not left at its default).
+fn given(m: &ArgMatches, id: &str) -> bool {
+    m.try_get_raw(id).is_ok_and(|v| v.is_some()) && m.value_source(id) == Some(ValueSource::CommandLine)
+}
+
+/// Refuses options that do not apply to this run, naming what they apply to.
+fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
+    let given = |id: &str| given(m, id);
+    if a.device == DeviceKind::Sim {
+        for (id, flag) in [
+            ("port", "--port"),
+            ("switch", "--switch"),
+            ("digits_per_volt", "--digits-per-volt"),
+            ("reply_timeout_us", "--reply-timeout-us"),
+        ] {
+            if given(id) {
+                bail!(
+                    "{flag} applies to real boards, not to the simulated rig: leave it out, or choose the board \
+                     with --device uart, usb-simple or usb-sh4"
+                );
+            }
+        }
+    } else {
+        for (id, flag) in
+            [("script", "--script"), ("seed", "--seed"), ("noise_counts", "--noise-counts"), ("slack", "--slack")]
+        {
+            if given(id) {
+                bail!(
+                    "{flag} applies to the simulated rig only (--device sim): on real boards the hands are a \
+                     person's; leave it out"
+                );
+            }
+        }
+        if a.device != DeviceKind::Uart && given("port") {
+            bail!("--port applies to --device uart only: USB boards are found by their USB id (pick one with --switch)");
+        }
+        if a.device == DeviceKind::Uart && given("switch") {
+            bail!("--switch picks one of several USB boards: it does not apply to --device uart (use --port)");
         }
     }
-    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
-        bail!("--noise-counts must be >= 0");
+    if a.virtual_clock {
+        if a.seconds.is_none() {
+            bail!("--virtual needs --seconds: how much rig time to run");
+        }
+        for (id, flag) in [
+            ("priority", "--priority"),
+            ("no_rt", "--no-rt"),
+            ("cpu", "--cpu"),
+            ("spin_us", "--spin-us"),
+            ("world_priority", "--world-priority"),
+            ("world_restarts", "--world-restarts"),
+            ("world_timeout_s", "--world-timeout-s"),
+        ] {
+            if given(id) {
+                bail!(
+                    "{flag} does not apply to --virtual: the loop and the world run on the virtual clock in this \
+                     process, as fast as the machine computes; leave it out"
+                );
+            }
+        }
+        if !matches!(a.world.as_str(), "child" | "thread") {
+            bail!("--virtual runs the world in this process: leave out --world {}", a.world);
+        }
+    } else {
+        match a.world.as_str() {
+            "child" => {}
+            "thread" => {
+                for (id, flag) in [("world_restarts", "--world-restarts"), ("world_timeout_s", "--world-timeout-s")] {
+                    if given(id) {
+                        bail!("{flag} applies to a world process; --world thread runs the world in this process");
+                    }
+                }
+            }
+            _ => {
+                if given("world_restarts") {
+                    bail!("--world-restarts applies to --world child only: a world already running is not restarted by this rig");
+                }
+                if given("world_priority") {
+                    bail!(
+                        "--world-priority applies to a world this rig starts: give a running world its priority with \
+                         `spidar world --priority`"
+                    );
+                }
+            }
+        }
     }
-    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
-        bail!("--world-timeout-s must be a positive number of seconds");
+    if a.rig.no_rt && given("priority") {
+        bail!("--priority is the loop's SCHED_FIFO priority, which --no-rt turns off: leave one of them out");
     }
-    let rig = load_rig(&a.rig)?;
     if let Some(p) = a.world_priority {
         if !a.rig.no_rt && p >= a.rig.priority {
             bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
         }
     }
+    Ok(())
+}
+
+fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
+    check_run_options(&a, m)?;
+    let rig = load_rig(&a.rig)?;
+    let choice = a.hw.choice(a.device, &rig)?;
+    // Real boards hold their last command if this process dies: a supervisor watches over it.
+    let supervised = supervisor::attached();
+    if let (Some(choice), None) = (&choice, supervised) {
+        let stop = Stop::install()?;
+        let choice = choice.clone();
+        return supervisor::supervise(&stop, &mut || hardware::open_hardware(&choice));
+    }
+    let stop = match supervised {
+        Some(page) => Stop::install()?.with_forwarded(&page.stops),
+        None => Stop::install()?,
+    };
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
     let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
-        (true, "child" | "thread") | (false, "thread") => {
+        (true, _) | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
             (WorldChoice::Thread(scene), name)
         }
-        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
         (false, "child") => {
             let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
             if let Some(p) = a.world_priority {
@@ -503,81 +654,71 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
         }
     };
-    let scripts = load_scripts(&a.script, &rig, a.seed)?;
-    let sim_opts = SimOptions {
-        seed: a.seed,
-        encoder_noise_counts: a.noise_counts,
-        slack: a.slack,
-        ..Default::default()
-    };
-    let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
+    let (dev, script_name): (Box<dyn Device>, String) = match choice {
         None => {
-            eprintln!(
+            let scripts = load_scripts(&a.script, &rig, a.seed)?;
+            let sim_opts = SimOptions {
+                seed: a.seed,
+                encoder_noise_counts: a.noise_counts,
+                slack: a.slack,
+                ..Default::default()
+            };
+            errln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
-                rig.name, a.seed, scene_name, a.script
+                rig.name,
+                a.seed,
+                scene_name,
+                a.script
             );
-            Box::new(sim_device(&rig, scripts, &sim_opts)?)
+            (Box::new(sim_device(&rig, scripts, &sim_opts)?), a.script.clone())
         }
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;
-            eprintln!(
-                "spidar: rig '{}' on {} ({}), scene {}",
+            errln!(
+                "spidar: rig '{}' on {} ({}), scene {}{}",
                 rig.name,
                 dev.info().board,
                 dev.info().identity,
-                scene_name
+                scene_name,
+                if supervised.is_some() {
+                    format!("; supervisor pid {} watches this rig process (pid {})", parent_pid(), std::process::id())
+                } else {
+                    String::new()
+                }
             );
             for w in hardware::check_rig_against(&rig, dev.info()) {
-                eprintln!("warning: {w}");
+                errln!("warning: {w}");
             }
-            eprintln!("hold each grip at its home point: the rig homes as it starts");
-            dev
+            errln!("hold each grip at its home point: the rig homes as it starts");
+            (dev, "none (a person's hands on real boards)".to_string())
         }
     };
+    let device = format!("{} ({})", dev.info().board, dev.info().identity);
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
         let WorldChoice::Thread(scene) = world else {
             unreachable!("--virtual runs the world in this process")
         };
-        let mut v = VirtualRun::new(dev, &rig, Some(scene))?;
-        v.home_and_activate();
-        let ticks = (seconds / rig.period_s).round() as u64;
-        let t0 = std::time::Instant::now();
-        v.run_ticks(ticks);
-        v.rt.command(spidar_rt::Command::Stop);
-        while v.rt.tick() {}
-        let wall = t0.elapsed().as_secs_f64();
-        let c = v.counters();
-        println!(
-            "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
-            c.ticks,
-            wall,
-            seconds / wall
-        );
-        println!("  compute      {}", v.stats.compute.percentiles());
-        if let Some(s) = v.scene.as_ref() {
-            println!("  scene        {}", s.status());
-        }
-        println!(
-            "  max force    left {:.2} N, right {:.2} N",
-            v.stats.max_force_n[0], v.stats.max_force_n[1]
-        );
-        println!(
-            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
-            c.faults
-        );
-        println!("  end          {}", v.rt.state().name());
-        return Ok(());
+        let summary = session::run_virtual(
+            dev,
+            &rig,
+            scene,
+            VirtualOptions {
+                seconds,
+                stop,
+                progress: !a.quiet,
+                device,
+                scene_name,
+                script_name,
+                supervisor: supervised,
+            },
+        )?;
+        outln!("{summary}");
+        session::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+        return Ok(0);
     }
 
-    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
@@ -589,15 +730,16 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
             scene_name,
-            script_name: a.script.clone(),
+            script_name,
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
+            supervisor: supervised,
         },
     )?;
-    println!("{summary}");
+    outln!("{summary}");
     let lat = summary.stats.lateness.percentiles();
     if summary.counters.misses > 0 {
-        eprintln!(
+        errln!(
             "note: {} ticks woke more than 1 ms late (worst {}); see `spidar bench rt` for this machine's floor",
             summary.counters.misses,
             fmt_dur(lat.max_s)
@@ -606,5 +748,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !summary.clean_stop {
         bail!("the loop did not stop cleanly");
     }
-    Ok(())
+    session::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+    Ok(0)
+}
+
+fn parent_pid() -> u32 {
+    // SAFETY: getppid cannot fail.
+    unsafe { libc::getppid() as u32 }
 }
