@@ -593,6 +593,9 @@ fn runs_with_the_same_seed_are_bit_identical() {
 fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let r = rig();
     let mut v = sparring(3, 0.5, true);
+    // The heartbeat a supervisor watches is written every tick, inside the guard.
+    let lifeline: &'static spidar_rt::Lifeline = Box::leak(Box::default());
+    v.rt.set_lifeline(lifeline);
     v.run_ticks(1000); // warm-up: histograms, first models
     let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
     let mut scene = v.stop_scene().unwrap();
@@ -635,6 +638,12 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let c = v.counters();
     assert!(c.faults >= 1 && c.stale > 0 && c.active_ticks > 25_000, "{c:?}");
     assert_eq!(v.rt.state(), Lifecycle::Active);
+    assert_eq!(lifeline.beat.load(Ordering::SeqCst), 31_000, "one beat per tick");
+    // The halt (a second stop signal) zeroes the outputs inside the guard too.
+    lifeline.halt();
+    assert!(!no_alloc(|| v.rt.tick()));
+    assert!(v.rt.halted() && lifeline.done());
+    assert_eq!(FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before, 0, "the halt allocated");
 }
 
 /// The same guard over ticks whose world is a socket away: models and samples as datagrams, a

@@ -452,10 +452,16 @@ pub fn run_virtual<D: Device>(
     let t0 = Instant::now();
     loop {
         if stopping_at.is_none() && (n >= ticks || opts.stop.requested()) {
+            let time_up = n >= ticks;
+            if !time_up {
+                out.say(stopping_words(false));
+            }
             v.rt.command(Command::Stop);
             stopping_at = Some(n);
         }
-        if opts.stop.urgent() || stopping_at.is_some_and(|at| n - at > stop_limit) {
+        let overdue = stopping_at.is_some_and(|at| n - at > stop_limit);
+        if (opts.stop.urgent() || overdue) && lifeline.halt.load(Ordering::Relaxed) == 0 {
+            out.say(HALT_WORDS);
             lifeline.halt();
         }
         if !v.rt.tick() {
@@ -696,6 +702,17 @@ impl std::fmt::Display for Summary {
         write!(f, "  end          {} ({}{by})", self.final_state.name(), end_words(self.clean_stop, self.halted))
     }
 }
+
+/// What the operator is told when the clean stop begins.
+fn stopping_words(time_up: bool) -> &'static str {
+    if time_up {
+        "stopping (time up): force ramps out, then the device is switched off"
+    } else {
+        "stopping: force ramps out, then the device is switched off (a second Ctrl-C stops at once)"
+    }
+}
+
+const HALT_WORDS: &str = "stopping at once: zero on every channel, device off";
 
 /// How a loop ended, in words.
 fn end_words(clean_stop: bool, halted: bool) -> &'static str {
@@ -995,6 +1012,16 @@ impl<D: Device + 'static> LiveSession<D> {
         self.stop_deadline.get_or_insert_with(|| Instant::now() + Duration::from_secs(5));
     }
 
+    /// A stop was asked for.
+    pub fn stop_requested(&self) -> bool {
+        self.stop_deadline.is_some()
+    }
+
+    /// The halt was asked for.
+    pub fn halt_requested(&self) -> bool {
+        self.lifeline.halt.load(Ordering::Relaxed) != 0
+    }
+
     /// The stop was asked for more than 5 s ago and the loop still runs.
     pub fn stop_overdue(&self) -> bool {
         self.stop_deadline.is_some_and(|d| Instant::now() > d)
@@ -1160,10 +1187,12 @@ pub fn run_live<D: Device + 'static>(
             break;
         }
         let time_up = opts.seconds.is_some_and(|t| s.elapsed_s() >= t);
-        if time_up || opts.stop.requested() {
+        if (time_up || opts.stop.requested()) && !s.stop_requested() {
+            out.say(stopping_words(time_up));
             s.request_stop();
         }
-        if opts.stop.urgent() {
+        if opts.stop.urgent() && !s.halt_requested() {
+            out.say(HALT_WORDS);
             s.halt();
         }
         if s.stop_overdue() {
