@@ -56,8 +56,11 @@ pub struct SessionFile {
 impl SessionFile {
     pub fn load(path: &Path) -> Result<SessionFile, CalibError> {
         let text = crate::read_text(path, "cannot read the session file")?;
-        let f: SessionFile =
-            crate::parse_ron_kind(&text, &path.display().to_string(), spidar_config::FileKind::CalibrationSession)?;
+        let f: SessionFile = crate::parse_ron_kind(
+            &text,
+            &path.display().to_string(),
+            spidar_config::FileKind::CalibrationSession,
+        )?;
         if f.version != SESSION_FILE_VERSION {
             return Err(CalibError::BadFile {
                 file: path.display().to_string(),

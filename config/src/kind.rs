@@ -145,14 +145,21 @@ pub fn find_kind(text: &str) -> Result<Option<KindEntry>, (usize, usize, String)
             let hashes = b[i + 1..].iter().take_while(|&&h| h == b'#').count();
             let close: Vec<u8> = std::iter::once(b'"').chain(std::iter::repeat_n(b'#', hashes)).collect();
             let body = i + 2 + hashes;
-            i = b[body..].windows(close.len()).position(|w| w == close.as_slice()).map_or(b.len(), |p| body + p + close.len());
+            i = b[body..]
+                .windows(close.len())
+                .position(|w| w == close.as_slice())
+                .map_or(b.len(), |p| body + p + close.len());
         } else if matches!(c, b'(' | b'[' | b'{') {
             depth += 1;
             i += 1;
         } else if matches!(c, b')' | b']' | b'}') {
             depth = depth.saturating_sub(1);
             i += 1;
-        } else if depth == 1 && b[i..].starts_with(b"kind") && (i == 0 || !ident(b[i - 1])) && !b.get(i + 4).is_some_and(|&n| ident(n)) {
+        } else if depth == 1
+            && b[i..].starts_with(b"kind")
+            && (i == 0 || !ident(b[i - 1]))
+            && !b.get(i + 4).is_some_and(|&n| ident(n))
+        {
             let start = i;
             let mut j = skip_blank(b, i + 4);
             if b.get(j) != Some(&b':') {
@@ -162,7 +169,11 @@ pub fn find_kind(text: &str) -> Result<Option<KindEntry>, (usize, usize, String)
             j = skip_blank(b, j + 1);
             let (line, column) = pos(start);
             if b.get(j) != Some(&b'"') {
-                return Err((line, column, "the kind must be a string in double quotes, e.g. kind: \"rig\"".into()));
+                return Err((
+                    line,
+                    column,
+                    "the kind must be a string in double quotes, e.g. kind: \"rig\"".into(),
+                ));
             }
             let end = skip_string(b, j);
             let tag = text[j + 1..end.saturating_sub(1).max(j + 1)].to_string();
@@ -229,7 +240,12 @@ pub fn peek_kind(text: &str, origin: &str) -> Result<FileKind, ConfigError> {
         ));
     };
     FileKind::from_tag(&e.tag).ok_or_else(|| {
-        kind_error(origin, e.line, e.column, format!("\"{}\" is not a kind of spidar file (kinds: {})", e.tag, all_tags()))
+        kind_error(
+            origin,
+            e.line,
+            e.column,
+            format!("\"{}\" is not a kind of spidar file (kinds: {})", e.tag, all_tags()),
+        )
     })
 }
 
@@ -276,7 +292,11 @@ pub fn expect_kind(text: &str, origin: &str, expected: FileKind) -> Result<Strin
 }
 
 /// Parses RON text of kind `expected` (see [`expect_kind`]); `origin` names it in errors.
-pub fn parse_kind<T: DeserializeOwned>(text: &str, origin: &str, expected: FileKind) -> Result<T, ConfigError> {
+pub fn parse_kind<T: DeserializeOwned>(
+    text: &str,
+    origin: &str,
+    expected: FileKind,
+) -> Result<T, ConfigError> {
     let body = expect_kind(text, origin, expected)?;
     crate::parse(&body, origin)
 }

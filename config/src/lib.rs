@@ -10,7 +10,9 @@ use std::path::Path;
 
 use serde::de::DeserializeOwned;
 
-pub use kind::{expect_kind, find_kind, load_file_kind, parse_kind, peek_kind, with_kind, FileKind, KindEntry};
+pub use kind::{
+    expect_kind, find_kind, load_file_kind, parse_kind, peek_kind, with_kind, FileKind, KindEntry,
+};
 
 /// An error in a configuration file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -36,17 +38,36 @@ impl ConfigError {
     }
 }
 
+/// Largest configuration file read (4 MiB): the biggest real one (a keyframe set) is a few
+/// hundred KiB, and a path such as `/dev/zero` or a log file given by mistake must not be read
+/// until memory runs out.
+pub const MAX_FILE_BYTES: u64 = 4 << 20;
+
 /// Reads and parses a RON file; I/O errors are reported with the path.
 pub fn load_file<T: DeserializeOwned>(path: &Path) -> Result<(T, String), ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+    let text = read_capped(path, MAX_FILE_BYTES)?;
+    let value = parse(&text, &path.display().to_string())?;
+    Ok((value, text))
+}
+
+/// Reads a text file of at most `cap` bytes (reading stops one byte past the cap, so a device
+/// or a pipe that never ends is refused too).
+pub fn read_capped(path: &Path, cap: u64) -> Result<String, ConfigError> {
+    use std::io::Read;
+    let err = |message: String| ConfigError {
         origin: path.display().to_string(),
         line: 0,
         column: 0,
         field: "(file)".into(),
-        message: format!("cannot read the file: {e}"),
-    })?;
-    let value = parse(&text, &path.display().to_string())?;
-    Ok((value, text))
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|e| err(format!("cannot read the file: {e}")))?;
+    let mut bytes = Vec::new();
+    file.take(cap + 1).read_to_end(&mut bytes).map_err(|e| err(format!("cannot read the file: {e}")))?;
+    if bytes.len() as u64 > cap {
+        return Err(err(format!("larger than {} MiB: not a configuration file (check the path)", cap >> 20)));
+    }
+    String::from_utf8(bytes).map_err(|e| err(format!("not UTF-8 text ({e}): not a configuration file")))
 }
 
 /// Parses RON text; `origin` names it in errors.
@@ -141,6 +162,20 @@ mod tests {
     #[allow(dead_code)]
     struct Small {
         a_m: f64,
+    }
+
+    #[test]
+    fn an_endless_or_huge_file_is_refused_without_reading_it_all() {
+        let e = load_file::<Small>(Path::new("/dev/zero")).unwrap_err();
+        assert!(e.message.contains("larger than 4 MiB"), "{e}");
+        assert!(e.to_string().starts_with("/dev/zero: "), "{e}");
+        let dir = std::env::temp_dir().join(format!("spidar-config-cap-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("big.ron");
+        std::fs::write(&p, vec![b' '; 2000]).unwrap();
+        assert!(read_capped(&p, 2000).is_ok(), "exactly the cap is read");
+        assert!(read_capped(&p, 1999).unwrap_err().message.contains("larger than"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -83,6 +83,24 @@ fn bench(c: &mut Criterion) {
         })
     });
 
+    // What the loop does around the core for the record (runner.rs): a fresh record built in
+    // place, the device input and output, the sample and the model copied in, the send.
+    let (tx, rx) = crossbeam_channel::bounded::<TickRecord>(4096);
+    let mut last = TickRecord::default();
+    let model = Some(scene_model(0.0));
+    c.bench_function("loop/tick_record_filled_and_sent", |b| {
+        b.iter(|| {
+            last = TickRecord::default();
+            last.input = black_box(inp);
+            last.output = black_box(out);
+            last.sample = black_box(s);
+            last.model = black_box(model);
+            let _ = tx.try_send(last);
+            black_box(&last);
+            black_box(rx.try_recv().ok());
+        })
+    });
+
     let kin = Kinematics::new(rig.hands[0].anchors_m).unwrap();
     let lengths = kin.lengths(press[0] + DVec3::new(1e-5, -2e-5, 3e-5));
     c.bench_function("phase/kinematics_solve_2_iterations", |b| {

@@ -393,6 +393,40 @@ mod tests {
         }
     }
 
+    #[test]
+    fn gauss_newton_moves_the_seed_to_the_least_squares_optimum() {
+        // A 5 mm error on one string: the seed (three differences) and the least-squares pose
+        // differ by millimetres; the solve must land on the optimum, where J^T r = 0, and its
+        // residual must be the optimum's, below the seed's.
+        let a = spidar_h()[0];
+        let k = Kinematics::new(a).unwrap();
+        let p = DVec3::new(-0.15, 0.1, 0.05);
+        for i in 0..4 {
+            let mut l = k.lengths(p);
+            l[i] += 0.005;
+            let seed = k.closed_form(&l);
+            let pose = k.solve(&l, 2);
+            let rms = |x: DVec3| {
+                (k.lengths(x).iter().zip(&l).map(|(c, m)| (c - m).powi(2)).sum::<f64>() * 0.25).sqrt()
+            };
+            assert!((pose.residual_m - rms(pose.pos_m)).abs() < 1e-15, "the residual is the RMS at the pose");
+            assert!(
+                pose.residual_m < rms(seed) - 1e-6,
+                "string {i}: {} vs seed {}",
+                pose.residual_m,
+                rms(seed)
+            );
+            // At the optimum the gradient vanishes: J^T r = 0.
+            let grad = a.iter().zip(&l).fold(DVec3::ZERO, |g, (ai, li)| {
+                let d = pose.pos_m - *ai;
+                g + d.normalize() * (d.length() - li)
+            });
+            assert!(grad.length() < 1e-6, "string {i}: gradient {grad}");
+            // With no iteration the pose is the seed.
+            assert_eq!(k.solve(&l, 0).pos_m, seed);
+        }
+    }
+
     proptest! {
         #![proptest_config(cfg(2000))]
 

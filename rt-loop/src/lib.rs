@@ -8,6 +8,7 @@
 //! to the world ([`status`]: what the rig tells the world about itself).
 
 pub mod boards;
+pub mod bounds;
 pub mod clock;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;

@@ -165,6 +165,96 @@ mod tests {
     }
 
     #[test]
+    fn damping_acts_on_the_approach_speed_relative_to_the_proxy() {
+        // A plane moving +z at 1 m/s, the fist 1 cm inside it.
+        let m = model(ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::Z }, 1000.0, 20.0, DVec3::Z);
+        let mut imp = [DVec3::ZERO; MAX_PROXIES];
+        let at = DVec3::Z * 0.03;
+        // Moving with the plane: no relative motion, spring only (10 N).
+        let r = render_hand(0, at, DVec3::Z, 0.04, 1e4, &m, 0.0, 0.001, &mut imp);
+        assert!((r.force_n.z - 10.0).abs() < 1e-9, "{}", r.force_n);
+        // At rest: the plane approaches at 1 m/s, the damper adds 20 N.
+        let r = render_hand(0, at, DVec3::ZERO, 0.04, 1e4, &m, 0.0, 0.001, &mut imp);
+        assert!((r.force_n.z - 30.0).abs() < 1e-9, "{}", r.force_n);
+        // Leaving at 0.25 m/s relative: the damper takes 5 N off.
+        let r = render_hand(0, at, DVec3::Z * 1.25, 0.04, 1e4, &m, 0.0, 0.001, &mut imp);
+        assert!((r.force_n.z - 5.0).abs() < 1e-9, "{}", r.force_n);
+    }
+
+    #[test]
+    fn a_proxy_at_the_stiffness_limit_is_not_reported_as_limited() {
+        let m = model(ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::Y }, 5000.0, 0.0, DVec3::ZERO);
+        let mut imp = [DVec3::ZERO; MAX_PROXIES];
+        let r = render_hand(0, DVec3::Y * 0.039, DVec3::ZERO, 0.04, 5000.0, &m, 0.0, 0.001, &mut imp);
+        assert!(!r.stiffness_limited);
+        assert_eq!(r.contacts, 1);
+        assert!((r.force_n.y - 5.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn impulses_accumulate_per_proxy_and_a_nan_proxy_adds_nothing() {
+        let mut m =
+            model(ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::Y }, 1000.0, 0.0, DVec3::ZERO);
+        m.push(Proxy {
+            id: ProxyId { body: 1, part: 3 },
+            shape: ProxyShape::Sphere { centre_m: DVec3::new(0.0, f64::NAN, 0.0), radius_m: 0.1 },
+            k_n_per_m: 1000.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: Proxy::BOTH_HANDS,
+        });
+        m.push(Proxy {
+            id: ProxyId { body: 1, part: 4 },
+            shape: ProxyShape::Sphere { centre_m: DVec3::new(0.0, 0.05, 0.0), radius_m: 0.02 },
+            k_n_per_m: 1000.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: Proxy::BOTH_HANDS,
+        });
+        let mut imp = [DVec3::ONE; MAX_PROXIES];
+        // Fist at y = 0.02: 2 cm into the plane (20 N up); 1 cm from the sphere's centre-line, 5 cm
+        // into it along -y (3 cm + 2 cm - 0.03 = depth 0.03: 30 N down).
+        let r = render_hand(0, DVec3::Y * 0.02, DVec3::ZERO, 0.04, 1e4, &m, 0.0, 0.001, &mut imp);
+        assert_eq!(r.contacts, 2);
+        assert!((r.force_n.y - (20.0 - 30.0)).abs() < 1e-9, "{}", r.force_n);
+        assert!((imp[0] - (DVec3::ONE - DVec3::Y * 0.02)).length() < 1e-12, "{}", imp[0]);
+        assert_eq!(imp[1], DVec3::ONE, "the NaN proxy got nothing");
+        assert!((imp[2] - (DVec3::ONE + DVec3::Y * 0.03)).length() < 1e-12, "{}", imp[2]);
+        assert_eq!(imp[3], DVec3::ONE);
+    }
+
+    #[test]
+    fn distance_to_each_shape_is_signed_and_normal_unit() {
+        let (d, n) = distance(&ProxyShape::Plane { point_m: DVec3::Y, normal: DVec3::Y * 3.0 }, DVec3::ZERO);
+        assert!((d + 1.0).abs() < 1e-12 && (n - DVec3::Y).length() < 1e-12);
+        let (d, n) = distance(&ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::ZERO }, DVec3::Y);
+        assert!((d - 1.0).abs() < 1e-12 && n == DVec3::Y, "a zero normal falls back to +y");
+        let (d, n) =
+            distance(&ProxyShape::Sphere { centre_m: DVec3::X, radius_m: 0.5 }, DVec3::new(1.0, 0.0, 2.0));
+        assert!((d - 1.5).abs() < 1e-12 && (n - DVec3::Z).length() < 1e-12);
+        let (_, n) = distance(&ProxyShape::Sphere { centre_m: DVec3::X, radius_m: 0.5 }, DVec3::X);
+        assert_eq!(n, DVec3::Y, "at the centre the normal falls back to +y");
+        let cap = ProxyShape::Capsule { a_m: DVec3::ZERO, b_m: DVec3::X * 2.0, radius_m: 0.1 };
+        let (d, n) = distance(&cap, DVec3::new(1.5, -0.6, 0.0));
+        assert!((d - 0.5).abs() < 1e-12 && (n + DVec3::Y).length() < 1e-12);
+        let (d, n) = distance(&cap, DVec3::new(-1.0, 0.0, 0.0));
+        assert!((d - 0.9).abs() < 1e-12 && (n + DVec3::X).length() < 1e-12, "before the first end cap");
+        // Away from the origin: the axis parameter is measured from the first end.
+        let off = ProxyShape::Capsule {
+            a_m: DVec3::new(1.0, 2.0, 3.0),
+            b_m: DVec3::new(3.0, 2.0, 3.0),
+            radius_m: 0.1,
+        };
+        let (d, n) = distance(&off, DVec3::new(1.5, 2.0, 3.6));
+        assert!((d - 0.5).abs() < 1e-12 && (n - DVec3::Z).length() < 1e-12, "{d} {n}");
+        let (d, n) = distance(&off, DVec3::new(3.4, 2.0, 3.0));
+        assert!((d - 0.3).abs() < 1e-12 && (n - DVec3::X).length() < 1e-12, "beyond the second end: {d} {n}");
+        let dot = ProxyShape::Capsule { a_m: DVec3::ONE, b_m: DVec3::ONE, radius_m: 0.1 };
+        let (d, _) = distance(&dot, DVec3::new(1.0, 2.0, 1.0));
+        assert!((d - 0.9).abs() < 1e-12, "a zero-length capsule is a sphere");
+    }
+
+    #[test]
     fn hand_mask_is_respected() {
         let mut m =
             model(ProxyShape::Plane { point_m: DVec3::ZERO, normal: DVec3::Y }, 1e3, 0.0, DVec3::ZERO);

@@ -10,6 +10,7 @@ use std::path::Path;
 use glam::{DQuat, DVec3};
 use serde::{Deserialize, Serialize};
 
+use crate::bounds;
 use crate::config::{self, ConfigError};
 
 /// Rig file format version this build reads.
@@ -41,6 +42,10 @@ pub struct RigFile {
     /// absent in a rig file that was never calibrated.
     #[serde(default)]
     pub calibration: CalibrationFile,
+    /// Keys whose physical bounds (`bounds.rs`) this file may exceed, e.g. `["tension_max_n"]`;
+    /// every override in effect is shown in the run summary. Optional: none when left out.
+    #[serde(default)]
+    pub overrides: Vec<String>,
     /// Per kind of board: what a string's command is, its real range and scale
     /// ([`crate::boards`]). Optional: every part has a default.
     #[serde(default)]
@@ -82,8 +87,17 @@ pub struct HandFile {
     pub home_m: [f64; 3],
     /// Radius of the sphere that stands for the hand in contact rendering.
     pub grip_radius_m: f64,
-    /// Stiffest contact rendered on this hand; stiffer proxies are softened to it.
+    /// Stiffest contact rendered on this hand; stiffer proxies are softened to it. At most
+    /// `2 grip_damping_n_s_per_m / (3 period_s)`, the stability bound (`bounds.rs`).
     pub stiffness_limit_n_per_m: f64,
+    /// Lower estimate of the physical damping the user's arm and the string drive give this grip.
+    /// Optional: 8 N s/m when left out.
+    #[serde(default = "default_grip_damping")]
+    pub grip_damping_n_s_per_m: f64,
+}
+
+fn default_grip_damping() -> f64 {
+    8.0
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -128,6 +142,22 @@ pub struct SafetyFile {
     pub residual_fault_ticks: u32,
     /// Good exchanges in a row after a transient device fault before recovering; 0 = never.
     pub fault_recovery_ticks: u32,
+    /// Ticks in a row without a usable reply (late, missing or corrupt) that fault the rig; each
+    /// shorter run holds the last output and is counted. Optional: 5 when left out.
+    #[serde(default = "default_reply_fault_ticks")]
+    pub reply_fault_ticks: u32,
+    /// A string length further than this from where the hand's last pose and velocity predict it
+    /// (per tick since the last accepted reply) marks the reply corrupt: held and counted.
+    /// Optional: 2 mm when left out.
+    #[serde(default = "default_reply_jump_m")]
+    pub reply_jump_m: f64,
+    /// After homing was lost (a fault during homing, a reopened device) the rig homes itself when
+    /// every string stays within this length for `rehome_still_s`. Optional: 3 mm when left out.
+    #[serde(default = "default_rehome_still_m")]
+    pub rehome_still_m: f64,
+    /// See `rehome_still_m`. Optional: 1 s when left out.
+    #[serde(default = "default_rehome_still_s")]
+    pub rehome_still_s: f64,
     /// After the device reports a disconnect, try to reopen it this often (each attempt bounded
     /// to half a tick); 0 = never (restart spidar). Optional: 0.2 s when left out.
     #[serde(default = "default_device_reopen_s")]
@@ -136,6 +166,18 @@ pub struct SafetyFile {
 
 fn default_device_reopen_s() -> f64 {
     0.2
+}
+fn default_reply_fault_ticks() -> u32 {
+    5
+}
+fn default_reply_jump_m() -> f64 {
+    0.002
+}
+fn default_rehome_still_m() -> f64 {
+    0.003
+}
+fn default_rehome_still_s() -> f64 {
+    1.0
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -158,6 +200,8 @@ pub struct Rig {
     pub rig_to_world: RigToWorld,
     pub safety: SafetyFile,
     pub estimation: EstimationFile,
+    /// The physical bounds this rig file overrides (shown in the run summary).
+    pub overrides: Vec<String>,
     /// What the boards' commands mean and their ranges ([`crate::boards`]).
     pub boards: crate::boards::BoardScales,
 }
@@ -176,6 +220,7 @@ pub struct HandRig {
     pub home_m: DVec3,
     pub grip_radius_m: f64,
     pub stiffness_limit_n_per_m: f64,
+    pub grip_damping_n_s_per_m: f64,
 }
 
 impl HandRig {
@@ -214,7 +259,14 @@ impl RigToWorld {
 impl Rig {
     /// Loads and validates a rig file.
     pub fn load(path: &Path) -> Result<Rig, ConfigError> {
-        let (file, text) = config::load_file_kind::<RigFile>(path, config::FileKind::Rig)?;
+        Rig::load_with_overrides(path, &[])
+    }
+
+    /// Loads and validates a rig file with more overrides than it lists itself (a command line's
+    /// `--override KEY`); they are checked and shown like the file's own.
+    pub fn load_with_overrides(path: &Path, extra: &[String]) -> Result<Rig, ConfigError> {
+        let (mut file, text) = config::load_file_kind::<RigFile>(path, config::FileKind::Rig)?;
+        file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, &text, &path.display().to_string())
     }
 
@@ -224,7 +276,13 @@ impl Rig {
     }
 
     pub fn from_str(text: &str, origin: &str) -> Result<Rig, ConfigError> {
-        let file = config::parse_kind::<RigFile>(text, origin, config::FileKind::Rig)?;
+        Rig::from_str_with_overrides(text, origin, &[])
+    }
+
+    /// [`Rig::from_str`] with more overrides (see [`Rig::load_with_overrides`]).
+    pub fn from_str_with_overrides(text: &str, origin: &str, extra: &[String]) -> Result<Rig, ConfigError> {
+        let mut file = config::parse_kind::<RigFile>(text, origin, config::FileKind::Rig)?;
+        file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, text, origin)
     }
 
@@ -244,6 +302,37 @@ impl Rig {
                 ),
             ));
         }
+        for (i, o) in f.overrides.iter().enumerate() {
+            if !bounds::OVERRIDABLE.contains(&o.as_str()) {
+                return Err(bad(
+                    format!("overrides[{i}]"),
+                    "overrides",
+                    0,
+                    format!(
+                        "\"{o}\" is not a bound that can be overridden; known: {}",
+                        bounds::OVERRIDABLE.join(", ")
+                    ),
+                ));
+            }
+        }
+        let overridden = |key: &str| f.overrides.iter().any(|o| o == key);
+        // A physical bound: `v` must lie in `b` unless the file overrides `key`. Hard limits
+        // (finite, sign) are checked by the caller first and are never overridable.
+        let phys = |b: &bounds::Bound, key: &str, v: f64, field: String, occ: usize| {
+            if b.holds(v) || overridden(key) {
+                return Ok(());
+            }
+            Err(bad(
+                field,
+                key,
+                occ,
+                format!(
+                    "{v}: outside the safe range {} .. {} because {}; fix the value, or list \"{key}\" in \
+                     overrides to accept it (the run summary will show it)",
+                    b.lo, b.hi, b.why
+                ),
+            ))
+        };
         if !(f.period_s.is_finite() && (1e-4..=1e-2).contains(&f.period_s)) {
             return Err(bad(
                 "period_s".into(),
@@ -275,39 +364,72 @@ impl Rig {
                     format!("{} N: must be > 0 so strings stay taut", hf.tension_min_n),
                 ));
             }
-            if !(fin(hf.tension_max_n) && hf.tension_max_n > hf.tension_min_n) {
+            phys(&bounds::TENSION_MIN_N, "tension_min_n", hf.tension_min_n, field("tension_min_n"), h)?;
+            if !(fin(hf.tension_max_n) && hf.tension_max_n >= 2.0 * hf.tension_min_n) {
                 return Err(bad(
                     field("tension_max_n"),
                     "tension_max_n",
                     h,
-                    format!("{} N: must be above tension_min_n ({} N)", hf.tension_max_n, hf.tension_min_n),
+                    format!(
+                        "{} N: must be at least twice tension_min_n ({} N), or no force is left to render",
+                        hf.tension_max_n, hf.tension_min_n
+                    ),
                 ));
             }
-            if !(fin(hf.force_limit_n)
-                && hf.force_limit_n >= 0.0
-                && hf.force_limit_n <= 4.0 * hf.tension_max_n)
-            {
+            phys(&bounds::TENSION_MAX_N, "tension_max_n", hf.tension_max_n, field("tension_max_n"), h)?;
+            if !(fin(hf.force_limit_n) && hf.force_limit_n > 0.0) {
                 return Err(bad(
                     field("force_limit_n"),
                     "force_limit_n",
                     h,
-                    format!("{} N: must be between 0 and 4 x tension_max_n", hf.force_limit_n),
+                    format!("{} N: must be a positive number of newtons", hf.force_limit_n),
                 ));
             }
-            if !(fin(hf.grip_radius_m) && (0.0..0.3).contains(&hf.grip_radius_m)) {
+            if !(fin(hf.grip_radius_m) && hf.grip_radius_m > 0.0) {
                 return Err(bad(
                     field("grip_radius_m"),
                     "grip_radius_m",
                     h,
-                    format!("{} m: must be in 0 .. 0.3 m", hf.grip_radius_m),
+                    format!("{} m: must be a positive number of metres", hf.grip_radius_m),
                 ));
             }
+            phys(&bounds::GRIP_RADIUS_M, "grip_radius_m", hf.grip_radius_m, field("grip_radius_m"), h)?;
+            if !(fin(hf.grip_damping_n_s_per_m) && hf.grip_damping_n_s_per_m > 0.0) {
+                return Err(bad(
+                    field("grip_damping_n_s_per_m"),
+                    "grip_damping_n_s_per_m",
+                    h,
+                    format!("{}: must be a positive number", hf.grip_damping_n_s_per_m),
+                ));
+            }
+            phys(
+                &bounds::GRIP_DAMPING_N_S_PER_M,
+                "grip_damping_n_s_per_m",
+                hf.grip_damping_n_s_per_m,
+                field("grip_damping_n_s_per_m"),
+                h,
+            )?;
             if !(fin(hf.stiffness_limit_n_per_m) && hf.stiffness_limit_n_per_m > 0.0) {
                 return Err(bad(
                     field("stiffness_limit_n_per_m"),
                     "stiffness_limit_n_per_m",
                     h,
                     format!("{}: must be a positive number", hf.stiffness_limit_n_per_m),
+                ));
+            }
+            let k_max = bounds::stiffness_limit_n_per_m(hf.grip_damping_n_s_per_m, f.period_s);
+            if hf.stiffness_limit_n_per_m > k_max && !overridden("stiffness_limit_n_per_m") {
+                return Err(bad(
+                    field("stiffness_limit_n_per_m"),
+                    "stiffness_limit_n_per_m",
+                    h,
+                    format!(
+                        "{} N/m: above {k_max:.0} N/m, the stiffest contact that stays stable at this rig's \
+                         period ({} s) on a grip damped by {} N s/m: K_max = 2 b / (3 T) (one tick of delay \
+                         plus the hold act as negative damping 1.5 K T; see docs/safety.md). Lower it, or \
+                         list \"stiffness_limit_n_per_m\" in overrides",
+                        hf.stiffness_limit_n_per_m, f.period_s, hf.grip_damping_n_s_per_m
+                    ),
                 ));
             }
             if !hf.home_m.iter().all(|v| v.is_finite()) {
@@ -356,17 +478,16 @@ impl Rig {
                         "must be three finite numbers within 20 m".into(),
                     ));
                 }
-                if !(fin(sf.metres_per_count)
-                    && sf.metres_per_count != 0.0
-                    && sf.metres_per_count.abs() < 1e-2)
-                {
+                if !(fin(sf.metres_per_count) && sf.metres_per_count != 0.0) {
                     return Err(bad(
                         sfield("metres_per_count"),
                         "metres_per_count",
                         occ,
-                        format!("{}: must be non-zero and below 1 cm per count", sf.metres_per_count),
+                        format!("{}: must be finite and non-zero", sf.metres_per_count),
                     ));
                 }
+                let key = "metres_per_count";
+                phys(&bounds::METRES_PER_COUNT, key, sf.metres_per_count.abs(), sfield(key), occ)?;
                 if !(fin(sf.volts_per_newton) && sf.volts_per_newton != 0.0) {
                     return Err(bad(
                         sfield("volts_per_newton"),
@@ -375,6 +496,8 @@ impl Rig {
                         format!("{}: must be finite and non-zero", sf.volts_per_newton),
                     ));
                 }
+                let key = "volts_per_newton";
+                phys(&bounds::VOLTS_PER_NEWTON, key, sf.volts_per_newton.abs(), sfield(key), occ)?;
                 if let Some(l) = sf.length_at_zero_m {
                     if !l.is_finite() {
                         return Err(bad(
@@ -384,6 +507,8 @@ impl Rig {
                             "must be finite".into(),
                         ));
                     }
+                    let key = "length_at_zero_m";
+                    phys(&bounds::LENGTH_AT_ZERO_M, key, l, sfield(key), zeros_seen)?;
                     zero[s] = l;
                     zero_count += 1;
                     zeros_seen += 1;
@@ -418,6 +543,41 @@ impl Rig {
                     ),
                 ));
             }
+            let home = DVec3::from_array(hf.home_m);
+            let inside = bounds::inside_margin(&anchors, home);
+            if inside < bounds::HOME_INSIDE_MARGIN && !overridden("home_m") {
+                return Err(bad(
+                    field("home_m"),
+                    "home_m",
+                    h,
+                    format!(
+                        "({}, {}, {}) is not inside this hand's frame (the tetrahedron of its four anchors, \
+                         with a margin of {:.0} % of its size): there the strings cannot hold zero net force, \
+                         so neither the safe output nor homing works. Move the home point inside the frame, \
+                         or list \"home_m\" in overrides",
+                        hf.home_m[0],
+                        hf.home_m[1],
+                        hf.home_m[2],
+                        bounds::HOME_INSIDE_MARGIN * 100.0
+                    ),
+                ));
+            }
+            // What the strings can produce at home: the largest force over 26 directions that the
+            // allocator renders within the tension range.
+            let capacity = bounds::force_capacity_n(&anchors, home, hf.tension_min_n, hf.tension_max_n);
+            if hf.force_limit_n > capacity && !overridden("force_limit_n") {
+                return Err(bad(
+                    field("force_limit_n"),
+                    "force_limit_n",
+                    h,
+                    format!(
+                        "{} N: the strings can produce at most {capacity:.1} N at the home point with tensions \
+                         {} .. {} N, so this limit can never bind and hides a typo; lower it (the lab clipped \
+                         at 4 N), or list \"force_limit_n\" in overrides",
+                        hf.force_limit_n, hf.tension_min_n, hf.tension_max_n
+                    ),
+                ));
+            }
             hands.push(HandRig {
                 label: hf.label.clone(),
                 channels: chans,
@@ -428,9 +588,10 @@ impl Rig {
                 tension_min_n: hf.tension_min_n,
                 tension_max_n: hf.tension_max_n,
                 force_limit_n: hf.force_limit_n,
-                home_m: DVec3::from_array(hf.home_m),
+                home_m: home,
                 grip_radius_m: hf.grip_radius_m,
                 stiffness_limit_n_per_m: hf.stiffness_limit_n_per_m,
+                grip_damping_n_s_per_m: hf.grip_damping_n_s_per_m,
             });
         }
         let [w, x, y, z] = f.rig_to_world.rotation_wxyz;
@@ -452,19 +613,60 @@ impl Rig {
             ));
         }
         let s = &f.safety;
-        let checks: [(&str, f64, f64, f64); 6] = [
+        // Hard ranges: outside them the rule itself breaks (a fade of 0 or -0.0 never fades).
+        let hard: [(&str, f64, f64, f64); 8] = [
             ("device_reopen_s", s.device_reopen_s, 0.0, 60.0),
             ("ramp_in_s", s.ramp_in_s, 0.0, 10.0),
             ("ramp_out_s", s.ramp_out_s, 0.0, 10.0),
             ("contact_stale_after_s", s.contact_stale_after_s, f.period_s, 1.0),
-            ("contact_fade_s", s.contact_fade_s, 0.0, 5.0),
+            ("contact_fade_s", s.contact_fade_s, f.period_s, 5.0),
             ("residual_fault_m", s.residual_fault_m, 1e-5, 1.0),
+            ("reply_jump_m", s.reply_jump_m, 1e-5, 1.0),
+            ("rehome_still_s", s.rehome_still_s, f.period_s, 60.0),
         ];
-        for (key, v, lo, hi) in checks {
+        for (key, v, lo, hi) in hard {
             if !(v.is_finite() && v >= lo && v <= hi) {
                 return Err(bad(format!("safety.{key}"), key, 0, format!("{v}: must be in {lo} .. {hi}")));
             }
         }
+        let sf = |k: &str| format!("safety.{k}");
+        phys(&bounds::RAMP_S, "ramp_in_s", s.ramp_in_s, sf("ramp_in_s"), 0)?;
+        phys(&bounds::RAMP_S, "ramp_out_s", s.ramp_out_s, sf("ramp_out_s"), 0)?;
+        phys(&bounds::CONTACT_FADE_S, "contact_fade_s", s.contact_fade_s, sf("contact_fade_s"), 0)?;
+        phys(&bounds::RESIDUAL_FAULT_M, "residual_fault_m", s.residual_fault_m, sf("residual_fault_m"), 0)?;
+        phys(&bounds::REPLY_JUMP_M, "reply_jump_m", s.reply_jump_m, sf("reply_jump_m"), 0)?;
+        let counts: [(&str, u32, &bounds::Bound); 3] = [
+            ("residual_fault_ticks", s.residual_fault_ticks, &bounds::RESIDUAL_FAULT_TICKS),
+            ("reply_fault_ticks", s.reply_fault_ticks, &bounds::REPLY_FAULT_TICKS),
+            ("fault_recovery_ticks", s.fault_recovery_ticks, &bounds::FAULT_RECOVERY_TICKS),
+        ];
+        for (key, v, b) in counts {
+            let never_recover = key == "fault_recovery_ticks" && v == 0;
+            if v == 0 && !never_recover {
+                return Err(bad(sf(key), key, 0, "0: must be at least 1".into()));
+            }
+            if !never_recover {
+                phys(b, key, v as f64, sf(key), 0)?;
+            }
+        }
+        // Stillness must be judged well above the encoder's resolution (10 counts of the
+        // coarsest string), or the noise alone would keep the rig from homing itself.
+        let coarsest = hands.iter().flat_map(|h| h.metres_per_count).fold(0.0_f64, |a, m| a.max(m.abs()));
+        if !(s.rehome_still_m.is_finite() && s.rehome_still_m >= 10.0 * coarsest) {
+            return Err(bad(
+                sf("rehome_still_m"),
+                "rehome_still_m",
+                0,
+                format!(
+                    "{} m: must be at least 10 encoder counts ({:.2e} m), or encoder noise alone keeps the rig \
+                     from homing itself",
+                    s.rehome_still_m,
+                    10.0 * coarsest
+                ),
+            ));
+        }
+        phys(&bounds::REHOME_STILL_M, "rehome_still", s.rehome_still_m, sf("rehome_still_m"), 0)?;
+        phys(&bounds::REHOME_STILL_S, "rehome_still", s.rehome_still_s, sf("rehome_still_s"), 0)?;
         let e = &f.estimation;
         if !(1..=10).contains(&e.gauss_newton_iterations) {
             return Err(bad(
@@ -496,8 +698,30 @@ impl Rig {
             },
             safety: f.safety,
             estimation: f.estimation,
+            overrides: f.overrides,
             boards,
         })
+    }
+
+    /// Refuses a board whose command range clips the tensions this rig asks for (checked at start,
+    /// once the board is known), unless the rig file overrides `board_range`. `volts_max` is the
+    /// board's range in volts of the host scale.
+    pub fn check_board_range(&self, board: &str, volts_max: f64) -> Result<(), String> {
+        let clipped = bounds::check_board_range(
+            [self.hands[0].tension_max_n, self.hands[1].tension_max_n],
+            [self.hands[0].volts_per_newton, self.hands[1].volts_per_newton],
+            volts_max,
+        );
+        if clipped.is_empty() || self.overrides.iter().any(|o| o == "board_range") {
+            return Ok(());
+        }
+        Err(format!(
+            "tension_max_n is beyond the DA range of {board} on {} strings (first: {}): the board would clip \
+             those commands, so the rig would not render what it computes; lower tension_max_n or check \
+             volts_per_newton in the rig file, or list \"board_range\" in its overrides",
+            clipped.len(),
+            clipped[0]
+        ))
     }
 
     /// Number of device channels the rig uses (highest channel + 1).
@@ -592,6 +816,196 @@ mod tests {
     fn wrong_version_is_rejected() {
         let e = Rig::from_str(&with("version: 1", "version: 7"), "r").unwrap_err();
         assert_eq!(e.field, "version");
+    }
+
+    /// The default rig file with the first `replace` changed to `by`: must be refused on `field`,
+    /// located at the changed line, with a reason containing `why`.
+    fn refused(replace: &str, by: &str, field: &str, why: &str) -> ConfigError {
+        let text = with(replace, by);
+        let e = Rig::from_str(&text, "rig.ron").unwrap_err();
+        assert_eq!(e.field, field, "{e}");
+        let line = text.lines().position(|l| l.contains(by.trim_end_matches(','))).unwrap() + 1;
+        assert_eq!(e.line, line, "{e}");
+        assert!(e.column > 0);
+        assert!(e.message.contains(why), "{e}");
+        assert!(e.to_string().starts_with(&format!("rig.ron:{line}:")), "{e}");
+        e
+    }
+
+    // One test per dangerous value an operator could write (issue 17's list), each refused with
+    // its reason.
+    macro_rules! refuses {
+        ($name:ident, $replace:expr, $by:expr, $field:expr, $why:expr) => {
+            #[test]
+            fn $name() {
+                refused($replace, $by, $field, $why);
+            }
+        };
+    }
+    refuses!(
+        refuses_tension_max_beyond_the_motors,
+        "tension_max_n: 20.0",
+        "tension_max_n: 1e6",
+        "hands[0].tension_max_n",
+        "motors"
+    );
+    refuses!(
+        refuses_a_force_limit_the_strings_cannot_produce,
+        "force_limit_n: 4.0",
+        "force_limit_n: 400.0",
+        "hands[0].force_limit_n",
+        "strings can produce at most"
+    );
+    refuses!(
+        refuses_a_zero_force_limit,
+        "force_limit_n: 4.0",
+        "force_limit_n: 0.0",
+        "hands[0].force_limit_n",
+        "positive"
+    );
+    refuses!(
+        refuses_a_stiffness_beyond_the_stability_bound,
+        "stiffness_limit_n_per_m: 5000.0",
+        "stiffness_limit_n_per_m: 1e9",
+        "hands[0].stiffness_limit_n_per_m",
+        "K_max = 2 b / (3 T)"
+    );
+    refuses!(
+        refuses_a_minimum_tension_that_pulls_in_the_safe_output,
+        "tension_min_n: 1.0",
+        "tension_min_n: 9.0",
+        "hands[0].tension_min_n",
+        "safe output"
+    );
+    refuses!(
+        refuses_a_zero_minimum_tension,
+        "tension_min_n: 1.0",
+        "tension_min_n: 0.0",
+        "hands[0].tension_min_n",
+        "taut"
+    );
+    refuses!(
+        refuses_a_ramp_in_of_zero,
+        "ramp_in_s: 0.5",
+        "ramp_in_s: 0.0",
+        "safety.ramp_in_s",
+        "step of full force"
+    );
+    refuses!(
+        refuses_a_ramp_out_of_zero,
+        "ramp_out_s: 0.3",
+        "ramp_out_s: 0.0",
+        "safety.ramp_out_s",
+        "step of full force"
+    );
+    refuses!(
+        refuses_a_residual_check_switched_off,
+        "residual_fault_ticks: 20",
+        "residual_fault_ticks: 4294967295",
+        "safety.residual_fault_ticks",
+        "switches the pose check off"
+    );
+    refuses!(
+        refuses_recovery_after_a_single_good_tick,
+        "fault_recovery_ticks: 30",
+        "fault_recovery_ticks: 1",
+        "safety.fault_recovery_ticks",
+        "at least 10 times"
+    );
+    refuses!(
+        refuses_holding_the_output_for_long,
+        "reply_fault_ticks: 5",
+        "reply_fault_ticks: 1000",
+        "safety.reply_fault_ticks",
+        "20 ms"
+    );
+    refuses!(
+        refuses_metres_per_count_of_1e_300,
+        "metres_per_count: 2.924062107079e-5",
+        "metres_per_count: 1e-300",
+        "hands[0].strings[0].metres_per_count",
+        "pulley"
+    );
+    refuses!(
+        refuses_volts_per_newton_of_1000,
+        "volts_per_newton: 0.2",
+        "volts_per_newton: 1000.0",
+        "hands[0].strings[0].volts_per_newton",
+        "amplifiers"
+    );
+    refuses!(
+        refuses_a_home_point_15_m_outside_the_frame,
+        "home_m: (-0.15, 0.0, 0.0)",
+        "home_m: (15.0, 0.0, 0.0)",
+        "hands[0].home_m",
+        "not inside this hand's frame"
+    );
+    refuses!(
+        refuses_a_negative_length_at_zero,
+        "volts_per_newton: 0.2)",
+        "volts_per_newton: 0.2, length_at_zero_m: Some(-1.0))",
+        "hands[0].strings[0].length_at_zero_m",
+        "never negative"
+    );
+    refuses!(
+        refuses_a_contact_fade_of_minus_zero,
+        "contact_fade_s: 0.1",
+        "contact_fade_s: -0.0",
+        "safety.contact_fade_s",
+        "must be in"
+    );
+    refuses!(
+        refuses_a_stillness_tolerance_below_the_encoder_noise,
+        "rehome_still_m: 0.003",
+        "rehome_still_m: 0.0001",
+        "safety.rehome_still_m",
+        "encoder"
+    );
+
+    #[test]
+    fn an_override_accepts_a_value_beyond_its_bound_and_is_kept_for_the_summary() {
+        let text = with("tension_max_n: 20.0", "tension_max_n: 30.0");
+        assert!(Rig::from_str(&text, "r").is_err());
+        let text = text.replace("overrides: [],", "overrides: [\"tension_max_n\"],");
+        let rig = Rig::from_str(&text, "r").unwrap();
+        assert_eq!(rig.hands[0].tension_max_n, 30.0);
+        assert_eq!(rig.overrides, vec!["tension_max_n".to_string()]);
+        // Hard limits are never overridable.
+        let text = text.replace("contact_fade_s: 0.1", "contact_fade_s: -0.0");
+        let text = text.replace(
+            "overrides: [\"tension_max_n\"],",
+            "overrides: [\"tension_max_n\", \"contact_fade_s\"],",
+        );
+        assert_eq!(Rig::from_str(&text, "r").unwrap_err().field, "safety.contact_fade_s");
+        // An unknown override name is an error that lists the known ones.
+        let text = DEFAULT_RIG_RON.replace("overrides: [],", "overrides: [\"everything\"],");
+        let e = Rig::from_str(&text, "r").unwrap_err();
+        assert!(e.field == "overrides[0]" && e.message.contains("tension_max_n"), "{e}");
+    }
+
+    #[test]
+    fn the_default_rig_is_inside_every_bound_with_room() {
+        let rig = Rig::default_rig();
+        assert!(rig.overrides.is_empty());
+        for h in &rig.hands {
+            let cap = bounds::force_capacity_n(&h.anchors_m, h.home_m, h.tension_min_n, h.tension_max_n);
+            assert!(cap > 2.0 * h.force_limit_n, "capacity {cap} N");
+            let inside = bounds::inside_margin(&h.anchors_m, h.home_m);
+            assert!(inside > 2.0 * bounds::HOME_INSIDE_MARGIN, "{inside}");
+            let k_max = bounds::stiffness_limit_n_per_m(h.grip_damping_n_s_per_m, rig.period_s);
+            assert!(h.stiffness_limit_n_per_m <= k_max, "{k_max}");
+        }
+    }
+
+    #[test]
+    fn the_board_range_is_refused_unless_overridden() {
+        let rig = Rig::default_rig();
+        assert!(rig.check_board_range("B", 4.0).is_ok(), "20 N x 0.2 V/N = 4 V fits");
+        let e = rig.check_board_range("UART B1M", 3.3).unwrap_err();
+        assert!(e.contains("UART B1M") && e.contains("8 strings") && e.contains("board_range"), "{e}");
+        let mut over = rig.clone();
+        over.overrides.push("board_range".into());
+        assert!(over.check_board_range("UART B1M", 3.3).is_ok());
     }
 
     #[test]

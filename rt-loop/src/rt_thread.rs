@@ -82,16 +82,23 @@ pub fn setup_current_thread(opts: &RtOptions) -> RtReport {
         rep.stack_prefaulted_bytes = opts.prefault_stack_bytes;
     }
     if let Some(cpu) = opts.cpu {
-        // SAFETY: a zeroed cpu_set_t is valid; CPU_SET writes within it; pid 0 = this thread.
-        let ok = unsafe {
-            let mut set: libc::cpu_set_t = std::mem::zeroed();
-            libc::CPU_SET(cpu, &mut set);
-            libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
-        };
-        if ok {
-            rep.cpu = Some(cpu);
-        } else {
-            rep.warnings.push(format!("pinning to CPU {cpu} failed ({})", std::io::Error::last_os_error()));
+        match check_cpu(cpu) {
+            Err(why) => rep.warnings.push(why),
+            Ok(()) => {
+                // SAFETY: a zeroed cpu_set_t is valid; `check_cpu` keeps CPU_SET within it; pid 0 =
+                // this thread.
+                let ok = unsafe {
+                    let mut set: libc::cpu_set_t = std::mem::zeroed();
+                    libc::CPU_SET(cpu, &mut set);
+                    libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) == 0
+                };
+                if ok {
+                    rep.cpu = Some(cpu);
+                } else {
+                    rep.warnings
+                        .push(format!("pinning to CPU {cpu} failed ({})", std::io::Error::last_os_error()));
+                }
+            }
         }
     }
     if let Some(prio) = opts.fifo_priority {
@@ -120,6 +127,33 @@ pub fn setup_current_thread(opts: &RtOptions) -> RtReport {
     rep
 }
 
+/// Checks a CPU number before pinning to it: it must be one this process may run on (so also
+/// below the affinity mask's size, which `CPU_SET` does not check). Says which CPUs exist.
+pub fn check_cpu(cpu: usize) -> Result<(), String> {
+    let setsize = 8 * std::mem::size_of::<libc::cpu_set_t>();
+    // SAFETY: a zeroed cpu_set_t is valid and sched_getaffinity fills at most its size.
+    let (ok, set) = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        let ok = libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) == 0;
+        (ok, set)
+    };
+    // SAFETY: CPU_ISSET reads within the set for indices below its size.
+    let allowed: Vec<usize> =
+        if ok { (0..setsize).filter(|&c| unsafe { libc::CPU_ISSET(c, &set) }).collect() } else { Vec::new() };
+    if cpu < setsize && (allowed.is_empty() || allowed.contains(&cpu)) {
+        return Ok(());
+    }
+    Err(format!(
+        "CPU {cpu} does not exist or is not available to this process (available: {}): pick one of those \
+         for --cpu, or leave it out",
+        if allowed.is_empty() {
+            "unknown".to_string()
+        } else {
+            allowed.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(", ")
+        }
+    ))
+}
+
 #[inline(never)]
 fn prefault_stack(bytes: usize) {
     // Touch the stack below us now so that the first deep call in the tick does not fault.
@@ -137,6 +171,26 @@ fn prefault_stack(bytes: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_impossible_cpu_is_refused_with_the_available_ones_and_not_pinned() {
+        let e = check_cpu(5000).unwrap_err();
+        assert!(e.contains("CPU 5000") && e.contains("available: "), "{e}");
+        assert!(check_cpu(usize::MAX).is_err());
+        // The thread goes on unpinned, with the reason among the warnings.
+        let rep = std::thread::spawn(|| {
+            setup_current_thread(&RtOptions {
+                fifo_priority: None,
+                lock_memory: false,
+                prefault_stack_bytes: 0,
+                cpu: Some(5000),
+            })
+        })
+        .join()
+        .unwrap();
+        assert_eq!(rep.cpu, None);
+        assert!(rep.warnings.iter().any(|w| w.contains("CPU 5000")), "{:?}", rep.warnings);
+    }
 
     #[test]
     fn setup_reports_what_it_obtained_without_failing() {

@@ -32,12 +32,14 @@ use spidar_msg::{ContactModel, HandSample, RigStatus};
 use crate::clock::Clock;
 use crate::rig::Rig;
 use crate::status::{StatusWindow, STATUS_EVERY};
-use crate::telemetry::TickRecord;
+use crate::telemetry::{CommandLog, TickRecord};
 use crate::tick::{Command, Event, Lifecycle, TickCore};
 
 const MAX_BEHIND: u64 = 10;
 /// Ticks at minimum tension after the ramp-out, before the device is switched off.
 const STOP_HOLD_TICKS: u32 = 20;
+/// Exchanges tried when priming the counters at start before a late or corrupt reply fails it.
+pub const PRIME_TRIES: u32 = 10;
 
 /// What the loop shares without a lock or a system call with whoever watches it: a heartbeat it
 /// writes every tick (a supervising process reads it to tell a running loop from a dead or hung
@@ -180,6 +182,10 @@ pub struct RtLoop<D: Device, C: Clock> {
     last: TickRecord,
     /// The device reported a disconnect and has not been reopened yet.
     disconnected: bool,
+    /// Commands applied since the last tick, for its record.
+    pending_commands: CommandLog,
+    /// The device was reopened in this tick (for its record).
+    reopened_now: bool,
     /// Ticks between reopen attempts (0: never) and until the next one.
     reopen_every: u32,
     reopen_wait: u32,
@@ -212,6 +218,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             finished: false,
             last: TickRecord::default(),
             disconnected: false,
+            pending_commands: CommandLog::default(),
+            reopened_now: false,
             reopen_every: (rig.safety.device_reopen_s / rig.period_s).round() as u32,
             reopen_wait: 0,
             // Half a tick: the attempt, the compute and the sleep must all fit in the period.
@@ -228,9 +236,16 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     pub fn configure(&mut self) -> Result<(), DeviceError> {
         self.dev.open()?;
         self.dev.activate()?;
-        // Prime with zero output and one read so the first tick starts from real counts.
+        // Prime with zero output and one read so the first tick starts from real counts. A late
+        // or garbled reply is no reason to give up here either: a few more tries.
         self.out = Output::default();
-        self.dev.exchange(&self.out, &mut self.inp)?;
+        let mut tries = 1;
+        while let Err(e) = self.dev.exchange(&self.out, &mut self.inp) {
+            if !matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Corrupt) || tries >= PRIME_TRIES {
+                return Err(e);
+            }
+            tries += 1;
+        }
         self.core.observe_counts(&self.inp);
         self.configured = true;
         self.deadline_ns = self.clock.now_ns() + self.period_ns;
@@ -276,6 +291,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         if c == Command::Stop {
             self.stopping = true;
         }
+        self.pending_commands.push(c);
         self.core.command(c);
     }
 
@@ -296,12 +312,16 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             self.command(c);
         }
         let now_s = wake as f64 * 1e-9;
+        // The model as the core takes it (restamped), for the record.
+        let mut taken = None;
         if let Some(mut m) = self.ep.link.as_mut().and_then(|l| l.poll(now_s)) {
             if m.stamp_s > now_s {
                 m.stamp_s = now_s;
             }
             self.core.set_contact_model(m);
+            taken = Some(m);
         }
+        self.reopened_now = false;
 
         let t_io = Instant::now();
         let io = if self.disconnected {
@@ -316,34 +336,37 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         };
         let io_s = t_io.elapsed().as_secs_f64();
 
-        let t_compute = Instant::now();
+        // The record is built in place (`last`) and copied once, into the telemetry channel.
+        self.last = TickRecord::default();
         let mut sample = HandSample::default();
-        let mut rec = TickRecord::default();
-        self.core.step(now_s, io, &self.inp, &mut self.out, &mut sample, &mut rec);
+        let t_compute = Instant::now();
+        self.core.step(now_s, io, &self.inp, &mut self.out, &mut sample, &mut self.last);
         let compute_s = t_compute.elapsed().as_secs_f64();
 
+        let rec = &mut self.last;
         rec.lateness_s = lateness_ns as f64 * 1e-9;
         rec.compute_s = compute_s;
         rec.io_s = io_s;
+        // What went in and came out, so a recording can re-run the core (see telemetry).
+        rec.commands = self.pending_commands.take();
+        rec.model = taken;
+        rec.reopened = self.reopened_now;
+        rec.io_error = io.err().map(|e| e.kind());
+        rec.input = self.inp;
+        rec.output = self.out;
+        rec.sample = sample;
         if lateness_ns > self.period_ns {
             self.core.counters_mut().misses += 1;
         }
-        self.status.add(&rec);
+        self.status.add(rec);
         if let Some(link) = self.ep.link.as_mut() {
             let c = self.core.counters_mut();
             send_with_carry(&mut **link, sample, &mut self.carry, c);
-            if rec.tick % STATUS_EVERY == 0 {
-                let st = self.status.status(&rec, self.core.counters(), self.stopping, self.core.rig());
+            if rec.tick.is_multiple_of(STATUS_EVERY) {
+                let st = self.status.status(rec, self.core.counters(), self.stopping, self.core.rig());
                 link.send_status(&st);
             }
         }
-        if let Some(tx) = self.ep.telemetry.as_ref() {
-            if let Err(TrySendError::Full(_)) = tx.try_send(rec) {
-                self.core.counters_mut().telemetry_dropped += 1;
-            }
-        }
-        self.last = rec;
-
         if self.stopping && self.core.is_quiet() {
             self.stop_hold += 1;
             if self.stop_hold >= STOP_HOLD_TICKS {
@@ -353,11 +376,21 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
                 if let Some(link) = self.ep.link.as_mut() {
                     link.close();
                 }
-                self.core_event(Event::Stopped);
+                self.last.events.push(Event::Stopped);
             }
         }
         while let Some(e) = self.core.pop_event() {
             self.core_event(e);
+            self.last.events.push(e);
+        }
+        if let Some(tx) = self.ep.telemetry.as_ref() {
+            if let Err(TrySendError::Full(_)) = tx.try_send(self.last) {
+                self.core.counters_mut().telemetry_dropped += 1;
+            }
+        }
+        // `Stopped` goes out after the last record, so whoever waits for it has every record.
+        if self.finished {
+            self.core_event(Event::Stopped);
         }
 
         self.beat();
@@ -409,6 +442,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
         match self.dev.reopen(self.reopen_budget) {
             Ok(()) => {
                 self.disconnected = false;
+                self.reopened_now = true;
                 self.core.device_reopened();
                 Err(DeviceError::Disconnected { what: "device reopened: exchanging from the next tick" })
             }
@@ -554,7 +588,8 @@ mod tests {
     fn a_clean_stop_ends_the_heartbeat_with_done_after_the_device_is_off() {
         let lifeline: &'static Lifeline = Box::leak(Box::default());
         let rig = Rig::default_rig();
-        let mut rt = RtLoop::new(Recorder::default(), crate::VirtualClock::new(), &rig, Endpoints::default()).unwrap();
+        let mut rt =
+            RtLoop::new(Recorder::default(), crate::VirtualClock::new(), &rig, Endpoints::default()).unwrap();
         rt.set_lifeline(lifeline);
         rt.configure().unwrap();
         rt.command(Command::Stop);

@@ -197,6 +197,92 @@ mod tests {
         assert_eq!(n + 1, 300);
     }
 
+    #[test]
+    fn staleness_boundaries_are_exact() {
+        // At the limit itself the model is still fresh; just past it the fade has begun.
+        assert_eq!(staleness_gain(Some(0.03), 0.03, 0.1), 1.0);
+        let g = staleness_gain(Some(0.031), 0.03, 0.1);
+        assert!((g - 0.99).abs() < 1e-9, "{g}");
+        assert_eq!(staleness_gain(Some(0.13), 0.03, 0.1), 0.0);
+        // A model from the future (clock skew) is fresh, not amplified.
+        assert_eq!(staleness_gain(Some(-0.5), 0.03, 0.1), 1.0);
+        // A zero or negative fade (refused by the rig file) drops force at once, never keeps it.
+        assert_eq!(staleness_gain(Some(0.01), 0.03, 0.0), 1.0, "a fresh model is full whatever the fade");
+        assert_eq!(staleness_gain(Some(0.0300001), 0.03, 0.0), 0.0);
+        assert_eq!(staleness_gain(Some(0.0300001), 0.03, -0.0), 0.0);
+        assert_eq!(staleness_gain(Some(0.0300001), 0.03, -1.0), 0.0);
+    }
+
+    #[test]
+    fn every_ramp_time_takes_its_number_of_ticks_and_ends_exactly_at_its_ends() {
+        // Steps of dt / t rarely sum to exactly 1: the snap must land the ends on the right tick.
+        for ms in 50..=1000 {
+            let t = ms as f64 * 1e-3;
+            let want = ms;
+            let mut r = Ramp::new(t, t, 0.001);
+            r.rise();
+            let mut n = 1;
+            while r.step() < 1.0 {
+                n += 1;
+                assert!(r.gain() < 1.0 && n <= want, "ramp {ms} ms rose for {n} ticks");
+            }
+            assert_eq!((n, r.gain()), (want, 1.0), "ramp in {ms} ms");
+            r.fall();
+            let mut n = 1;
+            while r.step() > 0.0 {
+                n += 1;
+                assert!(n <= want, "ramp {ms} ms fell for {n} ticks");
+            }
+            assert_eq!((n, r.gain()), (want, 0.0), "ramp out {ms} ms");
+        }
+    }
+
+    #[test]
+    fn ramp_rises_falls_and_cuts_from_where_it_is() {
+        let mut r = Ramp::new(0.01, 0.02, 0.001);
+        assert_eq!((r.gain(), r.is_rising()), (0.0, false));
+        assert_eq!(r.step(), 0.0, "idle at zero");
+        r.rise();
+        assert!(r.is_rising());
+        assert!((r.step() - 0.1).abs() < 1e-12);
+        assert!((r.step() - 0.2).abs() < 1e-12);
+        r.fall();
+        assert!(!r.is_rising());
+        assert!((r.step() - 0.15).abs() < 1e-12, "falls at its own rate from where it was");
+        r.rise();
+        for _ in 0..20 {
+            r.step();
+        }
+        assert_eq!(r.gain(), 1.0, "never beyond full");
+        r.cut();
+        assert_eq!((r.gain(), r.is_rising()), (0.0, false));
+        assert_eq!(r.step(), 0.0);
+        // A zero ramp time (refused by the rig file) is a step, not a division by zero.
+        let mut z = Ramp::new(0.0, 0.0, 0.001);
+        z.rise();
+        assert_eq!(z.step(), 1.0);
+    }
+
+    #[test]
+    fn guard_reports_what_it_did() {
+        let g = guard(DVec3::new(3.0, 4.0, 0.0), 1.0, 10.0);
+        assert_eq!(g, Guarded { force_n: DVec3::new(3.0, 4.0, 0.0), non_finite: false, clamped: false });
+        let g = guard(DVec3::new(3.0, 4.0, 0.0), 0.5, 10.0);
+        assert_eq!(g.force_n, DVec3::new(1.5, 2.0, 0.0), "the gain scales");
+        let g = guard(DVec3::new(30.0, 40.0, 0.0), 1.0, 10.0);
+        assert!(g.clamped && (g.force_n - DVec3::new(6.0, 8.0, 0.0)).length() < 1e-12);
+        let g = guard(DVec3::new(6.0, 8.0, 0.0), 1.0, 10.0);
+        assert!(!g.clamped, "exactly at the limit is not clamped");
+        let g = guard(DVec3::new(f64::NAN, 1.0, 0.0), 1.0, 10.0);
+        assert!(g.non_finite && g.force_n == DVec3::ZERO);
+        assert_eq!(guard(DVec3::X, f64::NAN, 10.0).force_n, DVec3::ZERO, "a NaN gain is zero");
+        assert_eq!(guard(DVec3::X, 7.0, 10.0).force_n, DVec3::X, "a gain above 1 is 1");
+        assert_eq!(guard(DVec3::X, -1.0, 10.0).force_n, DVec3::ZERO);
+        // A zero limit (refused by the rig file) still gives zero, never NaN.
+        assert_eq!(guard(DVec3::ZERO, 1.0, 0.0).force_n, DVec3::ZERO);
+        assert_eq!(guard(DVec3::X, 1.0, 0.0).force_n, DVec3::ZERO);
+    }
+
     proptest! {
         #[test]
         fn clamp_holds_for_any_input(x in proptest::num::f64::ANY, y in proptest::num::f64::ANY,

@@ -2,14 +2,20 @@
 //! `try_send` (dropped and counted when the consumer lags), and the statistics a non-real-time
 //! thread builds from them: rate, lateness and compute-time percentiles, misses, forces.
 //!
-//! Only [`TickRecord`] is touched by the tick. [`Stats`] allocates (histograms) and lives on the
-//! consumer's thread.
+//! A record holds everything that went into the tick core from outside (device input, commands,
+//! the contact model taken, a reopen) and everything that came out (volts, the hand sample,
+//! forces, lifecycle, events), so a recording of the records can re-run the core bit for bit.
+//!
+//! Only [`TickRecord`] is touched by the tick: plain `Copy` data, no allocation. [`Stats`]
+//! allocates (histograms) and lives on the consumer's thread.
 
 use glam::DVec3;
 use hdrhistogram::Histogram;
+use spidar_device::{ErrorKind, Input, Output};
+use spidar_msg::{ContactModel, HandSample};
 
 use crate::tension::Method;
-use crate::tick::{FaultReason, Lifecycle};
+use crate::tick::{Command, Event, FaultReason, Lifecycle};
 
 /// One hand in one tick (rig frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,6 +36,13 @@ pub struct HandRecord {
     pub method: Method,
     pub contacts: u8,
     pub clamped: bool,
+    /// A proxy stiffer than the hand's limit was softened.
+    pub stiffness_limited: bool,
+    /// The asked force was not finite and was replaced by zero.
+    pub non_finite: bool,
+    /// This hand's output was held from the last tick (late, missing or rejected reply, or a
+    /// pose above the residual limit): every other field repeats that tick's.
+    pub held: bool,
 }
 
 impl Default for HandRecord {
@@ -47,9 +60,67 @@ impl Default for HandRecord {
             method: Method::Exact,
             contacts: 0,
             clamped: false,
+            stiffness_limited: false,
+            non_finite: false,
+            held: false,
         }
     }
 }
+
+/// A few items of one tick kept in order in a fixed array; more are counted in `lost`, not kept.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SmallLog<T: Copy, const N: usize> {
+    items: [Option<T>; N],
+    len: u8,
+    lost: u8,
+}
+
+impl<T: Copy, const N: usize> Default for SmallLog<T, N> {
+    fn default() -> Self {
+        SmallLog { items: [None; N], len: 0, lost: 0 }
+    }
+}
+
+impl<T: Copy, const N: usize> SmallLog<T, N> {
+    /// Appends `x`, or counts it as lost when full.
+    pub fn push(&mut self, x: T) {
+        match self.items.get_mut(self.len as usize) {
+            Some(slot) => {
+                *slot = Some(x);
+                self.len += 1;
+            }
+            None => self.lost = self.lost.saturating_add(1),
+        }
+    }
+    pub fn iter(&self) -> impl Iterator<Item = T> + '_ {
+        self.items.iter().take(self.len as usize).flatten().copied()
+    }
+    pub fn len(&self) -> usize {
+        self.len as usize
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+    /// Items that did not fit.
+    pub fn lost(&self) -> u8 {
+        self.lost
+    }
+    /// Takes the items out, leaving the log empty.
+    pub fn take(&mut self) -> Self {
+        std::mem::take(self)
+    }
+    /// Restores a lost count (decoding a recording).
+    pub fn set_lost(&mut self, lost: u8) {
+        self.lost = lost;
+    }
+}
+
+/// Commands kept per tick in a record.
+pub const RECORD_COMMANDS: usize = 8;
+/// Events kept per tick in a record.
+pub const RECORD_EVENTS: usize = 8;
+pub type CommandLog = SmallLog<Command, RECORD_COMMANDS>;
+pub type EventLog = SmallLog<Event, RECORD_EVENTS>;
 
 /// Everything about one tick.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -70,6 +141,28 @@ pub struct TickRecord {
     /// Age of the contact model used (infinite: none).
     pub contact_age_s: f64,
     pub hands: [HandRecord; 2],
+    // What went into the core from outside, in the order the loop gives it (commands, the model,
+    // a reopen, then the step with the device's input):
+    /// Commands the core received since the previous tick, in order.
+    pub commands: CommandLog,
+    /// The contact model the core took just before this step (None: it kept the one it had).
+    pub model: Option<ContactModel>,
+    /// The device was reopened after a disconnect just before this step.
+    pub reopened: bool,
+    /// Kind of the device exchange's error this tick (None: the exchange succeeded).
+    pub io_error: Option<ErrorKind>,
+    /// What the device read (counters, status), as given to the core.
+    pub input: Input,
+    // What came out:
+    /// DA volts computed by this tick (written at the next exchange).
+    pub output: Output,
+    /// The sample sent to the world this tick.
+    pub sample: HandSample,
+    /// What the core and the loop reported during this tick, in order.
+    pub events: EventLog,
+    /// Homing was lost (a fault during homing, a reopened device): the rig waits for both grips
+    /// to be held still at their home points, or for the Home command.
+    pub awaiting_home: bool,
 }
 
 /// Percentiles of a distribution, in seconds.
@@ -148,6 +241,10 @@ impl DurationHist {
     }
     pub fn clear(&mut self) {
         self.h.reset();
+    }
+    /// Adds every value of `other` (benchmarks that pool blocks).
+    pub fn merge(&mut self, other: &DurationHist) {
+        let _ = self.h.add(&other.h);
     }
 }
 
@@ -260,6 +357,19 @@ mod tests {
         assert_eq!(s.late_over_1ms, 1);
         assert_eq!(s.lateness.count_above(1e-3), 1);
         assert!((s.rate_hz() - 1000.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn small_log_keeps_order_and_counts_what_does_not_fit() {
+        let mut l: SmallLog<u32, 3> = SmallLog::default();
+        for i in 0..5 {
+            l.push(i);
+        }
+        assert_eq!(l.iter().collect::<Vec<_>>(), vec![0, 1, 2]);
+        assert_eq!((l.len(), l.lost()), (3, 2));
+        let taken = l.take();
+        assert!(l.is_empty() && l.lost() == 0);
+        assert_eq!(taken.len(), 3);
     }
 
     #[test]

@@ -13,6 +13,11 @@
 //! - `Faulted`: zero net force at minimum tension from the very tick the fault is seen; the
 //!   reason is kept; cleared by command, or by itself after a transient device fault.
 //!   `Unconfigured` (device not open) belongs to the loop around this core.
+//!
+//! A single unusable reply is not a fault: a late or missing reply, a reply the device calls
+//! corrupt, counts that jump further than the hand can move, or a pose whose string lengths
+//! disagree holds the last output for that tick (per hand where only one hand's counts are bad)
+//! and is counted; only a run of them faults. `docs/safety.md` has every rule and bound.
 
 use glam::DVec3;
 use spidar_device::{DeviceError, ErrorKind, Input, Output, MAX_CHANNELS};
@@ -56,12 +61,18 @@ pub enum FaultReason {
     /// The string lengths of this hand disagree beyond the residual limit for too long
     /// (slack string, slipped encoder, wrong anchors).
     Residual { hand: u8 },
+    /// This hand's counts jumped further than the hand can move, tick after tick (corrupt
+    /// replies, or an encoder that slipped).
+    CountJump { hand: u8 },
 }
 
 impl FaultReason {
     /// Transient faults clear themselves after enough good ticks.
     pub fn is_transient(self) -> bool {
-        matches!(self, FaultReason::Device(ErrorKind::Timeout | ErrorKind::Corrupt))
+        matches!(
+            self,
+            FaultReason::Device(ErrorKind::Timeout | ErrorKind::Corrupt) | FaultReason::CountJump { .. }
+        )
     }
 }
 
@@ -76,6 +87,12 @@ impl std::fmt::Display for FaultReason {
                     "hand {hand}: string lengths disagree (slack string, slipped encoder or wrong anchors)"
                 )
             }
+            FaultReason::CountJump { hand } => {
+                write!(
+                    f,
+                    "hand {hand}: counts jumped beyond any hand motion, tick after tick (corrupt replies?)"
+                )
+            }
         }
     }
 }
@@ -83,9 +100,10 @@ impl std::fmt::Display for FaultReason {
 /// What the control side may ask of the loop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Command {
-    /// Preset the counters' zero lengths so each grip reads its home point (Inactive only). Done
-    /// after the strings have been held at minimum tension for `HOMING_SETTLE_S`, so no string is
-    /// still slack (a slack string reads long and would bake its sag into the zero length).
+    /// Preset the counters' zero lengths so each grip reads its home point (Inactive; while
+    /// Faulted it is kept and done when the fault clears). Done after the strings have been held
+    /// at minimum tension for `HOMING_SETTLE_S`, so no string is still slack (a slack string reads
+    /// long and would bake its sag into the zero length).
     Home,
     /// Start rendering forces (Inactive and homed only); force ramps in.
     Activate,
@@ -109,6 +127,9 @@ pub enum Event {
     },
     /// The device came back after a disconnect; the rig returns to Inactive and must be homed.
     DeviceReopened,
+    /// Homing was lost (a fault during homing, a reopened device): hold both grips still at
+    /// their home points and the rig homes itself after `rehome_still_s`, or send `Home`.
+    HomeNeeded,
     Stopped,
 }
 
@@ -133,6 +154,15 @@ pub struct Counters {
     pub residual_high: [u64; HANDS],
     pub faults: u64,
     pub device_errors: u64,
+    /// Ticks whose exchange failed (late, missing or corrupt reply) without faulting: the last
+    /// output was held for them.
+    pub late_replies: u64,
+    /// Replies whose counts for this hand jumped further than the hand can move (rejected).
+    pub count_jumps: [u64; HANDS],
+    /// Ticks this hand's output was held (any of the reasons above, or a high residual).
+    pub held: [u64; HANDS],
+    /// Homings the rig started by itself after homing was lost (grips held still at home).
+    pub rehomes: u64,
     /// Attempts to reopen a disconnected device, and how many succeeded.
     pub reopen_attempts: u64,
     pub reopens: u64,
@@ -159,11 +189,39 @@ struct HandCore {
     vel: VelocityFilter,
     /// String length at counter zero, per string; None until homed.
     zero_m: Option<[f64; 4]>,
+    /// Counts of the last accepted reply, and of the one before (homing checks they agree).
     counts: [i64; 4],
+    prev_counts: [i64; 4],
     pose: Pose,
     /// Last pose that was valid: the safe output's string directions come from it.
     safe_pos_m: DVec3,
     bad_residual_ticks: u32,
+    /// Ticks since this hand's counts were last accepted (1: the previous tick), when that was,
+    /// and the string lengths they gave.
+    since_accept: u32,
+    accept_t_s: f64,
+    lengths_m: [f64; 4],
+    /// Rejected count jumps in a row.
+    jump_run: u32,
+    /// What this hand output on its last computed tick, for holding it.
+    last: HeldHand,
+    /// Stillness window for the automatic re-homing: count range per string and its length.
+    still_min: [i64; 4],
+    still_max: [i64; 4],
+    still_ticks: u32,
+}
+
+/// One hand's output of one tick, as held on a tick without usable counts.
+#[derive(Clone, Copy, Default)]
+struct HeldHand {
+    /// False until the hand has computed an output.
+    some: bool,
+    /// The volts of its four channels.
+    volts: [f64; 4],
+    rec: HandRecord,
+    state: HandState,
+    impulses: [DVec3; MAX_PROXIES],
+    contact_impulses: [DVec3; MAX_PROXIES],
 }
 
 /// The computation of one tick and the lifecycle around it.
@@ -186,6 +244,14 @@ pub struct TickCore {
     homing_wait: Option<u32>,
     /// An activation asked for while homing was pending: done once homed.
     activate_after_homing: bool,
+    /// Device errors (late, missing, corrupt replies) in a row.
+    bad_reply_run: u32,
+    /// Homing was lost: waiting for the grips to be held still at home (or for `Home`).
+    awaiting_home: bool,
+    /// Activate once the lost homing is done again (the rig was, or was about to be, active).
+    activate_after_rehome: bool,
+    /// `Home` arrived while faulted: home as soon as the fault clears.
+    home_after_fault: bool,
     model: Option<ContactModel>,
     counters: Counters,
     events: heapless::Deque<Event, 16>,
@@ -204,9 +270,18 @@ impl TickCore {
                 vel: VelocityFilter::new(rig.estimation.velocity_cutoff_hz, rig.period_s),
                 zero_m: hr.length_at_zero_m,
                 counts: [0; 4],
+                prev_counts: [0; 4],
                 pose: Pose { pos_m: hr.home_m, residual_m: 0.0, valid: false },
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
+                since_accept: 1,
+                accept_t_s: 0.0,
+                lengths_m: [0.0; 4],
+                jump_run: 0,
+                last: HeldHand::default(),
+                still_min: [0; 4],
+                still_max: [0; 4],
+                still_ticks: 0,
             })
         };
         Ok(TickCore {
@@ -222,6 +297,10 @@ impl TickCore {
             deactivating: false,
             homing_wait: None,
             activate_after_homing: false,
+            bad_reply_run: 0,
+            awaiting_home: false,
+            activate_after_rehome: false,
+            home_after_fault: false,
             model: None,
             counters: Counters::default(),
             events: heapless::Deque::new(),
@@ -257,10 +336,13 @@ impl TickCore {
     /// Takes the counters as read before the first tick, so homing can use them at once.
     pub fn observe_counts(&mut self, inp: &Input) {
         for (h, hr) in self.hands.iter_mut().zip(self.rig.hands.iter()) {
-            for s in 0..4 {
-                h.counts[s] = inp.counts.get(hr.channels[s]).copied().unwrap_or(0);
-            }
+            h.counts = read_counts(inp, hr);
+            h.prev_counts = h.counts;
         }
+    }
+    /// True while homing is lost and the rig waits for the grips to be held still at home.
+    pub fn is_awaiting_home(&self) -> bool {
+        self.awaiting_home
     }
     pub fn pop_event(&mut self) -> Option<Event> {
         self.events.pop_front()
@@ -290,11 +372,10 @@ impl TickCore {
             return;
         }
         if self.homing_wait.take().is_some() {
-            self.activate_after_homing = false;
-            self.emit(Event::Refused {
-                command: Command::Home,
-                why: "a fault interrupted homing: home again",
-            });
+            // Homing is lost, not the operator's intent: home again (by itself once the grips are
+            // held still at home) and activate if that was asked.
+            self.activate_after_rehome |= std::mem::take(&mut self.activate_after_homing);
+            self.lose_homing();
         }
         self.resume_active = self.state == Lifecycle::Active && !self.deactivating;
         self.deactivating = false;
@@ -305,9 +386,21 @@ impl TickCore {
         for h in self.hands.iter_mut() {
             h.vel.reset();
             h.bad_residual_ticks = 0;
+            h.jump_run = 0;
         }
         self.set_state(Lifecycle::Faulted);
         self.emit(Event::Fault(why));
+    }
+
+    /// Homing is gone (interrupted, or the counters may have restarted): wait for it again.
+    fn lose_homing(&mut self) {
+        if !self.awaiting_home {
+            self.awaiting_home = true;
+            self.emit(Event::HomeNeeded);
+        }
+        for h in self.hands.iter_mut() {
+            h.still_ticks = 0;
+        }
     }
 
     /// The loop reopened the device after a disconnect. Its counters may have restarted, so the
@@ -328,12 +421,17 @@ impl TickCore {
                 h.zero_m = None;
                 h.vel.reset();
             }
+            self.activate_after_rehome |= std::mem::take(&mut self.resume_active);
+            self.lose_homing();
         }
         if to_active {
             self.ramp.rise();
             self.set_state(Lifecycle::Active);
         } else {
             self.set_state(Lifecycle::Inactive);
+            if std::mem::take(&mut self.home_after_fault) {
+                self.command(Command::Home);
+            }
         }
     }
 
@@ -342,9 +440,14 @@ impl TickCore {
         let refuse = |s: &mut Self, why| s.emit(Event::Refused { command: c, why });
         match c {
             Command::Home => {
+                if self.state == Lifecycle::Faulted {
+                    self.home_after_fault = true;
+                    return;
+                }
                 if self.state != Lifecycle::Inactive {
                     return refuse(self, "homing needs the rig inactive: deactivate first");
                 }
+                self.awaiting_home = false;
                 if self.homing_wait.is_none() {
                     self.homing_wait = Some((HOMING_SETTLE_S / self.rig.period_s).round() as u32);
                     // The pose is about to be redefined: until then it is unknown (no residual
@@ -370,6 +473,7 @@ impl TickCore {
             Command::Deactivate | Command::Stop => {
                 self.resume_active = false;
                 self.activate_after_homing = false;
+                self.activate_after_rehome = false;
                 if self.state == Lifecycle::Active {
                     self.deactivating = true;
                     self.ramp.fall();
@@ -395,6 +499,21 @@ impl TickCore {
             self.homing_wait = Some(left - 1);
             return;
         }
+        // The grips are held still: a count that moved further than a hand can in one tick since
+        // the last reply is corrupt, and homing on it would bake the error into the zero length.
+        let tol = self.rig.safety.reply_jump_m;
+        let mut steady = true;
+        for (hi, (h, hr)) in self.hands.iter().zip(self.rig.hands.iter()).enumerate() {
+            let jumped = (0..4)
+                .any(|s| ((h.counts[s] - h.prev_counts[s]) as f64 * hr.metres_per_count[s]).abs() > tol);
+            if jumped {
+                self.counters.count_jumps[hi] += 1;
+                steady = false;
+            }
+        }
+        if !steady {
+            return; // try again next tick
+        }
         self.homing_wait = None;
         for (h, hr) in self.hands.iter_mut().zip(self.rig.hands.iter()) {
             h.zero_m = Some(hr.home_offsets(h.counts, hr.home_m));
@@ -402,8 +521,62 @@ impl TickCore {
             h.bad_residual_ticks = 0;
         }
         self.emit(Event::Homed);
-        if std::mem::take(&mut self.activate_after_homing) {
+        let activate = std::mem::take(&mut self.activate_after_homing);
+        if std::mem::take(&mut self.activate_after_rehome) || activate {
             self.command(Command::Activate);
+        }
+    }
+
+    /// While homing is lost and the rig is inactive: homes by itself once every string of both
+    /// hands has stayed within `rehome_still_m` for `rehome_still_s` (the grips held still, where
+    /// the operator was told to hold them: at home). The window restarts whenever a string moves
+    /// more; its tolerance is at least 10 encoder counts (checked in the rig file), so encoder
+    /// noise alone never keeps it from completing.
+    fn rehome_step(&mut self, device_ok: bool) {
+        if !self.awaiting_home
+            || self.state != Lifecycle::Inactive
+            || self.homing_wait.is_some()
+            || !device_ok
+        {
+            return;
+        }
+        let need = (self.rig.safety.rehome_still_s / self.rig.period_s).round() as u32;
+        let (tol, jump) = (self.rig.safety.rehome_still_m, self.rig.safety.reply_jump_m);
+        let mut all_still = true;
+        for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
+            // An unhomed hand's counts are taken as they come: a reply that disagrees with the one
+            // before by more than a hand moves in a tick is corrupt (or the hand moves fast, and
+            // the next replies will say so): it neither extends nor restarts the window.
+            let step = |s: usize| ((h.counts[s] - h.prev_counts[s]) as f64 * hr.metres_per_count[s]).abs();
+            if (0..4).any(|s| step(s) > jump) {
+                self.counters.count_jumps[hi] += 1;
+                all_still &= h.still_ticks >= need;
+                continue;
+            }
+            let mut moved = h.still_ticks == 0;
+            for s in 0..4 {
+                let lo = h.still_min[s].min(h.counts[s]);
+                let hi = h.still_max[s].max(h.counts[s]);
+                if (hi - lo) as f64 * hr.metres_per_count[s].abs() > tol {
+                    moved = true;
+                }
+            }
+            if moved {
+                h.still_min = h.counts;
+                h.still_max = h.counts;
+                h.still_ticks = 1;
+            } else {
+                for s in 0..4 {
+                    h.still_min[s] = h.still_min[s].min(h.counts[s]);
+                    h.still_max[s] = h.still_max[s].max(h.counts[s]);
+                }
+                h.still_ticks = h.still_ticks.saturating_add(1);
+            }
+            all_still &= h.still_ticks >= need;
+        }
+        if all_still {
+            self.counters.rehomes += 1;
+            self.command(Command::Home);
         }
     }
 
@@ -418,14 +591,20 @@ impl TickCore {
         self.model = Some(m);
     }
 
+    /// The contact model in use (the newest received).
+    pub fn contact_model(&self) -> Option<&ContactModel> {
+        self.model.as_ref()
+    }
+
     /// The age of the current contact model at `now_s`.
     pub fn model_age_s(&self, now_s: f64) -> Option<f64> {
         self.model.as_ref().map(|m| now_s - m.stamp_s)
     }
 
     /// One tick. `io` is the result of the device exchange that produced `inp`. Writes the volts
-    /// for the next exchange into `out`, the message for the scene into `sample`, and the
-    /// telemetry into `rec` (its timing fields are the loop's to fill).
+    /// for the next exchange into `out` (a held hand's are its last ones again), the message
+    /// for the scene into `sample`, and the telemetry into `rec` (its timing fields are the loop's
+    /// to fill).
     pub fn step(
         &mut self,
         now_s: f64,
@@ -438,16 +617,31 @@ impl TickCore {
         let tick = self.counters.ticks;
         self.counters.ticks += 1;
         let dt = self.rig.period_s;
+        let safety = &self.rig.safety;
+        let (reply_limit, jump_m) = (safety.reply_fault_ticks.max(1), safety.reply_jump_m);
+        let (residual_limit, residual_ticks) = (safety.residual_fault_m, safety.residual_fault_ticks.max(1));
 
-        // Device health and fault recovery.
+        // Device health: a short run of late, missing or corrupt replies holds the last output;
+        // a longer one, or any other error, faults.
+        let mut hold_all = false;
         match io {
             Err(e) => {
                 self.counters.device_errors += 1;
                 // Recovery needs good exchanges in a row.
                 self.good_ticks = 0;
-                self.enter_fault(FaultReason::Device(e.kind()));
+                self.bad_reply_run = self.bad_reply_run.saturating_add(1);
+                let tolerable = matches!(e.kind(), ErrorKind::Timeout | ErrorKind::Corrupt)
+                    && self.state != Lifecycle::Faulted
+                    && self.bad_reply_run < reply_limit;
+                if tolerable {
+                    self.counters.late_replies += 1;
+                    hold_all = true;
+                } else {
+                    self.enter_fault(FaultReason::Device(e.kind()));
+                }
             }
             Ok(()) => {
+                self.bad_reply_run = 0;
                 if let Some(f) = self.fault {
                     self.good_ticks = self.good_ticks.saturating_add(1);
                     let need = self.rig.safety.fault_recovery_ticks;
@@ -461,46 +655,85 @@ impl TickCore {
         }
         let device_ok = io.is_ok();
 
-        // Kinematics and velocity, per hand.
+        // Kinematics and velocity, per hand. A hand whose counts cannot be trusted this tick is
+        // held: its pose, velocity and output stay those of its last accepted tick.
         let mut fault = None;
+        let mut hold = [hold_all; HANDS];
         for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
-            if device_ok {
-                for s in 0..4 {
-                    h.counts[s] = inp.counts.get(hr.channels[s]).copied().unwrap_or(0);
-                }
+            if !device_ok {
+                h.since_accept = h.since_accept.saturating_add(1);
+                continue; // keep the last pose; the safe output uses it
             }
+            let counts = read_counts(inp, hr);
             let Some(zero) = h.zero_m else {
+                h.prev_counts = std::mem::replace(&mut h.counts, counts);
                 h.pose.valid = false;
                 continue;
             };
-            if !device_ok {
-                continue; // keep the last pose; the safe output uses it
-            }
             let mut lengths = [0.0; 4];
             for s in 0..4 {
-                lengths[s] = zero[s] + h.counts[s] as f64 * hr.metres_per_count[s];
+                lengths[s] = zero[s] + counts[s] as f64 * hr.metres_per_count[s];
             }
-            h.pose = h.kin.solve(&lengths, self.rig.estimation.gauss_newton_iterations);
-            if !h.pose.valid {
+            // The count step against the hand's motion: where the last pose and velocity put each
+            // string now. A corrupt count lands centimetres away; a hand cannot.
+            let periods = h.periods_since_accept(now_s, dt);
+            if let Some(pred) = h.predicted_lengths(dt, periods) {
+                // `reply_jump_m` per period, plus one period of the string's own predicted motion:
+                // a reply is sampled when it reaches the board, up to a reply deadline away from
+                // the tick's time, so a fast hand's counts may be that much ahead or behind.
+                let k = f64::from(periods);
+                // A NaN length is a jump too.
+                let jumped = (0..4).any(|s| {
+                    let tol = jump_m * k + (pred[s] - h.lengths_m[s]).abs() / k;
+                    let within = (lengths[s] - pred[s]).abs() <= tol;
+                    !within
+                });
+                if jumped {
+                    self.counters.count_jumps[hi] += 1;
+                    h.jump_run += 1;
+                    h.since_accept = h.since_accept.saturating_add(1);
+                    if h.jump_run >= reply_limit {
+                        fault = Some(FaultReason::CountJump { hand: hi as u8 });
+                    } else {
+                        hold[hi] = true;
+                    }
+                    continue;
+                }
+            }
+            h.jump_run = 0;
+            let pose = h.kin.solve(&lengths, self.rig.estimation.gauss_newton_iterations);
+            if !pose.valid {
+                h.pose = pose;
                 fault = Some(FaultReason::PoseInvalid { hand: hi as u8 });
                 continue;
             }
-            h.vel.update(h.pose.pos_m);
-            h.safe_pos_m = h.pose.pos_m;
-            if h.pose.residual_m > self.rig.safety.residual_fault_m {
+            // The four strings' redundancy: lengths that disagree are not used.
+            if pose.residual_m > residual_limit {
                 self.counters.residual_high[hi] += 1;
                 h.bad_residual_ticks += 1;
-                if h.bad_residual_ticks >= self.rig.safety.residual_fault_ticks.max(1) {
+                h.since_accept = h.since_accept.saturating_add(1);
+                if h.bad_residual_ticks >= residual_ticks {
+                    h.pose = pose;
                     fault = Some(FaultReason::Residual { hand: hi as u8 });
+                } else {
+                    hold[hi] = true;
                 }
-            } else {
-                h.bad_residual_ticks = 0;
+                continue;
             }
+            h.bad_residual_ticks = 0;
+            h.prev_counts = std::mem::replace(&mut h.counts, counts);
+            h.pose = pose;
+            h.lengths_m = lengths;
+            h.vel.update_after(pose.pos_m, periods);
+            h.since_accept = 1;
+            h.accept_t_s = now_s;
+            h.safe_pos_m = pose.pos_m;
         }
         if let Some(f) = fault {
             self.enter_fault(f);
         }
         self.homing_step(device_ok);
+        self.rehome_step(device_ok);
 
         // Render, safety, allocate, volts.
         let age = self.model_age_s(now_s);
@@ -524,18 +757,39 @@ impl TickCore {
             self.set_state(Lifecycle::Inactive);
         }
         let gain = if active { ramp_gain * stale_gain } else { 0.0 };
+        let faulted = self.state == Lifecycle::Faulted;
         let xf = self.rig.rig_to_world;
         let mut impulses = [DVec3::ZERO; MAX_PROXIES];
         let mut contact_impulses = [DVec3::ZERO; MAX_PROXIES];
-        *out = Output::default();
         rec.tick = tick;
         rec.t_s = now_s;
         rec.state = self.state;
         rec.fault = self.fault;
         rec.gain = gain;
         rec.contact_age_s = age.unwrap_or(f64::INFINITY);
+        rec.awaiting_home = self.awaiting_home;
         for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
-            let pose_ok = h.pose.valid && h.zero_m.is_some() && device_ok;
+            // Holding repeats what the strings were told last tick: a faulted rig never holds
+            // (it outputs the safe tensions from this very tick).
+            if hold[hi] && !faulted && h.last.some {
+                self.counters.held[hi] += 1;
+                // Written again, not left in `out`: the step does not depend on what the buffer held.
+                for s in 0..4 {
+                    if let Some(v) = out.volts.get_mut(hr.channels[s]) {
+                        *v = h.last.volts[s];
+                    }
+                }
+                for (acc, imp) in impulses.iter_mut().zip(h.last.impulses.iter()) {
+                    *acc += *imp;
+                }
+                for (acc, imp) in contact_impulses.iter_mut().zip(h.last.contact_impulses.iter()) {
+                    *acc += *imp;
+                }
+                sample.hands[hi] = h.last.state;
+                rec.hands[hi] = HandRecord { held: true, ..h.last.rec };
+                continue;
+            }
+            let pose_ok = h.pose.valid && h.zero_m.is_some() && device_ok && !hold[hi];
             let vel = if pose_ok { h.vel.velocity() } else { DVec3::ZERO };
             let mut rendered = Rendered::default();
             let mut want_rig = DVec3::ZERO;
@@ -579,15 +833,23 @@ impl TickCore {
             // The virtual contact itself acts with the loop's gain only (a stale or ramped-out
             // model must not push the world either), never limited by what the rig can display.
             // `render_hand` already dropped non-finite contacts; the check keeps a NaN gain out.
+            let mut mine = [DVec3::ZERO; MAX_PROXIES];
+            let mut mine_contact = [DVec3::ZERO; MAX_PROXIES];
             if rendered.contacts > 0 {
-                for ((acc, acc_contact), imp) in
-                    impulses.iter_mut().zip(contact_impulses.iter_mut()).zip(hand_impulses.iter())
-                {
-                    *acc += *imp * applied;
+                for ((m, mc), imp) in mine.iter_mut().zip(mine_contact.iter_mut()).zip(hand_impulses.iter()) {
+                    *m = *imp * applied;
                     let c = *imp * gain;
                     if c.is_finite() {
-                        *acc_contact += c;
+                        *mc = c;
                     }
+                }
+                for ((acc, acc_contact), (m, mc)) in impulses
+                    .iter_mut()
+                    .zip(contact_impulses.iter_mut())
+                    .zip(mine.iter().zip(mine_contact.iter()))
+                {
+                    *acc += *m;
+                    *acc_contact += *mc;
                 }
             }
             match alloc.method {
@@ -620,6 +882,17 @@ impl TickCore {
                 method: alloc.method,
                 contacts: rendered.contacts,
                 clamped: g.clamped,
+                stiffness_limited: rendered.stiffness_limited,
+                non_finite: g.non_finite,
+                held: false,
+            };
+            h.last = HeldHand {
+                some: true,
+                volts: std::array::from_fn(|s| alloc.tensions_n[s] * hr.volts_per_newton[s]),
+                rec: rec.hands[hi],
+                state: sample.hands[hi],
+                impulses: mine,
+                contact_impulses: mine_contact,
             };
         }
         sample.tick = tick;
@@ -628,6 +901,35 @@ impl TickCore {
         sample.proxy_impulse_n_s = impulses;
         sample.proxy_contact_impulse_n_s = contact_impulses;
     }
+}
+
+impl HandCore {
+    /// Periods since the last accepted reply: the ticks run since, or the time that passed when
+    /// the loop woke late (on the real clock a late tick's counts moved for longer).
+    fn periods_since_accept(&self, now_s: f64, dt_s: f64) -> u32 {
+        let by_time = ((now_s - self.accept_t_s) / dt_s).round();
+        // `as` saturates (and a NaN gives 0), so this never panics.
+        self.since_accept.max(by_time as u32)
+    }
+
+    /// Where each string should be now, `periods` after the last accepted reply: its length
+    /// then, plus the change the hand's velocity makes of it (the step is predicted, not the
+    /// length, so the pose's own residual does not count as a jump). None without a velocity
+    /// history (first tick, after homing or a fault).
+    fn predicted_lengths(&self, dt_s: f64, periods: u32) -> Option<[f64; 4]> {
+        if !(self.pose.valid && self.vel.has_history()) {
+            return None;
+        }
+        let p = self.pose.pos_m;
+        let ahead = self.kin.lengths(p + self.vel.velocity() * (dt_s * f64::from(periods)));
+        let now = self.kin.lengths(p);
+        Some(std::array::from_fn(|s| self.lengths_m[s] + (ahead[s] - now[s])))
+    }
+}
+
+/// The counts of a hand's four channels (a channel the input lacks reads 0).
+fn read_counts(inp: &Input, hr: &HandRig) -> [i64; 4] {
+    hr.channels.map(|ch| inp.counts.get(ch).copied().unwrap_or(0))
 }
 
 #[cfg(test)]
@@ -687,23 +989,315 @@ mod tests {
         }
     }
 
+    const TIMEOUT: DeviceError = DeviceError::Timeout { waited_us: 900 };
+
+    fn reply_limit(c: &TickCore) -> usize {
+        c.rig().safety.reply_fault_ticks as usize
+    }
+
     #[test]
-    fn device_error_faults_at_once_and_a_transient_one_recovers_to_active() {
+    fn a_run_of_late_replies_faults_and_a_transient_fault_recovers_to_active() {
         let mut c = core();
         home_and_activate(&mut c);
         run(&mut c, 600, Ok(()));
         assert_eq!(c.ramp_gain(), 1.0);
-        let (out, rec) = run(&mut c, 1, Err(DeviceError::Timeout { waited_us: 900 }));
+        let n = reply_limit(&c);
+        run(&mut c, n - 1, Err(TIMEOUT));
+        assert_eq!(c.state(), Lifecycle::Active, "a short run is held, not a fault");
+        let (out, rec) = run(&mut c, 1, Err(TIMEOUT));
         assert_eq!(c.state(), Lifecycle::Faulted);
+        assert_eq!(c.fault(), Some(FaultReason::Device(ErrorKind::Timeout)));
         assert_eq!(rec.gain, 0.0);
+        assert!(rec.hands.iter().all(|h| !h.held), "a fault is never held");
         assert!(out.volts[..8].iter().all(|v| *v >= 0.2 - 1e-12), "strings stay taut: {:?}", out.volts);
         let need = c.rig().safety.fault_recovery_ticks as usize;
+        assert!((10..100).contains(&need), "recovery takes tens of ticks: {need}");
         run(&mut c, need - 1, Ok(()));
         assert_eq!(c.state(), Lifecycle::Faulted);
         run(&mut c, 1, Ok(()));
         assert_eq!(c.state(), Lifecycle::Active);
         assert!(c.ramp_gain() < 0.01, "force ramps in again after the fault");
-        assert_eq!(c.counters().faults, 1);
+        let k = c.counters();
+        assert_eq!((k.faults, k.device_errors, k.late_replies), (1, n as u64, n as u64 - 1));
+        assert_eq!(k.held, [n as u64 - 1; 2]);
+    }
+
+    /// A wall 1 cm in front of hand 0's home, 3 cm into the fist: a large force to hold.
+    fn pressing_wall(c: &TickCore) -> ContactModel {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let home = c.rig().rig_to_world.point(c.rig().hands[0].home_m);
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Z * 0.01, normal: DVec3::Z },
+            k_n_per_m: 2000.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        m
+    }
+
+    /// One tick with explicit counts and device result; a fresh `m` when given.
+    fn tick_io(
+        c: &mut TickCore,
+        out: &mut Output,
+        m: Option<ContactModel>,
+        counts: &[i64; MAX_CHANNELS],
+        io: Result<(), DeviceError>,
+    ) -> (HandSample, TickRecord) {
+        let (mut rec, mut s) = (TickRecord::default(), HandSample::default());
+        let t = c.counters.ticks as f64 * 0.001;
+        if let Some(mut m) = m {
+            m.stamp_s = t;
+            c.set_contact_model(m);
+        }
+        let inp = Input { counts: *counts, status: 0 };
+        c.step(t, io, &inp, out, &mut s, &mut rec);
+        (s, rec)
+    }
+
+    #[test]
+    fn a_late_reply_burst_shorter_than_the_limit_keeps_force_while_a_longer_one_faults() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let m = pressing_wall(&c);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
+        }
+        let (s0, r0) = tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
+        let pressing = out;
+        assert!(r0.hands[0].commanded_n.length() > 3.9, "{r0:?}");
+        let n = reply_limit(&c);
+        for i in 0..n - 1 {
+            let (s, r) = tick_io(&mut c, &mut out, Some(m), &zero, Err(TIMEOUT));
+            assert_eq!(r.state, Lifecycle::Active, "burst tick {i}");
+            assert_eq!(out, pressing, "the last output is held, to the volt");
+            assert!(r.hands.iter().all(|h| h.held));
+            assert_eq!(r.hands[0].commanded_n, r0.hands[0].commanded_n);
+            assert_eq!(s.proxy_impulse_n_s, s0.proxy_impulse_n_s, "the held force is the applied one");
+            assert_eq!(s.proxy_contact_impulse_n_s, s0.proxy_contact_impulse_n_s);
+            assert!(s0.proxy_contact_impulse_n_s[0].length() > 0.0);
+            assert_eq!(s.hands, s0.hands);
+        }
+        let (_, r) = tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
+        assert!(r.state == Lifecycle::Active && !r.hands[0].held && r.hands[0].commanded_n.length() > 3.9);
+        assert_eq!(c.counters().late_replies, n as u64 - 1);
+        assert_eq!(c.counters().faults, 0);
+        // One more than the limit: faulted on the n-th, safe at once.
+        for _ in 0..n - 1 {
+            tick_io(&mut c, &mut out, Some(m), &zero, Err(TIMEOUT));
+        }
+        assert_eq!(c.state(), Lifecycle::Active);
+        let (_, r) = tick_io(&mut c, &mut out, Some(m), &zero, Err(TIMEOUT));
+        assert_eq!(r.state, Lifecycle::Faulted);
+        assert_eq!(r.hands[0].commanded_n, DVec3::ZERO);
+        assert!(r.hands[0].output_n.length() < 1e-9);
+        assert_ne!(out, pressing);
+        let k = c.counters();
+        assert_eq!((k.faults, k.late_replies, k.device_errors), (1, 2 * n as u64 - 2, 2 * n as u64 - 1));
+    }
+
+    /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.
+    fn counts_at(c: &TickCore, p: [DVec3; 2]) -> [i64; MAX_CHANNELS] {
+        let mut counts = [0i64; MAX_CHANNELS];
+        for (h, hr) in c.rig().hands.iter().enumerate() {
+            for s in 0..4 {
+                let dl = (hr.anchors_m[s] - p[h]).length() - (hr.anchors_m[s] - hr.home_m).length();
+                counts[hr.channels[s]] = (dl / hr.metres_per_count[s]).round() as i64;
+            }
+        }
+        counts
+    }
+
+    #[test]
+    fn a_corrupt_count_is_rejected_on_the_tick_it_arrives_and_a_run_of_them_faults() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let m = pressing_wall(&c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        // The hands move at 1 m/s along x: each tick's counts follow them.
+        let at = |k: usize| home.map(|h| h + DVec3::X * (k as f64 * 1e-3));
+        let k = std::cell::Cell::new(0);
+        let step = |c: &mut TickCore, out: &mut Output, corrupt: Option<(usize, i64)>| {
+            let mut counts = counts_at(c, at(k.get()));
+            if let Some((ch, by)) = corrupt {
+                counts[ch] += by;
+            }
+            k.set(k.get() + 1);
+            tick_io(c, out, Some(m), &counts, Ok(())).1
+        };
+        for _ in 0..700 {
+            step(&mut c, &mut out, None);
+        }
+        let before = step(&mut c, &mut out, None);
+        let held_out = out;
+        assert!(!before.hands[0].held);
+        // A reply with 4096 counts (12 cm) too many on hand 0's string 2: rejected at once.
+        let r = step(&mut c, &mut out, Some((2, 4096)));
+        assert!(r.hands[0].held && !r.hands[1].held, "only the hand with the bad count is held");
+        assert_eq!(r.hands[0].pos_m, before.hands[0].pos_m);
+        assert_eq!(out.volts[..4], held_out.volts[..4]);
+        assert_eq!(c.counters().count_jumps, [1, 0]);
+        // The next good reply is accepted, from where the hand really is now.
+        let r = step(&mut c, &mut out, None);
+        assert!(!r.hands[0].held);
+        assert!((r.hands[0].pos_m - at(k.get() - 1)[0]).length() < 1e-4, "{}", r.hands[0].pos_m);
+        assert!(
+            (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+            "velocity over the skipped tick: {}",
+            r.hands[0].vel_m_per_s
+        );
+        // Small corruptions too: 200 counts (6 mm) on hand 1.
+        let r = step(&mut c, &mut out, Some((5, -200)));
+        assert!(r.hands[1].held && !r.hands[0].held);
+        assert_eq!(c.counters().count_jumps, [1, 1]);
+        assert_eq!(c.counters().faults, 0);
+        // Counts that stay away (an encoder that slipped, a board that keeps garbling) fault.
+        let n = reply_limit(&c);
+        for _ in 0..n - 1 {
+            assert_eq!(step(&mut c, &mut out, Some((0, 3000))).state, Lifecycle::Active);
+        }
+        let r = step(&mut c, &mut out, Some((0, 3000)));
+        assert_eq!(r.fault, Some(FaultReason::CountJump { hand: 0 }));
+        assert_eq!(r.hands[0].commanded_n, DVec3::ZERO);
+        assert_eq!(c.counters().count_jumps, [1 + n as u64, 1]);
+        assert_eq!(c.counters().held, [1 + n as u64 - 1, 1]);
+    }
+
+    #[test]
+    fn a_tick_that_woke_late_is_judged_by_the_time_that_passed_not_as_a_jump() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let (mut out, mut rec, mut s) = (Output::default(), TickRecord::default(), HandSample::default());
+        // The hands move at 1 m/s along x; on the real clock.
+        let mut t = c.counters.ticks as f64 * 0.001;
+        let mut x = 0.0;
+        let mut tick = |c: &mut TickCore, dt: f64| {
+            t += dt;
+            x += dt; // 1 m/s
+            let inp = Input { counts: counts_at(c, home.map(|h| h + DVec3::X * x)), status: 0 };
+            c.step(t, Ok(()), &inp, &mut out, &mut s, &mut rec);
+            rec
+        };
+        for _ in 0..300 {
+            tick(&mut c, 0.001);
+        }
+        // The loop wakes 6 ms late: the hands moved 6 mm, three times the per-tick tolerance.
+        let r = tick(&mut c, 0.006);
+        assert!(!r.hands[0].held && !r.hands[1].held, "{:?}", c.counters());
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        assert!(
+            (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+            "velocity over the late tick: {}",
+            r.hands[0].vel_m_per_s
+        );
+    }
+
+    #[test]
+    fn a_fast_steady_hand_is_never_taken_for_a_jump_and_its_volts_are_its_tensions() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let m = pressing_wall(&c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let mut out = Output::default();
+        // Both hands speed up at 30 m/s^2 to 3 m/s (3 mm per tick, beyond reply_jump_m alone),
+        // then sweep on: the prediction from their velocity keeps every reply.
+        let along = |k: usize| {
+            let t = k as f64 * 1e-3;
+            if t < 0.1 {
+                15.0 * t * t
+            } else {
+                0.15 + 3.0 * (t - 0.1)
+            }
+        };
+        for k in 0..200 {
+            let p = home.map(|h| h + DVec3::new(0.0, 1.0, -1.0).normalize() * along(k));
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, Some(m), &counts, Ok(()));
+            for (h, hr) in c.rig().hands.iter().enumerate() {
+                for s in 0..4 {
+                    let want = r.hands[h].tensions_n[s] * hr.volts_per_newton[s];
+                    assert_eq!(out.volts[hr.channels[s]], want, "the volts written are the tensions'");
+                }
+            }
+        }
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        assert_eq!(c.counters().held, [0, 0]);
+    }
+
+    #[test]
+    fn a_pose_above_the_residual_limit_is_held_and_a_run_of_them_faults() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        for _ in 0..10 {
+            tick_io(&mut c, &mut out, None, &zero, Ok(()));
+        }
+        // String 1 of hand 0 creeps 0.2 mm per tick (a slipping encoder): slow enough for the jump
+        // check, inconsistent with the other three.
+        let mpc = c.rig().hands[0].metres_per_count[1];
+        let limit = c.rig().safety.residual_fault_ticks;
+        let mut held = 0;
+        let mut fault_at = None;
+        for i in 1..400 {
+            let mut counts = zero;
+            counts[1] = (i as f64 * 0.2e-3 / mpc).round() as i64;
+            let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            if r.state == Lifecycle::Faulted {
+                fault_at = Some(r.fault);
+                break;
+            }
+            held += r.hands[0].held as u64;
+        }
+        assert_eq!(fault_at, Some(Some(FaultReason::Residual { hand: 0 })));
+        assert_eq!(held, u64::from(limit) - 1, "each tick above the limit before the fault is held");
+        assert_eq!(c.counters().residual_high[0], u64::from(limit));
+        assert_eq!(c.counters().held, [u64::from(limit) - 1, 0]);
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+    }
+
+    #[test]
+    fn a_faulted_rig_is_never_held_and_its_safe_output_comes_from_the_last_good_pose() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let away = [home[0] + DVec3::new(0.1, 0.2, 0.0), home[1]];
+        let counts = counts_at(&c, away);
+        for _ in 0..3 {
+            let h0 = counts_at(&c, home);
+            tick_io(&mut c, &mut out, None, &h0, Ok(()));
+        }
+        // Walk hand 0 to `away` slowly, then a reply that makes a length negative: no pose.
+        for k in 1..=200 {
+            let p = [home[0] + (away[0] - home[0]) * (k as f64 / 200.0), home[1]];
+            let cp = counts_at(&c, p);
+            tick_io(&mut c, &mut out, None, &cp, Ok(()));
+        }
+        let _ = counts;
+        c.command(Command::Home); // refused while active: nothing changes
+        let mut bad = counts_at(&c, away);
+        bad[0] = -1_000_000_000;
+        // Without a velocity history the jump check cannot judge it; the kinematics refuse it.
+        for h in c.hands.iter_mut() {
+            h.vel.reset();
+        }
+        let (_, r) = tick_io(&mut c, &mut out, None, &bad, Ok(()));
+        assert_eq!(r.fault, Some(FaultReason::PoseInvalid { hand: 0 }));
+        let h = &r.hands[0];
+        assert!(!h.held && !h.valid);
+        assert!(h.tensions_n.iter().all(|t| t.is_finite() && *t >= 1.0 - 1e-9 && *t <= 20.0), "{h:?}");
+        assert!(h.output_n.length() < 1e-9, "zero net force at the last good pose: {}", h.output_n);
+        // Those tensions balance at `away` (where the grip is), not at home.
+        let dirs = c.hands[0].kin.directions(away[0]);
+        let net: DVec3 = (0..4).map(|s| dirs[s] * h.tensions_n[s]).sum();
+        assert!(net.length() < 1e-3, "{net}");
     }
 
     #[test]
@@ -732,24 +1326,282 @@ mod tests {
     }
 
     #[test]
-    fn a_reopened_device_clears_the_fault_to_inactive_and_unhomed() {
+    fn a_reopened_device_clears_the_fault_to_inactive_and_unhomed_then_rehomes_when_held_still() {
         let mut c = core();
         home_and_activate(&mut c);
-        run(&mut c, 10, Err(DeviceError::Timeout { waited_us: 1 }));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        assert_eq!(c.fault(), Some(FaultReason::Device(ErrorKind::Timeout)));
+        while c.pop_event().is_some() {}
         run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
+        assert_eq!(c.pop_event(), Some(Event::Fault(FaultReason::Device(ErrorKind::Disconnected))));
+        run(&mut c, 1, Err(DeviceError::Disconnected { what: "test" }));
+        run(&mut c, 10, Err(TIMEOUT));
+        assert_eq!(c.pop_event(), None, "reported once");
         assert_eq!(
             c.fault(),
             Some(FaultReason::Device(ErrorKind::Disconnected)),
             "a disconnect outranks a timeout"
         );
+        assert_eq!(c.counters().faults, 1, "one fault, its reason upgraded");
         c.device_reopened();
+        while c.pop_event().is_some() {}
         let need = c.rig().safety.fault_recovery_ticks as usize;
         run(&mut c, need, Ok(()));
         assert_eq!(c.state(), Lifecycle::Inactive, "never straight back to Active after a reopen");
         assert!(!c.is_homed(), "the counters may have restarted: home again");
+        assert!(c.is_awaiting_home());
+        assert!(std::iter::from_fn(|| c.pop_event()).any(|e| e == Event::HomeNeeded), "the operator is told");
         c.command(Command::Activate);
         assert_eq!(c.state(), Lifecycle::Inactive);
         assert_eq!(c.counters().reopens, 1);
+        // The grips are held still (the counts do not move): after rehome_still_s the rig homes
+        // itself, and since it was active before the disconnect, it activates again.
+        // (The window opened on the tick the fault cleared.)
+        let still = (c.rig().safety.rehome_still_s / c.rig().period_s).round() as usize;
+        let (_, rec) = run(&mut c, still - 2, Ok(()));
+        assert!(!c.is_homing() && c.counters().rehomes == 0);
+        assert!(rec.awaiting_home, "the status can say what to do");
+        let (_, rec) = run(&mut c, 1, Ok(()));
+        assert!(!rec.awaiting_home);
+        assert!(c.is_homing() && !c.is_awaiting_home());
+        assert_eq!(c.counters().rehomes, 1);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed());
+        assert_eq!(c.state(), Lifecycle::Active);
+    }
+
+    #[test]
+    fn a_fault_during_homing_lets_the_rig_home_again_without_a_restart() {
+        let mut c = core();
+        c.command(Command::Home);
+        c.command(Command::Activate);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        assert_eq!(c.state(), Lifecycle::Faulted);
+        assert!(!c.is_homing() && c.is_awaiting_home());
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, need, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        // The grips are moving (the operator walked away): no homing while they move.
+        let mut out = Output::default();
+        let still = (c.rig().safety.rehome_still_s / c.rig().period_s).round() as usize;
+        let mut counts = [0i64; MAX_CHANNELS];
+        for i in 0..3 * still {
+            counts[6] = ((i / 50) % 2) as i64 * 200; // 6 mm back and forth every 50 ms
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        }
+        assert_eq!(c.counters().rehomes, 0, "a moving grip is never taken for a held one");
+        // Encoder noise of a few counts does not count as motion.
+        for i in 0..still + 1 {
+            counts[6] = 200 + [0, 3, -2, 1][i % 4];
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        }
+        assert_eq!(c.counters().rehomes, 1);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Active, "the Activate that was waiting for homing is kept");
+    }
+
+    #[test]
+    fn garbled_replies_neither_stop_nor_fake_the_stillness_that_rehomes() {
+        let mut c = core();
+        c.command(Command::Home);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, need, Ok(()));
+        assert!(c.is_awaiting_home());
+        // Grips held still, but every 20th reply has a count 4096 off.
+        let mut out = Output::default();
+        let still = (c.rig().safety.rehome_still_s / c.rig().period_s).round() as usize;
+        let mut ticks = 0;
+        while c.counters().rehomes == 0 {
+            let mut counts = [0i64; MAX_CHANNELS];
+            if ticks % 20 == 7 {
+                counts[ticks % 8] = 4096;
+            }
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            ticks += 1;
+            assert!(ticks < 2 * still, "the garbled replies kept the rig from homing");
+        }
+        assert!(ticks >= still, "{ticks}");
+        assert!(c.counters().count_jumps.iter().sum::<u64>() > 0);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed());
+        assert_eq!(c.hands[0].zero_m, Some(c.rig().hands[0].home_offsets([0; 4], c.rig().hands[0].home_m)));
+    }
+
+    #[test]
+    fn home_sent_while_faulted_homes_as_soon_as_the_fault_clears() {
+        let mut c = core();
+        c.command(Command::Home);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        c.command(Command::Home);
+        assert!(!std::iter::from_fn(|| c.pop_event()).any(|e| matches!(e, Event::Refused { .. })));
+        let need = c.rig().safety.fault_recovery_ticks as usize;
+        run(&mut c, need, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        assert!(c.is_homing() && !c.is_awaiting_home());
+        assert_eq!(c.counters().rehomes, 0, "asked for, not automatic");
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed());
+        assert_eq!(c.state(), Lifecycle::Inactive, "no Activate was asked");
+    }
+
+    #[test]
+    fn homing_takes_steady_counts_wherever_they_are() {
+        // Counters far from zero (a board that was never reset) and a grip that trembles by 20
+        // counts (0.6 mm) from one reply to the next: that is steady, homing goes ahead.
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        let mut out = Output::default();
+        let mut counts = [0i64; MAX_CHANNELS];
+        for (ch, n) in counts.iter_mut().enumerate() {
+            *n = 100_000 + 1_000 * ch as i64;
+        }
+        for _ in 0..settle {
+            tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        }
+        counts[5] += 20;
+        tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        assert!(c.is_homed(), "a tremor is not a jump");
+        assert_eq!(c.counters().count_jumps, [0, 0]);
+        let h1: [i64; 4] = std::array::from_fn(|s| counts[c.rig().hands[1].channels[s]]);
+        assert_eq!(c.hands[1].zero_m, Some(c.rig().hands[1].home_offsets(h1, c.rig().hands[1].home_m)));
+    }
+
+    #[test]
+    fn the_rehoming_window_counts_only_good_replies_of_an_inactive_rig() {
+        // Ticks until the rig re-homes itself after a fault during homing, with `spoil` applied
+        // on the first ticks after the fault cleared.
+        fn ticks_to_rehome(spoil: usize, err: Option<DeviceError>) -> usize {
+            let mut c = core();
+            c.command(Command::Home);
+            run(&mut c, 20, Ok(()));
+            let n = reply_limit(&c);
+            run(&mut c, n, Err(TIMEOUT));
+            let need = c.rig().safety.fault_recovery_ticks as usize;
+            run(&mut c, need, Ok(()));
+            assert_eq!(c.state(), Lifecycle::Inactive);
+            let mut ticks = 0;
+            if let Some(e) = err {
+                run(&mut c, spoil, Err(e));
+                ticks += spoil;
+            }
+            while c.counters().rehomes == 0 {
+                run(&mut c, 1, Ok(()));
+                ticks += 1;
+                assert!(ticks < 5000);
+            }
+            ticks
+        }
+        let clean = ticks_to_rehome(0, None);
+        // Held ticks (no reply) are not still ticks: they add to the wait.
+        assert_eq!(ticks_to_rehome(4, Some(TIMEOUT)), clean + 4);
+        // A faulted rig does not home by itself, however still the grips.
+        let text = crate::rig::DEFAULT_RIG_RON.replace("fault_recovery_ticks: 30", "fault_recovery_ticks: 0");
+        let mut c = TickCore::new(&Rig::from_str(&text, "t").unwrap()).unwrap();
+        c.command(Command::Home);
+        run(&mut c, 20, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        run(&mut c, 3000, Ok(()));
+        assert!(c.is_awaiting_home() && c.state() == Lifecycle::Faulted);
+        assert_eq!(c.counters().rehomes, 0);
+        assert!(!c.is_homing());
+    }
+
+    #[test]
+    fn homing_settles_on_good_replies_only() {
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle - 2, Ok(()));
+        run(&mut c, 3, Err(TIMEOUT)); // held, not a fault: the settle clock waits
+        assert_eq!(c.state(), Lifecycle::Inactive);
+        run(&mut c, 2, Ok(()));
+        assert!(c.is_homing(), "a held tick is not a settled one");
+        run(&mut c, 1, Ok(()));
+        assert!(c.is_homed());
+    }
+
+    #[test]
+    fn homing_waits_for_two_replies_that_agree() {
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle, Ok(()));
+        let mut out = Output::default();
+        let mut counts = [0i64; MAX_CHANNELS];
+        counts[3] = 4096; // a corrupt reply on the very tick homing takes the counts
+        tick_io(&mut c, &mut out, None, &counts, Ok(()));
+        assert!(c.is_homing() && c.counters().count_jumps == [1, 0]);
+        tick_io(&mut c, &mut out, None, &[0; MAX_CHANNELS], Ok(()));
+        assert!(c.is_homing(), "the good reply disagrees with the corrupt one before it");
+        tick_io(&mut c, &mut out, None, &[0; MAX_CHANNELS], Ok(()));
+        assert!(c.is_homed());
+        assert_eq!(c.hands[0].zero_m, Some(c.rig().hands[0].home_offsets([0; 4], c.rig().hands[0].home_m)));
+    }
+
+    #[test]
+    fn a_fault_while_inactive_or_ramping_out_never_resumes_active() {
+        for ramping_out in [false, true] {
+            let mut c = core();
+            home_and_activate(&mut c);
+            run(&mut c, 600, Ok(()));
+            c.command(if ramping_out { Command::Stop } else { Command::Deactivate });
+            if !ramping_out {
+                run(&mut c, 400, Ok(()));
+                assert_eq!(c.state(), Lifecycle::Inactive);
+            } else {
+                run(&mut c, 50, Ok(()));
+                assert_eq!(c.state(), Lifecycle::Active, "still ramping out");
+            }
+            let (n, need) = (reply_limit(&c), c.rig().safety.fault_recovery_ticks as usize);
+            run(&mut c, n, Err(DeviceError::Corrupt { what: "test" }));
+            assert_eq!(c.state(), Lifecycle::Faulted);
+            run(&mut c, need + 5, Ok(()));
+            assert_eq!(c.state(), Lifecycle::Inactive, "ramping out: {ramping_out}");
+            assert_eq!(c.ramp_gain(), 0.0);
+        }
+    }
+
+    #[test]
+    fn activate_during_a_ramp_out_ramps_back_in() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        run(&mut c, 600, Ok(()));
+        c.command(Command::Deactivate);
+        run(&mut c, 100, Ok(()));
+        let low = c.ramp_gain();
+        assert!(low < 1.0 && low > 0.0);
+        c.command(Command::Activate);
+        let ramp_out = (c.rig().safety.ramp_out_s / c.rig().period_s).round() as usize;
+        run(&mut c, ramp_out, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Active);
+        assert!(c.ramp_gain() > low, "{} after {low}", c.ramp_gain());
+    }
+
+    #[test]
+    fn fault_recovery_ticks_zero_never_recovers() {
+        let text = crate::rig::DEFAULT_RIG_RON.replace("fault_recovery_ticks: 30", "fault_recovery_ticks: 0");
+        let mut c = TickCore::new(&Rig::from_str(&text, "t").unwrap()).unwrap();
+        home_and_activate(&mut c);
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        run(&mut c, 5000, Ok(()));
+        assert_eq!(c.state(), Lifecycle::Faulted);
+        c.command(Command::ClearFault);
+        assert_eq!(c.state(), Lifecycle::Inactive);
     }
 
     /// One tick with a fresh `m` (stamped now); returns the sample and the record.
@@ -815,11 +1667,224 @@ mod tests {
     }
 
     #[test]
+    fn the_scenes_extra_force_is_rendered_as_given_and_every_safety_counter_counts_its_ticks() {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        let extra = |f: DVec3| {
+            let mut m = ContactModel { seq: 1, ..Default::default() };
+            m.extra_force_n = [f, DVec3::ZERO];
+            m
+        };
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(extra(DVec3::ZERO)), &zero, Ok(()));
+        }
+        let base = *c.counters();
+        // The scene's extra force, as given (world and rig axes agree here).
+        let (_, r) = tick_io(&mut c, &mut out, Some(extra(DVec3::new(0.0, 1.0, -2.0))), &zero, Ok(()));
+        assert!((r.hands[0].commanded_n - DVec3::new(0.0, 1.0, -2.0)).length() < 1e-12, "{r:?}");
+        assert!((r.hands[0].output_n - DVec3::new(0.0, 1.0, -2.0)).length() < 1e-9);
+        // 7 ticks above the 4 N limit: clamped 7 times, on hand 0 only.
+        for _ in 0..7 {
+            tick_io(&mut c, &mut out, Some(extra(DVec3::X * 10.0)), &zero, Ok(()));
+        }
+        // 3 ticks of a NaN force: replaced by zero, counted.
+        for _ in 0..3 {
+            let (_, r) = tick_io(&mut c, &mut out, Some(extra(DVec3::NAN)), &zero, Ok(()));
+            assert_eq!(r.hands[0].commanded_n, DVec3::ZERO);
+        }
+        // 5 ticks against a proxy stiffer than the limit, 1 mm deep.
+        let home = c.rig().rig_to_world.point(c.rig().hands[1].home_m);
+        let mut stiff = ContactModel { seq: 2, ..Default::default() };
+        stiff.push(Proxy {
+            id: ProxyId { body: 1, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Y * 0.039, normal: DVec3::Y },
+            k_n_per_m: 1e6,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b10,
+        });
+        for _ in 0..5 {
+            let (_, r) = tick_io(&mut c, &mut out, Some(stiff), &zero, Ok(()));
+            assert!((r.hands[1].commanded_n.y - 4.0).abs() < 1e-9, "5000 N/m x 1 mm = 5 N, clamped to 4");
+        }
+        // 100 ticks with no new model: the ticks past contact_stale_after_s are stale.
+        let (mut stale, mut clamped_fading) = (0, 0);
+        for _ in 0..100 {
+            let (_, r) = tick_io(&mut c, &mut out, None, &zero, Ok(()));
+            stale += (r.contact_age_s > c.rig().safety.contact_stale_after_s) as u64;
+            clamped_fading += r.hands[1].clamped as u64;
+        }
+        assert!((60..=71).contains(&stale), "{stale}");
+        // The stiff contact goes on (fading) while the model ages: clamped while above 4 N.
+        assert!((30..60).contains(&clamped_fading), "{clamped_fading}");
+        let k = c.counters();
+        assert_eq!(k.clamped, [base.clamped[0] + 7, base.clamped[1] + 5 + clamped_fading]);
+        assert_eq!(k.non_finite, base.non_finite + 3);
+        assert_eq!(k.stiffness_limited, [base.stiffness_limited[0], base.stiffness_limited[1] + 5 + 100]);
+        assert_eq!(k.stale, base.stale + stale);
+        assert_eq!(k.active_ticks, base.active_ticks + 1 + 7 + 3 + 5 + 100);
+        assert_eq!(k.infeasible, base.infeasible);
+        assert_eq!(k.fallback, base.fallback);
+        assert_eq!(k.models, base.models + 1 + 7 + 3 + 5);
+    }
+
+    #[test]
+    fn a_grip_outside_its_frame_is_counted_as_fallback_every_tick() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        // Hand 1 walks 1 mm per tick down to 1.5 m below the rig origin, out of its tetrahedron
+        // (zero net force is then infeasible: the box-QP fallback chooses the tensions).
+        let mut fallback = 0;
+        let mut infeasible = 0;
+        for k in 0..1500 {
+            let p = [home[0], home[1] - DVec3::Y * (k as f64 * 1e-3)];
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            assert!(!r.hands[1].held, "walking is not a jump");
+            fallback += (r.hands[1].method == Method::Fallback) as u64;
+            infeasible += (r.hands[1].method == Method::Scaled) as u64;
+        }
+        assert!(fallback > 100, "{fallback}");
+        assert_eq!(c.counters().fallback, [0, fallback]);
+        assert_eq!(c.counters().infeasible, [0, infeasible]);
+    }
+
+    #[test]
+    fn nothing_is_rendered_while_inactive_and_a_contact_pushing_nothing_gives_back_nothing() {
+        let mut c = core();
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        let m = pressing_wall(&c);
+        assert_eq!(c.contact_model(), None);
+        let mut out = Output::default();
+        let zero = [0i64; MAX_CHANNELS];
+        let (s, r) = tick_io(&mut c, &mut out, Some(m), &zero, Ok(()));
+        assert_eq!(c.contact_model().map(|m| m.seq), Some(1), "the newest model is kept");
+        assert_eq!((r.hands[0].rendered_n, r.hands[0].contacts), (DVec3::ZERO, 0), "inactive: no rendering");
+        assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+        // Active, the fist 1 cm inside a heavily damped plane but leaving it at 1 m/s: the damper
+        // cancels the spring (a penalty contact never pulls), so the force and impulses are zero,
+        // not NaN.
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        c.command(Command::Activate);
+        let home = c.rig().hands[0].home_m;
+        let world = c.rig().rig_to_world.point(home);
+        let mut damped = ContactModel { seq: 2, ..Default::default() };
+        damped.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: world - DVec3::Z * 0.03, normal: DVec3::Z },
+            k_n_per_m: 2000.0,
+            d_n_s_per_m: 5000.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        for k in 0..9 {
+            let p = [home + DVec3::Z * (k as f64 * 1e-3), c.rig().hands[1].home_m];
+            let counts = counts_at(&c, p);
+            let (s, r) = tick_io(&mut c, &mut out, Some(damped), &counts, Ok(()));
+            if k > 4 {
+                assert_eq!(r.hands[0].contacts, 1, "tick {k}");
+                assert_eq!(r.hands[0].rendered_n, DVec3::ZERO, "tick {k}");
+                assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO, "tick {k}: {:?}", s.proxy_impulse_n_s[0]);
+                assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+            }
+        }
+    }
+
+    #[test]
+    fn a_force_beyond_what_the_strings_can_render_there_is_counted_as_infeasible() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let mut out = Output::default();
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        // Hand 0 walks 0.3 m to its outer side (-x), where the strings give about 2 N outward.
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.extra_force_n = [DVec3::X * -4.0, DVec3::ZERO];
+        let mut scaled = 0;
+        for k in 0..=300 {
+            let p = [home[0] - DVec3::X * (k as f64 * 1e-3), home[1]];
+            let counts = counts_at(&c, p);
+            let (_, r) = tick_io(&mut c, &mut out, Some(m), &counts, Ok(()));
+            scaled += (r.hands[0].method == Method::Scaled) as u64;
+            if k == 300 {
+                assert_eq!(r.hands[0].method, Method::Scaled);
+                assert!(r.hands[0].output_n.length() < 3.9 && r.hands[0].scale < 1.0, "{:?}", r.hands[0]);
+            }
+        }
+        assert!(scaled > 10);
+        assert_eq!(c.counters().infeasible, [scaled, 0]);
+    }
+
+    #[test]
+    fn names_and_reasons_say_what_they_are() {
+        let names = [Lifecycle::Unconfigured, Lifecycle::Inactive, Lifecycle::Active, Lifecycle::Faulted]
+            .map(Lifecycle::name);
+        assert_eq!(names, ["unconfigured", "inactive", "active", "faulted"]);
+        let says = |f: FaultReason| f.to_string();
+        assert_eq!(says(FaultReason::Device(ErrorKind::Timeout)), "device error (Timeout)");
+        assert!(says(FaultReason::PoseInvalid { hand: 1 }).starts_with("hand 1: pose"));
+        assert!(says(FaultReason::Residual { hand: 0 }).contains("slack string"));
+        assert!(says(FaultReason::CountJump { hand: 1 }).starts_with("hand 1: counts jumped"));
+    }
+
+    #[test]
+    fn events_beyond_the_queue_are_dropped_and_counted() {
+        let mut c = core();
+        for _ in 0..20 {
+            c.command(Command::Activate); // refused: not homed
+        }
+        assert_eq!(c.counters().events_dropped, 4);
+        assert_eq!(std::iter::from_fn(|| c.pop_event()).count(), 16);
+    }
+
+    #[test]
+    fn quiet_only_when_not_active_and_the_force_has_ramped_out() {
+        let mut c = core();
+        assert!(c.is_quiet());
+        c.command(Command::Home);
+        let settle = (HOMING_SETTLE_S / c.rig().period_s).round() as usize;
+        run(&mut c, settle + 1, Ok(()));
+        assert!(c.is_homed() && c.is_quiet());
+        c.command(Command::Activate);
+        assert!(!c.is_quiet(), "active, though the ramp has not risen yet");
+        run(&mut c, 600, Ok(()));
+        assert!(!c.is_quiet(), "active");
+        c.command(Command::Stop);
+        run(&mut c, 100, Ok(()));
+        assert!(!c.is_quiet(), "still ramping out");
+        let ramp_out = (c.rig().safety.ramp_out_s / c.rig().period_s).round() as usize;
+        run(&mut c, ramp_out, Ok(()));
+        assert!(c.is_quiet());
+        // A fault is quiet at once (the ramp is cut).
+        let mut c = core();
+        home_and_activate(&mut c);
+        run(&mut c, 600, Ok(()));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(TIMEOUT));
+        assert!(c.is_quiet());
+    }
+
+    #[test]
+    fn the_loop_counts_into_the_cores_counters() {
+        let mut c = core();
+        c.counters_mut().misses += 2;
+        c.counters_mut().samples_dropped += 1;
+        assert_eq!((c.counters().misses, c.counters().samples_dropped), (2, 1));
+    }
+
+    #[test]
     fn recovery_needs_good_exchanges_in_a_row() {
         let mut c = core();
         home_and_activate(&mut c);
         let need = c.rig().safety.fault_recovery_ticks as usize;
-        run(&mut c, 1, Err(DeviceError::Timeout { waited_us: 1 }));
+        let n = reply_limit(&c);
+        run(&mut c, n, Err(DeviceError::Timeout { waited_us: 1 }));
         for _ in 0..3 {
             run(&mut c, need - 1, Ok(()));
             run(&mut c, 1, Err(DeviceError::Corrupt { what: "test" }));
@@ -827,5 +1892,6 @@ mod tests {
         assert_eq!(c.state(), Lifecycle::Faulted, "a flaky link must not count its good ticks across errors");
         run(&mut c, need, Ok(()));
         assert_eq!(c.state(), Lifecycle::Active);
+        assert_eq!(c.counters().faults, 1);
     }
 }

@@ -25,12 +25,23 @@ impl VelocityFilter {
 
     /// Feeds the pose of this tick and returns the velocity estimate.
     pub fn update(&mut self, pos_m: DVec3) -> DVec3 {
+        self.update_after(pos_m, 1)
+    }
+
+    /// Feeds a pose taken `ticks` periods after the previous one (ticks without a usable pose in
+    /// between were skipped), so the difference is divided by the time that really passed.
+    pub fn update_after(&mut self, pos_m: DVec3, ticks: u32) -> DVec3 {
         if let Some(prev) = self.prev {
-            let raw = (pos_m - prev) * self.inv_dt;
+            let raw = (pos_m - prev) * (self.inv_dt / f64::from(ticks.max(1)));
             self.vel += (raw - self.vel) * self.alpha;
         }
         self.prev = Some(pos_m);
         self.vel
+    }
+
+    /// True once a pose has been fed since the last reset (a velocity exists).
+    pub fn has_history(&self) -> bool {
+        self.prev.is_some()
     }
 
     /// Forgets the history (after a fault or homing, when poses jump).

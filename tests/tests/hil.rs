@@ -5,7 +5,6 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 
 use glam::DVec3;
 use spidar_device::sim::{Script, ScriptFile, Segment, SimRig, Truth};
@@ -24,21 +23,28 @@ mod crowd;
 
 struct Guarded;
 
+// Everything is per thread: tests run in parallel, and one test's deliberate allocation must
+// never show up in another's count.
 thread_local! {
     static FORBID: Cell<bool> = const { Cell::new(false) };
+    /// Allocations refused on this thread, and the size of the first.
+    static FORBIDDEN: Cell<(u64, usize)> = const { Cell::new((0, 0)) };
 }
-static FORBIDDEN_ALLOCS: AtomicU64 = AtomicU64::new(0);
-static FIRST_FORBIDDEN_SIZE: AtomicUsize = AtomicUsize::new(0);
+
+fn refuse(size: usize) -> *mut u8 {
+    let _ = FORBIDDEN.try_with(|f| {
+        let (n, first) = f.get();
+        f.set((n + 1, if n == 0 { size } else { first }));
+    });
+    // Fail the allocation: with the caller's error path this is as loud as it gets, and the
+    // counter tells the test which section did it.
+    std::ptr::null_mut()
+}
 
 unsafe impl GlobalAlloc for Guarded {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         if FORBID.try_with(|f| f.get()).unwrap_or(false) {
-            FORBIDDEN_ALLOCS.fetch_add(1, Ordering::SeqCst);
-            let _ =
-                FIRST_FORBIDDEN_SIZE.compare_exchange(0, layout.size(), Ordering::SeqCst, Ordering::SeqCst);
-            // Fail the allocation: with the caller's error path this is as loud as it gets, and
-            // the counter tells the test which section did it.
-            return std::ptr::null_mut();
+            return refuse(layout.size());
         }
         unsafe { System.alloc(layout) }
     }
@@ -47,8 +53,7 @@ unsafe impl GlobalAlloc for Guarded {
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         if FORBID.try_with(|f| f.get()).unwrap_or(false) {
-            FORBIDDEN_ALLOCS.fetch_add(1, Ordering::SeqCst);
-            return std::ptr::null_mut();
+            return refuse(new_size);
         }
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -63,6 +68,11 @@ fn no_alloc<R>(f: impl FnOnce() -> R) -> R {
     let r = f();
     FORBID.with(|x| x.set(false));
     r
+}
+
+/// Allocations refused on this thread so far, and the size of the first.
+fn forbidden_allocs() -> (u64, usize) {
+    FORBIDDEN.with(|f| f.get())
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -454,23 +464,54 @@ fn clamp_holds_for_any_scene_input() {
 }
 
 #[test]
-fn device_timeout_goes_safe_within_one_tick_then_recovers_and_ramps_in() {
+fn a_late_reply_burst_shorter_than_the_limit_keeps_force_and_a_longer_one_goes_safe_then_recovers() {
     let r = rig();
     let mut v = left_hand_pressing_the_wall(2000.0);
     v.run_ticks(3000);
-    assert!(v.rt.last_record().hands[0].commanded_n.length() > 2.0);
-    v.rt.device_mut().fail_next(3, DeviceError::Timeout { waited_us: 1000 });
+    let pressing = v.rt.last_record().hands[0].commanded_n;
+    assert!(pressing.length() > 2.0);
+    let n = r.safety.reply_fault_ticks;
+    // A burst one shorter than the limit: the pressing force is held, to the newton.
+    v.rt.device_mut().fail_next(n - 1, DeviceError::Timeout { waited_us: 1000 });
+    for _ in 0..n - 1 {
+        let rec = v.tick();
+        assert_eq!(rec.state, Lifecycle::Active);
+        assert!(rec.hands[0].held);
+        assert!((rec.hands[0].commanded_n - pressing).length() < 0.05 * pressing.length());
+    }
+    assert_eq!(v.counters().faults, 0);
+    assert_eq!(v.counters().late_replies, u64::from(n - 1));
+    v.run_ticks(10);
+    // A burst as long as the limit: safe on its last tick.
+    v.rt.device_mut().fail_next(n, DeviceError::Timeout { waited_us: 1000 });
+    v.run_ticks(u64::from(n - 1));
     let rec = v.tick();
     assert_eq!(rec.state, Lifecycle::Faulted);
-    assert_eq!(rec.hands[0].commanded_n, DVec3::ZERO, "safe on the very tick the fault is seen");
+    assert_eq!(rec.hands[0].commanded_n, DVec3::ZERO, "safe on the very tick the run reaches the limit");
     assert!(rec.hands[0].tensions_n.iter().all(|t| *t >= 1.0 - 1e-9), "strings stay taut");
     let recovery = r.safety.fault_recovery_ticks as u64;
     v.run_ticks(recovery + 5);
     assert_eq!(v.rt.state(), Lifecycle::Active, "a transient fault clears itself");
     let gain = v.rt.last_record().gain;
     assert!(gain > 0.0 && gain < 0.1, "force ramps in again: gain {gain}");
-    assert_eq!(v.counters().faults, 1);
-    assert_eq!(v.counters().device_errors, 3);
+    let c = v.counters();
+    assert_eq!((c.faults, c.device_errors, c.late_replies), (1, u64::from(2 * n - 1), u64::from(2 * n - 2)));
+}
+
+#[test]
+fn a_late_reply_at_start_is_retried_and_a_dead_board_is_not() {
+    let r = rig();
+    let hold = [Script::hold(r.hands[0].home_m), Script::hold(r.hands[1].home_m)];
+    let mut dev = sim_device(&r, hold.clone(), &SimOptions::default()).unwrap();
+    dev.fail_next(spidar_rt::runner::PRIME_TRIES - 1, DeviceError::Timeout { waited_us: 900 });
+    let mut v = VirtualRun::new(dev, &r, None).unwrap();
+    v.home_and_activate();
+    v.run_ticks(200);
+    assert_eq!(v.rt.state(), Lifecycle::Active);
+    let mut dev = sim_device(&r, hold, &SimOptions::default()).unwrap();
+    dev.fail_next(spidar_rt::runner::PRIME_TRIES, DeviceError::Timeout { waited_us: 900 });
+    let e = VirtualRun::new(dev, &r, None).err().expect("a board that never answers is an error");
+    assert!(e.to_string().contains("did not answer"), "{e}");
 }
 
 #[test]
@@ -597,7 +638,7 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let lifeline: &'static spidar_rt::Lifeline = Box::leak(Box::default());
     v.rt.set_lifeline(lifeline);
     v.run_ticks(1000); // warm-up: histograms, first models
-    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let (before, _) = forbidden_allocs();
     let mut scene = v.stop_scene().unwrap();
     let mut samples: Vec<HandSample> = Vec::with_capacity(64);
     // Every path of the tick: rendering with contacts, a device fault and its recovery, a
@@ -605,7 +646,11 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let home = [r.hands[0].home_m, r.hands[1].home_m];
     for i in 0..30_000u32 {
         match i {
+            // A short burst (held) and one as long as the limit (a fault and its recovery).
             5_000 => v.rt.device_mut().fail_next(2, DeviceError::Corrupt { what: "test" }),
+            6_000 => {
+                v.rt.device_mut().fail_next(r.safety.reply_fault_ticks, DeviceError::Timeout { waited_us: 1 })
+            }
             12_000 => v.rt.command(Command::Deactivate),
             12_001 => (0..2).for_each(|h| v.rt.device_mut().set_script(h, reach_and_hold(home[h]))),
             14_000 => {
@@ -628,22 +673,18 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
             let _ = v.far.models.try_send(m);
         }
     }
-    let forbidden = FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before;
-    assert_eq!(
-        forbidden,
-        0,
-        "the tick allocated {forbidden} times (first: {} bytes)",
-        FIRST_FORBIDDEN_SIZE.load(Ordering::SeqCst)
-    );
+    let (after, first) = forbidden_allocs();
+    let forbidden = after - before;
+    assert_eq!(forbidden, 0, "the tick allocated {forbidden} times (first: {first} bytes)");
     let c = v.counters();
-    assert!(c.faults >= 1 && c.stale > 0 && c.active_ticks > 25_000, "{c:?}");
+    assert!(c.faults >= 1 && c.late_replies >= 2 && c.stale > 0 && c.active_ticks > 25_000, "{c:?}");
     assert_eq!(v.rt.state(), Lifecycle::Active);
-    assert_eq!(lifeline.beat.load(Ordering::SeqCst), 31_000, "one beat per tick");
+    assert_eq!(lifeline.beat.load(std::sync::atomic::Ordering::SeqCst), 31_000, "one beat per tick");
     // The halt (a second stop signal) zeroes the outputs inside the guard too.
     lifeline.halt();
     assert!(!no_alloc(|| v.rt.tick()));
     assert!(v.rt.halted() && lifeline.done());
-    assert_eq!(FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before, 0, "the halt allocated");
+    assert_eq!(forbidden_allocs().0 - before, 0, "the halt allocated");
 }
 
 /// The same guard over ticks whose world is a socket away: models and samples as datagrams, a
@@ -674,7 +715,7 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
                 &mut st,
                 &mut link,
                 &ServeOptions { lockstep: true },
-                &|| s.load(Ordering::Relaxed),
+                &|| s.load(std::sync::atomic::Ordering::Relaxed),
                 &mut |_| {},
             );
         });
@@ -688,12 +729,12 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
         VirtualRun::with_world_process(dev, &r, &at, None, std::time::Duration::from_secs(30)).unwrap();
     v.home_and_activate();
     v.run_ticks(1000); // warm-up
-    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let (before, _) = forbidden_allocs();
     for i in 0..8000u32 {
         match i {
             3000 => {
                 let (h, stop) = world.take().unwrap();
-                stop.store(true, Ordering::Relaxed);
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
                 h.join().unwrap();
             }
             4000 => world = Some(start_world(&at)),
@@ -702,13 +743,9 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
         no_alloc(|| v.rt.tick());
         v.after_tick();
     }
-    let forbidden = FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before;
-    assert_eq!(
-        forbidden,
-        0,
-        "the tick allocated {forbidden} times (first: {} bytes)",
-        FIRST_FORBIDDEN_SIZE.load(Ordering::SeqCst)
-    );
+    let (after, first) = forbidden_allocs();
+    let forbidden = after - before;
+    assert_eq!(forbidden, 0, "the tick allocated {forbidden} times (first: {first} bytes)");
     let st = v.link_stats().unwrap();
     let g = |c: &std::sync::atomic::AtomicU64| LinkStats::get(c);
     assert_eq!(g(&st.connects), 2, "{}", st.summary());
@@ -716,20 +753,23 @@ fn ticks_with_a_socket_link_run_under_an_allocator_that_fails_on_any_allocation(
     assert!(g(&st.models) > 2000 && g(&st.statuses_sent) > 300, "{}", st.summary());
     assert!(v.counters().stale > 0 && v.counters().clamped.iter().sum::<u64>() > 0);
     let (h, stop) = world.take().unwrap();
-    stop.store(true, Ordering::Relaxed);
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
     h.join().unwrap();
 }
 
 #[test]
 fn the_guard_allocator_does_catch_an_allocation() {
     // Proves the allocator test above can fail.
-    let before = FORBIDDEN_ALLOCS.load(Ordering::SeqCst);
+    let (before, _) = forbidden_allocs();
     let failed = no_alloc(|| {
         let mut v: Vec<u8> = Vec::new();
         std::hint::black_box(v.try_reserve(64).is_err())
     });
     assert!(failed, "the allocation inside the section failed");
-    assert_eq!(FORBIDDEN_ALLOCS.load(Ordering::SeqCst) - before, 1);
+    assert_eq!(forbidden_allocs().0 - before, 1);
+    // Another thread's refused allocation is not counted here.
+    std::thread::spawn(|| no_alloc(|| Vec::<u8>::new().try_reserve(8).is_err())).join().unwrap();
+    assert_eq!(forbidden_allocs().0 - before, 1);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -755,11 +795,13 @@ fn every_default_config_loads() {
             FileKind::CrowdScene => {
                 drop(spidar_sim::character::scene::load_crowd(&p).unwrap_or_else(|e| panic!("{e}")))
             }
-            FileKind::Keyframes => drop(
-                spidar_sim::character::keyframe::KeyframeSet::load(&p).unwrap_or_else(|e| panic!("{e}")),
-            ),
+            FileKind::Keyframes => {
+                drop(spidar_sim::character::keyframe::KeyframeSet::load(&p).unwrap_or_else(|e| panic!("{e}")))
+            }
             FileKind::BodyScene => drop(spidar_sim::load_scene(&p).unwrap_or_else(|e| panic!("{e}"))),
-            FileKind::Body => drop(spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::Body => {
+                drop(spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}")))
+            }
             FileKind::Boxer => drop(spidar_sim::boxer::load_boxer(&p).unwrap_or_else(|e| panic!("{e}"))),
             FileKind::Script => drop(ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"))),
             FileKind::Jig => drop(spidar_calib::jig::JigFile::load(&p).unwrap_or_else(|e| panic!("{e}"))),
@@ -805,7 +847,10 @@ fn a_file_of_any_name_is_taken_for_what_it_says_it_is() {
     assert!(e.contains("a body scene file (kind \"body-scene\")") && e.contains("--scene takes"), "{e}");
     // A loader given another kind names both kinds.
     let e = Rig::load(&renamed).unwrap_err().to_string();
-    assert!(e.contains("a boxer file (kind \"boxer\")") && e.contains("not a rig file (kind \"rig\")"), "{e}");
+    assert!(
+        e.contains("a boxer file (kind \"boxer\")") && e.contains("not a rig file (kind \"rig\")"),
+        "{e}"
+    );
     let e = WallsScene::load(&configs.join("rig-spidar-h.ron")).err().unwrap().to_string();
     assert!(e.contains("a rig file") && e.contains("not a walls scene file"), "{e}");
     let e = ScriptFile::load(&configs.join("jig-spidar-h.ron")).unwrap_err().to_string();
@@ -828,7 +873,8 @@ fn the_example_script_drives_both_hands_as_its_comments_say() {
     let end = s[1].target_at(r.hands[1].home_m, 60.0).pos_m;
     assert!((end - r.hands[1].home_m).length() < 1e-9, "{end}");
     // The left hand's jab reaches 40 cm forward of the rig origin.
-    let front = (0..4000).map(|i| s[0].target_at(r.hands[0].home_m, i as f64 * 1e-3).pos_m.z).fold(0.0, f64::min);
+    let front =
+        (0..4000).map(|i| s[0].target_at(r.hands[0].home_m, i as f64 * 1e-3).pos_m.z).fold(0.0, f64::min);
     assert!((front + 0.40).abs() < 1e-6, "{front}");
 }
 
@@ -849,8 +895,9 @@ fn homing_makes_each_grip_read_its_home_point() {
     .unwrap();
     let mut v = VirtualRun::new(dev, &wrong, None).unwrap();
     v.run_ticks(2);
-    let off = (v.rt.last_record().hands[0].pos_m - r.hands[0].home_m).length();
-    assert!(off > 0.01, "before homing the pose is wrong: {off}");
+    // Before homing, the wrong zero lengths give lengths that disagree: the pose is not used.
+    assert!(!v.rt.last_record().hands[0].valid);
+    assert_eq!(v.counters().residual_high, [2, 2]);
     v.rt.command(Command::Home);
     v.run_ticks(2);
     assert!(v.rt.core().is_homing(), "homing waits for the strings to settle");
@@ -870,6 +917,12 @@ mod uart_pty;
 
 #[path = "hil/boxing.rs"]
 mod boxing;
+
+#[path = "hil/corrupt.rs"]
+mod corrupt;
+
+#[path = "hil/record.rs"]
+mod record;
 
 // The rig and the world as two processes.
 #[path = "hil/link.rs"]

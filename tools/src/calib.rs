@@ -153,7 +153,7 @@ fn check_device_args(d: &DeviceArgs) -> anyhow::Result<()> {
 }
 
 fn load_rig(path: &Path) -> anyhow::Result<(Rig, String)> {
-    let text = std::fs::read_to_string(path)
+    let text = spidar_config::read_capped(path, spidar_config::MAX_FILE_BYTES)
         .with_context(|| format!("reading the rig file {} (give one with --rig)", path.display()))?;
     let rig = Rig::from_str(&text, &path.display().to_string())?;
     Ok((rig, text))
@@ -199,9 +199,7 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;
             let name = format!("{} ({})", dev.info().board, dev.info().identity);
-            for w in hardware::check_rig_against(rig, dev.info()) {
-                eprintln!("warning: {w}");
-            }
+            hardware::check_rig_against(rig, dev.info())?;
             Ok((Opened::Board(dev), name))
         }
     }

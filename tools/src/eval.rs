@@ -29,7 +29,7 @@ use spidar_world::boxing::BoxingScene;
 use spidar_world::Scene;
 
 /// Median and 99th percentile of a set of durations (ns), in ms.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Spread {
     pub n: usize,
     pub median_ms: f64,
@@ -66,6 +66,7 @@ impl fmt::Display for Spread {
 }
 
 /// What a timed bout measured.
+#[derive(serde::Serialize)]
 pub struct BoutTiming {
     pub seconds: f64,
     /// World steps without a prediction in them.
@@ -199,6 +200,7 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<(Vec<f64>, Bo
 }
 
 /// The experiment's result for one mode.
+#[derive(serde::Serialize)]
 pub struct Confusion {
     /// counts[target][answer]
     pub counts: [[usize; 4]; 4],
@@ -251,6 +253,7 @@ fn observe(samples: &[(usize, Vec<f64>)]) -> Confusion {
     Confusion { counts }
 }
 
+#[derive(serde::Serialize)]
 pub struct Reactions {
     pub trials: usize,
     pub active: Confusion,

@@ -213,14 +213,14 @@ fn watch(imp: &Impact, rng: &mut Crowd) -> Result<Features, SimError> {
 }
 
 /// Per-parameter scores.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Score {
     pub accuracy: f64,
     pub mean: f64,
     pub std: f64,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct ImpactReport {
     pub trials: usize,
     pub practice: usize,

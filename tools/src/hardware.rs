@@ -172,41 +172,19 @@ pub fn open_hardware(choice: &HardwareChoice) -> anyhow::Result<Box<dyn Device>>
     })
 }
 
-/// Warnings when the rig file asks for more than the board can give: channels it lacks, or
-/// tensions whose volts the board's DA range clips.
-pub fn check_rig_against(rig: &Rig, info: &DeviceInfo) -> Vec<String> {
-    let mut w = Vec::new();
+/// Refuses a board that cannot give what the rig file asks: channels it lacks, or tensions whose
+/// volts the board's DA range clips (unless the rig overrides `board_range`; the bound itself is
+/// `Rig::check_board_range`).
+pub fn check_rig_against(rig: &Rig, info: &DeviceInfo) -> anyhow::Result<()> {
     if rig.channels() > info.channels {
-        w.push(format!(
+        bail!(
             "the rig file uses {} channels but {} has {}: check the strings' channel numbers",
             rig.channels(),
             info.board,
             info.channels
-        ));
+        );
     }
-    let mut clipped: Vec<String> = Vec::new();
-    for (h, hr) in rig.hands.iter().enumerate() {
-        for s in 0..4 {
-            let v = hr.tension_max_n * hr.volts_per_newton[s].abs();
-            if v > info.volts_max + 1e-9 {
-                clipped.push(format!(
-                    "hand {h} string {s}: {} N needs {v:.2} V, the board stops at {:.2} V ({:.1} N)",
-                    hr.tension_max_n,
-                    info.volts_max,
-                    info.volts_max / hr.volts_per_newton[s].abs()
-                ));
-            }
-        }
-    }
-    if !clipped.is_empty() {
-        w.push(format!(
-            "tension_max_n is beyond the board's DA range on {} strings (first: {}): the board clips those \
-             commands; lower tension_max_n in the rig file or check volts_per_newton",
-            clipped.len(),
-            clipped[0]
-        ));
-    }
-    w
+    rig.check_board_range(&info.board, info.volts_max).map_err(anyhow::Error::msg)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -3,11 +3,14 @@
 //! The binary (`main.rs`) only parses arguments and calls into here.
 
 pub mod bench;
+pub mod bench_record;
 pub mod calib;
 pub mod child_world;
 pub mod eval;
 pub mod eval_impacts;
 pub mod hardware;
+pub mod recording;
+pub mod report;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

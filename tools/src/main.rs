@@ -13,12 +13,13 @@ use anyhow::bail;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use spidar_device::Device;
-use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
 use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
 use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_tools::report;
 use spidar_tools::session::{
     self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualOptions, WorldChoice,
 };
@@ -109,7 +110,17 @@ enum Cmd {
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
+        /// Print the results as JSON, for scripts.
+        #[arg(long, global = true)]
+        json: bool,
     },
+    /// Print what a recording (`run --record`) holds; with --verify, re-run the rt-loop from its
+    /// recorded inputs and check every output bit for bit.
+    Replay(spidar_tools::recording::ReplayArgs),
+    /// Write one CSV file per channel of a recording, each with a header line.
+    Export(spidar_tools::recording::ExportArgs),
+    /// Plot a recording as SVG: force per hand, tensions per string, lateness, events and hits.
+    Plot(spidar_tools::recording::PlotArgs),
 }
 
 #[derive(Subcommand)]
@@ -199,6 +210,10 @@ struct RigArgs {
     /// Pin the loop thread to this CPU.
     #[arg(long)]
     cpu: Option<usize>,
+    /// Accept a rig value beyond its physical bound (a key of the rig file's `overrides`, e.g.
+    /// board_range); repeatable. The summary shows every override in effect.
+    #[arg(long = "override", value_name = "KEY")]
+    overrides: Vec<String>,
     /// Sleep to this many microseconds before each deadline, then busy-wait: hides the kernel's
     /// wake-up latency at the cost of that much CPU per millisecond.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=900))]
@@ -263,6 +278,13 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
+    /// contact model, the events, and the files that made the session. See docs/recording.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
+    /// Print the summary as JSON, for scripts.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -277,6 +299,22 @@ enum BenchCmd {
         /// Alternations between the two loops.
         #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
+    },
+    /// Wake-up lateness of live sessions with and without --record (alternating blocks), and the
+    /// recording's size per hour.
+    Record {
+        #[command(flatten)]
+        rig: RigArgs,
+        /// Seconds of session for each arm.
+        #[arg(long, default_value_t = 60.0)]
+        seconds: f64,
+        /// Alternations between the two arms.
+        #[arg(long, default_value_t = 6)]
+        blocks: u32,
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        #[arg(long, default_value = "box")]
+        script: String,
     },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
     /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
@@ -318,17 +356,24 @@ enum BenchCmd {
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
     Ok(match &args.rig {
-        Some(p) => Rig::load(p)?,
-        None => Rig::default_rig(),
+        Some(p) => Rig::load_with_overrides(p, &args.overrides)?,
+        None => Rig::from_str_with_overrides(
+            spidar_rt::rig::DEFAULT_RIG_RON,
+            spidar_rt::rig::DEFAULT_RIG_NAME,
+            &args.overrides,
+        )?,
     })
 }
 
-fn rt_options(args: &RigArgs) -> RtOptions {
-    if args.no_rt {
+fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
+    if let Some(cpu) = args.cpu {
+        rt_thread::check_cpu(cpu).map_err(|e| anyhow::anyhow!("--cpu {cpu}: {e}"))?;
+    }
+    Ok(if args.no_rt {
         RtOptions { fifo_priority: None, lock_memory: false, cpu: args.cpu, ..RtOptions::default() }
     } else {
         RtOptions { fifo_priority: Some(args.priority), cpu: args.cpu, ..RtOptions::default() }
-    }
+    })
 }
 
 fn main() -> ExitCode {
@@ -358,19 +403,26 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         }
         Cmd::Calib { what } => spidar_tools::calib::run(what).map(|_| 0),
         Cmd::Emulate(a) => emulate(a).map(|_| 0),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds } } => {
+        Cmd::Replay(a) => spidar_tools::recording::replay(&a).map(|_| 0),
+        Cmd::Export(a) => spidar_tools::recording::export(&a).map(|_| 0),
+        Cmd::Plot(a) => spidar_tools::recording::plot(&a).map(|_| 0),
+        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            let mut bout = None;
             if bout_seconds > 0.0 {
                 errln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
-                outln!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
-                outln!("  world step   {}", b.step);
-                outln!("  prediction   {}", b.prediction);
-                outln!("  step+predict {}", b.step_with_prediction);
-                let [med, p99, max] = b.prediction_steps;
-                outln!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
-                outln!("  rt misses    {}", b.misses);
-                outln!("  scene        {}\n", b.status);
+                if !json {
+                    outln!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                    outln!("  world step   {}", b.step);
+                    outln!("  prediction   {}", b.prediction);
+                    outln!("  step+predict {}", b.step_with_prediction);
+                    let [med, p99, max] = b.prediction_steps;
+                    outln!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
+                    outln!("  rt misses    {}", b.misses);
+                    outln!("  scene        {}\n", b.status);
+                }
+                bout = Some(b);
             }
             let r = eval::reactions(trials as usize, seed, |done, total| {
                 if done % 16 == 0 || done == total {
@@ -378,7 +430,12 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 }
             })?;
             term::progress_done();
-            outln!("{r}");
+            if json {
+                let j = serde_json::json!({ "command": "eval reactions", "bout": bout, "reactions": r });
+                outln!("{j:#}");
+            } else {
+                outln!("{r}");
+            }
             Ok(0)
         }
         Cmd::Devices { probe, port } => {
@@ -394,13 +451,13 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 scripts,
                 exchanges,
                 seconds,
-                &rt_options(&rig),
+                &rt_options(&rig)?,
                 Duration::from_micros(reply_timeout_us),
             )?;
             outln!("{rep}");
             Ok(0)
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed } } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             let o = ImpactOptions {
                 trials: trials as usize,
@@ -414,7 +471,28 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 }
             })?;
             term::progress_done();
-            outln!("{report}");
+            if json {
+                outln!("{:#}", serde_json::json!({ "command": "eval impacts", "report": report }));
+            } else {
+                outln!("{report}");
+            }
+            Ok(0)
+        }
+        Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
+            let r = load_rig(&rig)?;
+            errln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
+            let rep = spidar_tools::bench_record::bench_record(
+                &r,
+                &spidar_tools::bench_record::RecordBenchOptions {
+                    seconds_each: seconds,
+                    blocks,
+                    rt: rt_options(&rig)?,
+                    scene,
+                    script,
+                    dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
+                },
+            )?;
+            outln!("{rep}");
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
@@ -427,7 +505,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 &LinkBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     scene,
                     echoes,
                     world: ChildWorldSpec::this_executable("walls", 0)?,
@@ -445,7 +523,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 &RtBenchOptions {
                     seconds_each: seconds,
                     blocks,
-                    rt: rt_options(&rig),
+                    rt: rt_options(&rig)?,
                     spin_ns: rig.spin_us * 1000,
                 },
             )?;
@@ -542,9 +620,12 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
             }
         }
     } else {
-        for (id, flag) in
-            [("script", "--script"), ("seed", "--seed"), ("noise_counts", "--noise-counts"), ("slack", "--slack")]
-        {
+        for (id, flag) in [
+            ("script", "--script"),
+            ("seed", "--seed"),
+            ("noise_counts", "--noise-counts"),
+            ("slack", "--slack"),
+        ] {
             if given(id) {
                 bail!(
                     "{flag} applies to the simulated rig only (--device sim): on real boards the hands are a \
@@ -556,7 +637,9 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
             bail!("--port applies to --device uart only: USB boards are found by their USB id (pick one with --switch)");
         }
         if a.device == DeviceKind::Uart && given("switch") {
-            bail!("--switch picks one of several USB boards: it does not apply to --device uart (use --port)");
+            bail!(
+                "--switch picks one of several USB boards: it does not apply to --device uart (use --port)"
+            );
         }
     }
     if a.virtual_clock {
@@ -586,7 +669,9 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
         match a.world.as_str() {
             "child" => {}
             "thread" => {
-                for (id, flag) in [("world_restarts", "--world-restarts"), ("world_timeout_s", "--world-timeout-s")] {
+                for (id, flag) in
+                    [("world_restarts", "--world-restarts"), ("world_timeout_s", "--world-timeout-s")]
+                {
                     if given(id) {
                         bail!("{flag} applies to a world process; --world thread runs the world in this process");
                     }
@@ -654,6 +739,21 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
         }
     };
+    // Created before the device opens: a path that cannot be written stops the run here.
+    let mut recorder = match &a.record {
+        Some(path) => {
+            let info = spidar_tools::recording::session_info(
+                a.rig.rig.as_deref(),
+                &scene_arg,
+                &a.script,
+                &format!("{:?}", a.device),
+                a.seed,
+                a.virtual_clock,
+            )?;
+            Some(spidar_tools::recording::create(path, &info)?)
+        }
+        None => None,
+    };
     let (dev, script_name): (Box<dyn Device>, String) = match choice {
         None => {
             let scripts = load_scripts(&a.script, &rig, a.seed)?;
@@ -681,14 +781,16 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 dev.info().identity,
                 scene_name,
                 if supervised.is_some() {
-                    format!("; supervisor pid {} watches this rig process (pid {})", parent_pid(), std::process::id())
+                    format!(
+                        "; supervisor pid {} watches this rig process (pid {})",
+                        parent_pid(),
+                        std::process::id()
+                    )
                 } else {
                     String::new()
                 }
             );
-            for w in hardware::check_rig_against(&rig, dev.info()) {
-                errln!("warning: {w}");
-            }
+            hardware::check_rig_against(&rig, dev.info())?;
             errln!("hold each grip at its home point: the rig homes as it starts");
             (dev, "none (a person's hands on real boards)".to_string())
         }
@@ -712,10 +814,15 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 scene_name,
                 script_name,
                 supervisor: supervised,
+                recorder: recorder.take(),
             },
         )?;
-        outln!("{summary}");
-        session::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+        if a.json {
+            outln!("{:#}", report::virtual_json(&summary));
+        } else {
+            outln!("{summary}");
+        }
+        report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
         return Ok(0);
     }
 
@@ -725,7 +832,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         world,
         LiveOptions {
             seconds: a.seconds,
-            rt: rt_options(&a.rig),
+            rt: rt_options(&a.rig)?,
             spin_ns: a.rig.spin_us * 1000,
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
@@ -734,9 +841,21 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
             supervisor: supervised,
+            recorder: match recorder {
+                Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
+                None => None,
+            },
         },
     )?;
-    outln!("{summary}");
+    let recording = summary.recording.clone();
+    if a.json {
+        outln!("{:#}", report::run_json(&summary, recording.as_ref()));
+    } else {
+        outln!("{summary}");
+        if let Some(r) = &recording {
+            outln!("  recording    {r}");
+        }
+    }
     let lat = summary.stats.lateness.percentiles();
     if summary.counters.misses > 0 {
         errln!(
@@ -748,7 +867,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     if !summary.clean_stop {
         bail!("the loop did not stop cleanly");
     }
-    session::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+    report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
     Ok(0)
 }
 

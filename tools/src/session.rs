@@ -353,6 +353,8 @@ pub struct VirtualOptions {
     pub script_name: String,
     /// The page shared with a supervising process (real boards), if any.
     pub supervisor: Option<&'static Shared>,
+    /// Records every tick, the ramp-out included (`spidar run --virtual --record`).
+    pub recorder: Option<spidar_record::writer::Recorder>,
 }
 
 /// What a virtual run reports at the end.
@@ -374,6 +376,8 @@ pub struct VirtualSummary {
     pub clean_stop: bool,
     pub halted: bool,
     pub signals: u32,
+    /// What `VirtualOptions::recorder` wrote.
+    pub recording: Option<spidar_record::writer::RecordingReport>,
 }
 
 impl std::fmt::Display for VirtualSummary {
@@ -411,13 +415,22 @@ impl std::fmt::Display for VirtualSummary {
             c.faults,
             c.device_errors
         )?;
+        write_held(f, c)?;
         write!(f, "{}", self.faults_seen)?;
+        if let Some(r) = &self.recording {
+            writeln!(f, "  recording    {r}")?;
+        }
         let by = match self.signals {
             0 => String::new(),
             1 => ", on a stop signal".into(),
             n => format!(", on {n} stop signals"),
         };
-        write!(f, "  end          {} ({}{by})", self.final_state.name(), end_words(self.clean_stop, self.halted))
+        write!(
+            f,
+            "  end          {} ({}{by})",
+            self.final_state.name(),
+            end_words(self.clean_stop, self.halted)
+        )
     }
 }
 
@@ -428,9 +441,10 @@ pub fn run_virtual<D: Device>(
     dev: D,
     rig: &Rig,
     scene: Box<dyn Scene>,
-    opts: VirtualOptions,
+    mut opts: VirtualOptions,
 ) -> anyhow::Result<VirtualSummary> {
     let mut v = VirtualRun::new(dev, rig, Some(scene))?;
+    let mut recorder = opts.recorder.take();
     let lifeline: &'static Lifeline = match opts.supervisor {
         Some(s) => &s.lifeline,
         None => Box::leak(Box::default()),
@@ -468,6 +482,9 @@ pub fn run_virtual<D: Device>(
             break;
         }
         let rec = *v.rt.last_record();
+        if let Some(w) = recorder.as_mut() {
+            w.write_tick(&rec);
+        }
         v.stats.add(&rec);
         v.after_tick();
         states.see(&rec);
@@ -490,6 +507,16 @@ pub fn run_virtual<D: Device>(
     }
     out.finish();
     let wall_s = t0.elapsed().as_secs_f64();
+    let c = *v.counters();
+    let recording = recorder.map(|w| {
+        w.finish(&spidar_record::writer::EndInfo {
+            ticks: c.ticks,
+            telemetry_dropped: 0,
+            final_state: v.rt.state().name().into(),
+            clean_stop: v.rt.is_finished(),
+            faults: c.faults,
+        })
+    });
     Ok(VirtualSummary {
         device: opts.device,
         scene: opts.scene_name,
@@ -505,7 +532,24 @@ pub fn run_virtual<D: Device>(
         halted: v.rt.halted(),
         signals: opts.stop.count(),
         stats: std::mem::replace(&mut v.stats, Stats::new()),
+        recording,
     })
+}
+
+/// The ticks that held the last safe output (a late, missing or rejected reply) and why.
+fn write_held(f: &mut std::fmt::Formatter<'_>, c: &Counters) -> std::fmt::Result {
+    writeln!(
+        f,
+        "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
+        c.held[0],
+        c.held[1],
+        c.late_replies,
+        c.count_jumps[0],
+        c.count_jumps[1],
+        c.residual_high[0],
+        c.residual_high[1],
+        c.rehomes
+    )
 }
 
 /// A line for each change of the rig's state, so a log (and an operator) sees when the rig
@@ -565,6 +609,10 @@ pub struct Summary {
     pub halted: bool,
     /// Stop signals received (0: the run ended by its time limit or by itself).
     pub signals: u32,
+    /// What `LiveOptions::recorder` wrote.
+    pub recording: Option<spidar_record::writer::RecordingReport>,
+    /// Rig-file bounds overridden for this run (shown, never silent).
+    pub overrides: Vec<String>,
 }
 
 /// Faults and refused commands seen during a session, counted per kind in the order each kind
@@ -614,19 +662,6 @@ impl std::fmt::Display for FaultTally {
     }
 }
 
-/// Fails a run that ended faulted or whose rig never became active, so scripts and CI see it in
-/// the exit status (the summary says the same in words).
-pub fn check_outcome(final_state: Lifecycle, counters: &Counters, faults_seen: &FaultTally) -> anyhow::Result<()> {
-    if final_state == Lifecycle::Faulted {
-        let why = faults_seen.last().unwrap_or("see the summary");
-        bail!("the session ended faulted ({why})");
-    }
-    if counters.active_ticks == 0 {
-        bail!("the rig never became active: it was not homed, or a fault or a stop came first (see the summary's faults)");
-    }
-    Ok(())
-}
-
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let c = &self.counters;
@@ -640,6 +675,9 @@ impl std::fmt::Display for Summary {
             self.wall_s, self.device, self.scene, self.script
         )?;
         writeln!(f, "  real time    {}", self.rt)?;
+        if !self.overrides.is_empty() {
+            writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
+        }
         for w in &self.rt.warnings {
             writeln!(f, "  warning      {w}")?;
         }
@@ -672,6 +710,7 @@ impl std::fmt::Display for Summary {
             "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
         )?;
+        write_held(f, c)?;
         write!(f, "{}", self.faults_seen)?;
         let late = self.scene_late.map_or(String::new(), |n| format!(" ({n} late)"));
         writeln!(
@@ -699,7 +738,12 @@ impl std::fmt::Display for Summary {
             1 => ", on a stop signal".into(),
             n => format!(", on {n} stop signals"),
         };
-        write!(f, "  end          {} ({}{by})", self.final_state.name(), end_words(self.clean_stop, self.halted))
+        write!(
+            f,
+            "  end          {} ({}{by})",
+            self.final_state.name(),
+            end_words(self.clean_stop, self.halted)
+        )
     }
 }
 
@@ -751,6 +795,8 @@ pub struct LiveOptions {
     pub world_priority: Option<u8>,
     /// The page shared with a supervising process (`spidar run` on real boards), if any.
     pub supervisor: Option<&'static Shared>,
+    /// Records every tick (`spidar run --record`): `run_live` feeds it the telemetry.
+    pub recorder: Option<spidar_record::writer::RecorderThread>,
 }
 
 /// One per session: its size does not matter.
@@ -960,6 +1006,10 @@ impl<D: Device + 'static> LiveSession<D> {
                 Event::DeviceReopened => {
                     self.faults_seen.push("device reopened after a disconnect: home again".into())
                 }
+                Event::HomeNeeded => self.faults_seen.push(
+                    "homing lost: hold both grips still at their home points (the rig homes itself) or send Home"
+                        .into(),
+                ),
                 Event::Stopped => self.stopped = true,
                 _ => {}
             }
@@ -1157,6 +1207,8 @@ impl<D: Device + 'static> LiveSession<D> {
             clean_stop: rt.is_finished(),
             halted: rt.halted(),
             signals,
+            recording: None,
+            overrides: Vec::new(),
         })
     }
 }
@@ -1168,21 +1220,31 @@ pub fn run_live<D: Device + 'static>(
     dev: D,
     rig: &Rig,
     world: WorldChoice,
-    opts: LiveOptions,
+    mut opts: LiveOptions,
 ) -> anyhow::Result<Summary> {
     let mut s = LiveSession::start(dev, rig, world, &opts)?;
+    let mut recorder = opts.recorder.take();
     let mut out = StatusOut::new(opts.status_every.unwrap_or(Duration::from_millis(500)));
     let said = std::cell::RefCell::new(Vec::new());
     let mut say = |line: String| said.borrow_mut().push(line);
-    let mut states = StateLines::default();
-    loop {
-        let running = s.poll(&mut |r| states.see(r), &mut say);
-        for line in states.lines.drain(..) {
+    let states = std::cell::RefCell::new(StateLines::default());
+    let mut each = |r: &TickRecord| {
+        states.borrow_mut().see(r);
+        if let Some(rec) = recorder.as_mut() {
+            rec.push(r);
+        }
+    };
+    let tell = |out: &mut StatusOut| {
+        for line in states.borrow_mut().lines.drain(..) {
             out.say(&line);
         }
         for line in said.borrow_mut().drain(..) {
             out.say(&format!("world: {line}"));
         }
+    };
+    loop {
+        let running = s.poll(&mut each, &mut say);
+        tell(&mut out);
         if !running {
             break;
         }
@@ -1205,13 +1267,18 @@ pub fn run_live<D: Device + 'static>(
         }
         std::thread::sleep(Duration::from_millis(5));
     }
+    // The loop's last records (sent before its `Stopped`) may still be queued.
+    s.poll(&mut each, &mut say);
+    tell(&mut out);
     out.finish();
-    let signals = opts.stop.count();
-    let r = s.finish(signals, &mut say);
-    for line in said.borrow_mut().drain(..) {
-        out.say(&format!("world: {line}"));
+    let summary = s.finish(opts.stop.count(), &mut say);
+    tell(&mut out);
+    let mut summary = summary?;
+    summary.overrides = rig.overrides.clone();
+    if let Some(r) = recorder {
+        summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
     }
-    r
+    Ok(summary)
 }
 
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
@@ -1220,7 +1287,10 @@ pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let Some(last) = w.last else { return "waiting for the first tick".into() };
     let p = w.lateness.percentiles();
     let f = |h: usize| last.hands[h].output_n.length();
-    let fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    let mut fault = last.fault.map(|f| format!(" ({f})")).unwrap_or_default();
+    if last.awaiting_home {
+        fault.push_str(" (hold both grips still at home to re-home)");
+    }
     format!(
         "t {:6.1} s  {}{}  {:6.1} Hz  late p99 {:>8}  force L {:4.1} N R {:4.1} N (max {:4.1}/{:4.1})  gain {:.2}  faults {}  scene steps {}",
         last.t_s,

@@ -91,7 +91,8 @@ impl Page {
         // SAFETY: a NUL-terminated name and plain flags; the result is checked.
         let raw = unsafe { libc::memfd_create(c"spidar-supervisor".as_ptr(), libc::MFD_CLOEXEC) };
         if raw < 0 {
-            return Err(std::io::Error::last_os_error()).context("creating the supervisor's shared page (memfd_create)");
+            return Err(std::io::Error::last_os_error())
+                .context("creating the supervisor's shared page (memfd_create)");
         }
         // SAFETY: a descriptor we just created and nobody else owns.
         let fd = unsafe { OwnedFd::from_raw_fd(raw) };
@@ -109,7 +110,9 @@ impl Page {
         if unsafe { libc::fstat(fd.as_raw_fd(), &mut st) } != 0 {
             return Err(std::io::Error::last_os_error()).context("checking the supervisor's shared page");
         }
-        if (st.st_mode & libc::S_IFMT) != libc::S_IFREG || (st.st_size as usize) < std::mem::size_of::<Shared>() {
+        if (st.st_mode & libc::S_IFMT) != libc::S_IFREG
+            || (st.st_size as usize) < std::mem::size_of::<Shared>()
+        {
             bail!("descriptor {} is not the supervisor's shared page", fd.as_raw_fd());
         }
         // SAFETY: a fresh shared mapping of a file at least `page_len()` long; checked for failure.
@@ -160,11 +163,9 @@ pub fn attach_from_env() -> anyhow::Result<Option<&'static Shared>> {
         return Ok(None);
     };
     std::env::remove_var(ENV_FD);
-    let raw: RawFd = v
-        .to_str()
-        .and_then(|s| s.parse().ok())
-        .filter(|fd| *fd > 2)
-        .with_context(|| format!("{ENV_FD}={v:?} is not a descriptor number (it is set by spidar's supervisor)"))?;
+    let raw: RawFd = v.to_str().and_then(|s| s.parse().ok()).filter(|fd| *fd > 2).with_context(|| {
+        format!("{ENV_FD}={v:?} is not a descriptor number (it is set by spidar's supervisor)")
+    })?;
     // SAFETY: F_GETFD only asks whether the descriptor is open.
     if unsafe { libc::fcntl(raw, libc::F_GETFD) } < 0 {
         bail!("{ENV_FD}={raw}: no such descriptor (it is set by spidar's supervisor, not by hand)");
@@ -187,7 +188,11 @@ pub fn attached() -> Option<&'static Shared> {
 
 /// Starts `program args` as the rig process with the page: it keeps the page's descriptor
 /// across exec and gets SIGTERM (its clean stop) if this process dies.
-pub fn spawn_rig(page: &Page, program: &std::path::Path, args: &[std::ffi::OsString]) -> anyhow::Result<Child> {
+pub fn spawn_rig(
+    page: &Page,
+    program: &std::path::Path,
+    args: &[std::ffi::OsString],
+) -> anyhow::Result<Child> {
     let fd = page.raw_fd();
     let parent = std::process::id();
     let mut cmd = Command::new(program);
@@ -523,7 +528,8 @@ mod tests {
     fn a_clean_end_leaves_the_boards_alone_and_passes_the_exit_status_on() {
         let page = Page::create().unwrap();
         let shared = page.shared();
-        let mut child = spawn_rig(&page, std::path::Path::new("sh"), &["-c".into(), "exit 1".into()]).unwrap();
+        let mut child =
+            spawn_rig(&page, std::path::Path::new("sh"), &["-c".into(), "exit 1".into()]).unwrap();
         shared.set_driving();
         shared.lifeline.beat.store(Lifeline::DONE, Ordering::SeqCst);
         let ended = watch(&mut child, shared, &Stop::detached(), STALL).unwrap();
@@ -554,11 +560,8 @@ mod tests {
     #[test]
     fn a_failed_takeover_says_to_use_the_emergency_stop() {
         let mut said = Vec::new();
-        let code = finish(
-            &Ended::Hung { stalled: STALL },
-            &mut || anyhow::bail!("no board"),
-            &mut |l| said.push(l),
-        );
+        let code =
+            finish(&Ended::Hung { stalled: STALL }, &mut || anyhow::bail!("no board"), &mut |l| said.push(l));
         assert_eq!(code, EXIT_TAKEOVER_FAILED);
         assert!(said[0].contains("emergency stop"), "{said:?}");
     }

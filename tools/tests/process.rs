@@ -161,7 +161,8 @@ fn slow_ramp_rig(dir: &Path) -> PathBuf {
 // ---------------------------------------------------------------------------------------------
 // Signals on the simulated rig.
 
-const SIM_LIVE: &[&str] = &["run", "--no-rt", "--seconds", "600", "--quiet", "--scene", "walls", "--script", "tour"];
+const SIM_LIVE: &[&str] =
+    &["run", "--no-rt", "--seconds", "600", "--quiet", "--scene", "walls", "--script", "tour"];
 
 #[test]
 fn every_stop_signal_ends_a_live_run_with_the_clean_stop_and_its_summary() {
@@ -198,14 +199,20 @@ fn a_second_signal_stops_at_once_with_the_outputs_zeroed() {
     p.wait_for("stopping at once");
     let (status, out, err) = p.end();
     assert_eq!(status.code(), Some(0), "{out}\n{err}");
-    assert!(out.contains("stopped at once: outputs zeroed without the ramp-out, device off, on 2 stop signals"), "{out}");
+    assert!(
+        out.contains("stopped at once: outputs zeroed without the ramp-out, device off, on 2 stop signals"),
+        "{out}"
+    );
 }
 
 #[test]
 fn a_virtual_run_shows_its_state_and_stops_on_a_signal_with_its_summary() {
     let _s = serial();
     for sig in [libc::SIGINT, libc::SIGTERM] {
-        let mut p = Proc::start(&["run", "--virtual", "--seconds", "100000", "--scene", "walls", "--script", "tour"], &[]);
+        let mut p = Proc::start(
+            &["run", "--virtual", "--seconds", "100000", "--scene", "walls", "--script", "tour"],
+            &[],
+        );
         p.wait_for("rig: active");
         p.signal(sig);
         let (status, out, err) = p.end();
@@ -257,7 +264,7 @@ fn motors(emu: &Emulator) -> [i16; 16] {
     emu.control().boards().motor_commands()
 }
 
-/// `spidar run` on the emulator's boards, until its loop drives them; `stall_ms`: the supervisor's
+/// `spidar run` on the emulator's boards, until its loop drives them and the rig is active; `stall_ms`: the supervisor's
 /// stall limit (a long one where no hang is tested, so a busy machine's scheduling stall of the
 /// unprivileged loop is not taken for one).
 fn run_on_boards(dir: &Path, stall_ms: u64) -> (Proc, i32) {
@@ -268,28 +275,32 @@ fn run_on_boards_with(dir: &Path, stall_ms: u64, more: &[&str]) -> (Proc, i32) {
     let port = dir.join("uart");
     let stall = stall_ms.to_string();
     let mut args = vec![
-            "run",
-            "--device",
-            "uart",
-            "--port",
-            port.to_str().unwrap(),
-            "--no-rt",
-            "--seconds",
-            "600",
-            "--quiet",
-            "--scene",
-            "walls",
-            "--world",
-            "thread",
+        "run",
+        "--device",
+        "uart",
+        "--port",
+        port.to_str().unwrap(),
+        "--no-rt",
+        // The emulator runs in this test process without SCHED_FIFO: on a busy machine its
+        // replies can be late by milliseconds, which is not what these tests are about.
+        "--reply-timeout-us",
+        "20000",
+        "--seconds",
+        "600",
+        "--quiet",
+        "--scene",
+        "walls",
+        "--world",
+        "thread",
     ];
     args.extend(more);
     let mut p = Proc::start(&args, &[("SPIDAR_SUPERVISOR_STALL_MS", &stall)]);
     let l = p.wait_for("watches this rig process (pid ");
     let rig_pid: i32 = l.rsplit("(pid ").next().unwrap().trim_end_matches(')').parse().unwrap();
     assert_ne!(rig_pid, p.pid(), "the rig is a child of the supervisor");
-    // Inactive, homing or active, the loop holds the strings at least at minimum tension: what a
-    // dead process would leave on them.
-    p.wait_for("rig: inactive");
+    // Homed and rendering: a late reply on this busy machine holds the last output for its tick
+    // (it is no fault), so the rig becomes active as it would on a quiet one.
+    p.wait_for("rig: active");
     (p, rig_pid)
 }
 
@@ -303,8 +314,7 @@ fn on_real_boards_sigterm_to_the_supervisor_stops_the_rig_cleanly() {
     p.signal(libc::SIGTERM); // systemd's stop, `kill PID`: the supervisor alone
     let (status, out, err) = p.end();
     assert!(out.contains("device off, on a stop signal)"), "{out}\n{err}");
-    // 0, or 1 if late replies on this busy machine kept the rig from becoming active: its own.
-    assert!(status.code().is_some_and(|c| c <= 1), "the rig's own status: {status:?}\n{err}");
+    assert_eq!(status.code(), Some(0), "the rig's own status\n{err}");
     assert_eq!(motors(&emu), [0; 16], "the rig switched the boards off");
     emu.stop();
 }
@@ -319,7 +329,10 @@ fn on_real_boards_a_ctrl_c_reaching_both_processes_counts_once() {
     p.signal(libc::SIGINT);
     signal(rig, libc::SIGINT);
     let (_, out, err) = p.end();
-    assert!(out.contains("(forces ramped out, strings at minimum tension, device off, on a stop signal)"), "{out}\n{err}");
+    assert!(
+        out.contains("(forces ramped out, strings at minimum tension, device off, on a stop signal)"),
+        "{out}\n{err}"
+    );
     assert_eq!(motors(&emu), [0; 16]);
     emu.stop();
 }
@@ -351,7 +364,7 @@ fn kill_9_of_the_rig_process_leaves_zero_on_the_boards() {
     let (status, out, err) = p.end();
     assert_eq!(status.code(), Some(3), "{out}\n{err}");
     assert!(err.contains("killed (signal 9, SIGKILL) while its loop drove the boards"), "{err}");
-    assert!(err.contains("wrote zero to every channel of UART boards"), "{err}");
+    assert!(err.contains("wrote zero to every channel of UART B1M#0+B1M#1"), "{err}");
     assert_eq!(motors(&emu), [0; 16], "the supervisor zeroed the boards (they have no watchdog)");
     emu.stop();
 }
@@ -417,8 +430,18 @@ fn a_run_exits_zero_when_active_and_non_zero_when_it_never_became_active() {
 #[test]
 fn logs_get_plain_lines() {
     let _s = serial();
-    let (status, out, err) =
-        spidar(&["run", "--no-rt", "--seconds", "6", "--world", "thread", "--scene", "walls", "--script", "tour"]);
+    let (status, out, err) = spidar(&[
+        "run",
+        "--no-rt",
+        "--seconds",
+        "6",
+        "--world",
+        "thread",
+        "--scene",
+        "walls",
+        "--script",
+        "tour",
+    ]);
     assert_eq!(status.code(), Some(0), "{out}\n{err}");
     assert!(err.contains("rig: active") && err.lines().any(|l| l.starts_with("t ")), "{err}");
     for text in [&out, &err] {
@@ -448,15 +471,36 @@ fn options_that_do_not_apply_are_refused_with_what_they_apply_to() {
         (&["run", "--port", "/dev/ttyUSB0"], "--port applies to real boards"),
         (&["run", "--switch", "2"], "--switch applies to real boards"),
         (&["run", "--reply-timeout-us", "500"], "--reply-timeout-us applies to real boards"),
-        (&["run", "--device", "uart", "--port", "/nonexistent", "--script", "hold"], "--script applies to the simulated rig only"),
-        (&["run", "--device", "uart", "--port", "/nonexistent", "--seed", "3"], "--seed applies to the simulated rig only"),
-        (&["run", "--device", "usb-simple", "--port", "/dev/ttyUSB0"], "--port applies to --device uart only"),
-        (&["run", "--device", "uart", "--port", "/nonexistent", "--switch", "1"], "--switch picks one of several USB boards"),
+        (
+            &["run", "--device", "uart", "--port", "/nonexistent", "--script", "hold"],
+            "--script applies to the simulated rig only",
+        ),
+        (
+            &["run", "--device", "uart", "--port", "/nonexistent", "--seed", "3"],
+            "--seed applies to the simulated rig only",
+        ),
+        (
+            &["run", "--device", "usb-simple", "--port", "/dev/ttyUSB0"],
+            "--port applies to --device uart only",
+        ),
+        (
+            &["run", "--device", "uart", "--port", "/nonexistent", "--switch", "1"],
+            "--switch picks one of several USB boards",
+        ),
         (&["run", "--virtual", "--seconds", "1", "--cpu", "0"], "--cpu does not apply to --virtual"),
-        (&["run", "--virtual", "--seconds", "1", "--world-priority", "10"], "--world-priority does not apply to --virtual"),
+        (
+            &["run", "--virtual", "--seconds", "1", "--world-priority", "10"],
+            "--world-priority does not apply to --virtual",
+        ),
         (&["run", "--virtual"], "--virtual needs --seconds"),
-        (&["run", "--world", "thread", "--world-restarts", "5"], "--world-restarts applies to a world process"),
-        (&["run", "--world", "udp://127.0.0.1:9", "--world-restarts", "5"], "--world-restarts applies to --world child only"),
+        (
+            &["run", "--world", "thread", "--world-restarts", "5"],
+            "--world-restarts applies to a world process",
+        ),
+        (
+            &["run", "--world", "udp://127.0.0.1:9", "--world-restarts", "5"],
+            "--world-restarts applies to --world child only",
+        ),
         (&["run", "--no-rt", "--priority", "50"], "--priority is the loop's SCHED_FIFO priority"),
     ];
     for (args, says) in cases {
@@ -493,24 +537,33 @@ fn files_are_taken_for_what_they_say_they_are() {
     let (status, _, err) = spidar(&["run", "--rig", c.join("boxer.ron").to_str().unwrap(), "--seconds", "1"]);
     assert_eq!(status.code(), Some(1));
     assert!(err.contains("a boxer file (kind \"boxer\"), not a rig file (kind \"rig\")"), "{err}");
-    let (status, _, err) = spidar(&["run", "--scene", c.join("scene-boxing.ron").to_str().unwrap(), "--seconds", "1"]);
+    let (status, _, err) =
+        spidar(&["run", "--scene", c.join("scene-boxing.ron").to_str().unwrap(), "--seconds", "1"]);
     assert_eq!(status.code(), Some(1));
     assert!(err.contains("a body scene file (kind \"body-scene\"), not a scene"), "{err}");
-    let (status, _, err) = spidar(&["run", "--script", c.join("rig-spidar-h.ron").to_str().unwrap(), "--seconds", "1"]);
+    let (status, _, err) =
+        spidar(&["run", "--script", c.join("rig-spidar-h.ron").to_str().unwrap(), "--seconds", "1"]);
     assert_eq!(status.code(), Some(1));
     assert!(err.contains("a rig file (kind \"rig\"), not a script file (kind \"script\")"), "{err}");
 }
 
 #[test]
 fn help_speaks_of_behaviour_and_of_files_in_the_repository() {
-    for args in [&["--help"][..], &["run", "--help"], &["eval", "--help"], &["eval", "impacts", "--help"], &["eval", "reactions", "--help"]] {
+    for args in [
+        &["--help"][..],
+        &["run", "--help"],
+        &["eval", "--help"],
+        &["eval", "impacts", "--help"],
+        &["eval", "reactions", "--help"],
+    ] {
         let (status, out, _) = spidar(args);
         assert_eq!(status.code(), Some(0));
         for bad in ["seed 000", "seed 002", "Table 1", "DESIGN.md", "reference/"] {
             assert!(!out.contains(bad), "{args:?} mentions {bad:?}:\n{out}");
         }
-        let paper_section =
-            out.match_indices("section ").any(|(i, _)| out[i + 8..].starts_with(|c: char| c.is_ascii_digit()));
+        let paper_section = out
+            .match_indices("section ")
+            .any(|(i, _)| out[i + 8..].starts_with(|c: char| c.is_ascii_digit()));
         assert!(!paper_section, "{args:?} cites a section:\n{out}");
     }
 }

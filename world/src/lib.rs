@@ -57,7 +57,8 @@ pub trait Observer: Send {
 /// parameters), a crowd scene file or a walls scene file.
 pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
     use spidar_config::FileKind;
-    const TAKES: &str = "--scene takes boxing, boxing-passive, crowd, walls, or a boxer, crowd scene or walls \
+    const TAKES: &str =
+        "--scene takes boxing, boxing-passive, crowd, walls, or a boxer, crowd scene or walls \
                          scene file (configs/boxer.ron, configs/scene-crowd.ron, configs/scene-walls.ron)";
     match name_or_path {
         "walls" => return Ok(Box::new(walls::WallsScene::builtin())),

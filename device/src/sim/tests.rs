@@ -711,7 +711,10 @@ fn script_files_parse_and_report_positions() {
     assert!(e.contains("version") && e.contains('9'), "{e}");
     // A file of another kind is named as such, at its kind entry.
     let e = ScriptFile::from_str(&text.replace("\"script\"", "\"rig\""), "x.ron").unwrap_err().to_string();
-    assert!(e.starts_with("x.ron:2:5:") && e.contains("a rig file") && e.contains("not a script file"), "{e}");
+    assert!(
+        e.starts_with("x.ron:2:5:") && e.contains("a rig file") && e.contains("not a script file"),
+        "{e}"
+    );
     let e = ScriptFile::from_str(&text.replace("radius_m: 0.1", "radius_m: -0.1"), "x.ron")
         .unwrap_err()
         .to_string();

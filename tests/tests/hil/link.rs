@@ -445,6 +445,7 @@ fn live_options(scene: &str) -> LiveOptions {
         connect_timeout: WAIT,
         world_priority: None,
         supervisor: None,
+        recorder: None,
     }
 }
 

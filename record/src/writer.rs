@@ -1,0 +1,488 @@
+//! Writing a recording: the [`Recorder`] (one MCAP file, zstd chunks) and the
+//! [`RecorderThread`] that runs it beside a live session.
+//!
+//! The rt-loop never waits for a recording: its tick sends a [`TickRecord`] on the telemetry
+//! channel it always fills (dropped and counted when full); the session's consumer hands each
+//! record to the recorder thread in batches (dropped and counted when that queue is full); the
+//! recorder thread encodes and compresses. A write error (disk full) stops the writing and
+//! counts every record after it; the file keeps every chunk written before, and a reader
+//! reads it up to there.
+//!
+//! One tick becomes, in this order: its events, the contact model it took (if any), the tick,
+//! and the hand sample it sent. Everything before the first message (the header, the metadata,
+//! the attachments) is written when the file is created, so even a file cut short says what
+//! made it.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{Seek, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use crossbeam_channel::{bounded, Sender, TrySendError};
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Attachment, WriteOptions, Writer};
+use spidar_rt::telemetry::TickRecord;
+
+use crate::cdr::{self, Field};
+use crate::schema::{EventMsg, TakenModel, TOPIC_EVENT, TOPIC_MODEL, TOPIC_SAMPLE, TOPIC_TICK};
+use crate::{RecordError, FORMAT_VERSION, PROFILE, SPIDAR_VERSION};
+
+/// Uncompressed size of a chunk. A session killed outright loses at most the chunk being filled
+/// (about half a second of ticks at 1 kHz).
+pub const CHUNK_BYTES: u64 = 1 << 20;
+/// zstd level: 3 is zstd's default; higher levels cost the recorder thread more for a few
+/// per cent (see docs/recording.md for the measurement).
+pub const ZSTD_LEVEL: u32 = 3;
+/// Name of the metadata record that says what made the recording.
+pub const META_SESSION: &str = "spidar";
+/// Name of the metadata record written when a recording ends normally.
+pub const META_END: &str = "spidar.end";
+/// Name of the rig file's attachment.
+pub const RIG_ATTACHMENT: &str = "rig.ron";
+
+/// What made a session: written into the recording's metadata and attachments.
+#[derive(Clone, Debug, Default)]
+pub struct SessionInfo {
+    /// Where the rig file came from (a path, or the built-in file's name).
+    pub rig_origin: String,
+    /// The rig file's text (RON), attached as `rig.ron`: replay builds the tick core from it.
+    pub rig_text: String,
+    pub scene: String,
+    pub script: String,
+    pub device: String,
+    /// Seed of the simulated rig and random scripts.
+    pub seed: u64,
+    /// The command line that ran the session.
+    pub command_line: String,
+    /// True when the session ran on the virtual clock.
+    pub virtual_clock: bool,
+    /// Other files that made the session (scene, script, boxer files): (name, text), attached.
+    pub files: Vec<(String, String)>,
+}
+
+/// How a session ended, written as the `spidar.end` metadata record.
+#[derive(Clone, Debug, Default)]
+pub struct EndInfo {
+    /// Ticks the loop ran.
+    pub ticks: u64,
+    /// Records the loop's telemetry channel dropped (the consumer lagged).
+    pub telemetry_dropped: u64,
+    pub final_state: String,
+    pub clean_stop: bool,
+    pub faults: u64,
+}
+
+/// What a recorder wrote and what it could not keep.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RecordingReport {
+    pub path: PathBuf,
+    pub ticks: u64,
+    pub samples: u64,
+    pub models: u64,
+    pub events: u64,
+    /// Records the recorder's queue had no room for (the disk or the recorder thread lagged).
+    pub queue_dropped: u64,
+    /// Records not written because writing failed (see `error`).
+    pub write_failed: u64,
+    /// Records the loop's telemetry channel dropped before the recorder saw them.
+    pub telemetry_dropped: u64,
+    /// The first write error, e.g. a full disk.
+    pub error: Option<String>,
+    pub bytes: u64,
+}
+
+impl RecordingReport {
+    /// Every tick record that is not in the file.
+    pub fn lost(&self) -> u64 {
+        self.queue_dropped + self.write_failed + self.telemetry_dropped
+    }
+}
+
+impl std::fmt::Display for RecordingReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: {} ticks, {} samples, {} models, {} events, {:.1} MB; not kept: {} (telemetry {}, recorder queue {}, write {})",
+            self.path.display(),
+            self.ticks,
+            self.samples,
+            self.models,
+            self.events,
+            self.bytes as f64 / 1e6,
+            self.lost(),
+            self.telemetry_dropped,
+            self.queue_dropped,
+            self.write_failed
+        )?;
+        if let Some(e) = &self.error {
+            write!(f, "; WRITING FAILED: {e} (the file holds everything before it)")?;
+        }
+        Ok(())
+    }
+}
+
+/// One open recording.
+pub struct Recorder<W: Write + Seek = File> {
+    w: Option<Writer<Counted<W>>>,
+    /// Bytes the sink has taken, and how many of them end the last chunk written whole.
+    written: Arc<AtomicU64>,
+    kept_bytes: u64,
+    path: PathBuf,
+    channels: [u16; 4],
+    seq: [u32; 4],
+    start_unix_ns: u64,
+    buf: Vec<u8>,
+    /// Bytes of messages in the chunk being filled, and its messages per channel.
+    chunk_bytes: u64,
+    pending: [u64; 4],
+    report: RecordingReport,
+}
+
+const TICK: usize = 0;
+const SAMPLE: usize = 1;
+const MODEL: usize = 2;
+const EVENT: usize = 3;
+
+/// An error and its causes, e.g. `I/O error from writing ...: no space left on device`.
+fn describe(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}
+
+/// A sink that counts the bytes it takes, so a failed recording can be cut back to its last
+/// whole chunk.
+struct Counted<W> {
+    inner: W,
+    n: Arc<AtomicU64>,
+}
+
+impl<W: Write> Write for Counted<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let k = self.inner.write(buf)?;
+        self.n.fetch_add(k as u64, Ordering::Relaxed);
+        Ok(k)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl<W: Seek> Seek for Counted<W> {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        self.inner.seek(pos)
+    }
+}
+
+fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+}
+
+impl Recorder {
+    /// Creates the file and writes what made the session. Fails (before any session starts)
+    /// when the path cannot be written.
+    pub fn create(path: &Path, info: &SessionInfo) -> Result<Recorder, RecordError> {
+        let create = |e: std::io::Error| RecordError::Create { path: path.to_path_buf(), cause: e };
+        if path.is_dir() {
+            return Err(create(std::io::Error::other("it is a directory")));
+        }
+        // Straight to the file (unbuffered): each finished chunk reaches the system at once.
+        let file = File::create(path).map_err(create)?;
+        Recorder::with_sink(file, path, info)
+    }
+}
+
+impl<W: Write + Seek> Recorder<W> {
+    /// A recorder writing into `sink` (`path` names it in reports and errors).
+    pub fn with_sink(sink: W, path: &Path, info: &SessionInfo) -> Result<Recorder<W>, RecordError> {
+        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
+        // placeholder header patched later): a process killed outright leaves every finished
+        // chunk intact and at most one partial record at the end.
+        let opts = WriteOptions::new()
+            .disable_seeking(true)
+            .profile(PROFILE)
+            .library(format!("spidar {SPIDAR_VERSION}"))
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(ZSTD_LEVEL)
+            .compression_threads(0)
+            // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
+            .chunk_size(None);
+        let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
+        let written = Arc::new(AtomicU64::new(0));
+        let mut w = opts.create(Counted { inner: sink, n: written.clone() }).map_err(write)?;
+        let start_unix_ns = unix_now_ns();
+        let mut meta = BTreeMap::new();
+        for (k, v) in [
+            ("format_version", FORMAT_VERSION.to_string()),
+            ("spidar_version", SPIDAR_VERSION.to_string()),
+            ("rig", info.rig_origin.clone()),
+            ("scene", info.scene.clone()),
+            ("script", info.script.clone()),
+            ("device", info.device.clone()),
+            ("seed", info.seed.to_string()),
+            ("command_line", info.command_line.clone()),
+            ("clock", if info.virtual_clock { "virtual" } else { "real" }.to_string()),
+            ("start_unix_ns", start_unix_ns.to_string()),
+        ] {
+            meta.insert(k.to_string(), v);
+        }
+        w.write_metadata(&Metadata { name: META_SESSION.into(), metadata: meta }).map_err(write)?;
+        let mut attach = |name: &str, text: &str| {
+            w.attach(&Attachment {
+                log_time: start_unix_ns,
+                create_time: start_unix_ns,
+                name: name.into(),
+                media_type: "text/plain".into(),
+                data: text.as_bytes().into(),
+            })
+        };
+        attach(RIG_ATTACHMENT, &info.rig_text).map_err(write)?;
+        for (name, text) in &info.files {
+            attach(name, text).map_err(write)?;
+        }
+        let mut channels = [0u16; 4];
+        for (i, (topic, name, schema)) in [
+            (TOPIC_TICK, TickRecord::ros_type(), cdr::schema_text::<TickRecord>()),
+            (TOPIC_SAMPLE, spidar_msg::HandSample::ros_type(), cdr::schema_text::<spidar_msg::HandSample>()),
+            (TOPIC_MODEL, TakenModel::ros_type(), cdr::schema_text::<TakenModel>()),
+            (TOPIC_EVENT, EventMsg::ros_type(), cdr::schema_text::<EventMsg>()),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
+            channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
+        }
+        // The preamble reaches the disk before the session starts.
+        w.flush().map_err(write)?;
+        let kept_bytes = written.load(Ordering::Relaxed);
+        Ok(Recorder {
+            w: Some(w),
+            written,
+            kept_bytes,
+            path: path.to_path_buf(),
+            channels,
+            seq: [0; 4],
+            start_unix_ns,
+            buf: Vec::with_capacity(4096),
+            chunk_bytes: 0,
+            pending: [0; 4],
+            report: RecordingReport { path: path.to_path_buf(), ..Default::default() },
+        })
+    }
+
+    fn put<T: Field>(&mut self, ch: usize, t_s: f64, x: &T) -> bool {
+        let Some(w) = self.w.as_mut() else { return false };
+        cdr::encode(x, &mut self.buf);
+        let t = self.start_unix_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64);
+        self.seq[ch] = self.seq[ch].wrapping_add(1);
+        let h = MessageHeader {
+            channel_id: self.channels[ch],
+            sequence: self.seq[ch],
+            log_time: t,
+            publish_time: t,
+        };
+        match w.write_to_known_channel(&h, &self.buf) {
+            Ok(()) => {
+                self.chunk_bytes += self.buf.len() as u64;
+                self.pending[ch] += 1;
+                true
+            }
+            Err(e) => {
+                self.fail(describe(&e));
+                false
+            }
+        }
+    }
+
+    /// Stops writing after an I/O error (the writer's state is then unknown). The file keeps
+    /// every chunk finished before; the ticks of the chunk being filled are lost and counted.
+    ///
+    /// A chunk whose write failed may still have reached the disk whole (only the index records
+    /// after it missing), so the file is cut back to the end of the last chunk written whole:
+    /// it then holds exactly the ticks reported kept.
+    fn fail(&mut self, why: String) {
+        self.report.error.get_or_insert(why);
+        self.w = None;
+        if self.written.load(Ordering::Relaxed) > self.kept_bytes {
+            let cut = std::fs::OpenOptions::new()
+                .write(true)
+                .open(&self.path)
+                .and_then(|f| f.set_len(self.kept_bytes));
+            if let Err(e) = cut {
+                let note = format!(" (cutting the file back to its last whole chunk failed too: {e})");
+                if let Some(err) = self.report.error.as_mut() {
+                    err.push_str(&note);
+                }
+            }
+        }
+        self.report.write_failed += self.pending[TICK];
+        self.pending = [0; 4];
+    }
+
+    /// Ends the chunk being filled and writes it; its messages count as kept once it is written.
+    fn end_chunk(&mut self) {
+        let Some(w) = self.w.as_mut() else { return };
+        match w.flush() {
+            Ok(()) => {
+                let [t, s, m, e] = std::mem::take(&mut self.pending);
+                self.report.ticks += t;
+                self.report.samples += s;
+                self.report.models += m;
+                self.report.events += e;
+                self.chunk_bytes = 0;
+                self.kept_bytes = self.written.load(Ordering::Relaxed);
+            }
+            Err(e) => self.fail(describe(&e)),
+        }
+    }
+
+    /// Writes one tick: its events, the model it took, the tick, the sample. It counts as kept
+    /// once the chunk holding it is written.
+    pub fn write_tick(&mut self, r: &TickRecord) {
+        if self.w.is_none() {
+            self.report.write_failed += 1;
+            return;
+        }
+        let mut ok = true;
+        for e in r.events.iter() {
+            ok = ok && self.put(EVENT, r.t_s, &EventMsg::new(r.tick, r.t_s, &e));
+        }
+        if let Some(m) = r.model {
+            ok = ok && self.put(MODEL, r.t_s, &TakenModel { tick: r.tick, model: m });
+        }
+        ok = ok && self.put(TICK, r.t_s, r) && self.put(SAMPLE, r.t_s, &r.sample);
+        if !ok {
+            // This tick's own messages were counted nowhere yet.
+            self.report.write_failed += 1;
+            return;
+        }
+        if self.chunk_bytes >= CHUNK_BYTES {
+            self.end_chunk();
+        }
+    }
+
+    /// Ends the recording: the last chunk, the `spidar.end` record, the summary and footer.
+    pub fn finish(mut self, end: &EndInfo) -> RecordingReport {
+        self.report.telemetry_dropped = end.telemetry_dropped;
+        self.end_chunk();
+        if let Some(mut w) = self.w.take() {
+            let mut meta = BTreeMap::new();
+            for (k, v) in [
+                ("ticks", end.ticks.to_string()),
+                ("ticks_recorded", self.report.ticks.to_string()),
+                ("telemetry_dropped", end.telemetry_dropped.to_string()),
+                ("queue_dropped", self.report.queue_dropped.to_string()),
+                ("final_state", end.final_state.clone()),
+                ("clean_stop", end.clean_stop.to_string()),
+                ("faults", end.faults.to_string()),
+            ] {
+                meta.insert(k.to_string(), v);
+            }
+            let r = w
+                .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
+                .and_then(|_| w.finish());
+            if let Err(e) = r {
+                self.report.error.get_or_insert(describe(&e));
+            }
+        }
+        self.report.bytes = std::fs::metadata(&self.path).map_or(0, |m| m.len());
+        self.report.clone()
+    }
+
+    pub fn report(&self) -> &RecordingReport {
+        &self.report
+    }
+}
+
+/// Records handed over per batch.
+const BATCH: usize = 64;
+/// Batches the queue holds (4 s of ticks at 1 kHz).
+const QUEUE_BATCHES: usize = 64;
+
+/// A [`Recorder`] on its own thread, fed with tick records by a session's telemetry consumer.
+pub struct RecorderThread {
+    tx: Option<Sender<Vec<TickRecord>>>,
+    batch: Vec<TickRecord>,
+    dropped: u64,
+    handle: Option<JoinHandle<Recorder>>,
+}
+
+impl std::fmt::Debug for RecorderThread {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "RecorderThread {{ queued: {}, dropped: {} }}", self.batch.len(), self.dropped)
+    }
+}
+
+impl RecorderThread {
+    pub fn spawn(rec: Recorder) -> Result<RecorderThread, RecordError> {
+        let (tx, rx) = bounded::<Vec<TickRecord>>(QUEUE_BATCHES);
+        let handle = std::thread::Builder::new()
+            .name("spidar-recorder".into())
+            .spawn(move || {
+                let mut rec = rec;
+                for batch in rx {
+                    for r in &batch {
+                        rec.write_tick(r);
+                    }
+                }
+                rec
+            })
+            .map_err(|e| RecordError::Write {
+                path: PathBuf::new(),
+                why: format!("starting the recorder thread: {e}"),
+            })?;
+        Ok(RecorderThread {
+            tx: Some(tx),
+            batch: Vec::with_capacity(BATCH),
+            dropped: 0,
+            handle: Some(handle),
+        })
+    }
+
+    /// Queues one record; never waits (a full queue drops the batch and counts it).
+    pub fn push(&mut self, r: &TickRecord) {
+        self.batch.push(*r);
+        if self.batch.len() >= BATCH {
+            self.send(false);
+        }
+    }
+
+    fn send(&mut self, wait: bool) {
+        let batch = std::mem::replace(&mut self.batch, Vec::with_capacity(BATCH));
+        let n = batch.len() as u64;
+        let Some(tx) = self.tx.as_ref() else { return };
+        let sent = if wait {
+            tx.send(batch).is_ok()
+        } else {
+            match tx.try_send(batch) {
+                Ok(()) => true,
+                Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => false,
+            }
+        };
+        if !sent {
+            self.dropped += n;
+        }
+    }
+
+    /// Writes what is queued and ends the recording.
+    pub fn finish(mut self, end: &EndInfo) -> Result<RecordingReport, RecordError> {
+        self.send(true);
+        drop(self.tx.take());
+        let rec = self.handle.take().and_then(|h| h.join().ok()).ok_or_else(|| RecordError::Write {
+            path: PathBuf::new(),
+            why: "the recorder thread panicked".into(),
+        })?;
+        let mut rec = rec;
+        rec.report.queue_dropped = self.dropped;
+        Ok(rec.finish(end))
+    }
+}

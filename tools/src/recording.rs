@@ -1,0 +1,189 @@
+//! The `spidar` side of recordings: what `run --record` writes about the session, and the
+//! `replay`, `export` and `plot` commands. The work is in `spidar_record`.
+
+use std::path::Path;
+
+use anyhow::Context;
+use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
+use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
+
+use crate::session::Summary;
+
+/// What made a session, from its arguments: the rig file's text, the scene and script files.
+pub fn session_info(
+    rig_path: Option<&Path>,
+    scene: &str,
+    script: &str,
+    device: &str,
+    seed: u64,
+    virtual_clock: bool,
+) -> anyhow::Result<SessionInfo> {
+    let (rig_origin, rig_text) = match rig_path {
+        Some(p) => (
+            p.display().to_string(),
+            std::fs::read_to_string(p).with_context(|| format!("reading the rig file {}", p.display()))?,
+        ),
+        None => (DEFAULT_RIG_NAME.to_string(), DEFAULT_RIG_RON.to_string()),
+    };
+    let mut files = Vec::new();
+    for f in [scene, script] {
+        if f.ends_with(".ron") {
+            let text = std::fs::read_to_string(f).with_context(|| format!("reading {f}"))?;
+            let name = Path::new(f).file_name().map_or(f.to_string(), |n| n.to_string_lossy().into_owned());
+            files.push((name, text));
+        }
+    }
+    Ok(SessionInfo {
+        rig_origin,
+        rig_text,
+        scene: scene.into(),
+        script: script.into(),
+        device: device.into(),
+        seed,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        virtual_clock,
+        files,
+    })
+}
+
+/// Creates the recording before anything starts, so a path that cannot be written is refused
+/// before the rig moves.
+pub fn create(path: &Path, info: &SessionInfo) -> anyhow::Result<Recorder> {
+    Ok(Recorder::create(path, info)?)
+}
+
+/// How a live session ended, for the recording's `spidar.end` record.
+pub fn end_info(s: &Summary) -> EndInfo {
+    EndInfo {
+        ticks: s.counters.ticks,
+        telemetry_dropped: s.counters.telemetry_dropped,
+        final_state: s.final_state.name().into(),
+        clean_stop: s.clean_stop,
+        faults: s.counters.faults,
+    }
+}
+
+/// `spidar replay`.
+#[derive(clap::Args)]
+pub struct ReplayArgs {
+    /// The recording (`spidar run --record FILE.mcap`).
+    pub file: std::path::PathBuf,
+    /// Re-run the rt-loop's tick core from the recorded device inputs, commands and contact
+    /// models, and check every output (volts, forces, tensions, lifecycle, events, hand samples)
+    /// bit for bit; fails naming the first tick that differs.
+    #[arg(long)]
+    pub verify: bool,
+    /// With --verify: build the tick core from this rig file instead of the one recorded.
+    #[arg(long, requires = "verify")]
+    pub rig: Option<std::path::PathBuf>,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
+    if a.verify {
+        let rig = match &a.rig {
+            Some(p) => Some((
+                p.display().to_string(),
+                std::fs::read_to_string(p)
+                    .with_context(|| format!("reading the rig file {}", p.display()))?,
+            )),
+            None => None,
+        };
+        let r = spidar_record::verify::verify(&a.file, rig)?;
+        if a.json {
+            let j = serde_json::json!({
+                "command": "replay --verify",
+                "file": a.file.display().to_string(),
+                "rig": r.rig,
+                "passed": r.passed(),
+                "ticks_identical": r.ticks_identical,
+                "samples_identical": r.samples_identical,
+                "first_difference": r.first_difference.as_ref().map(|d| serde_json::json!({
+                    "tick": d.tick, "t_s": d.t_s, "what": d.what,
+                })),
+                "missing_from_tick": r.gap_at,
+                "ends": r.recording.ends(),
+            });
+            println!("{j:#}");
+        } else {
+            println!("{r}");
+        }
+        if let Some(d) = &r.first_difference {
+            anyhow::bail!("the replay differs from the recording at tick {} ({})", d.tick, d.what);
+        }
+        if let Some(g) = r.gap_at {
+            anyhow::bail!("the recording is missing ticks from tick {g} on: it cannot be verified past them");
+        }
+        if r.ticks_identical == 0 {
+            anyhow::bail!("the recording holds no tick to verify");
+        }
+        return Ok(());
+    }
+    let s = spidar_record::summary::summarize(&a.file)?;
+    if a.json {
+        let r = &s.recording;
+        let lat = s.stats.lateness.percentiles();
+        let j = serde_json::json!({
+            "command": "replay",
+            "file": r.path.display().to_string(),
+            "session": r.session,
+            "end": r.end_meta,
+            "attachments": r.attachments.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+            "channels": r.channels.iter().map(|c| serde_json::json!({
+                "topic": c.topic, "schema": c.schema, "schema_encoding": c.schema_encoding,
+                "message_encoding": c.message_encoding, "messages": c.messages,
+            })).collect::<Vec<_>>(),
+            "ticks": r.ticks,
+            "missing_ticks": r.missing_ticks,
+            "active_ticks": s.active_ticks,
+            "lateness_s": { "p50": lat.p50_s, "p99": lat.p99_s, "p999": lat.p999_s, "max": lat.max_s },
+            "max_force_n": s.stats.max_force_n,
+            "hits": s.hits,
+            "events": s.event_count,
+            "faults": s.faults,
+            "ends": r.ends(),
+            "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+        });
+        println!("{j:#}");
+    } else {
+        println!("{s}");
+    }
+    Ok(())
+}
+
+/// `spidar export`.
+#[derive(clap::Args)]
+pub struct ExportArgs {
+    /// The recording.
+    pub file: std::path::PathBuf,
+    /// Directory for the CSV files (created if missing): one per channel, e.g. rig_tick.csv.
+    #[arg(long, value_name = "DIR")]
+    pub csv: std::path::PathBuf,
+}
+
+pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
+    let t0 = std::time::Instant::now();
+    let r = spidar_record::export::export_csv(&a.file, &a.csv)?;
+    println!("{r}");
+    println!("  took         {:.2} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `spidar plot`.
+#[derive(clap::Args)]
+pub struct PlotArgs {
+    /// The recording.
+    pub file: std::path::PathBuf,
+    /// The SVG file to write (default: the recording's name with .svg).
+    #[arg(long, short)]
+    pub out: Option<std::path::PathBuf>,
+}
+
+pub fn plot(a: &PlotArgs) -> anyhow::Result<()> {
+    let out = a.out.clone().unwrap_or_else(|| a.file.with_extension("svg"));
+    let r = spidar_record::plot::plot(&a.file, &out)?;
+    println!("{r}");
+    Ok(())
+}
