@@ -4,15 +4,18 @@
 //!
 //! Why it exists: on a real rig the grip is moved by hand, and the tool must wait for the person
 //! without letting the boards go idle. While it waits it keeps exchanging with the device at the
-//! tick period, every string held at the rig's minimum tension: the UART boards zero their
-//! motors after 50 ms without a command (safe, but the strings go slack and the grip drops).
+//! tick period, every string held at the rig's minimum tension, and it watches for a stop signal:
+//! the boards have no watchdog and hold whatever they were told last, so a tool that stopped
+//! commanding them would leave them at its last command.
 //!
 //! What it must never do: block on the keyboard while the device needs commands (the keys are
 //! read on their own thread), or leave the outputs on when the person aborts or the console
 //! closes (it deactivates the device before returning [`CalibError::Aborted`]).
 
 use std::io::{BufRead, Write};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, TryRecvError};
+use std::sync::Arc;
 use std::time::Duration;
 
 use spidar_device::{Device, ErrorKind, Input, Output};
@@ -36,6 +39,8 @@ pub struct ConsoleOperator {
     /// Wait one tick period between exchanges (a real board); `None`: back to back (the simulated
     /// rig, whose time is its exchange count).
     period: Option<Duration>,
+    /// Non-zero once a stop was asked for (a stop signal): abort with the outputs off.
+    stop: Option<Arc<AtomicU32>>,
 }
 
 impl ConsoleOperator {
@@ -72,7 +77,14 @@ impl ConsoleOperator {
             labels: [rig.hands[0].label.clone(), rig.hands[1].label.clone()],
             tension_min_n: [rig.hands[0].tension_min_n, rig.hands[1].tension_min_n],
             period: paced.then(|| Duration::from_secs_f64(rig.period_s)),
+            stop: None,
         })
+    }
+
+    /// Aborts (outputs off) at the next wait once `stop` is non-zero (the stop signals counted).
+    pub fn with_stop(mut self, stop: Arc<AtomicU32>) -> ConsoleOperator {
+        self.stop = Some(stop);
+        self
     }
 
     /// The terminal: keys from stdin, prompts on stderr (stdout keeps the results).
@@ -147,6 +159,9 @@ impl<D: Device> Operator<D> for ConsoleOperator {
         });
         let mut failures = 0u32;
         loop {
+            if self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst) > 0) {
+                return Err(self.abort(dev, "a stop signal (SIGINT, SIGTERM or SIGHUP)"));
+            }
             match self.next_key() {
                 Err(()) => return Err(self.abort(dev, "the console input closed")),
                 Ok(None) => {}

@@ -130,6 +130,9 @@ pub struct RecordOptions {
     /// Sleep one tick period between exchanges (a real device paced by the wall clock). The
     /// simulated rig's time is its exchange count, so it runs unpaced.
     pub pace: bool,
+    /// Non-zero once a stop was asked for (a stop signal): the recording ends at the next
+    /// exchange with [`CalibError::Aborted`], and its caller switches the outputs off.
+    pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicU32>>,
 }
 
 impl Default for RecordOptions {
@@ -142,6 +145,7 @@ impl Default for RecordOptions {
             min_separation_m: 0.02,
             slack_residual_m: 0.05,
             pace: false,
+            stop: None,
         }
     }
 }
@@ -243,6 +247,9 @@ impl<'r, D: Device> Recorder<'r, D> {
     fn exchange(&mut self) -> Result<[i64; 16], CalibError> {
         let mut failures = 0;
         loop {
+            if self.opts.stop.as_ref().is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst) > 0) {
+                return Err(CalibError::Aborted("a stop signal (SIGINT, SIGTERM or SIGHUP)".into()));
+            }
             if self.opts.pace {
                 std::thread::sleep(std::time::Duration::from_secs_f64(self.rig.period_s));
             }

@@ -3,6 +3,7 @@
 //! point each prompt names, and then types Enter, `s` or `q`.
 
 use std::io::{BufReader, Read, Write};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -88,6 +89,9 @@ enum Key {
     Quit,
     /// Close the keyboard (Ctrl-D, or the terminal going away).
     Close,
+    /// A stop signal (Ctrl-C, SIGTERM, SIGHUP): the counter `spidar calib` gives the operator and
+    /// the recorder goes up by one.
+    Signal,
 }
 
 struct Outcome {
@@ -125,6 +129,8 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let (screen_tx, screen_rx) = mpsc::channel::<String>();
     let info = shared.lock().unwrap().info().clone();
     let dev = Shared(shared.clone(), info);
+    let stop = Arc::new(AtomicU32::new(0));
+    let worker_stop = stop.clone();
     let plan = Plan {
         hands: vec![0],
         jig: Some(two_jig_points()),
@@ -134,9 +140,11 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let worker = std::thread::spawn(move || {
         let keyboard = BufReader::new(Keyboard { rx: key_rx, pending: Vec::new() });
         let screen = Box::new(Screen { tx: screen_tx, partial: String::new() });
-        let mut op = ConsoleOperator::new(keyboard, screen, &rig, false).unwrap();
+        let mut op =
+            ConsoleOperator::new(keyboard, screen, &rig, false).unwrap().with_stop(worker_stop.clone());
         op.introduce();
-        let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
+        let opts = RecordOptions { stop: Some(worker_stop), ..RecordOptions::default() };
+        let mut rec = Recorder::new(dev, &rig, opts).unwrap();
         let r = rec.record_plan(&mut op, &plan, "simulated rig behind a console");
         // As `spidar calib record`: outputs off when the recording ends, whichever way.
         if r.is_ok() {
@@ -176,6 +184,9 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
             Key::Skip => tx.send(b"s\n".to_vec()).unwrap(),
             Key::Quit => tx.send(b"q\n".to_vec()).unwrap(),
             Key::Close => key_tx = None,
+            Key::Signal => {
+                stop.fetch_add(1, Ordering::SeqCst);
+            }
         }
     }
     let result = worker.join().unwrap();
@@ -230,6 +241,17 @@ fn console_q_aborts_with_the_device_deactivated() {
     }
     assert!(!o.rig.lock().unwrap().is_active(), "q must switch the outputs off");
     assert!(o.screen.iter().any(|l| l.starts_with("aborting: stopped by the operator")));
+}
+
+#[test]
+fn a_stop_signal_while_waiting_aborts_with_the_device_deactivated() {
+    let o = drive(2, &[Key::Move, Key::Signal]);
+    match &o.result {
+        Err(CalibError::Aborted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an abort, got {:?}", other.as_ref().map(|s| s.poses.len())),
+    }
+    assert!(!o.rig.lock().unwrap().is_active(), "a stop signal must switch the outputs off");
+    assert!(o.screen.iter().any(|l| l.starts_with("aborting: a stop signal")), "{}", o.screen.join("\n"));
 }
 
 #[test]

@@ -281,3 +281,26 @@ fn two_jig_points_leave_a_rotation_unobservable_and_the_fit_says_so() {
     assert!(matches!(e, CalibError::Degenerate { .. }), "{msg}");
     assert!(msg.contains("rank deficient") && msg.contains("at least 4"), "{msg}");
 }
+
+#[test]
+fn a_stop_signal_during_recording_aborts_at_the_next_exchange() {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    use std::sync::Arc;
+    let rig = Rig::default_rig();
+    let opts = truth_opts();
+    let truth = truth_geometry(&rig, &opts);
+    let dev = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
+    let stop = Arc::new(AtomicU32::new(0));
+    let mut rec =
+        Recorder::new(dev, &rig, RecordOptions { stop: Some(stop.clone()), ..RecordOptions::default() })
+            .unwrap();
+    let mut op = SimOperator::new(false);
+    let plan = Plan { hands: vec![0], jig: None, free_per_hand: 3, free_half_extent_m: DVec3::splat(0.2) };
+    stop.fetch_add(1, Ordering::SeqCst);
+    match rec.record_plan(&mut op, &plan, "sim") {
+        Err(CalibError::Aborted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an abort, got {:?}", other.map(|s| s.poses.len())),
+    }
+    // As `spidar calib`: the outputs are switched off after the abort.
+    assert!(!rec.finish().unwrap().is_active());
+}

@@ -27,6 +27,7 @@ use spidar_device::Device;
 use spidar_rt::Rig;
 
 use crate::hardware::{self, DeviceKind, HardwareArgs};
+use crate::signals::Stop;
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
 pub enum Hands {
@@ -207,13 +208,19 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
 
 /// Recording on a board is paced by the wall clock (one exchange per tick period), which also
 /// keeps the strings at minimum tension (the boards hold their last command: no watchdog).
-fn board_record_options() -> RecordOptions {
-    RecordOptions { pace: true, ..RecordOptions::default() }
+/// A stop signal (SIGINT, SIGTERM, SIGHUP) aborts either kind with the outputs switched off.
+fn board_record_options() -> anyhow::Result<RecordOptions> {
+    Ok(RecordOptions { pace: true, ..sim_record_options()? })
+}
+
+/// The simulated rig's recording: unpaced, stopped by a stop signal like a board's.
+fn sim_record_options() -> anyhow::Result<RecordOptions> {
+    Ok(RecordOptions { stop: Some(Stop::install()?.counter()), ..RecordOptions::default() })
 }
 
 /// The person at the console, told how it works.
 fn console_operator(rig: &Rig) -> anyhow::Result<ConsoleOperator> {
-    let mut op = ConsoleOperator::stdio(rig)?;
+    let mut op = ConsoleOperator::stdio(rig)?.with_stop(Stop::install()?.counter());
     op.introduce();
     Ok(op)
 }
@@ -251,12 +258,12 @@ fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
     eprintln!("spidar calib home: {name}");
     let geometry = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, sim_record_options()?)?,
             &mut SimOperator::new(d.verbose),
             |rec, op| home_hands(rec, op, &rig, hands),
         )?,
         Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options())?,
+            Recorder::opened(dev, &rig, board_record_options()?)?,
             &mut console_operator(&rig)?,
             |rec, op| home_hands(rec, op, &rig, hands),
         )?,
@@ -312,7 +319,7 @@ fn record(
     let t0 = std::time::Instant::now();
     let (session, warnings) = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, sim_record_options()?)?,
             &mut SimOperator::new(d.verbose),
             |rec, op| {
                 let session = rec.record_plan(op, &plan, &name)?;
@@ -320,7 +327,7 @@ fn record(
             },
         )?,
         Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options())?,
+            Recorder::opened(dev, &rig, board_record_options()?)?,
             &mut console_operator(&rig)?,
             |rec, op| {
                 let session = rec.record_plan(op, &plan, &name)?;
@@ -427,12 +434,12 @@ fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow:
     eprintln!("spidar calib verify: {name}");
     let report = match dev {
         Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, RecordOptions::default())?,
+            Recorder::new(*dev, &rig, sim_record_options()?)?,
             &mut SimOperator::new(d.verbose),
             |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
         )?,
         Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options())?,
+            Recorder::opened(dev, &rig, board_record_options()?)?,
             &mut console_operator(&rig)?,
             |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
         )?,

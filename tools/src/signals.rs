@@ -75,6 +75,11 @@ impl Stop {
         self.forwarded.map_or(own, |f| own.max(f.load(Ordering::SeqCst)))
     }
 
+    /// The counter itself, for a library that polls it without knowing of signals (calib).
+    pub fn counter(&self) -> Arc<AtomicU32> {
+        self.count.clone()
+    }
+
     /// This process's own requests only (what a supervisor passes on).
     pub fn own_count(&self) -> u32 {
         self.count.load(Ordering::SeqCst)
