@@ -305,11 +305,11 @@ enum BenchCmd {
     Record {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds of session for each arm.
-        #[arg(long, default_value_t = 60.0)]
+        /// Seconds of session for each arm (at most 3600).
+        #[arg(long, default_value_t = 60.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two arms.
-        #[arg(long, default_value_t = 6)]
+        #[arg(long, default_value_t = 6, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
         #[arg(long, default_value = "boxing")]
         scene: String,
@@ -408,6 +408,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         Cmd::Plot(a) => spidar_tools::recording::plot(&a).map(|_| 0),
         Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            let stop = Stop::install()?;
             let mut bout = None;
             if bout_seconds > 0.0 {
                 errln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
@@ -425,6 +426,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 bout = Some(b);
             }
             let r = eval::reactions(trials as usize, seed, |done, total| {
+                stopped_eval(&stop, done, total, "jabs");
                 if done % 16 == 0 || done == total {
                     term::progress(&format!("jabs {done}/{total}"));
                 }
@@ -465,7 +467,9 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 seed,
                 ..ImpactOptions::default()
             };
+            let stop = Stop::install()?;
             let report = eval_impacts(&o, |done, total| {
+                stopped_eval(&stop, done, total, "hits");
                 if done % 50 == 0 || done == total {
                     term::progress(&format!("  simulated {done}/{total} hits"));
                 }
@@ -699,6 +703,17 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// An evaluation runs on the simulated rig and the virtual clock (no device, no file written
+/// until the end): a stop signal ends it after the trial in progress, saying how far it got,
+/// with the status a shell gives to an interrupted command (130).
+fn stopped_eval(stop: &Stop, done: usize, total: usize, what: &str) {
+    if stop.requested() {
+        term::progress_done();
+        errln!("stopped by a signal after {done} of {total} {what}: no report (nothing else to stop: no device was used)");
+        std::process::exit(130);
+    }
 }
 
 fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {

@@ -223,6 +223,18 @@ fn a_virtual_run_shows_its_state_and_stops_on_a_signal_with_its_summary() {
 }
 
 #[test]
+fn an_evaluation_stops_on_a_signal_after_the_trial_in_progress() {
+    let _s = serial();
+    // The line comes once the handler is in place; the signal is seen after the bout's timing.
+    let mut p = Proc::start(&["eval", "reactions", "--bout-seconds", "1", "--trials", "200"], &[]);
+    p.wait_for("timing a 1 s bout");
+    p.signal(libc::SIGINT);
+    let (status, out, err) = p.end();
+    assert_eq!(status.code(), Some(130), "{out}\n{err}");
+    assert!(err.contains("stopped by a signal after ") && err.contains(" jabs: no report"), "{err}");
+}
+
+#[test]
 fn the_emulator_ends_cleanly_on_every_stop_signal_and_removes_its_link() {
     let _s = serial();
     let dir = temp_dir("emulate");
@@ -523,6 +535,8 @@ fn numbers_out_of_their_range_are_refused_by_the_command_line() {
         &["emulate", "--seconds", "inf"],
         &["bench", "rt", "--seconds", "1e9"],
         &["bench", "rt", "--blocks", "0"],
+        &["bench", "record", "--seconds", "1e9"],
+        &["bench", "record", "--blocks", "0"],
         &["eval", "impacts", "--trials", "0"],
     ] {
         let (status, _, err) = spidar(args);
