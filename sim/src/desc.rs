@@ -52,10 +52,56 @@ impl Gain {
             Gain::Rate(r) => r * mass_kg / dt_s,
         }
     }
-    fn value(self) -> f64 {
+    pub(crate) fn value(self) -> f64 {
         match self {
             Gain::Abs(v) | Gain::Rate(v) => v,
         }
+    }
+}
+
+/// Largest size of a shape (m), distance of anything from the origin (m), mass (kg), principal
+/// inertia (kg m^2) and number of links a description may have: far beyond any rig, body or scene,
+/// and small enough that products of them stay finite. Larger values are typos.
+pub const SIZE_MAX_M: f64 = 1e3;
+pub const POSITION_MAX_M: f64 = 1e5;
+pub const MASS_MAX_KG: f64 = 1e6;
+pub const INERTIA_MAX_KG_M2: f64 = 1e9;
+pub const LINKS_MAX: usize = 256;
+/// Largest gain (N/m, N s/m, N m/rad) or rate a description may give.
+pub const GAIN_MAX: f64 = 1e12;
+
+/// `v` is finite and within `max` of zero in every component.
+fn bounded(v: DVec3, max: f64) -> bool {
+    v.is_finite() && v.abs().max_element() <= max
+}
+
+impl ContactDesc {
+    /// Checks the gains and friction: an error gives the field and what to do.
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        let (k, d) = (self.stiffness.value(), self.damping.value());
+        if !(k > 0.0 && k <= GAIN_MAX) {
+            return Err(("stiffness", format!("must be > 0 and at most {GAIN_MAX:e}, got {k}")));
+        }
+        if !(0.0..=GAIN_MAX).contains(&d) {
+            return Err(("damping", format!("must be >= 0 and at most {GAIN_MAX:e}, got {d}")));
+        }
+        if let Gain::Rate(r) = self.stiffness {
+            // Explicit penalty springs are stable for K dt^2 / m < 4 at the pair's effective mass,
+            // which is below the reduced segment mass the rate uses: keep a margin.
+            if r > 1.0 {
+                return Err((
+                    "stiffness",
+                    format!("a contact stiffness rate of {r} is unstable with an explicit penalty (K dt^2/m = {}); use <= 1", 2.0 * r),
+                ));
+            }
+        }
+        if !(self.friction >= 0.0 && self.friction <= 100.0) {
+            return Err(("friction", format!("must be in [0, 100], got {}", self.friction)));
+        }
+        if !(self.slip_m_per_s > 0.0 && self.slip_m_per_s <= 100.0) {
+            return Err(("slip_m_per_s", format!("must be in (0, 100] m/s, got {}", self.slip_m_per_s)));
+        }
+        Ok(())
     }
 }
 
@@ -86,18 +132,38 @@ impl ShapeDesc {
             ShapeDesc::Plane => Shape::Plane,
         }
     }
-    fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), String> {
+        let size = |v: f64| v > 0.0 && v <= SIZE_MAX_M;
         let ok = match *self {
-            ShapeDesc::Sphere { radius_m } => radius_m > 0.0,
-            ShapeDesc::Capsule { half_length_m, radius_m } => radius_m > 0.0 && half_length_m >= 0.0,
-            ShapeDesc::Box { size_m } => size_m.min_element() > 0.0,
+            ShapeDesc::Sphere { radius_m } => size(radius_m),
+            ShapeDesc::Capsule { half_length_m, radius_m } => {
+                size(radius_m) && (0.0..=SIZE_MAX_M).contains(&half_length_m)
+            }
+            // Component by component: `min_element` would pass over a NaN.
+            ShapeDesc::Box { size_m } => size(size_m.x) && size(size_m.y) && size(size_m.z),
             ShapeDesc::Plane => true,
         };
         if ok {
             Ok(())
         } else {
-            Err("sizes must be positive (radius and box sizes > 0, half_length >= 0)".into())
+            Err(format!(
+                "sizes must be positive numbers up to {SIZE_MAX_M} m (radius and box sizes > 0, half_length >= 0)"
+            ))
         }
+    }
+}
+
+impl ShapeFile {
+    /// Checks the shape and where it is: an error gives what to change.
+    pub fn check(&self) -> Result<(), String> {
+        self.shape.check()?;
+        if !bounded(self.pos_m, POSITION_MAX_M) {
+            return Err(format!("pos_m must be finite and within {POSITION_MAX_M} m, got {}", self.pos_m));
+        }
+        if !bounded(self.rot_deg, 1e5) {
+            return Err(format!("rot_deg must be finite, got {}", self.rot_deg));
+        }
+        Ok(())
     }
 }
 
@@ -254,11 +320,21 @@ pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
     let f: BodyFile = config::parse_kind(text, origin, config::FileKind::Body)?;
     let src = Src { text, origin };
     config::check_version(text, origin, f.version, 1)?;
-    if !(f.gain_dt_s > 0.0) {
-        return Err(src.err("gain_dt_s", "gain_dt_s", 0, "must be > 0 (seconds)".into()));
+    if !(f.gain_dt_s > 0.0 && f.gain_dt_s <= 1.0) {
+        return Err(src.err(
+            "gain_dt_s",
+            "gain_dt_s",
+            0,
+            format!("must be in (0, 1] s, got {}", f.gain_dt_s),
+        ));
     }
-    if f.links.is_empty() {
-        return Err(src.err("links", "links", 0, "a body needs at least one link".into()));
+    if f.links.is_empty() || f.links.len() > LINKS_MAX {
+        return Err(src.err(
+            "links",
+            "links",
+            0,
+            format!("a body needs 1 to {LINKS_MAX} links, got {}", f.links.len()),
+        ));
     }
     let mut shape_seen = 0;
     for (i, l) in f.links.iter().enumerate() {
@@ -331,12 +407,42 @@ pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
             }
             _ => {}
         }
-        if l.joint.stiffness.value() < 0.0 || l.joint.damping.value() < 0.0 {
-            return Err(src.err(&at("joint.stiffness"), "stiffness", i, "gains must be >= 0".into()));
+        if !bounded(l.joint.anchor_m, POSITION_MAX_M) {
+            return Err(src.err(
+                &at("joint.anchor_m"),
+                "anchor_m",
+                i,
+                format!("must be finite and within {POSITION_MAX_M} m, got {}", l.joint.anchor_m),
+            ));
+        }
+        if l.joint.default_deg.iter().any(|v| !v.is_finite()) {
+            return Err(src.err(
+                &at("joint.default_deg"),
+                "default_deg",
+                count_before(text, "default_deg", i, &f),
+                "default angles must be finite".into(),
+            ));
+        }
+        let gain_ok = |g: Gain| g.value() >= 0.0 && g.value() <= GAIN_MAX;
+        if !(gain_ok(l.joint.stiffness) && gain_ok(l.joint.damping)) {
+            return Err(src.err(
+                &at("joint.stiffness"),
+                "stiffness",
+                i,
+                format!("gains must be >= 0 and at most {GAIN_MAX:e}"),
+            ));
+        }
+        if [l.joint.linear_stiffness, l.joint.linear_damping].iter().flatten().any(|g| !gain_ok(*g)) {
+            return Err(src.err(
+                &at("joint.linear_stiffness"),
+                "linear_stiffness",
+                count_before(text, "linear_stiffness", i, &f),
+                format!("linear gains must be >= 0 and at most {GAIN_MAX:e}"),
+            ));
         }
         if let Some(lims) = &l.joint.limits_deg {
             let n = if matches!(l.joint.kind, JointKind::Free) { 0 } else { nv };
-            if lims.len() != n || lims.iter().any(|(lo, hi)| !(lo < hi)) {
+            if lims.len() != n || lims.iter().any(|(lo, hi)| !(lo < hi && lo.is_finite() && hi.is_finite())) {
                 return Err(src.err(
                     &at("joint.limits_deg"),
                     "limits_deg",
@@ -348,19 +454,31 @@ pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
                 ));
             }
         }
-        let mass = match &l.mass {
-            MassDesc::Ellipsoid { mass_kg, size_m, .. } | MassDesc::Box { mass_kg, size_m, .. } => {
-                *mass_kg > 0.0 && size_m.min_element() > 0.0
+        // Component by component: `min_element` passes over a NaN.
+        let positive = |v: DVec3, max: f64| [v.x, v.y, v.z].iter().all(|c| *c > 0.0 && *c <= max);
+        let (mass_ok, centre) = match &l.mass {
+            MassDesc::Ellipsoid { mass_kg, size_m, centre_m }
+            | MassDesc::Box { mass_kg, size_m, centre_m } => {
+                (*mass_kg > 0.0 && *mass_kg <= MASS_MAX_KG && positive(*size_m, SIZE_MAX_M), *centre_m)
             }
-            MassDesc::Explicit { mass_kg, inertia_kg_m2, .. } => {
-                *mass_kg > 0.0 && inertia_kg_m2.min_element() > 0.0
-            }
+            MassDesc::Explicit { mass_kg, inertia_kg_m2, centre_m } => (
+                *mass_kg > 0.0 && *mass_kg <= MASS_MAX_KG && positive(*inertia_kg_m2, INERTIA_MAX_KG_M2),
+                *centre_m,
+            ),
         };
-        if !mass {
-            return Err(src.err(&at("mass"), "mass", i, "mass and sizes (or inertias) must be > 0".into()));
+        if !mass_ok || !bounded(centre, POSITION_MAX_M) {
+            return Err(src.err(
+                &at("mass"),
+                "mass",
+                i,
+                format!(
+                    "mass and sizes (or inertias) must be > 0 (at most {MASS_MAX_KG} kg, {SIZE_MAX_M} m, \
+                     {INERTIA_MAX_KG_M2} kg m^2), and the centre finite"
+                ),
+            ));
         }
         for (j, s) in l.shapes.iter().enumerate() {
-            if let Err(m) = s.shape.check() {
+            if let Err(m) = s.check() {
                 return Err(src.err(&format!("links[{i}].shapes[{j}].shape"), "shape", shape_seen, m));
             }
             if matches!(s.shape, ShapeDesc::Plane) {
@@ -397,27 +515,27 @@ pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
     if !(f.dt_s > 0.0 && f.dt_s <= 0.02) {
         return Err(src.err("dt_s", "dt_s", 0, "the step must be in (0, 0.02] seconds".into()));
     }
-    let c = &f.contact;
-    if c.stiffness.value() <= 0.0 || c.damping.value() < 0.0 {
-        return Err(src.err("contact.stiffness", "stiffness", 0, "contact gains must be positive".into()));
+    if !bounded(f.gravity_m_per_s2, 1000.0) {
+        return Err(src.err(
+            "gravity_m_per_s2",
+            "gravity_m_per_s2",
+            0,
+            format!("must be finite and within 1000 m/s^2, got {}", f.gravity_m_per_s2),
+        ));
     }
-    if let Gain::Rate(r) = c.stiffness {
-        // Explicit penalty springs are stable for K dt^2 / m < 4 at the pair's effective mass,
-        // which is below the reduced segment mass the rate uses: keep a margin.
-        if r > 1.0 {
-            return Err(src.err(
-                "contact.stiffness",
-                "stiffness",
-                0,
-                format!("a contact stiffness rate of {r} is unstable with an explicit penalty (K dt^2/m = {}); use <= 1", 2.0 * r),
-            ));
-        }
-    }
-    if !(c.friction >= 0.0) || !(c.slip_m_per_s > 0.0) {
-        return Err(src.err("contact.friction", "friction", 0, "friction >= 0 and slip_m_per_s > 0".into()));
+    f.contact.check().map_err(|(field, m)| src.err(&format!("contact.{field}"), field, 0, m))?;
+    let lim = &f.joint_limit;
+    let lim_ok = |v: f64| (0.0..=GAIN_MAX).contains(&v);
+    if !(lim_ok(lim.stiffness_n_m_per_rad) && lim_ok(lim.damping_n_m_s_per_rad)) {
+        return Err(src.err(
+            "joint_limit",
+            "joint_limit",
+            0,
+            format!("limit gains must be >= 0 and at most {GAIN_MAX:e}"),
+        ));
     }
     for (i, s) in f.statics.iter().enumerate() {
-        if let Err(m) = s.shape.check() {
+        if let Err(m) = s.check() {
             return Err(src.err(&format!("statics[{i}].shape"), "shape", i, m));
         }
     }
@@ -425,6 +543,16 @@ pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
         return Err(src.err("actors", "actors", 0, "a scene needs at least one actor".into()));
     }
     for (i, a) in f.actors.iter().enumerate() {
+        if !(bounded(a.pos_m, POSITION_MAX_M) && a.yaw_deg.is_finite()) {
+            // Statics may set `pos_m` too (those that leave it out are at the origin).
+            let before = f.statics.iter().filter(|s| s.pos_m != DVec3::ZERO).count();
+            return Err(src.err(
+                &format!("actors[{i}].pos_m"),
+                "pos_m",
+                before + i,
+                format!("position (within {POSITION_MAX_M} m) and yaw must be finite"),
+            ));
+        }
         if f.actors[..i].iter().any(|o| o.name == a.name) {
             return Err(src.err(
                 &format!("actors[{i}].name"),

@@ -305,7 +305,7 @@ const PAPER: [[[f64; 4]; 4]; 2] = [
 
 impl fmt::Display for Reactions {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "reaction experiment (seed 000, section 4.3): {} jabs per target and mode", self.trials)?;
+        writeln!(f, "reaction experiment: {} jabs per target and mode", self.trials)?;
         for (m, (name, c, paper_total)) in
             [("active", &self.active, 0.80), ("passive", &self.passive, 0.33)].into_iter().enumerate()
         {

@@ -106,7 +106,7 @@ enum Cmd {
     },
     /// Evaluations: `reactions` (the virtual boxer's timing during a bout, and how readable its
     /// reactions to jabs are), `impacts` (how well impact forces can be told from the keyframe
-    /// characters' motion).
+    /// characters' motion), `poses` (contact sheets of the characters as drawn).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -130,7 +130,7 @@ enum EvalCmd {
     /// motion alone. Prints accuracy, mean and standard deviation per parameter, next to the
     /// figures people reached in the published study this repeats.
     Impacts {
-        /// Scored hits (the published study: 6 subjects x 20).
+        /// Scored hits.
         #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         trials: u64,
         /// Practice hits per parameter combination (54 combinations) for the estimator.
@@ -139,6 +139,18 @@ enum EvalCmd {
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// rig: hands push the character through the simulated rig, the rt-loop and the crowd
+        /// scene (the user's path); stepper: a force on the crowd stepper's character (at heights
+        /// down to the feet).
+        #[arg(long, value_enum, default_value = "rig")]
+        path: spidar_tools::eval_impacts::ImpactPath,
+    },
+    /// Contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
+    /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
+    Poses {
+        /// Folder the sheets are written to.
+        #[arg(long, default_value = "docs/poses")]
+        out: PathBuf,
     },
     /// Sim step and prediction cost during a bout on the simulated rig, then the reaction
     /// experiment: jabs at four targets, an observer guesses each target from the virtual
@@ -253,10 +265,11 @@ struct RunArgs {
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
     /// The simulated user's hands (--device sim only): box (jabs and hooks at the virtual
-    /// human), hold, circle, spar, tour (for `walls`), or a script file of any name (see
-    /// configs/script-example.ron).
-    #[arg(long, default_value = "box")]
-    script: String,
+    /// human), crowd (pushes at the crowd's front row), hold, circle, spar, tour (for `walls`), or
+    /// a script file of any name (see configs/script-example.ron). Default: the scene's own
+    /// (crowd for a crowd scene, box otherwise).
+    #[arg(long)]
+    script: Option<String>,
     /// Stop after this many seconds, at most a week (default: run until Ctrl-C, SIGTERM or SIGHUP).
     #[arg(long, value_parser = run_seconds)]
     seconds: Option<f64>,
@@ -440,6 +453,15 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             }
             Ok(0)
         }
+        Cmd::Eval { what: EvalCmd::Poses { out }, json } => {
+            let report = spidar_tools::eval_poses::eval_poses(&out)?;
+            if json {
+                outln!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
+            } else {
+                outln!("{report}");
+            }
+            Ok(0)
+        }
         Cmd::Devices { probe, port } => {
             outln!("{}", hardware::devices_report(&port, probe).trim_end());
             Ok(0)
@@ -459,12 +481,13 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             outln!("{rep}");
             Ok(0)
         }
-        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed }, json } => {
+        Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed, path }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
             let o = ImpactOptions {
                 trials: trials as usize,
                 practice_per_combo: practice as usize,
                 seed,
+                path,
                 ..ImpactOptions::default()
             };
             let stop = Stop::install()?;
@@ -754,13 +777,14 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             (WorldChoice::Connect { at, scene: a.scene.clone() }, name)
         }
     };
+    let script = a.script.clone().unwrap_or_else(|| session::default_script(&scene_arg).to_string());
     // Created before the device opens: a path that cannot be written stops the run here.
     let mut recorder = match &a.record {
         Some(path) => {
             let info = spidar_tools::recording::session_info(
                 a.rig.rig.as_deref(),
                 &scene_arg,
-                &a.script,
+                &script,
                 &format!("{:?}", a.device),
                 a.seed,
                 a.virtual_clock,
@@ -771,7 +795,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     };
     let (dev, script_name): (Box<dyn Device>, String) = match choice {
         None => {
-            let scripts = load_scripts(&a.script, &rig, a.seed)?;
+            let scripts = load_scripts(&script, &rig, a.seed)?;
             let sim_opts = SimOptions {
                 seed: a.seed,
                 encoder_noise_counts: a.noise_counts,
@@ -783,9 +807,9 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 rig.name,
                 a.seed,
                 scene_name,
-                a.script
+                script
             );
-            (Box::new(sim_device(&rig, scripts, &sim_opts)?), a.script.clone())
+            (Box::new(sim_device(&rig, scripts, &sim_opts)?), script.clone())
         }
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;

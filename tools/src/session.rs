@@ -46,12 +46,27 @@ use crate::term::StatusOut;
 /// starts, as an operator does while the rig homes (`spidar_rt::tick::HOMING_SETTLE_S` plus margin).
 pub const HOLD_AT_HOME_S: f64 = 0.3;
 
+/// The simulated user's script a scene gets when none is named: pushes at the front row for a
+/// crowd scene (`crowd` or a `*crowd*.ron` file), jabs and hooks (`box`) for the others.
+pub fn default_script(scene: &str) -> &'static str {
+    let file =
+        std::path::Path::new(scene).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+    if scene == "crowd" || (scene.ends_with(".ron") && file.contains("crowd")) {
+        "crowd"
+    } else {
+        "box"
+    }
+}
+
 /// The simulated user's scripts by built-in name or RON file, each starting with a hold at home.
 pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<[Script; 2]> {
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
     let scripts = if name_or_path == "box" {
         // Jabs and hooks at the boxing scene's virtual human (tools/src/scripts.rs).
         crate::scripts::boxing_scripts(rig, &Default::default(), seed, 2000, None)?
+    } else if name_or_path == "crowd" {
+        // Pushes and shoves at the crowd scene's front row (tools/src/scripts.rs).
+        crate::scripts::crowd_scripts(rig, seed)?
     } else if let Some(s) = builtin_script(name_or_path, home, seed) {
         s
     } else if std::path::Path::new(name_or_path).is_file() {
@@ -60,7 +75,7 @@ pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<
         ScriptFile::load(path).with_context(|| format!("loading the script file {name_or_path}"))?.hands
     } else {
         bail!(
-            "unknown script '{name_or_path}' (and no such file): use box, one of {} or a script file \
+            "unknown script '{name_or_path}' (and no such file): use box, crowd, one of {} or a script file \
              (see configs/script-example.ron)",
             BUILTIN_SCRIPTS.join(", ")
         )

@@ -1,5 +1,5 @@
 //! The crowd stepper: thousands of single-rigid-body characters stepped and posed per 3 ms step on
-//! one core (DESIGN.md section 8: more than 5,000).
+//! one core (the project's goal: more than 5,000).
 //!
 //! Why not the general engine: `Model::build_pairs` lists every pair of shapes (O(n^2) for n
 //! characters) and the articulated-body machinery is general. Here every body is one free rigid
@@ -22,7 +22,7 @@
 use glam::{DMat3, DQuat, DVec3};
 
 use super::ai::Goal;
-use super::controller::Ground;
+use super::controller::{Ground, TiltCosines};
 use super::keyframe::{KeyframeSet, Pose};
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
@@ -75,6 +75,9 @@ pub struct CrowdBody {
     pub com_m: DVec3,
     pub i_com: DMat3,
     pub inv_i_com: DMat3,
+    /// The inverse inertia when it is the same about every axis (the paper's 10 I): then the
+    /// world inverse inertia is that scalar in every orientation, and no matrix is turned.
+    pub inv_i_iso: Option<f64>,
     /// Shapes with their pose in the body frame and bounding radius.
     pub shapes: Vec<(Shape, ShapePose, f64)>,
     /// Radius about the body origin that holds every shape.
@@ -127,6 +130,8 @@ impl CrowdBody {
             com_m,
             i_com,
             inv_i_com: i_com.inverse(),
+            inv_i_iso: (i_com == DMat3::from_diagonal(DVec3::splat(i_com.x_axis.x)))
+                .then(|| 1.0 / i_com.x_axis.x),
             shapes,
             bound_m,
             stand_height_m: l.joint.anchor_m.y,
@@ -167,7 +172,82 @@ pub struct CrowdStats {
     pub scenery_points: usize,
 }
 
+/// What the rest of the step needs to know of a character once its own part is done: read by
+/// the pair contacts of its neighbours (so kept apart from what they write) and by integration.
+#[derive(Clone, Copy, Debug)]
+struct Kin {
+    /// Body origin, velocity (world) and rotation matrix (body -> world).
+    pos_m: DVec3,
+    vel_m_per_s: DVec3,
+    rotm: DMat3,
+    /// Angular velocity (world), world inverse inertia and centre of mass.
+    w_world: DVec3,
+    inv_i_world: DMat3,
+    com_world: DVec3,
+    /// The box in the world axes around all of the body's shapes (centre, half extents).
+    box_c: DVec3,
+    box_e: DVec3,
+}
+
+impl Default for Kin {
+    fn default() -> Kin {
+        Kin {
+            pos_m: DVec3::ZERO,
+            vel_m_per_s: DVec3::ZERO,
+            rotm: DMat3::IDENTITY,
+            w_world: DVec3::ZERO,
+            inv_i_world: DMat3::IDENTITY,
+            com_world: DVec3::ZERO,
+            box_c: DVec3::ZERO,
+            box_e: DVec3::ZERO,
+        }
+    }
+}
+
+/// Per character, what a step adds up: force (world) and torque about the centre of mass (world)
+/// for this step, the floor's push for the next, and counts for the statistics.
+#[derive(Clone, Copy, Debug, Default)]
+struct Acc {
+    force: DVec3,
+    torque: DVec3,
+    ground_moment: DVec3,
+    ground_n: f64,
+    scenery_points: u32,
+    near: u32,
+    pair_points: u32,
+}
+
+/// Shared, read-only inputs of the per-character phase.
+struct Shared<'a> {
+    body: &'a CrowdBody,
+    world: &'a CrowdWorld,
+    params: &'a CharacterParams,
+    set: &'a KeyframeSet,
+    statics: &'a [(Shape, ShapePose)],
+    static_normal: &'a [DVec3],
+    local_box_m: (DVec3, DVec3),
+    cos: TiltCosines,
+    wander: Option<[f64; 4]>,
+    wander_speed_m_per_s: f64,
+    seed: u64,
+    steps: u64,
+}
+
+/// Crowds at least this large step on all of rayon's threads; smaller ones on the calling thread
+/// (a handful of characters is cheaper than a hand-over, and rayon's job queue allocates now and
+/// then when called from outside its pool). The results are the same bits either way.
+pub const PARALLEL_MIN: usize = 256;
+/// Characters per parallel task.
+const CHUNK: usize = 64;
+
 /// A crowd: bodies, characters and their poses, and the scratch of the step.
+///
+/// A step has four phases: every character's own part (AI, controller, scenery contacts, pose), in
+/// parallel over characters; the grid; the contacts between characters, in parallel over
+/// characters (each sums the forces of its own pairs, in a fixed order, computing each pair's
+/// contact the same way from both sides, so the two get exactly opposite forces); integration, in
+/// parallel. Nothing a character computes depends on the order characters are visited, so any
+/// number of threads gives the same bits (tested with 1, 2 and 4).
 #[derive(Clone, Debug)]
 pub struct Crowd {
     pub body: CrowdBody,
@@ -177,7 +257,8 @@ pub struct Crowd {
     pub statics: Vec<(Shape, ShapePose)>,
     pub bodies: Vec<BodyState>,
     pub chars: Vec<Character>,
-    /// Pose of each character (in its body frame), from the last step.
+    /// Pose of each character (in its body frame `S_r`, origin at the centre of mass), from the
+    /// last step: what a viewer draws (joints and parents in `set.joints`).
     pub poses: Vec<Pose>,
     /// Rigid-body space of each character at the start of the last step.
     pub spaces: Vec<BodySpace>,
@@ -185,37 +266,43 @@ pub struct Crowd {
     pub steps: u64,
     pub stats: CrowdStats,
     /// Pick new walk targets in this rectangle (min x, min z, max x, max z) when one is reached;
-    /// `None`: goals stay as set.
+    /// `None`: goals stay as set. Only characters standing or walking to a point wander.
     pub wander: Option<[f64; 4]>,
     pub wander_speed_m_per_s: f64,
     rng: u64,
-    // Per-step accumulators: force (world) and torque about the centre of mass (world).
-    force: Vec<DVec3>,
-    torque: Vec<DVec3>,
-    ground_moment: Vec<DVec3>,
-    ground_n: Vec<f64>,
-    // Uniform grid on the floor (x, z), rebuilt every step.
+    kin: Vec<Kin>,
+    acc: Vec<Acc>,
+    // Uniform grid on the floor (x, z), rebuilt every step: each character's cell, the start of
+    // each cell's run in `cell_items`, and the characters in cell order.
     cell_of: Vec<u32>,
     cell_start: Vec<u32>,
     cell_items: Vec<u32>,
-    cell_pos: Vec<DVec3>,
-    grid_dims: (usize, usize),
-    // Per character for the current step: rotation matrix, world angular velocity, world inverse
-    // inertia and centre of mass. Shape poses are not stored: computing one from `rotm` where it is
-    // needed (the scenery pass and near pairs) is cheaper than writing and reading them back for
-    // every character (a few hundred bytes each, megabytes per step).
-    rotm: Vec<DMat3>,
-    w_world: Vec<DVec3>,
-    inv_i_world: Vec<DMat3>,
-    com_world: Vec<DVec3>,
-    hits: [Hit; MAX_HITS],
+    grid: Grid,
     /// `plane_normal` of each static shape (unused for non-planes), refreshed every step.
     static_normal: Vec<DVec3>,
-    /// The box around all of the body's shapes in the body frame (centre, half extents), refreshed
-    /// every step, and each character's box in the world axes around it (centre, half extents).
-    local_box_m: (DVec3, DVec3),
-    box_c: Vec<DVec3>,
-    box_e: Vec<DVec3>,
+}
+
+/// The grid's geometry for the current step.
+#[derive(Clone, Copy, Debug, Default)]
+struct Grid {
+    lo_x: f64,
+    lo_z: f64,
+    cell_m: f64,
+    nx: usize,
+    nz: usize,
+}
+
+impl Grid {
+    #[inline]
+    fn cell(&self, p: DVec3) -> (usize, usize) {
+        if !p.is_finite() {
+            // A broken state goes to cell 0 and meets only what is there.
+            return (0, 0);
+        }
+        let cx = (((p.x - self.lo_x) / self.cell_m).max(0.0) as usize).min(self.nx - 1);
+        let cz = (((p.z - self.lo_z) / self.cell_m).max(0.0) as usize).min(self.nz - 1);
+        (cx, cz)
+    }
 }
 
 impl Crowd {
@@ -236,40 +323,34 @@ impl Crowd {
             wander: None,
             wander_speed_m_per_s: 1.0,
             rng: 0x9e37_79b9_7f4a_7c15,
-            force: Vec::new(),
-            torque: Vec::new(),
-            ground_moment: Vec::new(),
-            ground_n: Vec::new(),
+            kin: Vec::new(),
+            acc: Vec::new(),
             cell_of: Vec::new(),
             cell_start: Vec::new(),
             cell_items: Vec::new(),
-            cell_pos: Vec::new(),
-            grid_dims: (1, 1),
-            rotm: Vec::new(),
-            w_world: Vec::new(),
-            inv_i_world: Vec::new(),
-            com_world: Vec::new(),
-            hits: [Hit::ZERO; MAX_HITS],
+            grid: Grid::default(),
             static_normal: Vec::new(),
-            local_box_m: (DVec3::ZERO, DVec3::ZERO),
-            box_c: Vec::new(),
-            box_e: Vec::new(),
         }
     }
 
-    /// Seeds the crowd's own random numbers (wander targets).
+    /// A crowd with the same body, world, settings, keyframes and scenery, and no characters (for
+    /// tools and tests that study one character of a scene).
+    pub fn empty_like(&self) -> Crowd {
+        let mut c = Crowd::new(self.body.clone(), self.world, self.params, self.set.clone());
+        c.statics = self.statics.clone();
+        c
+    }
+
+    /// Seeds the crowd's own random numbers (wander targets, and [`Crowd::random`]).
     pub fn seed(&mut self, seed: u64) {
         self.rng = seed ^ 0x9e37_79b9_7f4a_7c15;
     }
 
-    /// A uniform number in [0, 1) (splitmix64): the crowd's only randomness, so a seed fixes it.
+    /// A uniform number in [0, 1) (splitmix64) from the crowd's sequence (for placing characters;
+    /// the step itself draws per character, see `wander_unit`).
     pub fn random(&mut self) -> f64 {
         self.rng = self.rng.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.rng;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
+        unit(mix(self.rng))
     }
 
     /// Adds a character standing on the floor at `(x, z)` facing `heading_rad`; returns its index.
@@ -285,19 +366,10 @@ impl Crowd {
         self.poses.push(Pose::default());
         let b = self.body_space(self.bodies.len() - 1);
         self.spaces.push(b);
-        self.force.push(DVec3::ZERO);
-        self.torque.push(DVec3::ZERO);
-        self.ground_moment.push(DVec3::ZERO);
-        self.ground_n.push(0.0);
+        self.kin.push(Kin::default());
+        self.acc.push(Acc::default());
         self.cell_of.push(0);
         self.cell_items.push(0);
-        self.cell_pos.push(DVec3::ZERO);
-        self.rotm.push(DMat3::IDENTITY);
-        self.w_world.push(DVec3::ZERO);
-        self.inv_i_world.push(DMat3::IDENTITY);
-        self.com_world.push(DVec3::ZERO);
-        self.box_c.push(DVec3::ZERO);
-        self.box_e.push(DVec3::ZERO);
         self.bodies.len() - 1
     }
 
@@ -311,10 +383,7 @@ impl Crowd {
 
     /// The rigid-body space of character `i` now.
     pub fn body_space(&self, i: usize) -> BodySpace {
-        let s = &self.bodies[i];
-        let w = s.rot * s.w_body;
-        let c = s.rot * self.body.com_m;
-        BodySpace::new(s.rot, s.pos_m + c, s.vel_m_per_s + w.cross(c), w)
+        body_space_of(&self.body, &self.bodies[i])
     }
 
     /// World pose of shape `k` of character `i`.
@@ -330,8 +399,8 @@ impl Crowd {
     #[inline]
     pub fn add_force_at(&mut self, i: usize, point_m: DVec3, force_n: DVec3) {
         let c = self.bodies[i].pos_m + self.bodies[i].rot * self.body.com_m;
-        self.force[i] += force_n;
-        self.torque[i] += (point_m - c).cross(force_n);
+        self.acc[i].force += force_n;
+        self.acc[i].torque += (point_m - c).cross(force_n);
     }
 
     /// Adds an impulse (N s) at a world point, given over the next step.
@@ -349,11 +418,20 @@ impl Crowd {
 
     /// One step: AI and controllers, contacts, integration, then every character's pose.
     pub fn step(&mut self) {
-        self.stats = CrowdStats::default();
-        self.per_character();
+        let parallel = self.len() >= PARALLEL_MIN && rayon::current_num_threads() > 1;
+        self.per_character(parallel);
         self.build_grid();
-        self.pair_contacts();
-        self.integrate_all();
+        self.pair_contacts(parallel);
+        self.integrate_all(parallel);
+        self.stats = CrowdStats::default();
+        for a in &self.acc {
+            self.stats.scenery_points += a.scenery_points as usize;
+            self.stats.near_pairs += a.near as usize;
+            self.stats.pair_points += a.pair_points as usize;
+        }
+        // Each pair was met from both sides.
+        self.stats.near_pairs /= 2;
+        self.stats.pair_points /= 2;
     }
 
     /// Everything that concerns one character alone, done while its data is in cache: AI and
@@ -361,11 +439,7 @@ impl Crowd {
     /// scenery, and its pose at the point of Q its state at the start of the step maps to.
     // The phases stay separate functions so a profile shows each one.
     #[inline(never)]
-    fn per_character(&mut self) {
-        let h = self.world.dt_s;
-        let g = -self.world.gravity_m_per_s2.y;
-        let blend_s = self.set.behaviour_blend_s;
-        let cos = self.params.controller.tilt_cosines();
+    fn per_character(&mut self, parallel: bool) {
         // Scenery is a handful of shapes: this grows only when scenery is added.
         self.static_normal.clear();
         self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
@@ -375,165 +449,95 @@ impl Crowd {
             lo = lo.min(local.pos_m - e);
             hi = hi.max(local.pos_m + e);
         }
-        self.local_box_m = ((lo + hi) * 0.5, (hi - lo) * 0.5);
-        for i in 0..self.len() {
-            let b = self.body_space(i);
-            self.spaces[i] = b;
-            if let Some(area) = self.wander {
-                self.wander_goal(i, area);
+        let sh = Shared {
+            body: &self.body,
+            world: &self.world,
+            params: &self.params,
+            set: &self.set,
+            statics: &self.statics,
+            static_normal: &self.static_normal,
+            local_box_m: ((lo + hi) * 0.5, (hi - lo) * 0.5),
+            cos: self.params.controller.tilt_cosines(),
+            wander: self.wander,
+            wander_speed_m_per_s: self.wander_speed_m_per_s,
+            seed: self.rng,
+            steps: self.steps,
+        };
+        let bodies = &self.bodies;
+        let run = |base: usize,
+                   chars: &mut [Character],
+                   poses: &mut [Pose],
+                   spaces: &mut [BodySpace],
+                   kin: &mut [Kin],
+                   acc: &mut [Acc]| {
+            for k in 0..chars.len() {
+                one_character(
+                    &sh,
+                    base + k,
+                    &bodies[base + k],
+                    &mut chars[k],
+                    &mut poses[k],
+                    &mut spaces[k],
+                    &mut kin[k],
+                    &mut acc[k],
+                );
             }
-            let ch = &mut self.chars[i];
-            ch.ground = if self.ground_n[i] > 0.0 {
-                Ground { normal_n: self.ground_n[i], point_m: self.ground_moment[i] / self.ground_n[i] }
-            } else {
-                Ground::default()
-            };
-            let d = ch.think_with(&self.params, &cos, self.body.mass_kg, g, h, blend_s, &b);
-            self.force[i] += d.force_n;
-            self.torque[i] += (d.at_m - b.r_m).cross(d.force_n) + d.torque_n_m;
-            self.ground_n[i] = 0.0;
-            self.ground_moment[i] = DVec3::ZERO;
-            self.cache(i, &b);
-            self.scenery_contacts(i);
-            self.chars[i].anim.pose(&b, &self.set, &mut self.poses[i]);
+        };
+        if parallel {
+            use rayon::prelude::*;
+            self.chars
+                .par_chunks_mut(CHUNK)
+                .zip(self.poses.par_chunks_mut(CHUNK))
+                .zip(self.spaces.par_chunks_mut(CHUNK))
+                .zip(self.kin.par_chunks_mut(CHUNK))
+                .zip(self.acc.par_chunks_mut(CHUNK))
+                .enumerate()
+                .for_each(|(c, ((((ch, po), sp), ki), ac))| run(c * CHUNK, ch, po, sp, ki, ac));
+        } else {
+            run(0, &mut self.chars, &mut self.poses, &mut self.spaces, &mut self.kin, &mut self.acc);
         }
     }
 
     /// The engine's semi-implicit Euler for a free joint.
     #[inline(never)]
-    fn integrate_all(&mut self) {
+    fn integrate_all(&mut self, parallel: bool) {
         let h = self.world.dt_s;
-        for i in 0..self.len() {
-            let s = &mut self.bodies[i];
-            let f = self.force[i] + self.world.gravity_m_per_s2 * self.body.mass_kg;
-            let r = self.rotm[i];
-            let t_body = r.transpose() * self.torque[i];
-            let iw = self.body.i_com * s.w_body;
-            let w_dot = self.body.inv_i_com * (t_body - s.w_body.cross(iw));
+        let (body, g) = (&self.body, self.world.gravity_m_per_s2);
+        let run = |s: &mut BodyState, a: &mut Acc, k: &Kin| {
+            let f = a.force + g * body.mass_kg;
+            let r = k.rotm;
+            let t_body = r.transpose() * a.torque;
+            let iw = body.i_com * s.w_body;
+            let w_dot = body.inv_i_com * (t_body - s.w_body.cross(iw));
             // The body origin's acceleration: the centre of mass's minus the rotation terms.
-            let c = r * self.body.com_m;
-            let w = self.w_world[i];
-            let a_origin = f / self.body.mass_kg - (r * w_dot).cross(c) - w.cross(w.cross(c));
+            let c = r * body.com_m;
+            let w = k.w_world;
+            let a_origin = f / body.mass_kg - (r * w_dot).cross(c) - w.cross(w.cross(c));
             s.w_body += w_dot * h;
             s.vel_m_per_s += a_origin * h;
             s.pos_m += s.vel_m_per_s * h;
             s.rot = (s.rot * quat_exp(s.w_body * h)).normalize();
-            self.force[i] = DVec3::ZERO;
-            self.torque[i] = DVec3::ZERO;
+            a.force = DVec3::ZERO;
+            a.torque = DVec3::ZERO;
+        };
+        if parallel {
+            use rayon::prelude::*;
+            self.bodies
+                .par_chunks_mut(CHUNK)
+                .zip(self.acc.par_chunks_mut(CHUNK))
+                .zip(self.kin.par_chunks(CHUNK))
+                .for_each(|((b, a), k)| {
+                    for i in 0..b.len() {
+                        run(&mut b[i], &mut a[i], &k[i]);
+                    }
+                });
+        } else {
+            for i in 0..self.bodies.len() {
+                run(&mut self.bodies[i], &mut self.acc[i], &self.kin[i]);
+            }
         }
         self.time_s += h;
         self.steps += 1;
-    }
-
-    /// Fills the per-step caches of character `i` (its state is fixed until integration).
-    #[inline]
-    fn cache(&mut self, i: usize, b: &BodySpace) {
-        let s = &self.bodies[i];
-        let r = DMat3::from_quat(s.rot);
-        self.rotm[i] = r;
-        self.w_world[i] = r * s.w_body;
-        self.inv_i_world[i] = r * self.body.inv_i_com * r.transpose();
-        self.com_world[i] = b.r_m;
-        // The body-frame box turned into the world holds the turned shapes.
-        let (c, e) = self.local_box_m;
-        self.box_c[i] = s.pos_m + r * c;
-        self.box_e[i] = r.x_axis.abs() * e.x + r.y_axis.abs() * e.y + r.z_axis.abs() * e.z;
-    }
-
-    fn wander_goal(&mut self, i: usize, area: [f64; 4]) {
-        let s = &self.spaces[i];
-        let pick = match self.chars[i].goal {
-            Goal::WalkTo { point_m, .. } => {
-                let d = DVec3::new(point_m.x - s.r_m.x, 0.0, point_m.z - s.r_m.z).length();
-                d < self.params.ai.arrive_m * 2.0
-            }
-            _ => true,
-        };
-        if pick {
-            let x = area[0] + (area[2] - area[0]) * self.random();
-            let z = area[1] + (area[3] - area[1]) * self.random();
-            self.chars[i].goal =
-                Goal::WalkTo { point_m: DVec3::new(x, 0.0, z), speed_m_per_s: self.wander_speed_m_per_s };
-        }
-    }
-
-    #[inline]
-    fn apply_hit(&mut self, i: usize, hit: &Hit, force: DVec3) {
-        self.force[i] += force;
-        self.torque[i] += (hit.point_m - self.com_world[i]).cross(force);
-    }
-
-    /// Inverse effective mass of character `i` at world `p` along `n` (the engine's formula, in
-    /// world coordinates).
-    #[inline]
-    fn inv_mass_along(&self, i: usize, p: DVec3, n: DVec3) -> f64 {
-        let w = (p - self.com_world[i]).cross(n);
-        1.0 / self.body.mass_kg + w.dot(self.inv_i_world[i] * w)
-    }
-
-    #[inline]
-    fn vel_at(&self, i: usize, p: DVec3) -> DVec3 {
-        self.bodies[i].vel_m_per_s + self.w_world[i].cross(p - self.bodies[i].pos_m)
-    }
-
-    /// Contacts of character `i` with the scenery (its caches must be filled).
-    // Borrows the shapes, the scenery and the hit buffer in place: copying them per character (a
-    // few hundred bytes each) cost more than the narrow phase itself.
-    #[inline]
-    fn scenery_contacts(&mut self, i: usize) {
-        let h = self.world.dt_s;
-        let inv_mass_kg = 1.0 / self.body.mass_kg;
-        let (com, inv_i, w_world) = (self.com_world[i], self.inv_i_world[i], self.w_world[i]);
-        let (pos, vel) = (self.bodies[i].pos_m, self.bodies[i].vel_m_per_s);
-        let (mut force, mut torque) = (self.force[i], self.torque[i]);
-        let (mut ground_n, mut ground_moment) = (self.ground_n[i], self.ground_moment[i]);
-        let mut points = 0;
-        let r = self.rotm[i];
-        for (shape, local, bound) in &self.body.shapes {
-            let pos_m = pos + r * local.pos_m;
-            let mut rot = None;
-            for ((ss, sp), &normal) in self.statics.iter().zip(&self.static_normal) {
-                let far = match ss {
-                    Shape::Plane => (pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
-                    _ => (pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
-                };
-                if far {
-                    continue;
-                }
-                let pose = ShapePose { pos_m, rot: *rot.get_or_insert_with(|| r * local.rot) };
-                let nh = match (shape, ss) {
-                    (Shape::Box { half_extents_m }, Shape::Plane) => {
-                        box_on_plane(*half_extents_m, &pose, normal, sp.pos_m, &mut self.hits)
-                    }
-                    _ => collide(shape, &pose, ss, sp, &mut self.hits),
-                };
-                if nh == 0 {
-                    continue;
-                }
-                let share = 1.0 / nh as f64;
-                for hit in self.hits.iter().take(nh) {
-                    // `inv_mass_along`, `vel_at` and `apply_hit` on the values held above.
-                    let arm = hit.point_m - com;
-                    let w = arm.cross(hit.normal);
-                    let inv_m = inv_mass_kg + w.dot(inv_i * w);
-                    let vrel = vel + w_world.cross(hit.point_m - pos);
-                    let (f, _) = penalty_force(&self.world.scenery, hit, inv_m, share, h, vrel);
-                    force += f;
-                    torque += arm.cross(f);
-                    if hit.normal.y >= 0.7 {
-                        let fn_ = f.dot(hit.normal).max(0.0);
-                        ground_n += fn_;
-                        ground_moment += hit.point_m * fn_;
-                    }
-                    points += 1;
-                }
-            }
-        }
-        self.force[i] = force;
-        self.torque[i] = torque;
-        self.ground_n[i] = ground_n;
-        self.ground_moment[i] = ground_moment;
-        self.stats.scenery_points += points;
     }
 
     /// Cell size: two bounding radii, so touching characters are in the same or adjacent cells.
@@ -549,34 +553,37 @@ impl Crowd {
         }
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         // A body with a non-finite position (a broken state) goes to cell 0 and does not size the grid.
-        for s in self.bodies.iter().filter(|s| s.pos_m.is_finite()) {
-            lo = lo.min(s.pos_m);
-            hi = hi.max(s.pos_m);
+        for k in self.kin.iter().filter(|k| k.pos_m.is_finite()) {
+            lo = lo.min(k.pos_m);
+            hi = hi.max(k.pos_m);
         }
-        // The grid's buffer is sized once (at least four cells per character); when the crowd
-        // spreads wider, the cells grow instead of the buffer, so stepping never allocates. Larger
-        // cells only test more pairs; they never miss one.
-        if self.cell_start.is_empty() {
-            let cs = self.cell_size();
-            let cells = (((hi.x - lo.x) / cs) as usize + 1) * (((hi.z - lo.z) / cs) as usize + 1);
-            self.cell_start.resize(cells.clamp(4 * n, 1 << 22) + 1, 0);
+        if !lo.is_finite() {
+            (lo, hi) = (DVec3::ZERO, DVec3::ZERO);
+        }
+        // The grid's buffer is sized once (about two cells per character); when the crowd spreads
+        // wider, the cells grow instead of the buffer, so stepping never allocates and the grid
+        // costs the same per character at any size. Larger cells only test more pairs; they never
+        // miss one.
+        if self.cell_start.len() < 2 * n + 2 {
+            self.cell_start.resize((2 * n).clamp(16, 1 << 24) + 1, 0);
         }
         let mut cs = self.cell_size();
-        let (mut nx, mut nz);
+        let (nx, nz);
         loop {
-            nx = (((hi.x - lo.x) / cs) as usize).saturating_add(1);
-            nz = (((hi.z - lo.z) / cs) as usize).saturating_add(1);
-            if nx.saturating_mul(nz) < self.cell_start.len() {
+            // Sizes compared as floats: a huge spread must not overflow the product.
+            let fx = ((hi.x - lo.x) / cs).floor() + 1.0;
+            let fz = ((hi.z - lo.z) / cs).floor() + 1.0;
+            if fx * fz < self.cell_start.len() as f64 {
+                (nx, nz) = (fx as usize, fz as usize);
                 break;
             }
             cs *= 1.5;
         }
+        self.grid = Grid { lo_x: lo.x, lo_z: lo.z, cell_m: cs, nx, nz };
         let cells = nx * nz;
         self.cell_start[..cells + 1].fill(0);
         for i in 0..n {
-            let p = self.bodies[i].pos_m;
-            let cx = (((p.x - lo.x) / cs) as usize).min(nx - 1);
-            let cz = (((p.z - lo.z) / cs) as usize).min(nz - 1);
+            let (cx, cz) = self.grid.cell(self.kin[i].pos_m);
             let c = (cz * nx + cx) as u32;
             self.cell_of[i] = c;
             self.cell_start[c as usize + 1] += 1;
@@ -584,7 +591,7 @@ impl Crowd {
         for c in 0..cells {
             self.cell_start[c + 1] += self.cell_start[c];
         }
-        // Counting sort: each start is advanced while its items are placed, then moved back.
+        // Counting sort, stable: each cell's characters in index order.
         for i in 0..n {
             let c = self.cell_of[i] as usize;
             let at = self.cell_start[c] as usize;
@@ -596,105 +603,31 @@ impl Crowd {
             self.cell_start[c] = self.cell_start[c - 1];
         }
         self.cell_start[0] = 0;
-        for k in 0..n {
-            self.cell_pos[k] = self.bodies[self.cell_items[k] as usize].pos_m;
-        }
-        self.grid_dims = (nx, nz);
     }
 
-    /// Visits every pair of characters in the same or adjacent cells once: each cell against
-    /// itself and its four "forward" neighbours, on positions stored in cell order (sequential).
+    /// Every character sums the contacts of the pairs it is in: its own and the eight neighbouring
+    /// cells, neighbours in a fixed order.
     #[inline(never)]
-    fn pair_contacts(&mut self) {
-        let (nx, nz) = self.grid_dims;
-        let reach = (2.0 * self.body.bound_m).powi(2);
-        const FORWARD: [(isize, isize); 4] = [(1, 0), (-1, 1), (0, 1), (1, 1)];
-        for cz in 0..nz {
-            for cx in 0..nx {
-                let cell = cz * nx + cx;
-                let (a, b) = (self.cell_start[cell] as usize, self.cell_start[cell + 1] as usize);
-                for k in a..b {
-                    let pk = self.cell_pos[k];
-                    for k2 in k + 1..b {
-                        if (pk - self.cell_pos[k2]).length_squared() <= reach {
-                            self.near(k, k2);
-                        }
-                    }
-                    for (ox, oz) in FORWARD {
-                        let (x, z) = (cx as isize + ox, cz as isize + oz);
-                        if x < 0 || x >= nx as isize || z >= nz as isize {
-                            continue;
-                        }
-                        let other = z as usize * nx + x as usize;
-                        let (a2, b2) = (self.cell_start[other] as usize, self.cell_start[other + 1] as usize);
-                        for k2 in a2..b2 {
-                            if (pk - self.cell_pos[k2]).length_squared() <= reach {
-                                self.near(k, k2);
-                            }
-                        }
-                    }
+    fn pair_contacts(&mut self, parallel: bool) {
+        let ctx = PairCtx {
+            body: &self.body,
+            world: &self.world,
+            kin: &self.kin,
+            grid: self.grid,
+            cell_start: &self.cell_start,
+            cell_items: &self.cell_items,
+            cell_of: &self.cell_of,
+        };
+        if parallel {
+            use rayon::prelude::*;
+            self.acc.par_chunks_mut(CHUNK).enumerate().for_each(|(c, acc)| {
+                for (k, a) in acc.iter_mut().enumerate() {
+                    ctx.gather(c * CHUNK + k, a);
                 }
-            }
-        }
-    }
-
-    /// Two grid items whose bodies are near: contacts, lower character index first.
-    #[inline]
-    fn near(&mut self, k: usize, k2: usize) {
-        let (i, j) = (self.cell_items[k] as usize, self.cell_items[k2] as usize);
-        self.stats.near_pairs += 1;
-        // Bounding spheres reach from the feet to the head; upright neighbours' boxes in the world
-        // axes are far narrower, and bodies whose boxes are apart have no shapes that touch.
-        let gap = (self.box_c[i] - self.box_c[j]).abs() - self.box_e[i] - self.box_e[j];
-        if gap.max_element() > AABB_MARGIN_M {
-            return;
-        }
-        self.pair(i.min(j), i.max(j));
-    }
-
-    fn pair(&mut self, i: usize, j: usize) {
-        let h = self.world.dt_s;
-        let ns = self.body.shapes.len();
-        let (ri, rj) = (self.rotm[i], self.rotm[j]);
-        let (pos_i, pos_j) = (self.bodies[i].pos_m, self.bodies[j].pos_m);
-        for ka in 0..ns {
-            let (sa, la, ra) = self.body.shapes[ka];
-            let pa_m = pos_i + ri * la.pos_m;
-            // Most shapes of a near pair are nowhere near the other body at all.
-            let reach_j = ra + self.body.bound_m;
-            if (pa_m - pos_j).length_squared() > reach_j * reach_j {
-                continue;
-            }
-            let pa = ShapePose { pos_m: pa_m, rot: ri * la.rot };
-            for kb in 0..ns {
-                let (sb, lb, rb) = self.body.shapes[kb];
-                let pb_m = pos_j + rj * lb.pos_m;
-                if (pa.pos_m - pb_m).length_squared() > (ra + rb) * (ra + rb) {
-                    continue;
-                }
-                let pb = ShapePose { pos_m: pb_m, rot: rj * lb.rot };
-                // Bounding spheres of the trunk's capsules overlap for upright neighbours a body
-                // apart; their boxes in the world axes mostly do not, and shapes whose boxes are
-                // apart have no hit, so skipping `collide` for them changes nothing.
-                let gap = (pa.pos_m - pb.pos_m).abs() - aabb_half_m(&sa, &pa.rot) - aabb_half_m(&sb, &pb.rot);
-                if gap.max_element() > AABB_MARGIN_M {
-                    continue;
-                }
-                let nh = collide(&sa, &pa, &sb, &pb, &mut self.hits);
-                if nh == 0 {
-                    continue;
-                }
-                let share = 1.0 / nh as f64;
-                for hi in 0..nh {
-                    let hit = &{ self.hits[hi] };
-                    let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal)
-                        + self.inv_mass_along(j, hit.point_m, hit.normal);
-                    let vrel = self.vel_at(i, hit.point_m) - self.vel_at(j, hit.point_m);
-                    let (f, _) = penalty_force(&self.world.pair, hit, inv_m, share, h, vrel);
-                    self.apply_hit(i, hit, f);
-                    self.apply_hit(j, hit, -f);
-                    self.stats.pair_points += 1;
-                }
+            });
+        } else {
+            for (i, a) in self.acc.iter_mut().enumerate() {
+                ctx.gather(i, a);
             }
         }
     }
@@ -723,5 +656,269 @@ impl Crowd {
             eat(c.control.policy as u8 as f64);
         }
         h
+    }
+}
+
+/// The rigid-body space of a crowd body.
+#[inline]
+fn body_space_of(body: &CrowdBody, s: &BodyState) -> BodySpace {
+    let w = s.rot * s.w_body;
+    let c = s.rot * body.com_m;
+    BodySpace::new(s.rot, s.pos_m + c, s.vel_m_per_s + w.cross(c), w)
+}
+
+/// splitmix64's output function.
+#[inline]
+fn mix(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A uniform number in [0, 1) from 53 random bits.
+#[inline]
+fn unit(z: u64) -> f64 {
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// The `k`-th random number of character `i` at step `step`: a function of the crowd's seed and
+/// these alone, so it does not depend on which thread or in which order characters are stepped.
+#[inline]
+fn wander_unit(seed: u64, i: usize, step: u64, k: u64) -> f64 {
+    let z = seed
+        ^ mix((i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ step.rotate_left(32))
+        ^ k.wrapping_mul(0xd1b5_4a32_d192_ed03);
+    unit(mix(z))
+}
+
+/// One character's own part of a step (see [`Crowd::per_character`]).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn one_character(
+    sh: &Shared<'_>,
+    i: usize,
+    s: &BodyState,
+    ch: &mut Character,
+    pose: &mut Pose,
+    space: &mut BodySpace,
+    kin: &mut Kin,
+    acc: &mut Acc,
+) {
+    let h = sh.world.dt_s;
+    let g = -sh.world.gravity_m_per_s2.y;
+    let b = body_space_of(sh.body, s);
+    *space = b;
+    if let Some(area) = sh.wander {
+        let pick = match ch.goal {
+            Goal::WalkTo { point_m, .. } => {
+                let d = DVec3::new(point_m.x - b.r_m.x, 0.0, point_m.z - b.r_m.z).length();
+                d < sh.params.ai.arrive_m * 2.0
+            }
+            Goal::Stand => true,
+            _ => false,
+        };
+        if pick {
+            let x = area[0] + (area[2] - area[0]) * wander_unit(sh.seed, i, sh.steps, 0);
+            let z = area[1] + (area[3] - area[1]) * wander_unit(sh.seed, i, sh.steps, 1);
+            ch.goal = Goal::WalkTo { point_m: DVec3::new(x, 0.0, z), speed_m_per_s: sh.wander_speed_m_per_s };
+        }
+    }
+    ch.ground = if acc.ground_n > 0.0 {
+        Ground { normal_n: acc.ground_n, point_m: acc.ground_moment / acc.ground_n }
+    } else {
+        Ground::default()
+    };
+    let d = ch.think_with(sh.params, &sh.cos, sh.body.mass_kg, g, h, sh.set, &b);
+    acc.force += d.force_n;
+    acc.torque += (d.at_m - b.r_m).cross(d.force_n) + d.torque_n_m;
+    acc.ground_n = 0.0;
+    acc.ground_moment = DVec3::ZERO;
+    acc.near = 0;
+    acc.pair_points = 0;
+    // The per-step caches (the state is fixed until integration).
+    let r = DMat3::from_quat(s.rot);
+    kin.pos_m = s.pos_m;
+    kin.vel_m_per_s = s.vel_m_per_s;
+    kin.rotm = r;
+    kin.w_world = r * s.w_body;
+    kin.inv_i_world = match sh.body.inv_i_iso {
+        Some(k) => DMat3::from_diagonal(DVec3::splat(k)),
+        None => r * sh.body.inv_i_com * r.transpose(),
+    };
+    kin.com_world = b.r_m;
+    // The body-frame box turned into the world holds the turned shapes.
+    let (c, e) = sh.local_box_m;
+    kin.box_c = s.pos_m + r * c;
+    kin.box_e = r.x_axis.abs() * e.x + r.y_axis.abs() * e.y + r.z_axis.abs() * e.z;
+    scenery_contacts(sh, kin, acc);
+    ch.pose(&b, sh.set, &sh.params.controller, pose);
+}
+
+/// Contacts of one character with the scenery (its caches filled).
+#[inline]
+fn scenery_contacts(sh: &Shared<'_>, k: &Kin, acc: &mut Acc) {
+    let h = sh.world.dt_s;
+    let inv_mass_kg = 1.0 / sh.body.mass_kg;
+    let mut hits = [Hit::ZERO; MAX_HITS];
+    let mut points = 0;
+    for (shape, local, bound) in &sh.body.shapes {
+        let pos_m = k.pos_m + k.rotm * local.pos_m;
+        let mut rot = None;
+        for ((ss, sp), &normal) in sh.statics.iter().zip(sh.static_normal) {
+            let far = match ss {
+                Shape::Plane => (pos_m - sp.pos_m).dot(sp.rot.y_axis) > *bound,
+                _ => (pos_m - sp.pos_m).length_squared() > (bound + bounding_radius(ss)).powi(2),
+            };
+            if far {
+                continue;
+            }
+            let pose = ShapePose { pos_m, rot: *rot.get_or_insert_with(|| k.rotm * local.rot) };
+            let nh = match (shape, ss) {
+                (Shape::Box { half_extents_m }, Shape::Plane) => {
+                    box_on_plane(*half_extents_m, &pose, normal, sp.pos_m, &mut hits)
+                }
+                _ => collide(shape, &pose, ss, sp, &mut hits),
+            };
+            if nh == 0 {
+                continue;
+            }
+            let share = 1.0 / nh as f64;
+            for hit in hits.iter().take(nh) {
+                let arm = hit.point_m - k.com_world;
+                let w = arm.cross(hit.normal);
+                let inv_m = inv_mass_kg + w.dot(k.inv_i_world * w);
+                let vrel = k.vel_m_per_s + k.w_world.cross(hit.point_m - k.pos_m);
+                let (f, _) = penalty_force(&sh.world.scenery, hit, inv_m, share, h, vrel);
+                acc.force += f;
+                acc.torque += arm.cross(f);
+                if hit.normal.y >= 0.7 {
+                    let fn_ = f.dot(hit.normal).max(0.0);
+                    acc.ground_n += fn_;
+                    acc.ground_moment += hit.point_m * fn_;
+                }
+                points += 1;
+            }
+        }
+    }
+    acc.scenery_points = points;
+}
+
+/// What the pair contacts read: every character's caches and the grid.
+struct PairCtx<'a> {
+    body: &'a CrowdBody,
+    world: &'a CrowdWorld,
+    kin: &'a [Kin],
+    grid: Grid,
+    cell_start: &'a [u32],
+    cell_items: &'a [u32],
+    cell_of: &'a [u32],
+}
+
+impl PairCtx<'_> {
+    /// Adds to `a` the contacts of character `i` with every character near it.
+    #[inline]
+    fn gather(&self, i: usize, a: &mut Acc) {
+        let g = &self.grid;
+        let reach = (2.0 * self.body.bound_m).powi(2);
+        let c = self.cell_of[i] as usize;
+        let (cx, cz) = ((c % g.nx) as isize, (c / g.nx) as isize);
+        let pi = self.kin[i].pos_m;
+        for oz in -1..=1isize {
+            let z = cz + oz;
+            if z < 0 || z >= g.nz as isize {
+                continue;
+            }
+            for ox in -1..=1isize {
+                let x = cx + ox;
+                if x < 0 || x >= g.nx as isize {
+                    continue;
+                }
+                let cell = z as usize * g.nx + x as usize;
+                for &j in &self.cell_items[self.cell_start[cell] as usize..self.cell_start[cell + 1] as usize]
+                {
+                    let j = j as usize;
+                    if j == i || (pi - self.kin[j].pos_m).length_squared() > reach {
+                        continue;
+                    }
+                    a.near += 1;
+                    // Bounding spheres reach from the feet to the head; upright neighbours' boxes
+                    // in the world axes are far narrower, and bodies whose boxes are apart have
+                    // no shapes that touch.
+                    let (ki, kj) = (&self.kin[i], &self.kin[j]);
+                    let gap = (ki.box_c - kj.box_c).abs() - ki.box_e - kj.box_e;
+                    if gap.max_element() > AABB_MARGIN_M {
+                        continue;
+                    }
+                    // The pair is computed from its lower index, whichever side asks, so both get
+                    // exactly opposite forces.
+                    let (lo, hi) = (i.min(j), i.max(j));
+                    let sign = if i == lo { 1.0 } else { -1.0 };
+                    self.pair(lo, hi, |point, f| {
+                        let f = f * sign;
+                        a.force += f;
+                        a.torque += (point - ki.com_world).cross(f);
+                        a.pair_points += 1;
+                    });
+                }
+            }
+        }
+    }
+
+    /// Inverse effective mass of character `i` at world `p` along `n` (the engine's formula, in
+    /// world coordinates).
+    #[inline]
+    fn inv_mass_along(&self, i: usize, p: DVec3, n: DVec3) -> f64 {
+        let k = &self.kin[i];
+        let w = (p - k.com_world).cross(n);
+        1.0 / self.body.mass_kg + w.dot(k.inv_i_world * w)
+    }
+
+    #[inline]
+    fn vel_at(&self, i: usize, p: DVec3) -> DVec3 {
+        let k = &self.kin[i];
+        k.vel_m_per_s + k.w_world.cross(p - k.pos_m)
+    }
+
+    /// The contacts between characters `i < j`: calls `apply(point, force on i)` for each.
+    fn pair(&self, i: usize, j: usize, mut apply: impl FnMut(DVec3, DVec3)) {
+        let h = self.world.dt_s;
+        let ns = self.body.shapes.len();
+        let (ki, kj) = (&self.kin[i], &self.kin[j]);
+        let mut hits = [Hit::ZERO; MAX_HITS];
+        for ka in 0..ns {
+            let (sa, la, ra) = self.body.shapes[ka];
+            let pa_m = ki.pos_m + ki.rotm * la.pos_m;
+            // Most shapes of a near pair are nowhere near the other body at all.
+            let reach_j = ra + self.body.bound_m;
+            if (pa_m - kj.pos_m).length_squared() > reach_j * reach_j {
+                continue;
+            }
+            let pa = ShapePose { pos_m: pa_m, rot: ki.rotm * la.rot };
+            for kb in 0..ns {
+                let (sb, lb, rb) = self.body.shapes[kb];
+                let pb_m = kj.pos_m + kj.rotm * lb.pos_m;
+                if (pa.pos_m - pb_m).length_squared() > (ra + rb) * (ra + rb) {
+                    continue;
+                }
+                let pb = ShapePose { pos_m: pb_m, rot: kj.rotm * lb.rot };
+                // Shapes whose boxes in the world axes are apart have no hit.
+                let gap = (pa.pos_m - pb.pos_m).abs() - aabb_half_m(&sa, &pa.rot) - aabb_half_m(&sb, &pb.rot);
+                if gap.max_element() > AABB_MARGIN_M {
+                    continue;
+                }
+                let nh = collide(&sa, &pa, &sb, &pb, &mut hits);
+                if nh == 0 {
+                    continue;
+                }
+                let share = 1.0 / nh as f64;
+                for hit in hits.iter().take(nh) {
+                    let inv_m = self.inv_mass_along(i, hit.point_m, hit.normal)
+                        + self.inv_mass_along(j, hit.point_m, hit.normal);
+                    let vrel = self.vel_at(i, hit.point_m) - self.vel_at(j, hit.point_m);
+                    let (f, _) = penalty_force(&self.world.pair, hit, inv_m, share, h, vrel);
+                    apply(hit.point_m, f);
+                }
+            }
+        }
     }
 }

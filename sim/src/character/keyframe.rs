@@ -51,6 +51,16 @@ pub struct QPoint {
     pub behaviour: u8,
 }
 
+/// A lean described by its direction, for the poses of large leans ([`KeyframeSet::pose_polar`]):
+/// the lean toward the front (or back) and toward the side it amounts to, and the share of the
+/// lean that is toward the front (1: straight ahead or back, 0: straight to the side).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Lean {
+    pub front_rad: f64,
+    pub side_rad: f64,
+    pub front_share: f64,
+}
+
 /// A skeleton pose in the body frame `S_r`: each joint's rotation relative to its parent (at rest
 /// all joint frames are aligned with `S_r`), and the root joint's offset from its rest position.
 /// Single precision: a pose is for display (the physics is all f64), and f32 quaternions blend
@@ -139,6 +149,15 @@ pub struct AnimationFile {
     pub keys: Vec<KeyFile>,
 }
 
+/// The legs that stand on the controller's feet: the ankle joints (their parents are the knees,
+/// the knees' parents the hips) and the ankle's height above the sole.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LegsFile {
+    pub ankles: (String, String),
+    pub ankle_height_m: f64,
+}
+
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyframeFile {
@@ -149,8 +168,17 @@ pub struct KeyframeFile {
     pub behaviour_blend_s: f64,
     pub behaviours: Vec<String>,
     pub skeleton: Vec<JointFile>,
+    #[serde(default)]
+    pub legs: Option<LegsFile>,
     pub animations: Vec<AnimationFile>,
 }
+
+/// Largest length in a keyframe file (m): joint offsets, strides, root offsets. A skeleton or a
+/// stride larger than this is a typo.
+pub const LENGTH_MAX_M: f64 = 100.0;
+/// Most animations in a set and keyframes in one animation.
+pub const ANIMATIONS_MAX: usize = 1024;
+pub const KEYS_MAX: usize = 1024;
 
 // ---- the built set ----
 
@@ -196,6 +224,8 @@ struct Plane {
 struct Subspace {
     front: Plane,
     side: Plane,
+    /// The pose at the origin of the subspace (the side plane's keys are offsets from it).
+    origin: Pose,
 }
 
 /// A keyframe as it was placed in Q, for tests and tools.
@@ -217,6 +247,11 @@ pub struct KeyframeSet {
     pub behaviour_blend_s: f64,
     pub animations: usize,
     pub keys: Vec<PlacedKey>,
+    /// The legs posed onto the feet, if the file names them.
+    pub legs: Option<super::legs::Legs>,
+    /// Joints `0..posed` are interpolated; the rest are leaves no keyframe turns (their rotation
+    /// moves nothing), left at rest. List leaves last in the skeleton and posing skips them.
+    pub posed: usize,
     sub: Vec<Subspace>,
 }
 
@@ -244,25 +279,35 @@ impl KeyframeSet {
         let f: KeyframeFile = config::parse_kind(text, origin, config::FileKind::Keyframes)?;
         config::check_version(text, origin, f.version, 1)?;
         for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
-            if !(v > 0.0 && v.is_finite()) {
+            if !(v > 0.0 && v <= LENGTH_MAX_M) {
                 return Err(err(
                     text,
                     origin,
                     field,
                     field,
                     0,
-                    format!("must be a positive length, got {v}"),
+                    format!("must be a positive length up to {LENGTH_MAX_M} m, got {v}"),
                 ));
             }
         }
-        if !(f.behaviour_blend_s > 0.0) {
+        if !(f.behaviour_blend_s > 0.0 && f.behaviour_blend_s <= 60.0) {
             return Err(err(
                 text,
                 origin,
                 "behaviour_blend_s",
                 "behaviour_blend_s",
                 0,
-                "must be > 0 s".into(),
+                format!("must be in (0, 60] s, got {}", f.behaviour_blend_s),
+            ));
+        }
+        if f.animations.is_empty() || f.animations.len() > ANIMATIONS_MAX {
+            return Err(err(
+                text,
+                origin,
+                "animations",
+                "animations",
+                0,
+                format!("needs 1 to {ANIMATIONS_MAX} animations, got {}", f.animations.len()),
             ));
         }
         if f.skeleton.is_empty() || f.skeleton.len() > MAX_JOINTS {
@@ -306,12 +351,57 @@ impl KeyframeSet {
                     }
                 },
             };
+            if f.skeleton[..i].iter().any(|o| o.name == j.name) {
+                return Err(err(
+                    text,
+                    origin,
+                    &format!("skeleton[{i}].name"),
+                    "name",
+                    // The set's own `name` comes first.
+                    i + 1,
+                    format!("joint name {:?} is used twice", j.name),
+                ));
+            }
+            if !(j.offset_m.is_finite() && j.offset_m.length() <= LENGTH_MAX_M) {
+                return Err(err(
+                    text,
+                    origin,
+                    &format!("skeleton[{i}].offset_m"),
+                    "offset_m",
+                    i,
+                    format!("must be finite and within {LENGTH_MAX_M} m, got {}", j.offset_m),
+                ));
+            }
             joints.push(Joint { name: j.name.clone(), parent, offset_m: j.offset_m });
         }
+        let legs = match &f.legs {
+            None => None,
+            Some(l) => {
+                let find = |name: &str| joints.iter().position(|j| j.name == name);
+                let bad = |m: String| err(text, origin, "legs.ankles", "ankles", 0, m);
+                let left = find(&l.ankles.0)
+                    .ok_or_else(|| bad(format!("no joint {:?} in the skeleton", l.ankles.0)))?;
+                let right = find(&l.ankles.1)
+                    .ok_or_else(|| bad(format!("no joint {:?} in the skeleton", l.ankles.1)))?;
+                if !(l.ankle_height_m >= 0.0 && l.ankle_height_m <= 1.0) {
+                    return Err(err(
+                        text,
+                        origin,
+                        "legs.ankle_height_m",
+                        "ankle_height_m",
+                        0,
+                        format!("must be in [0, 1] m, got {}", l.ankle_height_m),
+                    ));
+                }
+                Some(super::legs::Legs::new(&joints, [left, right], l.ankle_height_m as f32).map_err(bad)?)
+            }
+        };
         let nb = f.behaviours.len();
         let mut planes: Vec<(Plane, Plane)> = vec![(Plane::default(), Plane::default()); nb];
         let mut keys = Vec::new();
         let mut key_occ = 0usize;
+        // `root_m` is optional: its n-th appearance in the text is the n-th key that sets it.
+        let mut root_occ = 0usize;
         for (ai, a) in f.animations.iter().enumerate() {
             let field = |s: &str| format!("animations[{ai}].{s}");
             let Some(b) = f.behaviours.iter().position(|x| x == &a.behaviour) else {
@@ -324,14 +414,14 @@ impl KeyframeSet {
                     format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours),
                 ));
             };
-            if a.keys.is_empty() {
+            if a.keys.is_empty() || a.keys.len() > KEYS_MAX {
                 return Err(err(
                     text,
                     origin,
                     &field("keys"),
                     "keys",
                     ai,
-                    "an animation needs at least one keyframe".into(),
+                    format!("an animation needs 1 to {KEYS_MAX} keyframes, got {}", a.keys.len()),
                 ));
             }
             for (ki, k) in a.keys.iter().enumerate() {
@@ -344,6 +434,40 @@ impl KeyframeSet {
                     behaviour: b as u8,
                 };
                 let kf = field(&format!("keys[{ki}].at"));
+                if ![a.line.theta_x_deg, a.line.theta_z_deg, a.line.d_x, a.line.d_z]
+                    .iter()
+                    .all(|v| v.is_finite())
+                {
+                    return Err(err(
+                        text,
+                        origin,
+                        &field("line"),
+                        "line",
+                        ai,
+                        "the line's coordinates must be finite numbers".into(),
+                    ));
+                }
+                if !k.at.is_finite() {
+                    return Err(err(
+                        text,
+                        origin,
+                        &kf,
+                        "at",
+                        occ,
+                        "positions in Q must be finite numbers".into(),
+                    ));
+                }
+                if !(k.root_m.is_finite() && k.root_m.length() <= LENGTH_MAX_M) {
+                    return Err(err(
+                        text,
+                        origin,
+                        &field(&format!("keys[{ki}].root_m")),
+                        "root_m",
+                        root_occ,
+                        format!("must be finite and within {LENGTH_MAX_M} m, got {}", k.root_m),
+                    ));
+                }
+                root_occ += (k.root_m != DVec3::ZERO) as usize;
                 match a.along {
                     Axis::ThetaX => at.theta_x = k.at.to_radians(),
                     Axis::ThetaZ => at.theta_z = k.at.to_radians(),
@@ -368,7 +492,7 @@ impl KeyframeSet {
                 let in_front = at.theta_z.abs() < SAME && at.d_x.abs() < SAME;
                 let in_side = at.theta_x.abs() < SAME && at.d_z.abs() < SAME;
                 if !in_front && !in_side {
-                    return Err(err(text, origin, &kf, "at", occ, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
+                    return Err(err(text, origin, &field("line"), "line", ai, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
                 }
                 let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
                 for (name, rv) in &k.pose {
@@ -382,7 +506,7 @@ impl KeyframeSet {
                             format!("no joint {name:?} in the skeleton"),
                         ));
                     };
-                    if !rv.is_finite() {
+                    if !(rv.is_finite() && rv.length() <= 36_000.0) {
                         return Err(err(
                             text,
                             origin,
@@ -452,9 +576,11 @@ impl KeyframeSet {
             let (mut front, mut side) = (front, side);
             front.align(joints.len());
             side.align(joints.len());
-            sub.push(Subspace { front, side });
+            sub.push(Subspace { front, side, origin: o });
         }
+        let posed = posed_joints(&joints, &keys);
         Ok(KeyframeSet {
+            posed,
             name: f.name,
             joints,
             behaviours: f.behaviours,
@@ -463,13 +589,14 @@ impl KeyframeSet {
             behaviour_blend_s: f.behaviour_blend_s,
             animations: f.animations.len(),
             keys,
+            legs,
             sub,
         })
     }
 
     /// The pose at a point of Q (no behaviour blend).
     pub fn pose(&self, q: &QPoint, out: &mut Pose) {
-        let n = self.joints.len();
+        let n = self.posed;
         let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
         if s.side.rows.is_empty() || s.front.rows.is_empty() {
             let w = if s.side.rows.is_empty() {
@@ -496,6 +623,62 @@ impl KeyframeSet {
         normalize_joints(&mut out.rot, n);
     }
 
+    /// The pose for a large lean, by its direction (see [`Lean`]): the front plane's pose at the
+    /// lean toward the front or back and the side plane's at the lean toward the side, blended by
+    /// how much of the lean is in each direction. A body lying down and rolling between its side
+    /// and its face moves between the lying poses, never through the poses of falling.
+    pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut Pose) {
+        let n = self.posed;
+        let s = &self.sub[(behaviour as usize).min(self.sub.len() - 1)];
+        let (wf, ws) = (lean.front_share, 1.0 - lean.front_share);
+        let front = (!s.front.rows.is_empty() && wf > 0.0).then(|| s.front.weights(lean.front_rad, d_z));
+        let side = (!s.side.rows.is_empty() && ws > 0.0).then(|| s.side.weights(lean.side_rad, d_x));
+        let (wf, ws) = match (&front, &side) {
+            (Some(_), None) => (1.0, 0.0),
+            (None, Some(_)) => (0.0, 1.0),
+            (None, None) => {
+                *out = s.origin;
+                return;
+            }
+            _ => (wf, ws),
+        };
+        out.root_m = Vec3::ZERO;
+        if let Some(f) = &front {
+            out.root_m += root4(f) * wf as f32;
+        }
+        if let Some(d) = &side {
+            // The side keys are offsets from the origin.
+            let root = if s.front.rows.is_empty() { Vec3::ZERO } else { s.origin.root_m };
+            out.root_m += (root + root4(d)) * ws as f32;
+        }
+        let f32w = front.as_ref().map(|f| weights32(f, s.front.aligned));
+        let d32w = side.as_ref().map(|d| weights32(d, s.side.aligned));
+        for j in 0..n {
+            let qf = match (&front, &f32w) {
+                (Some(f), Some(w)) => blend4(f, w, j).normalize(),
+                _ => Quat::IDENTITY,
+            };
+            let qs = match (&side, &d32w) {
+                (Some(d), Some(w)) => {
+                    let off = blend4(d, w, j).normalize();
+                    if s.front.rows.is_empty() {
+                        off
+                    } else {
+                        s.origin.rot[j] * off
+                    }
+                }
+                _ => Quat::IDENTITY,
+            };
+            out.rot[j] = if front.is_none() {
+                qs
+            } else if side.is_none() {
+                qf
+            } else {
+                nlerp2(qf, wf as f32, qs, ws as f32)
+            };
+        }
+    }
+
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
     pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut Pose) {
         self.pose(q, out);
@@ -520,6 +703,20 @@ impl KeyframeSet {
     pub fn behaviour_index(&self, name: &str) -> Option<u8> {
         self.behaviours.iter().position(|b| b == name).map(|i| i as u8)
     }
+}
+
+/// How many leading joints posing must interpolate: up to the last joint that has a child or that
+/// some keyframe turns.
+fn posed_joints(joints: &[Joint], keys: &[PlacedKey]) -> usize {
+    let mut last = 0;
+    for (i, _) in joints.iter().enumerate() {
+        let parent = joints.iter().any(|c| c.parent == Some(i));
+        let turned = keys.iter().any(|k| k.pose.rot[i] != Quat::IDENTITY);
+        if parent || turned {
+            last = i + 1;
+        }
+    }
+    last.max(1)
 }
 
 fn same_point(a: &QPoint, b: &QPoint) -> bool {

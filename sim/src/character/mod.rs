@@ -18,7 +18,10 @@
 pub mod ai;
 pub mod controller;
 pub mod crowd;
+pub mod drawn;
+pub mod feet;
 pub mod keyframe;
+pub mod legs;
 pub mod scene;
 pub mod space;
 
@@ -29,7 +32,7 @@ use crate::model::Model;
 use crate::state::Workspace;
 use ai::{AiParams, Goal};
 use controller::{ControllerParams, ControllerState, Drive, Ground, TiltCosines};
-use keyframe::{KeyframeSet, Pose, QPoint};
+use keyframe::{KeyframeSet, Lean, Pose, QPoint};
 use space::BodySpace;
 
 /// All settings of a kind of character.
@@ -53,13 +56,41 @@ pub struct Correspondence {
     pub blend: f64,
 }
 
+/// Below this speed (m/s) a standing character's walk phase glides to the nearest standing phase
+/// of the cycle (0 or a half), so a stop ends in the standing pose rather than mid-stride.
+pub const SETTLE_SPEED_M_PER_S: f64 = 0.1;
+/// How fast the phase glides there (cycles per second).
+const SETTLE_CYCLES_PER_S: f64 = 1.0;
+/// Within this angle of lying on its side (rad) the front-back lean fades out of the point of Q:
+/// there the heading frame's front-back lean turns over (section 5.2's identity map would jump
+/// between the front and the back fall poses).
+const SIDE_FADE_RAD: f64 = 0.44;
+
 impl Correspondence {
     /// Advances eqs 6, 7 by one step with the body's horizontal velocity, and the behaviour blend.
+    /// `settle`: the body stands (slow and balanced): the phases glide to a standing phase.
     #[inline]
-    pub fn advance(&mut self, b: &BodySpace, behaviour: u8, blend_s: f64, dt_s: f64) {
+    pub fn advance(
+        &mut self,
+        b: &BodySpace,
+        behaviour: u8,
+        blend_s: f64,
+        dt_s: f64,
+        settle: Option<(f64, f64)>,
+    ) {
         let (vs, vf) = b.velocity_sc();
         self.d_front_m += vf * dt_s;
         self.d_side_m += vs * dt_s;
+        if let Some((stride_front_m, stride_side_m)) = settle {
+            let glide = |d: &mut f64, stride: f64| {
+                let half = 0.5 * stride;
+                let target = (*d / half).round() * half;
+                let max = SETTLE_CYCLES_PER_S * stride * dt_s;
+                *d += (target - *d).clamp(-max, max);
+            };
+            glide(&mut self.d_front_m, stride_front_m);
+            glide(&mut self.d_side_m, stride_side_m);
+        }
         if behaviour != self.behaviour {
             self.from_behaviour = self.behaviour;
             self.behaviour = behaviour;
@@ -69,11 +100,13 @@ impl Correspondence {
         self.blend = (self.blend + dt_s / blend_s).min(1.0);
     }
 
-    /// The point of Q: leans identically, phases by equations 8 and 9 with the strides.
+    /// The point of Q: leans by the identity map, except that the front-back lean fades out near
+    /// lying on the side (where it is undefined) and stays within [-90, 90] deg (the set's reach);
+    /// phases by equations 8 and 9 with the strides.
     #[inline]
     pub fn q(&self, b: &BodySpace, set: &KeyframeSet) -> QPoint {
         QPoint {
-            theta_x: b.theta_x,
+            theta_x: lean_front_continuous(b),
             theta_z: b.theta_z,
             d_x: periodic(self.d_side_m / set.stride_side_m),
             d_z: periodic(self.d_front_m / set.stride_front_m),
@@ -81,11 +114,89 @@ impl Correspondence {
         }
     }
 
-    /// The pose to show (in `S_r`).
+    /// The pose to show (in `S_r`), from the keyframes alone: at the point of Q, and for large
+    /// leans by the lean's direction ([`KeyframeSet::pose_polar`]), with the behaviour blend.
     #[inline]
     pub fn pose(&self, b: &BodySpace, set: &KeyframeSet, out: &mut Pose) {
-        set.pose_blended(&self.q(b, set), self.from_behaviour, self.blend, out);
+        let q = self.q(b, set);
+        let polar = polar_lean(b);
+        pose_at(set, &q, q.behaviour, polar.as_ref(), out);
+        if self.blend >= 1.0 || self.from_behaviour == self.behaviour {
+            return;
+        }
+        let mut other = Pose::default();
+        pose_at(set, &q, self.from_behaviour, polar.as_ref(), &mut other);
+        let (w, n) = (self.blend as f32, set.posed);
+        for j in 0..n {
+            out.rot[j] = nlerp(other.rot[j], out.rot[j], w);
+        }
+        out.root_m = other.root_m * (1.0 - w) + out.root_m * w;
     }
+}
+
+/// Leans (from the vertical) over which the pose moves from the point of Q to the lean's direction
+/// (rad): the planes' poses compose for walking and staggering, but two falls do not compose.
+const POLAR_FROM_RAD: f64 = 0.52;
+const POLAR_FULL_RAD: f64 = 0.79;
+
+/// The lean by direction and how much its pose counts (0 below [`POLAR_FROM_RAD`]).
+#[inline]
+fn polar_lean(b: &BodySpace) -> Option<(Lean, f32)> {
+    let cy = b.e_yr.y;
+    if cy > POLAR_FROM_RAD.cos() {
+        return None;
+    }
+    let tau = cy.clamp(-1.0, 1.0).acos();
+    let m = ((tau - POLAR_FROM_RAD) / (POLAR_FULL_RAD - POLAR_FROM_RAD)).clamp(0.0, 1.0);
+    let (sf, sz) = (b.e_yr.dot(b.heading.e_zc), b.e_yr.dot(b.heading.e_xc));
+    let h2 = sf * sf + sz * sz;
+    let front_share = if h2 > 1e-18 { sf * sf / h2 } else { 1.0 };
+    let lean = Lean {
+        front_rad: tau.copysign(sf),
+        side_rad: tau.min(std::f64::consts::FRAC_PI_2).copysign(sz),
+        front_share,
+    };
+    Some((lean, (m * m * (3.0 - 2.0 * m)) as f32))
+}
+
+/// The pose of one behaviour at `q`, moved toward the lean's direction by its weight.
+#[inline]
+fn pose_at(set: &KeyframeSet, q: &QPoint, behaviour: u8, polar: Option<&(Lean, f32)>, out: &mut Pose) {
+    set.pose(&QPoint { behaviour, ..*q }, out);
+    let Some((lean, m)) = polar else { return };
+    let mut p = Pose::default();
+    set.pose_polar(lean, q.d_x, q.d_z, behaviour, &mut p);
+    if *m >= 1.0 {
+        *out = p;
+        return;
+    }
+    for j in 0..set.posed {
+        out.rot[j] = nlerp(out.rot[j], p.rot[j], *m);
+    }
+    out.root_m = out.root_m * (1.0 - m) + p.root_m * *m;
+}
+
+#[inline]
+fn nlerp(a: glam::Quat, b: glam::Quat, w: f32) -> glam::Quat {
+    let b = if a.dot(b) < 0.0 { -b } else { b };
+    (a * (1.0 - w) + b * w).normalize()
+}
+
+/// The front-back lean as the keyframe space sees it: `atan2(e_yr . e_zc, max(e_yr . e_yc, 0))`
+/// (so within [-90, 90] deg), faded to 0 as the body comes within [`SIDE_FADE_RAD`] of lying on its
+/// side. Continuous for every orientation but the head-down ones the body's round top avoids.
+#[inline]
+pub fn lean_front_continuous(b: &BodySpace) -> f64 {
+    // Upright enough, it is the rigid-body space's own theta_x (one atan2 saved per character).
+    if b.e_yr.y >= SIDE_FADE_RAD.sin() {
+        return b.theta_x;
+    }
+    let sf = b.e_yr.dot(b.heading.e_zc);
+    let up = b.e_yr.y.max(0.0);
+    let th = sf.atan2(up);
+    let h = (sf * sf + up * up).sqrt();
+    let w = (h / SIDE_FADE_RAD.sin()).min(1.0);
+    th * w * w * (3.0 - 2.0 * w)
 }
 
 /// Equation 8: p(x) = x - floor(x), in [0, 1).
@@ -132,10 +243,10 @@ impl Character {
         mass_kg: f64,
         g: f64,
         dt_s: f64,
-        blend_s: f64,
+        set: &KeyframeSet,
         b: &BodySpace,
     ) -> Drive {
-        self.think_with(p, &p.controller.tilt_cosines(), mass_kg, g, dt_s, blend_s, b)
+        self.think_with(p, &p.controller.tilt_cosines(), mass_kg, g, dt_s, set, b)
     }
 
     /// [`Character::think`] with the controller's threshold cosines given (a crowd computes them
@@ -149,14 +260,44 @@ impl Character {
         mass_kg: f64,
         g: f64,
         dt_s: f64,
-        blend_s: f64,
+        set: &KeyframeSet,
         b: &BodySpace,
     ) -> Drive {
         let (targets, behaviour) = ai::decide(&p.ai, &self.goal, b, self.control.policy);
         let d = self.control.control_with(&p.controller, cos, mass_kg, g, dt_s, b, &self.ground, &targets);
-        self.anim.advance(b, behaviour, blend_s, dt_s);
+        let (vs, vf) = b.velocity_sc();
+        let standing = self.control.policy == controller::Policy::Balance
+            && vs * vs + vf * vf < SETTLE_SPEED_M_PER_S * SETTLE_SPEED_M_PER_S
+            && targets.velocity_m_per_s.length_squared() < 1e-4;
+        let strides = (set.stride_front_m, set.stride_side_m);
+        self.anim.advance(b, behaviour, set.behaviour_blend_s, dt_s, standing.then_some(strides));
         self.drive = d;
         d
+    }
+
+    /// The drawn pose (in `S_r`): the keyframe set at the point of Q the body maps to, with the legs
+    /// turned onto the feet the controller stands on (while upright; a fall hands the legs back to
+    /// the keyframes by the time the body leans [`LEGS_FREE_DEG`]).
+    pub fn pose(&self, b: &BodySpace, set: &KeyframeSet, p: &controller::ControllerParams, out: &mut Pose) {
+        self.anim.pose(b, set, out);
+        let (Some(legs), true) = (&set.legs, self.control.feet.grip > 0.0) else { return };
+        let w = legs_weight(b.e_yr.y) * self.control.feet.grip;
+        if w <= 0.0 {
+            return;
+        }
+        let to_body = |v: DVec3| DVec3::new(v.dot(b.e_xr), v.dot(b.e_yr), v.dot(b.e_zr)).as_vec3();
+        let target = |k: usize| {
+            let f = &self.control.feet.foot[k];
+            let lift = f.lift_m(p.step_height_m);
+            to_body(f.pos_m + DVec3::Y * (legs.ankle_height_m as f64 + lift) - b.r_m)
+        };
+        let up = to_body(DVec3::Y);
+        let floor_y = if self.ground.normal_n > 0.0 {
+            self.ground.point_m.y
+        } else {
+            self.control.feet.foot[0].pos_m.y
+        };
+        legs.reach(&set.joints, out, [target(0), target(1)], [w, w], up, (b.r_m.y - floor_y) as f32);
     }
 
     /// Drives a character whose body is `body` of an engine model: reads the floor contacts of the
@@ -168,7 +309,7 @@ impl Character {
         ws: &mut Workspace,
         body: usize,
         p: &CharacterParams,
-        blend_s: f64,
+        set: &KeyframeSet,
     ) -> BodySpace {
         let mut ground = Ground::default();
         let mut moment = DVec3::ZERO;
@@ -191,11 +332,25 @@ impl Character {
         self.ground = ground;
         let b = body_space_engine(model, ws, body);
         let g = -model.gravity_m_per_s2.y;
-        let d = self.think(p, model.bodies[body].mass_kg, g, model.dt_s, blend_s, &b);
+        let d = self.think(p, model.bodies[body].mass_kg, g, model.dt_s, set, &b);
         ws.add_force_at(body, d.at_m, d.force_n);
         ws.add_torque(body, d.torque_n_m);
         b
     }
+}
+
+/// The body leans (deg) below which the drawn legs stand fully on the feet, and above which the
+/// keyframes alone pose them (a fall lifts the feet off the floor).
+pub const LEGS_ON_FEET_DEG: f64 = 20.0;
+pub const LEGS_FREE_DEG: f64 = 40.0;
+
+/// How much the drawn legs follow the feet at a lean whose cosine is `cos_tilt`: 1 upright, 0 past
+/// [`LEGS_FREE_DEG`], smooth between.
+#[inline]
+pub fn legs_weight(cos_tilt: f64) -> f32 {
+    let (on, free) = (LEGS_ON_FEET_DEG.to_radians().cos(), LEGS_FREE_DEG.to_radians().cos());
+    let w = ((cos_tilt - free) / (on - free)).clamp(0.0, 1.0);
+    (w * w * (3.0 - 2.0 * w)) as f32
 }
 
 /// The rigid-body space of an engine body (after `kinematics`/`step`).

@@ -30,6 +30,17 @@ pub struct CrowdLayout {
     pub area_m: [f64; 4],
     pub walk_speed_m_per_s: f64,
     pub seed: u64,
+    /// Characters that keep a spot instead of wandering (the front row a user reaches): where
+    /// each stands (x, z) and which way it faces (deg, 0 facing +z); pushed away, they step back.
+    #[serde(default)]
+    pub stations: Vec<StationFile>,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationFile {
+    pub at_m: (f64, f64),
+    pub heading_deg: f64,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -46,6 +57,14 @@ pub struct CrowdSceneFile {
     pub statics: Vec<ShapeFile>,
     pub crowd: CrowdLayout,
 }
+
+/// Most characters a crowd scene may have (wanderers and stations): far more than a 3 ms step
+/// holds, and small enough that the buffers of the step stay reasonable.
+pub const CROWD_MAX: usize = 1_000_000;
+/// Largest coordinate of the crowd's area and stations (m).
+pub const AREA_MAX_M: f64 = 1e5;
+/// The spacing of the starting grid (m).
+const START_SPACING_M: f64 = 1.2;
 
 fn err(text: &str, origin: &str, field: &str, key: &str, msg: String) -> SimError {
     SimError::Config(config::invalid(text, origin, field, key, 0, msg))
@@ -84,33 +103,103 @@ pub fn build_crowd(
     mut resolve: impl FnMut(&str) -> Result<(String, String), SimError>,
 ) -> Result<Crowd, SimError> {
     let f: CrowdSceneFile = config::parse_kind(text, origin, config::FileKind::CrowdScene)?;
-    config::check_version(text, origin, f.version, 1)?;
+    config::check_version(text, origin, f.version, 2)?;
     if !(f.dt_s > 0.0 && f.dt_s <= 0.01) {
         return Err(err(text, origin, "dt_s", "dt_s", format!("must be in (0, 0.01] s, got {}", f.dt_s)));
     }
-    if !(f.contact.friction >= 0.0 && f.contact.slip_m_per_s > 0.0) {
+    let g = f.gravity_m_per_s2;
+    if !(g.is_finite() && g.length() <= 1000.0 && g.y < 0.0) {
         return Err(err(
             text,
             origin,
-            "contact",
-            "contact",
-            "friction must be >= 0 and slip_m_per_s > 0".into(),
+            "gravity_m_per_s2",
+            "gravity_m_per_s2",
+            format!("must be finite, pointing down (y < 0) and within 1000 m/s^2, got {g}"),
         ));
     }
+    f.contact.check().map_err(|(field, m)| err(text, origin, &format!("contact.{field}"), field, m))?;
     f.character
         .controller
         .check()
         .map_err(|(field, m)| err(text, origin, &format!("character.controller.{field}"), field, m))?;
+    f.character
+        .ai
+        .check()
+        .map_err(|(field, m)| err(text, origin, &format!("character.ai.{field}"), field, m))?;
+    for (i, s) in f.statics.iter().enumerate() {
+        if let Err(m) = s.check() {
+            return Err(SimError::Config(config::invalid(
+                text,
+                origin,
+                &format!("statics[{i}].shape"),
+                "shape",
+                i,
+                m,
+            )));
+        }
+    }
     let a = f.crowd.area_m;
-    if !(a[2] > a[0] && a[3] > a[1]) {
+    if !(a.iter().all(|v| v.abs() <= AREA_MAX_M) && a[2] > a[0] && a[3] > a[1]) {
         return Err(err(
             text,
             origin,
             "crowd.area_m",
             "area_m",
-            "needs min x < max x and min z < max z".into(),
+            format!(
+                "needs finite corners within {AREA_MAX_M} m with min x < max x and min z < max z, got {a:?}"
+            ),
         ));
     }
+    let n_total = f.crowd.count.saturating_add(f.crowd.stations.len());
+    if n_total == 0 || n_total > CROWD_MAX {
+        return Err(err(
+            text,
+            origin,
+            "crowd.count",
+            "count",
+            format!("a crowd needs 1 to {CROWD_MAX} characters (count plus stations), got {n_total}"),
+        ));
+    }
+    if !(f.crowd.walk_speed_m_per_s > 0.0 && f.crowd.walk_speed_m_per_s <= 10.0) {
+        return Err(err(
+            text,
+            origin,
+            "crowd.walk_speed_m_per_s",
+            "walk_speed_m_per_s",
+            format!("must be in (0, 10] m/s, got {}", f.crowd.walk_speed_m_per_s),
+        ));
+    }
+    for (i, st) in f.crowd.stations.iter().enumerate() {
+        let (x, z) = st.at_m;
+        if !(x.abs() <= AREA_MAX_M && z.abs() <= AREA_MAX_M && st.heading_deg.is_finite()) {
+            return Err(SimError::Config(config::invalid(
+                text,
+                origin,
+                &format!("crowd.stations[{i}]"),
+                "at_m",
+                i,
+                format!("position (within {AREA_MAX_M} m) and heading must be finite numbers"),
+            )));
+        }
+    }
+    // Start on a grid over the area, START_SPACING_M apart at least (sizes compared as floats: a
+    // huge area must not overflow the product).
+    let cols = ((a[2] - a[0]) / START_SPACING_M).floor().max(1.0);
+    let rows = ((a[3] - a[1]) / START_SPACING_M).floor().max(1.0);
+    if f.crowd.count as f64 > cols * rows {
+        return Err(err(
+            text,
+            origin,
+            "crowd.count",
+            "count",
+            format!(
+                "{} characters do not fit in the area {START_SPACING_M} m apart (at most {}); enlarge area_m",
+                f.crowd.count,
+                cols * rows
+            ),
+        ));
+    }
+    let cols = cols as usize;
     let (btext, borigin) = resolve(&f.body)?;
     let body = CrowdBody::from_file(&parse_body(&btext, &borigin)?, &borigin)?;
     let (ktext, korigin) = resolve(&f.keyframes)?;
@@ -134,25 +223,15 @@ pub fn build_crowd(
     c.seed(f.crowd.seed);
     c.wander = Some(a);
     c.wander_speed_m_per_s = f.crowd.walk_speed_m_per_s;
-    // Start on a grid over the area, 1.2 m apart at least, facing random ways.
-    let cols = ((a[2] - a[0]) / 1.2).floor().max(1.0) as usize;
-    let rows = ((a[3] - a[1]) / 1.2).floor().max(1.0) as usize;
-    if f.crowd.count > cols * rows {
-        return Err(err(
-            text,
-            origin,
-            "crowd.count",
-            "count",
-            format!(
-                "{} characters do not fit in the area 1.2 m apart (at most {}); enlarge area_m",
-                f.crowd.count,
-                cols * rows
-            ),
-        ));
+    for st in &f.crowd.stations {
+        let heading_rad = st.heading_deg.to_radians();
+        let point_m = DVec3::new(st.at_m.0, 0.0, st.at_m.1);
+        let speed_m_per_s = f.crowd.walk_speed_m_per_s;
+        c.add(st.at_m.0, st.at_m.1, heading_rad, Goal::Station { point_m, heading_rad, speed_m_per_s });
     }
     for i in 0..f.crowd.count {
-        let x = a[0] + 0.6 + (i % cols) as f64 * 1.2;
-        let z = a[1] + 0.6 + (i / cols) as f64 * 1.2;
+        let x = a[0] + 0.5 * START_SPACING_M + (i % cols) as f64 * START_SPACING_M;
+        let z = a[1] + 0.5 * START_SPACING_M + (i / cols) as f64 * START_SPACING_M;
         let h = c.random() * std::f64::consts::TAU;
         c.add(x, z, h, Goal::Stand);
     }

@@ -89,8 +89,12 @@ pub struct BodySpace {
     pub theta_y_dot: f64,
     pub theta_z_dot: f64,
     pub heading: Heading,
-    /// The trunk axis `e_yr` in the world.
+    /// The body's axes in the world: `e_yr` up the trunk, `e_xr` its left, `e_zr` its front.
     pub e_yr: DVec3,
+    pub e_xr: DVec3,
+    pub e_zr: DVec3,
+    /// Angular velocity (world, rad/s).
+    pub w_world: DVec3,
 }
 
 impl BodySpace {
@@ -118,6 +122,9 @@ impl BodySpace {
             theta_z_dot: -w_world.dot(heading.e_zc),
             heading,
             e_yr,
+            e_xr: rot * DVec3::X,
+            e_zr: rot * DVec3::Z,
+            w_world,
         }
     }
 

@@ -421,6 +421,14 @@ fn unplugged_board_goes_safe_is_reopened_and_the_rig_rehomes_once_the_grips_rest
         c.boards().rig_mut().set_script(h, reach_and_hold([r.hands[0].home_m, r.hands[1].home_m][h]));
     }
     c.reconnect();
+    // The emulator's thread makes the new pty when it next runs: wait for it (by its state, not
+    // by time), so the ticks below count the loop's reopening, not the emulator's scheduling.
+    let mut waited = 0;
+    while !c.connection().0 {
+        std::thread::sleep(Duration::from_millis(1));
+        waited += 1;
+        assert!(waited < 10_000, "the emulator never made the new pty");
+    }
     let mut n = 0;
     while s.v.rt.state() != Lifecycle::Inactive {
         run_checked(&mut s, 1);
