@@ -203,9 +203,10 @@ fn a_world_of_another_protocol_version_is_named_with_both_versions() {
     });
     let e = rig.connect(WAIT, 0.0).unwrap_err();
     h.join().unwrap();
-    assert!(matches!(e, LinkError::Version { world: 7, rig: 1, .. }), "{e}");
+    assert!(matches!(e, LinkError::Version { world: 7, rig: wire::PROTOCOL_VERSION, .. }), "{e}");
     let text = e.to_string();
-    assert!(text.contains("protocol 7") && text.contains("this rig speaks 1"), "{text}");
+    let ours = format!("this rig speaks {}", wire::PROTOCOL_VERSION);
+    assert!(text.contains("protocol 7") && text.contains(&ours), "{text}");
 }
 
 #[test]
@@ -216,10 +217,12 @@ fn a_world_learns_a_rig_of_another_version_and_answers_in_its_own() {
     rig.set_read_timeout(Some(WAIT)).unwrap();
     let mut b = vec![0u8; MAX_DATAGRAM];
     let n = wire::encode(&hello(5, rig_info(), ""), 1, &mut b).unwrap();
-    b[4..6].copy_from_slice(&2u16.to_le_bytes());
+    // A version other than ours (an older rig).
+    let theirs = wire::PROTOCOL_VERSION - 1;
+    b[4..6].copy_from_slice(&theirs.to_le_bytes());
     rig.send_to(&b[..n], d.join("w.sock")).unwrap();
     let ev = serve_handshake(&mut world);
-    assert!(matches!(&ev[..], [WorldEvent::WrongVersion { theirs: 2, .. }]), "{ev:?}");
+    assert!(matches!(&ev[..], [WorldEvent::WrongVersion { theirs: t, .. }] if *t == theirs), "{ev:?}");
     let n = rig.recv(&mut b).unwrap();
     assert_eq!(wire::header(&b[..n]).unwrap().version, wire::PROTOCOL_VERSION);
     assert!(world.peer().is_none());

@@ -81,8 +81,40 @@ impl Proxy {
     }
 }
 
-/// What the scene sends the rt-loop every simulation step: the local proxies near the hands,
-/// plus a held per-hand force (the attenuated "damage" force of hits on the avatar's body).
+/// The contact on one avatar hand as a local model for the rt-loop (the boxing scene, seed 000
+/// section 3.4): the world's avatar hand, pulled toward the user's hand by the coupling spring,
+/// touches something in the world with `force_n`; the user feels that force, and between two
+/// world steps the loop carries it along with the user's hand motion as the linear update
+/// `force_n + k_n_per_m (n.u)^2 ((at_m - x).u) u`, u the force's direction, n the normal
+/// (see `spidar_rt::local`). All zero: no contact.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HandContact {
+    /// Contact force on the avatar's hand (world frame, newtons); zero when it touches nothing.
+    pub force_n: DVec3,
+    /// Unit contact normal, out of what the hand touches toward the hand (world frame).
+    pub normal: DVec3,
+    /// How fast the contact's normal force grows as the user's hand moves against `normal`
+    /// (N/m): the contact's stiffness in series with the coupling spring.
+    pub k_n_per_m: f64,
+    /// The user's hand position (world frame) the world computed `force_n` for.
+    pub at_m: DVec3,
+    /// Power the touched body puts into the contact (W): the force on the avatar's hand times
+    /// the velocity of the touched body's point. Positive when the virtual human pushes into the
+    /// avatar's hand (a block meeting it, a punch): the rt-loop may give the user's hand that
+    /// energy on top of what the hand itself put into the contact.
+    pub source_w: f64,
+}
+
+impl HandContact {
+    /// True when the avatar's hand touches something.
+    pub fn touching(&self) -> bool {
+        self.force_n != DVec3::ZERO
+    }
+}
+
+/// What the scene sends the rt-loop every simulation step: the local proxies near the hands, the
+/// avatar hands' contacts as local models (boxing), plus a held per-hand force (the attenuated
+/// "damage" force of hits on the avatar's body).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactModel {
     /// Increases by one for every model a scene sends.
@@ -91,6 +123,9 @@ pub struct ContactModel {
     pub stamp_s: f64,
     pub proxies: [Proxy; MAX_PROXIES],
     pub proxy_count: u8,
+    /// Per hand: the contact on the avatar's hand the user feels (scenes with an avatar; zero
+    /// in the others). Rendered with the proxies, through the same safety chain.
+    pub hand_contacts: [HandContact; HANDS],
     /// Extra force per hand added after rendering (world frame); faded like the rest when stale.
     pub extra_force_n: [DVec3; HANDS],
 }
@@ -109,6 +144,7 @@ impl Default for ContactModel {
                 hand_mask: 0,
             }; MAX_PROXIES],
             proxy_count: 0,
+            hand_contacts: [HandContact::default(); HANDS],
             extra_force_n: [DVec3::ZERO; HANDS],
         }
     }

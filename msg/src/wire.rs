@@ -25,13 +25,13 @@ use glam::DVec3;
 
 use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
 use crate::{
-    ContactModel, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo, RigState, RigStatus, HANDS,
-    MAX_PROXIES, STRINGS,
+    ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo, RigState,
+    RigStatus, HANDS, MAX_PROXIES, STRINGS,
 };
 
 pub const MAGIC: [u8; 4] = *b"SPDR";
 /// Raised whenever any message's layout changes; both ends must speak the same one.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 pub const HEADER_LEN: usize = 20;
 
 /// What a datagram carries.
@@ -426,14 +426,36 @@ impl Field for Proxy {
     }
 }
 
+impl Field for HandContact {
+    const SIZE: usize = 3 * DVec3::SIZE + 8 + 8;
+    fn put(&self, w: &mut Put<'_>) {
+        self.force_n.put(w);
+        self.normal.put(w);
+        self.k_n_per_m.put(w);
+        self.at_m.put(w);
+        self.source_w.put(w);
+    }
+    fn get(r: &mut Get<'_>) -> Self {
+        HandContact {
+            force_n: DVec3::get(r),
+            normal: DVec3::get(r),
+            k_n_per_m: f64::get(r),
+            at_m: DVec3::get(r),
+            source_w: f64::get(r),
+        }
+    }
+}
+
 /// All `MAX_PROXIES` slots travel, used or not: the datagram has one size.
 impl Field for ContactModel {
-    const SIZE: usize = 8 + 8 + <[Proxy; MAX_PROXIES]>::SIZE + 1 + <[DVec3; HANDS]>::SIZE;
+    const SIZE: usize =
+        8 + 8 + <[Proxy; MAX_PROXIES]>::SIZE + 1 + <[HandContact; HANDS]>::SIZE + <[DVec3; HANDS]>::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.seq.put(w);
         self.stamp_s.put(w);
         self.proxies.put(w);
         self.proxy_count.put(w);
+        self.hand_contacts.put(w);
         self.extra_force_n.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
@@ -442,6 +464,7 @@ impl Field for ContactModel {
             stamp_s: f64::get(r),
             proxies: Field::get(r),
             proxy_count: u8::get(r),
+            hand_contacts: Field::get(r),
             extra_force_n: Field::get(r),
         };
         if m.proxy_count as usize > MAX_PROXIES {

@@ -43,13 +43,31 @@ fn arr<T: std::fmt::Debug, const N: usize>(s: impl Strategy<Value = T>) -> impl 
     prop::collection::vec(s, N).prop_map(|v| v.try_into().expect("N elements"))
 }
 
+fn hand_contact() -> impl Strategy<Value = HandContact> {
+    (v3(), v3(), num(), v3(), num()).prop_map(|(force_n, normal, k_n_per_m, at_m, source_w)| HandContact {
+        force_n,
+        normal,
+        k_n_per_m,
+        at_m,
+        source_w,
+    })
+}
+
 fn model() -> impl Strategy<Value = ContactModel> {
-    (any::<u64>(), num(), arr::<_, MAX_PROXIES>(proxy()), 0..=MAX_PROXIES as u8, arr::<_, HANDS>(v3()))
-        .prop_map(|(seq, stamp_s, proxies, proxy_count, extra_force_n)| ContactModel {
+    (
+        any::<u64>(),
+        num(),
+        arr::<_, MAX_PROXIES>(proxy()),
+        0..=MAX_PROXIES as u8,
+        arr::<_, HANDS>(hand_contact()),
+        arr::<_, HANDS>(v3()),
+    )
+        .prop_map(|(seq, stamp_s, proxies, proxy_count, hand_contacts, extra_force_n)| ContactModel {
             seq,
             stamp_s,
             proxies,
             proxy_count,
+            hand_contacts,
             extra_force_n,
         })
 }
@@ -248,7 +266,8 @@ fn sizes_follow_the_layout() {
     // What each payload holds, in bytes (docs/link.md lists the same).
     assert_eq!(ProxyShape::SIZE, 57);
     assert_eq!(Proxy::SIZE, 102);
-    assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 48);
+    assert_eq!(HandContact::SIZE, 88);
+    assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 2 * 88 + 48);
     assert_eq!(HandSample::SIZE, 8 + 8 + 2 * 73 + 8 + 2 * 16 * 24);
     assert_eq!(RigInfo::SIZE, 296);
     assert_eq!(RigStatus::SIZE, 185);
@@ -294,7 +313,8 @@ fn a_message_struct_that_grows_must_grow_its_wire_form_too() {
     use std::mem::size_of;
     let pinned = [
         ("HandSample", size_of::<HandSample>(), 952),
-        ("ContactModel", size_of::<ContactModel>(), 1864),
+        ("ContactModel", size_of::<ContactModel>(), 2040),
+        ("HandContact", size_of::<HandContact>(), 88),
         ("Proxy", size_of::<Proxy>(), 112),
         ("RigInfo", size_of::<RigInfo>(), 296),
         ("RigStatus", size_of::<RigStatus>(), 192),
@@ -342,8 +362,8 @@ fn every_malformed_header_is_named() {
         decode(&d)
     };
     assert_eq!(with(0, b'X'), Err(WireError::BadMagic));
-    assert_eq!(with(4, 2), Err(WireError::Version { got: 2, ours: 1 }));
-    assert_eq!(with(5, 1), Err(WireError::Version { got: 257, ours: 1 }));
+    assert_eq!(with(4, 1), Err(WireError::Version { got: 1, ours: PROTOCOL_VERSION }));
+    assert_eq!(with(5, 1), Err(WireError::Version { got: 256 + PROTOCOL_VERSION, ours: PROTOCOL_VERSION }));
     assert_eq!(with(6, 0), Err(WireError::UnknownKind(0)));
     assert_eq!(with(6, 99), Err(WireError::UnknownKind(99)));
     assert_eq!(with(7, 1), Err(WireError::Flags(1)));
@@ -368,7 +388,7 @@ fn every_malformed_header_is_named() {
     let mut d = good.clone();
     d[4] = 9;
     d[6] = 200;
-    assert_eq!(header(&d), Err(WireError::Version { got: 9, ours: 1 }));
+    assert_eq!(header(&d), Err(WireError::Version { got: 9, ours: PROTOCOL_VERSION }));
 }
 
 #[test]
@@ -417,7 +437,7 @@ fn encoding_needs_a_big_enough_buffer_and_allocates_nothing_else() {
 #[test]
 fn the_documented_bye_datagram_is_what_encode_writes() {
     let hex: String = bye_datagram().iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
-    assert_eq!(hex, "53 50 44 52 01 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
+    assert_eq!(hex, "53 50 44 52 02 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
 }
 
 #[test]

@@ -8,7 +8,9 @@
 
 use glam::DVec3;
 use spidar_device::{ErrorKind, Input, Output, MAX_CHANNELS};
-use spidar_msg::{ContactModel, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES};
+use spidar_msg::{
+    ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES,
+};
 use spidar_rt::telemetry::{CommandLog, HandRecord, TickRecord, RECORD_COMMANDS};
 use spidar_rt::tension::Method;
 use spidar_rt::{Command, Event, FaultReason, Lifecycle};
@@ -301,6 +303,19 @@ message!(Proxy = "spidar/Proxy" {
     hand_mask: u8,
 });
 
+message!(HandContact = "spidar/HandContact" {
+    /// contact force on the avatar's hand, world frame; zero: no contact
+    force_n: DVec3,
+    /// out of what the hand touches, toward the hand
+    normal: DVec3,
+    /// how fast the force grows as the user's hand goes in along -normal
+    k_n_per_m: f64,
+    /// the user's hand position the force was computed for, world frame
+    at_m: DVec3,
+    /// power the touched body puts into the contact
+    source_w: f64,
+});
+
 message!(ContactModel = "spidar/ContactModel" {
     seq: u64,
     /// loop-clock time the geometry is valid at
@@ -308,6 +323,8 @@ message!(ContactModel = "spidar/ContactModel" {
     /// world frame; only the first proxy_count are in use
     proxies: [Proxy; MAX_PROXIES],
     proxy_count: u8,
+    /// per hand: the contact on the avatar's hand (boxing)
+    hand_contacts: [HandContact; HANDS],
     extra_force_n: [DVec3; HANDS],
 });
 
@@ -372,6 +389,10 @@ message!(HandRecord = "spidar/HandTick" {
     clamped: bool,
     stiffness_limited: bool,
     non_finite: bool,
+    /// energy reserve of the avatar-hand contact
+    reserve_j: f64,
+    /// the command was scaled down to stay within the reserve
+    passivity_limited: bool,
     /// the output repeats the last tick's (a late, missing or rejected reply, or a high residual)
     held: bool,
 });

@@ -3,9 +3,10 @@
 //! A tick reads the encoders, computes both hand poses from the string lengths, renders penalty
 //! forces against the contact proxies the scene sent, applies the safety rules and allocates
 //! string tensions, then writes DA volts. Phases live in their own modules, in the order they
-//! run: [`kinematics`], [`velocity`], [`render`], [`safety`], [`tension`]; [`tick`] strings them
-//! together with the lifecycle, [`runner`] adds the device, the clock, the channels and the link
-//! to the world ([`status`]: what the rig tells the world about itself).
+//! run: [`kinematics`], [`velocity`], [`render`] (and [`local`] for the avatar hands' contacts),
+//! [`safety`], [`tension`]; [`tick`] strings them together with the lifecycle, [`runner`] adds the
+//! device, the clock, the channels and the link to the world ([`status`]: what the rig tells the
+//! world about itself).
 
 pub mod boards;
 pub mod bounds;
@@ -13,6 +14,7 @@ pub mod clock;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
 pub mod kinematics;
+pub mod local;
 pub mod render;
 pub mod rig;
 pub mod rt_thread;

@@ -40,6 +40,10 @@ pub struct HandRecord {
     pub stiffness_limited: bool,
     /// The asked force was not finite and was replaced by zero.
     pub non_finite: bool,
+    /// Energy reserve of the avatar-hand contact (J) and whether the command was scaled down
+    /// to stay within it this tick (`local.rs`).
+    pub reserve_j: f64,
+    pub passivity_limited: bool,
     /// This hand's output was held from the last tick (late, missing or rejected reply, or a
     /// pose above the residual limit): every other field repeats that tick's.
     pub held: bool,
@@ -62,6 +66,8 @@ impl Default for HandRecord {
             clamped: false,
             stiffness_limited: false,
             non_finite: false,
+            reserve_j: 0.0,
+            passivity_limited: false,
             held: false,
         }
     }

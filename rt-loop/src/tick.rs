@@ -24,6 +24,7 @@ use spidar_device::{DeviceError, ErrorKind, Input, Output, MAX_CHANNELS};
 use spidar_msg::{ContactModel, HandSample, HandState, HANDS, MAX_PROXIES};
 
 use crate::kinematics::{Kinematics, Pose};
+use crate::local::{self, Passivity};
 use crate::render::{self, Rendered};
 use crate::rig::{HandRig, Rig};
 use crate::safety::{self, Ramp, ReturnRamp};
@@ -146,6 +147,9 @@ pub struct Counters {
     pub fallback: [u64; HANDS],
     /// Ticks where a proxy stiffer than the hand's limit was softened.
     pub stiffness_limited: [u64; HANDS],
+    /// Ticks where the force of an avatar-hand contact was scaled down so the rig would not give
+    /// the hand back more energy than it put into the contact (`local.rs`).
+    pub passivity_limited: [u64; HANDS],
     /// Non-finite forces replaced by zero.
     pub non_finite: u64,
     /// Active ticks with a stale (fading) or missing contact model.
@@ -196,6 +200,8 @@ struct HandCore {
     /// Last pose that was valid: the safe output's string directions come from it.
     safe_pos_m: DVec3,
     bad_residual_ticks: u32,
+    /// Energy reserve of the avatar-hand contact (local model).
+    passivity: Passivity,
     /// Ticks since this hand's counts were last accepted (1: the previous tick), when that was,
     /// and the string lengths they gave.
     since_accept: u32,
@@ -274,6 +280,7 @@ impl TickCore {
                 pose: Pose { pos_m: hr.home_m, residual_m: 0.0, valid: false },
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
+                passivity: Passivity::default(),
                 since_accept: 1,
                 accept_t_s: 0.0,
                 lengths_m: [0.0; 4],
@@ -585,9 +592,15 @@ impl TickCore {
         self.homing_wait.is_some()
     }
 
-    /// Replaces the contact model (the loop keeps only the newest one it received).
+    /// Replaces the contact model (the loop keeps only the newest one it received). The energy
+    /// the world's bodies put into each avatar-hand contact over the step since the last model
+    /// is credited to that hand's reserve (`local.rs`).
     pub fn set_contact_model(&mut self, m: ContactModel) {
         self.counters.models += 1;
+        let since_s = self.model.as_ref().map_or(0.0, |old| (m.stamp_s - old.stamp_s).clamp(0.0, 0.01));
+        for (h, c) in self.hands.iter_mut().zip(m.hand_contacts.iter()) {
+            h.passivity.credit(c.source_w * since_s);
+        }
         self.model = Some(m);
     }
 
@@ -794,12 +807,16 @@ impl TickCore {
             let mut rendered = Rendered::default();
             let mut want_rig = DVec3::ZERO;
             let mut hand_impulses = [DVec3::ZERO; MAX_PROXIES];
+            // The avatar hand's contact (local model) engages the energy reserve while active.
+            let engaged = active && self.model.as_ref().is_some_and(|m| m.hand_contacts[hi].touching());
+            h.passivity.observe(pose_ok.then_some(h.pose.pos_m), engaged);
             if active && pose_ok {
                 if let Some(m) = self.model.as_ref() {
                     let age_s = age.unwrap_or(0.0).max(0.0);
+                    let pos_w = xf.point(h.pose.pos_m);
                     rendered = render::render_hand(
                         hi,
-                        xf.point(h.pose.pos_m),
+                        pos_w,
                         xf.vector(vel),
                         hr.grip_radius_m,
                         hr.stiffness_limit_n_per_m,
@@ -808,7 +825,12 @@ impl TickCore {
                         dt,
                         &mut hand_impulses,
                     );
-                    want_rig = xf.vector_to_rig(rendered.force_n + m.extra_force_n[hi]);
+                    let l = local::render_contact(&m.hand_contacts[hi], pos_w, hr.stiffness_limit_n_per_m);
+                    rendered.stiffness_limited |= l.stiffness_limited;
+                    if l.force_n != DVec3::ZERO {
+                        rendered.contacts = rendered.contacts.saturating_add(1);
+                    }
+                    want_rig = xf.vector_to_rig(rendered.force_n + l.force_n + m.extra_force_n[hi]);
                 }
             }
             if rendered.stiffness_limited {
@@ -821,9 +843,16 @@ impl TickCore {
             if g.clamped {
                 self.counters.clamped[hi] += 1;
             }
+            // Never more energy back to the hand than it put into the avatar hand's contact: the
+            // guarded force is only scaled down along its direction, so the safety phase holds.
+            let (command, limited) = h.passivity.limit(g.force_n, vel, dt, engaged && pose_ok);
+            if limited {
+                self.counters.passivity_limited[hi] += 1;
+            }
             // Directions from the current pose, or from the last good one when it is not trusted.
             let dir_pos = if pose_ok { h.pose.pos_m } else { h.safe_pos_m };
-            let alloc: Allocation = h.alloc.allocate(&h.kin.directions(dir_pos), g.force_n);
+            let alloc: Allocation = h.alloc.allocate(&h.kin.directions(dir_pos), command);
+            h.passivity.commanded(alloc.force_n);
             // Two impulses go back per proxy (see `HandSample`). The applied one is only what the
             // user's hand really received: the rendered force after the ramp, fade, clamp and
             // allocation scaling (all along its own direction).
@@ -875,7 +904,7 @@ impl TickCore {
                 residual_m: h.pose.residual_m,
                 valid: pose_ok,
                 rendered_n: want_rig,
-                commanded_n: g.force_n,
+                commanded_n: command,
                 output_n: alloc.force_n,
                 tensions_n: alloc.tensions_n,
                 scale: alloc.scale,
@@ -884,6 +913,8 @@ impl TickCore {
                 clamped: g.clamped,
                 stiffness_limited: rendered.stiffness_limited,
                 non_finite: g.non_finite,
+                reserve_j: h.passivity.reserve_j(),
+                passivity_limited: limited,
                 held: false,
             };
             h.last = HeldHand {

@@ -70,6 +70,8 @@ fn jab_targets(guard: [DVec3; 2], hand: usize, to: DVec3, k: usize, dt_s: f64) -
 struct Captured {
     state: State,
     reaches: [Option<Reach>; 3],
+    /// The mind's estimate of the user's hands' acceleration (the extrapolation uses it).
+    acc: [DVec3; 2],
     targets: [Option<HandTarget>; 2],
     speed_m_per_s: f64,
     steps_run: u64,
@@ -89,10 +91,11 @@ fn jab_predictions() -> (BoxingWorld, Captured, Captured) {
         let targets = jab_targets(guard, 0, to, k, dt);
         if w.mind.triggered(&w.model, &w.ws) {
             let (st, tg, bp) = (&w.state, &targets, &w.params);
-            w.mind.predict(&w.predict_model, st, tg, bp);
+            w.mind.predict(&w.model, st, tg, bp);
             let c = Captured {
                 state: w.state.clone(),
                 reaches: w.mind.reaches,
+                acc: w.mind.hand_acc_m_per_s2,
                 targets,
                 speed_m_per_s: targets[0].map_or(0.0, |t| t.vel_m_per_s.length()),
                 // The predictor's copy advanced exactly as many steps as the prediction ran.
@@ -132,7 +135,8 @@ fn bench_predict(c: &mut Criterion) {
     let horizon = (w.mind.params.horizon_s / w.dt_s()).ceil() as u64;
     for (name, cap) in [("boxer/predict_jab", &jab), ("boxer/predict_longest_in_jab", &longest)] {
         w.mind.reaches = cap.reaches;
-        let d = w.mind.predict(&w.predict_model, &cap.state, &cap.targets, &w.params);
+        w.mind.hand_acc_m_per_s2 = cap.acc;
+        let d = w.mind.predict(&w.model, &cap.state, &cap.targets, &w.params);
         let ran = w.mind.predictor.state.steps - cap.state.steps;
         assert_eq!(ran, cap.steps_run, "{name}: the prediction is not repeatable from the captured state");
         eprintln!(
@@ -147,9 +151,7 @@ fn bench_predict(c: &mut Criterion) {
                 (d.at_s - cap.state.t_s) * 1e3
             )),
         );
-        c.bench_function(name, |b| {
-            b.iter(|| w.mind.predict(&w.predict_model, &cap.state, &cap.targets, &w.params))
-        });
+        c.bench_function(name, |b| b.iter(|| w.mind.predict(&w.model, &cap.state, &cap.targets, &w.params)));
     }
 }
 

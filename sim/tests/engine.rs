@@ -530,7 +530,9 @@ fn scripted_bout_digest_is_pinned() {
     let (a, contacts) = bout();
     assert_eq!(bout().0, a, "two identical bouts differ");
     assert!(contacts > 100, "the bout had too few contacts ({contacts})");
-    assert_eq!(a, 0x251d_2784_5129_9e08, "digest changed: {a:#018x}");
+    // The boxing scene's virtual human stands 0.80 m in front since issue 15 (0.95 before, with
+    // 0x251d_2784_5129_9e08; that distance still gives it, so the arithmetic is unchanged).
+    assert_eq!(a, 0x5f68_ae77_4ce9_641a, "digest changed: {a:#018x}");
 }
 
 /// After the first step neither a world step nor a prediction (copy + 100 steps) allocates.

@@ -152,13 +152,19 @@ enum EvalCmd {
         #[arg(long, default_value = "docs/poses")]
         out: PathBuf,
     },
-    /// Sim step and prediction cost during a bout on the simulated rig, then the reaction
-    /// experiment: jabs at four targets, an observer guesses each target from the virtual
-    /// human's motion alone, with its cognitive model on and off.
+    /// On the path of `spidar run` (simulated rig, rt-loop, boxing world, virtual clock): sim step
+    /// and prediction cost during a bout, what punches of every kind did to an active and a
+    /// passive virtual human, then the reaction experiment: straights at four targets, an
+    /// observer guesses each target from the virtual human's motion alone, with its cognitive
+    /// model on and off.
     Reactions {
-        /// Jabs per target and mode (active, passive).
+        /// Straights per target and mode (active, passive).
         #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u64).range(1..=10_000))]
         trials: u64,
+        /// Punches of the punch experiment (each thrown at an active and a passive virtual
+        /// human), at most 100000; 0 skips it.
+        #[arg(long, default_value_t = 400, value_parser = clap::value_parser!(u64).range(0..=100_000))]
+        punches: u64,
         /// Seed of the jabs (aim, hand, speed) and of the bout.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -264,10 +270,10 @@ struct RunArgs {
     /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
-    /// The simulated user's hands (--device sim only): box (jabs and hooks at the virtual
-    /// human), crowd (pushes at the crowd's front row), hold, circle, spar, tour (for `walls`), or
-    /// a script file of any name (see configs/script-example.ron). Default: the scene's own
-    /// (crowd for a crowd scene, box otherwise).
+    /// The simulated user's hands (--device sim only): box (straights, hooks, uppercuts and
+    /// feints at the virtual human), crowd (pushes at the crowd's front row), hold, circle, spar,
+    /// tour (for `walls`), or a script file of any name (see configs/script-example.ron).
+    /// Default: the scene's own (crowd for a crowd scene, box otherwise).
     #[arg(long)]
     script: Option<String>,
     /// Stop after this many seconds, at most a week (default: run until Ctrl-C, SIGTERM or SIGHUP).
@@ -419,9 +425,12 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         Cmd::Replay(a) => spidar_tools::recording::replay(&a).map(|_| 0),
         Cmd::Export(a) => spidar_tools::recording::export(&a).map(|_| 0),
         Cmd::Plot(a) => spidar_tools::recording::plot(&a).map(|_| 0),
-        Cmd::Eval { what: EvalCmd::Reactions { trials, seed, bout_seconds }, json } => {
+        Cmd::Eval { what: EvalCmd::Reactions { trials, punches, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
             let stop = Stop::install()?;
+            if !json {
+                outln!("measured on {}\n", eval::PATH);
+            }
             let mut bout = None;
             if bout_seconds > 0.0 {
                 errln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
@@ -438,15 +447,36 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 }
                 bout = Some(b);
             }
+            let mut punch_report = None;
+            if punches > 0 {
+                errln!("throwing {punches} punches at an active and a passive virtual human ...");
+                let p = eval::punch_report(punches as usize, seed, |done, total| {
+                    stopped_eval(&stop, done, total, "punches");
+                    if done % 16 == 0 || done == total {
+                        term::progress(&format!("punches {done}/{total}"));
+                    }
+                })?;
+                term::progress_done();
+                if !json {
+                    outln!("{p}\n");
+                }
+                punch_report = Some(p);
+            }
             let r = eval::reactions(trials as usize, seed, |done, total| {
-                stopped_eval(&stop, done, total, "jabs");
+                stopped_eval(&stop, done, total, "straights");
                 if done % 16 == 0 || done == total {
-                    term::progress(&format!("jabs {done}/{total}"));
+                    term::progress(&format!("straights {done}/{total}"));
                 }
             })?;
             term::progress_done();
             if json {
-                let j = serde_json::json!({ "command": "eval reactions", "bout": bout, "reactions": r });
+                let j = serde_json::json!({
+                    "command": "eval reactions",
+                    "path": eval::PATH,
+                    "bout": bout,
+                    "punches": punch_report,
+                    "reactions": r,
+                });
                 outln!("{j:#}");
             } else {
                 outln!("{r}");

@@ -1,82 +1,349 @@
-//! The simulated user's boxing scripts (`--script box`): jabs and hooks aimed at where the
-//! boxing scene's virtual human stands in its guard, mapped into the rig frame. They belong to
-//! the rig side (they drive the simulated rig's hands), but are computed from a passive copy of
-//! the world the scene runs.
+//! The simulated user's boxing scripts (`--script box`): straights, hooks and uppercuts with
+//! either hand at the boxing scene's virtual human, at 2-7 m/s, single and in combinations, and
+//! feints (punches that slow and stop short), mapped into the rig frame. They belong to the rig
+//! side (they drive the simulated rig's hands), but are aimed from a passive copy of the world
+//! the scene runs. Every punch is also returned as data ([`Punch`]) so an evaluation knows what
+//! was thrown, when, at what and how fast.
 
 use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use spidar_device::sim::{Script, Segment, TrajectorySample};
+use spidar_sim::boxer::reach::min_jerk;
 use spidar_sim::boxer::{BoxerParams, BoxingWorld};
 
-/// Targets of the scripted boxer, rig frame: where the virtual human's head, chest, left hand and
-/// right hand are in its guard, mapped back through `user_offset_m` and the rig's transform.
-pub fn punch_targets_rig(rig: &spidar_rt::Rig, params: &BoxerParams) -> anyhow::Result<[DVec3; 4]> {
+/// The shape of a punch's path from the guard to its target.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+pub enum PunchKind {
+    /// Straight from the guard to the target (a jab or a cross).
+    Straight,
+    /// Swung out to the side first, arriving from the side.
+    Hook,
+    /// Dropped below first, arriving from below.
+    Uppercut,
+}
+
+impl PunchKind {
+    pub const ALL: [PunchKind; 3] = [PunchKind::Straight, PunchKind::Hook, PunchKind::Uppercut];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PunchKind::Straight => "straight",
+            PunchKind::Hook => "hook",
+            PunchKind::Uppercut => "uppercut",
+        }
+    }
+}
+
+/// Where a punch is aimed: a part of the virtual human in its guard.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+pub enum Aim {
+    Head,
+    Chest,
+    /// Its left hand (on the user's right, +x) and right hand.
+    LeftHand,
+    RightHand,
+    /// The left and right side of its chest (section 4.3's targets).
+    LeftChest,
+    RightChest,
+}
+
+impl Aim {
+    pub fn name(self) -> &'static str {
+        match self {
+            Aim::Head => "head",
+            Aim::Chest => "chest",
+            Aim::LeftHand => "left hand",
+            Aim::RightHand => "right hand",
+            Aim::LeftChest => "left chest",
+            Aim::RightChest => "right chest",
+        }
+    }
+}
+
+/// One punch of a script.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Punch {
+    /// 0 the user's left hand, 1 the right.
+    pub hand: usize,
+    pub kind: PunchKind,
+    pub aim: Aim,
+    /// Slows and stops short of the target (0.22-0.32 m short of the aim point, 10-20 cm before the part's surface), then goes back.
+    pub feint: bool,
+    /// Planned peak speed of the hand along its path (the simulated arm follows with some lag).
+    pub speed_m_per_s: f64,
+    /// When the hand leaves its guard, seconds after the script's start hold.
+    pub start_s: f64,
+    /// Out to the end of the path, and back to the guard.
+    pub out_s: f64,
+    pub back_s: f64,
+    /// Position in a combination (0: a single punch or the first of a combination).
+    pub in_combo: u32,
+    /// The aim point (rig frame).
+    pub target_rig_m: DVec3,
+    /// Where the way out ends on the path to the aim point, as the path's parameter: 1 for a
+    /// punch, less for a feint.
+    pub path_end: f64,
+}
+
+impl Punch {
+    /// When the hand is back at its guard.
+    pub fn end_s(&self) -> f64 {
+        self.start_s + self.out_s + self.back_s
+    }
+}
+
+/// What a box script throws.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlanOptions {
+    /// How many punches (feints included).
+    pub punches: usize,
+    pub kinds: Vec<PunchKind>,
+    pub aims: Vec<Aim>,
+    /// Which hands punch.
+    pub hands: Vec<usize>,
+    /// Share of feints, and of punches that start a combination (2 or 3 punches).
+    pub feint_share: f64,
+    pub combo_share: f64,
+    /// Planned peak speed range (m/s).
+    pub speed_m_per_s: (f64, f64),
+    /// Pause range between two punches (or combinations) (s).
+    pub pause_s: (f64, f64),
+}
+
+impl Default for PlanOptions {
+    /// The `box` script: all kinds, head and chest, both hands, a fifth of the punches feints, a
+    /// quarter starting a combination; planned peak speeds 2-9 m/s, which the simulated arm
+    /// (following with some lag) turns into about 2-7 m/s.
+    fn default() -> Self {
+        PlanOptions {
+            punches: 2000,
+            kinds: PunchKind::ALL.to_vec(),
+            aims: vec![Aim::Head, Aim::Chest],
+            hands: vec![0, 1],
+            feint_share: 0.2,
+            combo_share: 0.25,
+            speed_m_per_s: (2.0, 9.0),
+            pause_s: (0.6, 1.2),
+        }
+    }
+}
+
+/// A box script: the punches and the two hands' scripts that throw them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoxPlan {
+    pub punches: Vec<Punch>,
+    pub scripts: [Script; 2],
+}
+
+/// The aim points of the scripted boxer, rig frame, for every [`Aim`]: where the virtual human's
+/// parts are in its guard (a passive copy, settled), mapped back through `user_offset_m` and the
+/// rig's transform, and a little through them, as a boxer aims.
+pub fn aim_points_rig(rig: &spidar_rt::Rig, params: &BoxerParams) -> anyhow::Result<[DVec3; 6]> {
     // A passive copy: an active one might start a spontaneous attack while it settles, and the
     // targets would be where its parts were mid-punch.
     let mut w = BoxingWorld::new(BoxerParams { active: false, ..params.clone() })?;
     // Settle into the guard first (the default pose is not yet balanced under gravity).
     for _ in 0..200 {
-        w.begin_step();
         w.step(&[None, None]);
     }
-    w.begin_step();
     let vh = w.vh;
-    // Aim at the front surface: a few cm in front of the centres (the VH faces +z).
-    let front = |b: usize, dz: f64| w.com(b) + DVec3::new(0.0, 0.0, dz);
+    // The virtual human faces +z (toward the user), its left is +x.
+    let at = |b: usize, d: DVec3| w.com(b) + d;
     let to_rig = |p: DVec3| rig.rig_to_world.point_to_rig(p - params.user_offset_m);
     Ok([
-        to_rig(front(vh.head, 0.06)),
-        to_rig(front(vh.chest, 0.10)),
-        to_rig(front(vh.hand[0], 0.03)),
-        to_rig(front(vh.hand[1], 0.03)),
+        to_rig(at(vh.head, DVec3::ZERO)),
+        to_rig(at(vh.chest, DVec3::new(0.0, -0.03, 0.0))),
+        to_rig(at(vh.hand[0], DVec3::new(0.0, 0.0, 0.02))),
+        to_rig(at(vh.hand[1], DVec3::new(0.0, 0.0, 0.02))),
+        to_rig(at(vh.chest, DVec3::new(0.07, -0.03, 0.0))),
+        to_rig(at(vh.chest, DVec3::new(-0.07, -0.03, 0.0))),
     ])
 }
 
-/// The scripted user of the boxing scene (`--script box`): jabs and hooks at the virtual human's
-/// head, chest and hands, one hand at a time, with random pauses; seeded, so a run repeats.
-/// `target` limits every punch to one of the four targets (head, chest, left hand, right hand).
-pub fn boxing_scripts(
+fn aim_index(a: Aim) -> usize {
+    match a {
+        Aim::Head => 0,
+        Aim::Chest => 1,
+        Aim::LeftHand => 2,
+        Aim::RightHand => 3,
+        Aim::LeftChest => 4,
+        Aim::RightChest => 5,
+    }
+}
+
+/// The path of a punch of `kind` by `hand` from `from` to `to` (rig frame) at parameter `s` in
+/// [0, 1]: a line, or a quadratic curve through a control point out to the side (hook) or below
+/// (uppercut), so the fist arrives from there.
+fn path_point(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, s: f64) -> DVec3 {
+    let mid = (from + to) * 0.5;
+    let side = if hand == 0 { -1.0 } else { 1.0 };
+    let c = match kind {
+        PunchKind::Straight => return from + (to - from) * s,
+        PunchKind::Hook => DVec3::new(to.x + side * 0.26, mid.y + 0.05, to.z + 0.15),
+        PunchKind::Uppercut => DVec3::new((mid.x + to.x) * 0.5, to.y - 0.32, to.z + 0.12),
+    };
+    let u = 1.0 - s;
+    from * (u * u) + c * (2.0 * u * s) + to * (s * s)
+}
+
+fn path_length(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, s_end: f64) -> f64 {
+    let n = 64;
+    (0..n)
+        .map(|i| {
+            let (a, b) = (i as f64 / n as f64 * s_end, (i + 1) as f64 / n as f64 * s_end);
+            (path_point(kind, hand, from, to, b) - path_point(kind, hand, from, to, a)).length()
+        })
+        .sum()
+}
+
+/// The path parameter where a feint stops: `short_m` before the target, measured straight.
+fn feint_end(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, short_m: f64) -> f64 {
+    let mut s = 1.0;
+    while s > 0.2 && (path_point(kind, hand, from, to, s) - to).length() < short_m {
+        s -= 0.01;
+    }
+    s
+}
+
+/// Samples of the way out (rig frame, every 2 ms), minimum-jerk in time along the path to `s_end`.
+fn out_samples(
+    kind: PunchKind,
+    hand: usize,
+    from: DVec3,
+    to: DVec3,
+    s_end: f64,
+    out_s: f64,
+) -> Vec<TrajectorySample> {
+    let n = ((out_s / 0.002).ceil() as usize).max(2);
+    (0..=n)
+        .map(|i| {
+            let t = out_s * i as f64 / n as f64;
+            TrajectorySample { t_s: t, pos_m: path_point(kind, hand, from, to, s_end * min_jerk(t / out_s)) }
+        })
+        .collect()
+}
+
+/// A seeded box script: `opts.punches` punches and feints, thrown one after another with random
+/// pauses, or in combinations of 2-3 with short ones; each punch's kind, aim, hand and speed
+/// drawn from `opts`.
+pub fn box_plan(
     rig: &spidar_rt::Rig,
     params: &BoxerParams,
     seed: u64,
-    punches: usize,
-    target: Option<usize>,
-) -> anyhow::Result<[spidar_device::sim::Script; 2]> {
-    use rand::{Rng, SeedableRng};
-    use spidar_device::sim::{Script, Segment};
-    let targets = punch_targets_rig(rig, params)?;
+    opts: &PlanOptions,
+) -> anyhow::Result<BoxPlan> {
+    anyhow::ensure!(
+        !opts.kinds.is_empty() && !opts.aims.is_empty() && !opts.hands.is_empty(),
+        "a box script needs at least one kind, aim and hand"
+    );
+    let aims = aim_points_rig(rig, params)?;
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ 0xB0C5);
-    let mut segs: [Vec<Segment>; 2] = [Vec::new(), Vec::new()];
-    let hold = |at: DVec3, for_s: f64| Segment::Hold { at_m: at.to_array(), for_s };
-    for _ in 0..punches {
-        let hand = rng.random_range(0..2usize);
-        let t = target.unwrap_or_else(|| rng.random_range(0..4usize));
-        let mut to = targets[t];
-        // Aim a little through the target, as a boxer does.
-        to.z -= 0.05;
-        let hook = rng.random::<f64>() < 0.3;
-        let out_s = rng.random_range(0.2..0.32);
-        let pause = rng.random_range(0.5..1.2);
-        let mut dur = 0.0;
-        if hook {
-            // Swing out to the side first, then in.
-            let side = if hand == 0 { -0.2 } else { 0.2 };
-            let wind = home[hand] + DVec3::new(side, 0.05, -0.1);
-            segs[hand].push(Segment::Reach { to_m: wind.to_array(), duration_s: 0.2 });
-            segs[hand].push(Segment::Reach { to_m: to.to_array(), duration_s: out_s });
-            segs[hand].push(Segment::Reach { to_m: home[hand].to_array(), duration_s: 0.35 });
-            dur += 0.2 + out_s + 0.35;
-        } else {
-            segs[hand].push(Segment::Jab { to_m: to.to_array(), out_s, back_s: 0.35 });
-            dur += out_s + 0.35;
+    let pick = |rng: &mut rand_pcg::Pcg64Mcg, n: usize| rng.random_range(0..n);
+    let mut punches = Vec::with_capacity(opts.punches);
+    let mut t = 0.0;
+    let mut combo_left = 0u32;
+    let mut in_combo = 0u32;
+    let mut last_hand = 0usize;
+    let (v_lo, v_hi) = opts.speed_m_per_s;
+    while punches.len() < opts.punches {
+        if combo_left == 0 {
+            in_combo = 0;
+            if rng.random::<f64>() < opts.combo_share {
+                combo_left = rng.random_range(2..=3);
+            } else {
+                combo_left = 1;
+            }
         }
-        segs[hand].push(hold(home[hand], pause));
-        segs[1 - hand].push(hold(home[1 - hand], dur + pause));
+        // A combination alternates hands when both punch.
+        let hand = if in_combo > 0 && opts.hands.len() > 1 {
+            1 - last_hand
+        } else {
+            opts.hands[pick(&mut rng, opts.hands.len())]
+        };
+        let kind = opts.kinds[pick(&mut rng, opts.kinds.len())];
+        let aim = opts.aims[pick(&mut rng, opts.aims.len())];
+        let feint = rng.random::<f64>() < opts.feint_share;
+        let speed = if v_hi > v_lo { rng.random_range(v_lo..v_hi) } else { v_lo };
+        // Scattered a little around the aim point, as no two punches land on the same spot.
+        let scatter = DVec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), 0.0);
+        let target = aims[aim_index(aim)] + scatter;
+        let from = home[hand];
+        let s_end =
+            if feint { feint_end(kind, hand, from, target, rng.random_range(0.22..0.32)) } else { 1.0 };
+        let len = path_length(kind, hand, from, target, s_end);
+        // Minimum-jerk peak speed is 1.875 x the mean.
+        let out_s = (1.875 * len / speed).max(0.05);
+        let back_s = rng.random_range(0.25..0.35);
+        punches.push(Punch {
+            hand,
+            kind,
+            aim,
+            feint,
+            speed_m_per_s: speed,
+            start_s: t,
+            out_s,
+            back_s,
+            in_combo,
+            target_rig_m: target,
+            path_end: s_end,
+        });
+        last_hand = hand;
+        in_combo += 1;
+        combo_left -= 1;
+        // The next punch of a combination starts as this one comes back (with the other hand),
+        // or after it is back (the same hand); the next combination after a pause.
+        let next_same_hand = opts.hands.len() == 1;
+        t += if combo_left > 0 {
+            out_s + if next_same_hand { back_s } else { 0.5 * back_s } + rng.random_range(0.0..0.1)
+        } else {
+            out_s + back_s + rng.random_range(opts.pause_s.0..opts.pause_s.1)
+        };
+    }
+    let scripts = hand_scripts(&punches, home)?;
+    Ok(BoxPlan { punches, scripts })
+}
+
+/// The two hands' scripts for `punches` (sorted by start): each hand holds its guard until its
+/// next punch, follows the punch's path out, and comes back in a minimum-jerk reach.
+fn hand_scripts(punches: &[Punch], home: [DVec3; 2]) -> anyhow::Result<[Script; 2]> {
+    let mut segs: [Vec<Segment>; 2] = [Vec::new(), Vec::new()];
+    let mut free_at = [0.0f64; 2];
+    let hold = |at: DVec3, for_s: f64| Segment::Hold { at_m: at.to_array(), for_s };
+    for p in punches {
+        let h = p.hand;
+        let wait = p.start_s - free_at[h];
+        anyhow::ensure!(wait >= -1e-9, "punches of one hand overlap at {:.3} s", p.start_s);
+        if wait > 0.0 {
+            segs[h].push(hold(home[h], wait));
+        }
+        let samples = out_samples(p.kind, h, home[h], p.target_rig_m, p.path_end, p.out_s);
+        segs[h].push(Segment::recorded("box script punch", samples)?);
+        segs[h].push(Segment::Reach { to_m: home[h].to_array(), duration_s: p.back_s });
+        free_at[h] = p.end_s();
     }
     Ok([0, 1].map(|h| {
         let mut s = std::mem::take(&mut segs[h]);
         s.push(hold(home[h], 1e6));
         Script::from_segments(s, false)
     }))
+}
+
+/// The `box` script's two hands (see [`box_plan`] and [`PlanOptions::default`]); `aim`, when
+/// given, aims every punch there and throws no feints.
+pub fn boxing_scripts(
+    rig: &spidar_rt::Rig,
+    params: &BoxerParams,
+    seed: u64,
+    punches: usize,
+    aim: Option<Aim>,
+) -> anyhow::Result<[Script; 2]> {
+    let mut opts = PlanOptions { punches, ..Default::default() };
+    if let Some(a) = aim {
+        opts.aims = vec![a];
+        opts.feint_share = 0.0;
+    }
+    Ok(box_plan(rig, params, seed, &opts)?.scripts)
 }
 
 /// Where the crowd scene's front row stands, rig frame, left to right: the chest surface of each

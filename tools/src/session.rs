@@ -47,7 +47,7 @@ use crate::term::StatusOut;
 pub const HOLD_AT_HOME_S: f64 = 0.3;
 
 /// The simulated user's script a scene gets when none is named: pushes at the front row for a
-/// crowd scene (`crowd` or a `*crowd*.ron` file), jabs and hooks (`box`) for the others.
+/// crowd scene (`crowd` or a `*crowd*.ron` file), straights, hooks, uppercuts and feints (`box`) for the others.
 pub fn default_script(scene: &str) -> &'static str {
     let file =
         std::path::Path::new(scene).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
@@ -62,7 +62,7 @@ pub fn default_script(scene: &str) -> &'static str {
 pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<[Script; 2]> {
     let home = [rig.hands[0].home_m, rig.hands[1].home_m];
     let scripts = if name_or_path == "box" {
-        // Jabs and hooks at the boxing scene's virtual human (tools/src/scripts.rs).
+        // Straights, hooks, uppercuts and feints at the boxing scene's virtual human (tools/src/scripts.rs).
         crate::scripts::boxing_scripts(rig, &Default::default(), seed, 2000, None)?
     } else if name_or_path == "crowd" {
         // Pushes and shoves at the crowd scene's front row (tools/src/scripts.rs).
@@ -719,6 +719,11 @@ impl std::fmt::Display for Summary {
             c.fallback[1],
             c.stiffness_limited[0],
             c.stiffness_limited[1]
+        )?;
+        writeln!(
+            f,
+            "               passivity-limited {}/{} (avatar-hand contacts scaled to give back no more energy than put in)",
+            c.passivity_limited[0], c.passivity_limited[1]
         )?;
         writeln!(
             f,

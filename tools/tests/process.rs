@@ -231,7 +231,7 @@ fn an_evaluation_stops_on_a_signal_after_the_trial_in_progress() {
     p.signal(libc::SIGINT);
     let (status, out, err) = p.end();
     assert_eq!(status.code(), Some(130), "{out}\n{err}");
-    assert!(err.contains("stopped by a signal after ") && err.contains(" jabs: no report"), "{err}");
+    assert!(err.contains("stopped by a signal after ") && err.contains(" punches: no report"), "{err}");
 }
 
 #[test]

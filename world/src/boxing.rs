@@ -1,35 +1,27 @@
 //! The boxing scene (seed 000): the physics world of `spidar_sim::boxer` behind the rt-loop.
 //!
 //! Every 3 ms step: the user's hands (newest sample, world frame of the rt-loop) plus the boxer's
-//! `user_offset_m` become the avatar's hand targets; the impulses of the virtual contacts the
-//! rt-loop rendered against the proxies of the last models (`proxy_contact_impulse_n_s`: the
-//! full penalty force, not limited by the rig's force clamp) are given to the virtual human's
-//! parts they name, and their reaction to the avatar's hands; the world steps (the virtual human
-//! thinks and reaches); and
-//! the scene publishes proxies of the virtual human's parts near the user's hands, in the
-//! rt-loop's frame, with the avatar's damage (contacts on its other parts, attenuated) as the
-//! extra force on both hands.
+//! `user_offset_m` become the targets the coupling springs pull the avatar's hands to; the world
+//! steps (the avatar's fists collide with the virtual human, who thinks and reaches); and the
+//! scene sends the contact on each avatar hand as a local model (`HandContact`, in the rt-loop's
+//! frame), which the rt-loop renders at 1 kHz and clips to what the rig can push, with the
+//! avatar's damage (contacts on its other parts, attenuated) as the extra force on both hands.
+//! No proxies: the user touches the virtual human only through the avatar's hands.
 //!
-//! Must never: send the coupling spring to the user, or publish a proxy without the id of the body
-//! it stands for (the impulse would be lost).
+//! The virtual human's decisions (behaviour per hand and body, the deciding prediction, hits)
+//! are data on `world.mind` and `world.last` for the status line, the recorder and the viewer.
+//!
+//! Must never: send the coupling spring to the user.
 
-use glam::DVec3;
-use spidar_msg::{ContactModel, HandSample, Proxy, HANDS};
-use spidar_sim::boxer::{proxy_shape, BoxerParams, BoxingWorld, HandTarget, BOXER};
-use spidar_sim::impulse::{body_of, dist, nearest_on_surface, proxy_id, touching_hand};
+use spidar_msg::{ContactModel, HandSample, HANDS};
+use spidar_sim::boxer::{BoxerParams, BoxingWorld, HandTarget};
 
 use crate::Scene;
-
-/// Contact models kept to match the impulses of late samples (a sample names its model's seq).
-const KEPT_MODELS: usize = 8;
 
 pub struct BoxingScene {
     pub world: BoxingWorld,
     seq: u64,
-    sent: [ContactModel; KEPT_MODELS],
     targets: [Option<HandTarget>; HANDS],
-    /// Newest user hand positions (rt-loop frame), for attributing impulses to hands.
-    user_hands: [Option<DVec3>; HANDS],
     /// Wall time of each world step (ns), the newest last; read by `spidar eval` and the status.
     pub last_step_ns: u64,
 }
@@ -37,93 +29,62 @@ pub struct BoxingScene {
 impl BoxingScene {
     pub fn new(params: BoxerParams) -> anyhow::Result<BoxingScene> {
         let world = BoxingWorld::new(params)?;
-        Ok(BoxingScene {
-            world,
-            seq: 0,
-            sent: [ContactModel::default(); KEPT_MODELS],
-            targets: [None; HANDS],
-            user_hands: [None; HANDS],
-            last_step_ns: 0,
-        })
+        Ok(BoxingScene { world, seq: 0, targets: [None; HANDS], last_step_ns: 0 })
     }
 
-    /// Applies the virtual contact impulses of one sample to the world.
-    ///
-    /// The contact is between the avatar's hand and the virtual human, both simulated (seed 000,
-    /// section 3.4): the virtual human receives the whole contact, as rendered at 1 kHz with the
-    /// loop's ramp and stale-model fade, so a punch moves it as hard as it lands in the world.
-    /// The user's hand feels the same contact only up to the rig's force limit; the difference is
-    /// carried by the avatar's hand (it gets the reaction) and its coupling spring, not lost. The
-    /// applied impulse (`proxy_impulse_n_s`, at most 4 N worth) would make every punch a push.
-    fn take_impulses(&mut self, s: &HandSample) {
-        if s.model_seq == 0 {
-            return;
-        }
-        let Some(m) = self.sent.iter().find(|m| m.seq == s.model_seq) else { return };
-        let m = *m;
-        let off = self.world.params.user_offset_m;
-        for (p, imp) in m.proxies().iter().zip(s.proxy_contact_impulse_n_s.iter()) {
-            if *imp == DVec3::ZERO {
-                continue;
-            }
-            let Some(body) = body_of(&self.world.model, p.id) else { continue };
-            // The hand that touched it: the valid one nearer the proxy's surface.
-            let Some(hand) = touching_hand(&p.shape, s) else { continue };
-            let point = nearest_on_surface(&p.shape, s.hands[hand].pos_m) + off;
-            self.world.apply_user_impulse(hand, body, point, *imp);
-        }
+    /// The `seq` of the newest model sent.
+    pub fn seq(&self) -> u64 {
+        self.seq
     }
 
-    /// The proxies of the virtual human's parts near the user's hands, in the rt-loop's frame.
+    /// The model of the world's newest state: the avatar hands' contacts (the report's, in the
+    /// rt-loop's frame already) and the avatar's damage, attenuated, on both hands.
     fn model_at(&mut self, t_s: f64) -> ContactModel {
         self.seq += 1;
         let w = &self.world;
-        let p = &w.params;
-        let mut cm = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
-        for (k, s) in w.model.shapes.iter().enumerate() {
-            let Some(body) = s.body else { continue };
-            if w.model.bodies[body].articulation != BOXER {
-                continue;
-            }
-            let pose = w.ws.shape_pose[k];
-            let Some(shape) = proxy_shape(&s.shape, pose.pos_m - p.user_offset_m, pose.rot) else { continue };
-            let near = self.user_hands.iter().flatten().any(|&h| dist(&shape, h) < p.proxy_range_m);
-            if !near {
-                continue;
-            }
-            let com_b = w.model.bodies[body].com_m;
-            let vel = w.ws.point_velocity(body, com_b)
-                + w.ws.angular_velocity(body).cross(pose.pos_m - w.ws.point_world(body, com_b));
-            let ok = cm.push(Proxy {
-                id: proxy_id(&w.model, body),
-                shape,
-                k_n_per_m: p.proxy_k_n_per_m,
-                d_n_s_per_m: p.proxy_d_n_s_per_m,
-                vel_m_per_s: vel,
-                hand_mask: Proxy::BOTH_HANDS,
-            });
-            if !ok {
-                break;
-            }
+        let damage = w.last.damage_force_n * w.params.damage_attenuation;
+        ContactModel {
+            seq: self.seq,
+            stamp_s: t_s,
+            hand_contacts: w.last.hand_contacts,
+            extra_force_n: [damage; HANDS],
+            ..Default::default()
         }
-        let damage = w.last.damage_force_n * p.damage_attenuation;
-        cm.extra_force_n = [damage; HANDS];
-        self.sent[(self.seq as usize) % KEPT_MODELS] = cm;
-        cm
     }
 
+    /// The virtual human's behaviours (body and each hand), the newest decision (the Table I class
+    /// of the deciding predicted contact and the part it names), and its counters.
     pub fn status_text(&self) -> String {
-        let m = &self.world.mind;
+        let w = &self.world;
+        let m = &w.mind;
         let b = |x: spidar_sim::boxer::Behaviour| format!("{x:?}").to_lowercase();
+        let part = |body: usize| {
+            let p = &w.vh;
+            if body == p.head {
+                "head"
+            } else if body == p.chest {
+                "chest"
+            } else if p.hand.contains(&body) {
+                "hand"
+            } else if p.forearm.contains(&body) || p.upper_arm.contains(&body) {
+                "arm"
+            } else {
+                "body"
+            }
+        };
+        let decision = m
+            .last_decision
+            .map_or("none".to_string(), |d| format!("{} on its {}", d.class.name(), part(d.vh_body)));
         format!(
-            "{} body {:?} hands {}/{} | attacks {} avoid {} block {} | hits taken {} given {} | predictions {} last {:.2} ms",
+            "{} body {} hands {}/{} | decided: {decision} | attacks {} avoid {} block {} ended {} | hits taken {} given {} | predictions {} last {:.2} ms",
             if m.active { "active" } else { "passive" },
-            m.body,
+            format!("{:?}", m.body).to_lowercase(),
             b(m.hands[0]),
             b(m.hands[1]),
             m.attacks,
             m.avoidances,
             m.blocks,
+            m.defences_ended,
             m.hits_taken,
             m.hits_given,
             m.predictions,
@@ -143,22 +104,16 @@ impl Scene for BoxingScene {
 
     fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
         let started = std::time::Instant::now();
-        self.world.begin_step();
-        for s in samples {
-            self.take_impulses(s);
-        }
+        // The newest sample is where the user's hands are: the avatar's hands are pulled there.
         if let Some(s) = samples.last() {
             let off = self.world.params.user_offset_m;
             for h in 0..HANDS {
                 let hs = s.hands[h];
-                self.user_hands[h] = hs.valid.then_some(hs.pos_m);
                 self.targets[h] =
                     hs.valid.then_some(HandTarget { pos_m: hs.pos_m + off, vel_m_per_s: hs.vel_m_per_s });
             }
         }
         self.world.step(&self.targets);
-        // The proxies need the kinematics of the new state.
-        self.world.begin_step();
         let m = self.model_at(t_s);
         self.last_step_ns = started.elapsed().as_nanos() as u64;
         m

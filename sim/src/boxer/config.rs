@@ -23,12 +23,9 @@ pub struct BoxerFile {
     pub user_offset_m: (f64, f64, f64),
     pub coupling_k_n_per_m: f64,
     pub coupling_d_n_s_per_m: f64,
+    pub coupling_max_n: f64,
     pub avatar_joint_scale: f64,
     pub damage_attenuation: f64,
-    pub proxy_k_n_per_m: f64,
-    pub proxy_d_n_s_per_m: f64,
-    pub proxy_range_m: f64,
-    pub grip_radius_m: f64,
     pub reach_arm_k_n_per_m: f64,
     pub reach_arm_d_n_s_per_m: f64,
     pub reach_body_k_n_per_m: f64,
@@ -40,19 +37,25 @@ pub struct BoxerFile {
 #[serde(deny_unknown_fields)]
 pub struct MindFile {
     pub trigger_m_per_s: f64,
+    pub approach_m_per_s: f64,
     pub horizon_s: f64,
     pub middle_grace_s: f64,
     pub predict_every_s: f64,
+    pub decel_m_per_s2: f64,
     pub avoid_extend: f64,
     pub avoid_clearance_m: f64,
     pub avoid_time_fraction: f64,
     pub avoid_duck_cost: f64,
+    pub avoid_lead_s: f64,
+    pub lean_m: f64,
     pub block_time_fraction: f64,
+    pub block_speed_m_per_s: f64,
     pub attack_per_step: f64,
     pub attack_min_s: f64,
     pub attack_max_s: f64,
     pub attack_scatter_m: f64,
     pub hold_s: f64,
+    pub return_s: f64,
 }
 
 /// Parses and validates boxer text; `origin` names it in errors.
@@ -62,40 +65,43 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         let key = field.rsplit('.').next().unwrap_or(field);
         SimError::Config(config::invalid(text, origin, field, key, 0, msg))
     };
-    config::check_version(text, origin, f.version, 1)?;
+    config::check_version(text, origin, f.version, 2)?;
     let o = f.user_offset_m;
     if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
         return Err(err("user_offset_m", "must be finite".into()));
     }
     let m = &f.mind;
     // (field, value, low, high): every number must lie in [low, high].
-    let ranges: [(&str, f64, f64, f64); 27] = [
+    let ranges: [(&str, f64, f64, f64); 30] = [
         ("coupling_k_n_per_m", f.coupling_k_n_per_m, 1.0, 20_000.0),
         ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
+        ("coupling_max_n", f.coupling_max_n, 1.0, 10_000.0),
         ("avatar_joint_scale", f.avatar_joint_scale, 0.01, 1.0),
         ("damage_attenuation", f.damage_attenuation, 0.0, 1.0),
-        ("proxy_k_n_per_m", f.proxy_k_n_per_m, 0.0, 1e5),
-        ("proxy_d_n_s_per_m", f.proxy_d_n_s_per_m, 0.0, 1e3),
-        ("proxy_range_m", f.proxy_range_m, 0.0, 2.0),
-        ("grip_radius_m", f.grip_radius_m, 0.0, 0.2),
         ("reach_arm_k_n_per_m", f.reach_arm_k_n_per_m, 0.0, 60_000.0),
         ("reach_arm_d_n_s_per_m", f.reach_arm_d_n_s_per_m, 0.0, 400.0),
         ("reach_body_k_n_per_m", f.reach_body_k_n_per_m, 0.0, 400_000.0),
         ("reach_body_d_n_s_per_m", f.reach_body_d_n_s_per_m, 0.0, 2_500.0),
         ("mind.trigger_m_per_s", m.trigger_m_per_s, 0.0, 20.0),
+        ("mind.approach_m_per_s", m.approach_m_per_s, 0.0, 20.0),
         ("mind.horizon_s", m.horizon_s, 0.003, 2.0),
         ("mind.middle_grace_s", m.middle_grace_s, 0.0, 2.0),
         ("mind.predict_every_s", m.predict_every_s, 0.0, 2.0),
+        ("mind.decel_m_per_s2", m.decel_m_per_s2, 0.0, 1000.0),
         ("mind.avoid_extend", m.avoid_extend, 1.0, 5.0),
         ("mind.avoid_clearance_m", m.avoid_clearance_m, 0.0, 1.0),
         ("mind.avoid_time_fraction", m.avoid_time_fraction, 0.1, 1.0),
         ("mind.avoid_duck_cost", m.avoid_duck_cost, 0.1, 100.0),
+        ("mind.avoid_lead_s", m.avoid_lead_s, 0.0, 2.0),
+        ("mind.lean_m", m.lean_m, 0.0, 0.5),
         ("mind.block_time_fraction", m.block_time_fraction, 0.1, 1.0),
+        ("mind.block_speed_m_per_s", m.block_speed_m_per_s, 0.0, 20.0),
         ("mind.attack_per_step", m.attack_per_step, 0.0, 1.0),
         ("mind.attack_min_s", m.attack_min_s, 0.05, 5.0),
         ("mind.attack_max_s", m.attack_max_s, 0.05, 5.0),
         ("mind.attack_scatter_m", m.attack_scatter_m, 0.0, 0.3),
         ("mind.hold_s", m.hold_s, 0.0, 5.0),
+        ("mind.return_s", m.return_s, 0.05, 5.0),
         ("mind.attack_max_s", m.attack_max_s - m.attack_min_s, 1e-6, 5.0),
     ];
     for (field, v, lo, hi) in ranges {
@@ -114,34 +120,36 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         user_offset_m: DVec3::new(o.0, o.1, o.2),
         coupling_k_n_per_m: f.coupling_k_n_per_m,
         coupling_d_n_s_per_m: f.coupling_d_n_s_per_m,
+        coupling_max_n: f.coupling_max_n,
         avatar_joint_scale: f.avatar_joint_scale,
         damage_attenuation: f.damage_attenuation,
-        proxy_k_n_per_m: f.proxy_k_n_per_m,
-        proxy_d_n_s_per_m: f.proxy_d_n_s_per_m,
-        proxy_range_m: f.proxy_range_m,
-        grip_radius_m: f.grip_radius_m,
         reach_arm_k_n_per_m: f.reach_arm_k_n_per_m,
         reach_arm_d_n_s_per_m: f.reach_arm_d_n_s_per_m,
         reach_body_k_n_per_m: f.reach_body_k_n_per_m,
         reach_body_d_n_s_per_m: f.reach_body_d_n_s_per_m,
         mind: MindParams {
             trigger_m_per_s: m.trigger_m_per_s,
+            approach_m_per_s: m.approach_m_per_s,
             horizon_s: m.horizon_s,
             middle_grace_s: m.middle_grace_s,
             predict_every_s: m.predict_every_s,
+            decel_m_per_s2: m.decel_m_per_s2,
             avoid_extend: m.avoid_extend,
             avoid_clearance_m: m.avoid_clearance_m,
             avoid_time_fraction: m.avoid_time_fraction,
             avoid_duck_cost: m.avoid_duck_cost,
+            avoid_lead_s: m.avoid_lead_s,
+            lean_m: m.lean_m,
             block_time_fraction: m.block_time_fraction,
+            block_speed_m_per_s: m.block_speed_m_per_s,
             attack_per_step: m.attack_per_step,
             attack_s: (m.attack_min_s, m.attack_max_s),
             attack_scatter_m: m.attack_scatter_m,
             hold_s: m.hold_s,
+            return_s: m.return_s,
         },
         active: true,
         seed: 0,
-        avatar_hands_collide: false,
     })
 }
 

@@ -1,15 +1,23 @@
 //! The virtual human's cognitive model (seed 000, sections 3.5 and 3.7-3.10): when an avatar
-//! hand comes toward it fast enough, copy the world state into a prediction workspace and run it
-//! ahead with the user's hands linearly extrapolated and its own reaches continuing; classify the
+//! hand comes at any part of it fast enough, copy the world state into a prediction workspace and
+//! run it ahead with the user's hands extrapolated and its own reaches continuing; classify the
 //! predicted contacts by Table I; the highest-priority, earliest one drives the behaviour state
 //! machines of Fig. 5 (hands: standby / attack / block; body: standby / avoidance), whose actions
-//! (Table II) are reaching motions: avoidance by the geometry of Fig. 6, block by Fig. 7, attack
-//! at the avatar's head or chest with a seeded random duration.
+//! (Table II) are reaching motions: a block by Fig. 7, avoidance by the geometry of Fig. 6 (the
+//! chest leaning only as far as the waist allows), attacks at the avatar's head or chest with a
+//! seeded random target and duration. `docs/boxing.md` describes the model as built.
+//!
+//! A defence (block, and avoidance when needed) answers one avatar hand. While it is under way
+//! the other hand stands by and no attack starts or continues (Fig. 5); every prediction during
+//! it asks what would happen if the virtual human stood by now: while that still finds the fist
+//! on its head or chest the defence goes on (aimed at the newest prediction), and it ends, the
+//! body returning to its guard, as soon as it does not (a feint, a punch that has gone by).
 //!
 //! Passive mode (section 4.2) switches all of it off: the body then only yields to contacts.
 //!
 //! Must never: read the world's workspace after the step begins to change it, allocate once built
-//! (the predictor is sized at construction), or let two hands attack at once.
+//! (the predictor is sized at construction), let two hands attack at once, or attack during a
+//! defence.
 
 use std::time::Instant;
 
@@ -71,6 +79,16 @@ impl ContactClass {
             ContactClass::Other => Priority::Low,
         }
     }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ContactClass::AvatarAttack => "avatar's attack",
+            ContactClass::BoxerAttack => "own attack",
+            ContactClass::BoxerBlocked => "own block",
+            ContactClass::AvatarBlocked => "avatar's block",
+            ContactClass::Other => "other",
+        }
+    }
 }
 
 /// A hand's behaviour (Fig. 5).
@@ -104,17 +122,39 @@ pub struct Decision {
     pub hand_at_contact_m: DVec3,
 }
 
+/// The defence under way: which avatar hand it answers and which part it keeps unhit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Defence {
+    /// 0 or 1: the avatar hand whose punch it answers.
+    pub av_hand: usize,
+    /// The virtual human's head or chest.
+    pub part: usize,
+    /// The blocking hand (0 or 1), if a block is part of it.
+    pub blocking: Option<usize>,
+    /// The body moves too (avoidance, or the trunk's lean for the chest).
+    pub avoiding: bool,
+    /// Simulated time it began.
+    pub since_s: f64,
+}
+
 /// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MindParams {
-    /// An avatar hand moving toward the virtual human faster than this triggers a prediction.
+    /// An avatar hand closing on any part of the virtual human faster than this triggers a
+    /// prediction.
     pub trigger_m_per_s: f64,
+    /// While an avatar hand closes on it faster than this, the body does not go back to its
+    /// guard (toward the fist) and no attack starts.
+    pub approach_m_per_s: f64,
     /// How far ahead a prediction runs.
     pub horizon_s: f64,
     /// After a middle-priority contact, keep predicting this long for a high one.
     pub middle_grace_s: f64,
     /// Do not start another prediction sooner than this after one.
     pub predict_every_s: f64,
+    /// A user's hand slowing down at more than this (m/s^2) is extrapolated to where it stops,
+    /// not along a straight line at its speed.
+    pub decel_m_per_s2: f64,
     /// Avoidance: P' extends AP by this factor; R lies this far from the trajectory (Q), on the
     /// ray from Q through B.
     pub avoid_extend: f64,
@@ -125,8 +165,16 @@ pub struct MindParams {
     /// Avoidance reaches finish this fraction of the predicted time to contact (the linear
     /// extrapolation of an accelerating fist predicts the contact late).
     pub avoid_time_fraction: f64,
+    /// The body moves as well as the block when the predicted contact is this close (s), or
+    /// when no hand can block in time.
+    pub avoid_lead_s: f64,
+    /// The trunk leans back from a punch at the chest by pulling the head back this far (m),
+    /// about what the waist's range allows.
+    pub lean_m: f64,
     /// Block reaches finish this fraction of the time to contact.
     pub block_time_fraction: f64,
+    /// A hand can block where it gets in time at this mean speed (m/s).
+    pub block_speed_m_per_s: f64,
     /// Attack decision probability per step while both hands stand by (the lab's 0.004).
     pub attack_per_step: f64,
     /// Attack reach duration range (s).
@@ -134,8 +182,10 @@ pub struct MindParams {
     /// The attack's target point is the centre of the avatar's head or chest moved by a random
     /// offset up to this far in each axis (section 4.4.3: the target position is set randomly).
     pub attack_scatter_m: f64,
-    /// A finished reach is held this long before the part returns to standby.
+    /// A finished attack is held this long before the hand returns to standby.
     pub hold_s: f64,
+    /// After a defence the body goes back to its guard in a reach this long (s).
+    pub return_s: f64,
 }
 
 impl Default for MindParams {
@@ -153,29 +203,38 @@ pub struct Mind {
     pub body: BodyBehaviour,
     /// Current reaches: hands [left, right], then the body (head or chest).
     pub reaches: [Option<Reach>; 3],
+    pub defence: Option<Defence>,
     pub predictor: Predictor,
+    /// The contact that decided the newest prediction (None: it found none).
     pub last_decision: Option<Decision>,
-    /// Counters: predictions run, their last and total wall time (ns), behaviours entered.
+    /// Counters: predictions run, their last and total wall time (ns), behaviours entered,
+    /// defences ended because the newest prediction no longer found the contact.
     pub predictions: u64,
     pub last_predict_ns: u64,
     pub predict_ns_total: u64,
     pub avoidances: u64,
     pub blocks: u64,
     pub attacks: u64,
-    /// Hits taken (the user's hand on head or chest) and given (its hand on the avatar's).
+    pub defences_ended: u64,
+    /// Hits taken (the avatar's fist on head or chest) and given (its hand on the avatar's).
     pub hits_taken: u64,
     pub hits_given: u64,
-    /// Simulated time of the last step with the user's hand on the head or chest, and with its
+    /// Simulated time of the last step with the avatar's fist on the head or chest, and with its
     /// hand on the avatar's.
     last_hit_s: f64,
     last_hitting_s: f64,
-    /// Where the dodging part was when the dodge began: it returns there.
-    body_home_m: DVec3,
     next_predict_s: f64,
+    /// Per user hand: the velocity of the previous step and a smoothed acceleration, for the
+    /// extrapolation.
+    prev_vel: [Option<DVec3>; 2],
+    pub hand_acc_m_per_s2: [DVec3; 2],
     vh: Parts,
     av: Parts,
     rng: Pcg64Mcg,
 }
+
+/// Time constant of the smoothing of the user's hand acceleration (s).
+const ACC_SMOOTH_S: f64 = 0.006;
 
 impl Mind {
     pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
@@ -185,6 +244,7 @@ impl Mind {
             hands: [Behaviour::Standby; 2],
             body: BodyBehaviour::Standby,
             reaches: [None; 3],
+            defence: None,
             predictor: Predictor::new(model),
             last_decision: None,
             predictions: 0,
@@ -193,33 +253,46 @@ impl Mind {
             avoidances: 0,
             blocks: 0,
             attacks: 0,
+            defences_ended: 0,
             hits_taken: 0,
             hits_given: 0,
             last_hit_s: f64::NEG_INFINITY,
             last_hitting_s: f64::NEG_INFINITY,
-            body_home_m: DVec3::splat(f64::INFINITY),
             next_predict_s: 0.0,
+            prev_vel: [None; 2],
+            hand_acc_m_per_s2: [DVec3::ZERO; 2],
             vh: *vh,
             av: *av,
             rng: Pcg64Mcg::seed_from_u64(p.seed),
         }
     }
 
-    /// Is an avatar hand coming at the virtual human fast enough to predict (section 3.7)?
+    /// Is an avatar hand closing on any part of the virtual human (head, chest, hands, arms)
+    /// faster than the trigger speed (section 3.7)? At any angle: a hook closes on the head from
+    /// the side.
     pub fn triggered(&self, model: &Model, ws: &Workspace) -> bool {
-        let me = ws.com_world(model, self.vh.chest);
+        self.closing_faster_than(model, ws, self.params.trigger_m_per_s)
+    }
+
+    /// Is an avatar hand closing on any part of the virtual human faster than `speed_m_per_s`?
+    pub fn closing_faster_than(&self, model: &Model, ws: &Workspace, speed_m_per_s: f64) -> bool {
+        let vh = &self.vh;
+        let parts = [vh.head, vh.chest, vh.hand[0], vh.hand[1], vh.forearm[0], vh.forearm[1]];
         self.av.hand.iter().any(|&h| {
             let p = ws.com_world(model, h);
             let v = ws.point_velocity(h, model.bodies[h].com_m);
-            let to_me = me - p;
-            let d = to_me.length();
-            d > 1e-6 && v.dot(to_me / d) > self.params.trigger_m_per_s
+            parts.iter().any(|&b| {
+                let to = ws.com_world(model, b) - p;
+                let d = to.length();
+                let closing = (v - ws.point_velocity(b, model.bodies[b].com_m)).dot(to / d);
+                d > 1e-6 && closing > speed_m_per_s
+            })
         })
     }
 
-    /// Runs a prediction from `state` with the user's hands at `targets` extrapolated linearly
-    /// and the current reaches continuing; returns the deciding contact (highest priority,
-    /// earliest), following Table I's stopping rules.
+    /// Runs a prediction from `state` with the user's hands at `targets` extrapolated and the
+    /// current reaches continuing; returns the deciding contact (highest priority, earliest),
+    /// following Table I's stopping rules.
     pub fn predict(
         &mut self,
         model: &Model,
@@ -227,20 +300,35 @@ impl Mind {
         targets: &[Option<HandTarget>; 2],
         bp: &BoxerParams,
     ) -> Option<Decision> {
+        let reaches = self.reaches;
+        self.predict_with(model, state, targets, bp, &reaches)
+    }
+
+    /// [`Mind::predict`] with `reaches` instead of the current ones.
+    pub fn predict_with(
+        &mut self,
+        model: &Model,
+        state: &State,
+        targets: &[Option<HandTarget>; 2],
+        bp: &BoxerParams,
+        reaches: &[Option<Reach>; 3],
+    ) -> Option<Decision> {
         let started = Instant::now();
         let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
         let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
         let t0 = state.t_s;
-        let reaches = self.reaches;
         let av = self.av;
+        let acc = self.hand_acc_m_per_s2;
         let mut best: Option<Decision> = None;
         let mut middle_at: Option<usize> = None;
         let mut hand_start = [DVec3::ZERO; 2];
         let mut n = 0usize;
-        // Pairs already touching when the prediction starts (guards resting on each other) are
-        // the present, not a prediction: skip them. Fixed capacity; more are simply not skipped.
+        // Pairs already touching when the prediction starts (guards resting on each other, a
+        // fist held against a block) are the present, not a prediction: skip them. Fixed
+        // capacity; more are simply not skipped.
         let mut present = [(usize::MAX, usize::MAX); 16];
         let mut n_present = 0;
+        let decel = self.params.decel_m_per_s2;
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -288,54 +376,6 @@ impl Mind {
                     );
                 }
             }
-            // The user's fists as the rt-loop renders them: the extrapolated hand points against
-            // the virtual human's parts. The avatar's arm may not reach where the user's hand
-            // does (its joints and length hold it back), so its own contacts are not enough.
-            if n > 0 {
-                let ahead = s.t_s - t0 - m.dt_s;
-                for (h, t) in targets.iter().enumerate() {
-                    let Some(t) = t else { continue };
-                    let fist = t.pos_m + t.vel_m_per_s * ahead;
-                    for (k, sh) in m.shapes.iter().enumerate() {
-                        let Some(vb) = sh.body else { continue };
-                        if m.bodies[vb].articulation != BOXER {
-                            continue;
-                        }
-                        let pose = &ws.shape_pose[k];
-                        // The proxy lies inside the shape's bounding sphere, so a fist farther than
-                        // bound + grip from its centre is out of grip without building the proxy
-                        // (most shapes, most steps). The 1 nm margin keeps rounding from ever
-                        // skipping a fist the full test below would count.
-                        let reach_m = sh.bound_m + bp.grip_radius_m + 1e-9;
-                        if (fist - pose.pos_m).length_squared() > reach_m * reach_m {
-                            continue;
-                        }
-                        let Some(shape) = super::proxy_shape(&sh.shape, pose.pos_m, pose.rot) else {
-                            continue;
-                        };
-                        if crate::impulse::dist(&shape, fist) > bp.grip_radius_m {
-                            continue;
-                        }
-                        let class = ContactClass::of(m.bodies[vb].part, Part::Hand);
-                        if outranks(class, &best) {
-                            offer(
-                                &mut best,
-                                &mut middle_at,
-                                n,
-                                Decision {
-                                    class,
-                                    vh_body: vb,
-                                    av_body: av.hand[h],
-                                    point_m: crate::impulse::nearest_on_surface(&shape, fist),
-                                    at_s: s.t_s,
-                                    hand_start_m: t.pos_m,
-                                    hand_at_contact_m: fist,
-                                },
-                            );
-                        }
-                    }
-                }
-            }
             match best.map(|d| d.class.priority()) {
                 Some(Priority::High) => return false,
                 Some(Priority::Middle) if middle_at.is_some_and(|k| n >= k + grace) => return false,
@@ -344,8 +384,7 @@ impl Mind {
             let dt_ahead = s.t_s - t0;
             for (h, t) in targets.iter().enumerate() {
                 if let Some(t) = t {
-                    let ext =
-                        HandTarget { pos_m: t.pos_m + t.vel_m_per_s * dt_ahead, vel_m_per_s: t.vel_m_per_s };
+                    let ext = extrapolate(t, acc[h], dt_ahead, decel);
                     let f = coupling_force(m, ws, av.hand[h], &ext, bp);
                     let c = ws.com_world(m, av.hand[h]);
                     ws.add_force_at(av.hand[h], c, f);
@@ -363,80 +402,198 @@ impl Mind {
         best
     }
 
-    /// Section 3.9: behaviour from the deciding contact, and the reaches of Table II.
+    /// Section 3.9: behaviour from the deciding contact, and the reaches of Table II. Only the
+    /// avatar's attack (Table I class 1) changes behaviour; the other classes are recorded.
     pub fn decide(&mut self, model: &Model, ws: &Workspace, now_s: f64, d: &Decision, bp: &BoxerParams) {
         self.last_decision = Some(*d);
         if d.class != ContactClass::AvatarAttack {
             return;
         }
-        let left = (d.at_s - now_s).max(0.08);
-        // Avoidance (Fig. 6): the part that would be hit moves away from the hand's path.
+        let Some(av_hand) = self.av.hand.iter().position(|&h| h == d.av_body) else { return };
         let part = if d.vh_body == self.vh.head { self.vh.head } else { self.vh.chest };
-        let b = ws.com_world(model, part);
-        // The path is the avatar hand's centre, from A through its centre at the contact.
+        let left = (d.at_s - now_s).max(0.06);
         let (a, p) = (d.hand_start_m, d.hand_at_contact_m);
-        // A dodge under way is kept while its target is still clear of the newly predicted
-        // path: restarting it would throw away the motion already gained (a fresh reach starts
-        // from rest) and, for a punch aimed dead at the part, could flip the side.
-        let keep = match self.reaches[2] {
-            Some(r) if self.body == BodyBehaviour::Avoidance && r.body == part && !r.done(now_s) => {
-                let p_ext = a + (p - a) * self.params.avoid_extend;
-                (r.target_m - nearest_on_segment(a, p_ext, r.target_m)).length()
-                    >= 0.8 * self.params.avoid_clearance_m
+        let prev = self.defence;
+        let mut def = Defence { av_hand, part, blocking: None, avoiding: false, since_s: now_s };
+        if let Some(prev) = prev {
+            def.since_s = prev.since_s;
+        }
+
+        // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
+        // when the hand is there first (the prediction's line from A to the contact, walked at
+        // its mean speed): of those points a hand gets to in time, the one it moves least for.
+        let (dur, block, block_in_time) = self.block_target(model, ws, a, p, left);
+        // The body moves too when the contact is close (a fist can glance off a block) or no
+        // hand can block in time. The head slips by Fig. 6; the chest cannot move that far and
+        // leans only as far as the waist allows, away from the fist.
+        def.avoiding = !block_in_time || left <= self.params.avoid_lead_s || prev.is_some_and(|p| p.avoiding);
+        if let Some((h, target)) = block {
+            def.blocking = Some(h);
+            // A block under way that already goes there in time is kept (a fresh reach starts
+            // from rest).
+            let running = self.reaches[h].filter(|r| self.hands[h] == Behaviour::Block && !r.done(now_s));
+            let on_time = |r: &Reach| {
+                (r.target_m - target).length() < 0.03 && r.start_s + r.duration_s <= now_s + dur + 0.01
+            };
+            if !running.is_some_and(|r| on_time(&r)) {
+                self.reaches[h] = Some(Reach::start(
+                    model,
+                    ws,
+                    self.vh.hand[h],
+                    target,
+                    now_s,
+                    dur,
+                    bp.reach_arm_k_n_per_m,
+                    bp.reach_arm_d_n_s_per_m,
+                ));
             }
-            _ => false,
-        };
-        if !keep {
-            let r = avoid_target(a, p, b, &self.params);
-            let dur = (left * self.params.avoid_time_fraction).max(0.06);
-            self.reaches[2] = Some(Reach::start(
-                model,
-                ws,
-                part,
-                r,
-                now_s,
-                dur,
-                bp.reach_body_k_n_per_m,
-                bp.reach_body_d_n_s_per_m,
-            ));
+            if self.hands[h] != Behaviour::Block {
+                self.blocks += 1;
+            }
+            self.hands[h] = Behaviour::Block;
+            // Fig. 5: the other hand stands by; an attack by it stops.
+            let o = 1 - h;
+            if self.hands[o] != Behaviour::Standby {
+                self.hands[o] = Behaviour::Standby;
+                self.reaches[o] = None;
+            }
         }
-        if self.body != BodyBehaviour::Avoidance {
-            self.avoidances += 1;
-            self.body_home_m = b;
+        if def.avoiding {
+            // The body moves by its head, the top of the chain: a dodge slips the head, a lean
+            // pulls it back and the trunk with it. (A reach on the chest would swing the head
+            // about it, toward a hook.)
+            let head = self.vh.head;
+            let b = ws.com_world(model, head);
+            // A dodge under way is kept while its target still clears the newly predicted path:
+            // restarting it would throw away the motion already gained (a fresh reach starts from
+            // rest) and, for a punch aimed dead at the part, could flip the side.
+            let keep = match self.reaches[2] {
+                Some(r) if self.body == BodyBehaviour::Avoidance && part == head => {
+                    let p_ext = a + (p - a) * self.params.avoid_extend;
+                    (r.target_m - nearest_on_segment(a, p_ext, r.target_m)).length()
+                        >= 0.8 * self.params.avoid_clearance_m
+                }
+                Some(r) if self.body == BodyBehaviour::Avoidance => r.target_m.z < r.home_m.z,
+                _ => false,
+            };
+            if !keep {
+                // A dodge re-aimed, or one from a body on its way back, keeps its guard as home.
+                let home = self.reaches[2].map_or(b, |r| r.home_m);
+                // The head slips by Fig. 6, from where it is now (a dodge from an earlier punch
+                // may have taken it aside). The chest cannot slip that far: the trunk leans back
+                // from its guard, away from the fist, as far as the waist lets it.
+                let r = if part == self.vh.chest {
+                    let away = DVec3::new(b.x - a.x, 0.0, b.z - a.z).normalize_or(DVec3::NEG_Z);
+                    // Mostly back (the virtual human faces +z).
+                    let dir = DVec3::new(away.x * 0.5, 0.0, -1.0).normalize();
+                    home + dir * self.params.lean_m
+                } else {
+                    avoid_target(a, p, b, &self.params)
+                };
+                let dur = (left * self.params.avoid_time_fraction).max(0.06);
+                let mut reach = Reach::start(
+                    model,
+                    ws,
+                    head,
+                    r,
+                    now_s,
+                    dur,
+                    bp.reach_body_k_n_per_m,
+                    bp.reach_body_d_n_s_per_m,
+                );
+                reach.home_m = home;
+                self.reaches[2] = Some(reach);
+            }
+            if self.body != BodyBehaviour::Avoidance {
+                self.avoidances += 1;
+            }
+            self.body = BodyBehaviour::Avoidance;
         }
-        self.body = BodyBehaviour::Avoidance;
-        // Block (Fig. 7) with the hand nearer the predicted contact; an attack by it stops.
-        let h = (0..2)
-            .min_by(|&i, &j| {
-                let di = (ws.com_world(model, self.vh.hand[i]) - d.point_m).length();
-                let dj = (ws.com_world(model, self.vh.hand[j]) - d.point_m).length();
-                di.total_cmp(&dj)
-            })
-            .unwrap_or(0);
-        let hb = ws.com_world(model, self.vh.hand[h]);
-        // The block ends slightly before the contact; P' is where the avatar's hand will be then
-        // (on the linear path the prediction assumed), R the nearest point of AP' to the hand.
-        let dur = (left * self.params.block_time_fraction).max(0.06);
-        let p_end = a + (p - a) * (dur / left).min(1.0);
-        let target = nearest_on_segment(a, p_end, hb);
-        // A block under way that already goes there is kept (see the dodge above).
-        let running = self.reaches[h].filter(|r| self.hands[h] == Behaviour::Block && !r.done(now_s));
-        if !running.is_some_and(|r| (r.target_m - target).length() < 0.05) {
-            self.reaches[h] = Some(Reach::start(
-                model,
-                ws,
-                self.vh.hand[h],
-                target,
-                now_s,
-                dur,
-                bp.reach_arm_k_n_per_m,
-                bp.reach_arm_d_n_s_per_m,
-            ));
+        self.defence = Some(def);
+    }
+
+    /// The block against a fist going from `a` to `p` in `left` seconds: (the reach's duration,
+    /// the hand and its target, whether it gets there in time). Candidates are points of AP the
+    /// fist passes at a time t up to the block's end before the contact; a hand gets to one in
+    /// time when its distance is at most `block_speed_m_per_s` times the reach, which ends at
+    /// `block_time_fraction` of t. Of the points a hand gets to in time, the least motion; if
+    /// none, the point it comes nearest to being on time for.
+    fn block_target(
+        &self,
+        model: &Model,
+        ws: &Workspace,
+        a: DVec3,
+        p: DVec3,
+        left: f64,
+    ) -> (f64, Option<(usize, DVec3)>, bool) {
+        const N: usize = 12;
+        let f = self.params.block_time_fraction;
+        let v = self.params.block_speed_m_per_s;
+        // (hand, target, duration, distance, distance over what it can cover)
+        let mut best: Option<(usize, DVec3, f64, f64, f64)> = None;
+        for h in 0..2 {
+            let hb = ws.com_world(model, self.vh.hand[h]);
+            for k in 1..=N {
+                let t = left * f * k as f64 / N as f64;
+                let x = a + (p - a) * (t / left);
+                let dur = (f * t).max(0.03);
+                let dist = (x - hb).length();
+                let ratio = dist / (v * dur);
+                let better = match best {
+                    None => true,
+                    Some((_, _, _, bd, br)) => {
+                        if ratio <= 1.0 {
+                            br > 1.0 || dist < bd
+                        } else {
+                            br > 1.0 && ratio < br
+                        }
+                    }
+                };
+                if better {
+                    best = Some((h, x, dur, dist, ratio));
+                }
+            }
         }
-        if self.hands[h] != Behaviour::Block {
-            self.blocks += 1;
+        match best {
+            Some((h, x, dur, _, ratio)) => (dur, Some((h, x)), ratio <= 1.0),
+            None => (0.05, None, false),
         }
-        self.hands[h] = Behaviour::Block;
+    }
+
+    /// Ends the defence under way: the blocking hand returns to its guard (its joints' springs
+    /// take it there), the body in an unhurried reach back to where the dodge left from.
+    fn end_defence(&mut self, model: &Model, ws: &Workspace, now_s: f64, bp: &BoxerParams) {
+        if self.defence.take().is_none() {
+            return;
+        }
+        self.defences_ended += 1;
+        for h in 0..2 {
+            if self.hands[h] == Behaviour::Block {
+                self.hands[h] = Behaviour::Standby;
+                self.reaches[h] = None;
+            }
+        }
+        // The body, dodged or held where it stopped on its way back, goes back to its guard.
+        self.body = BodyBehaviour::Standby;
+        if let Some(r) = self.reaches[2] {
+            self.reaches[2] = Some(self.return_reach(model, ws, &r, now_s, bp));
+        }
+    }
+
+    /// An unhurried reach of the part `r` moves back to where it left its guard from.
+    fn return_reach(&self, model: &Model, ws: &Workspace, r: &Reach, now_s: f64, bp: &BoxerParams) -> Reach {
+        let mut back = Reach::start(
+            model,
+            ws,
+            r.body,
+            r.home_m,
+            now_s,
+            self.params.return_s,
+            bp.reach_body_k_n_per_m,
+            bp.reach_body_d_n_s_per_m,
+        );
+        back.home_m = r.home_m;
+        back
     }
 
     /// Called before the world step: trigger, predict, decide, start attacks, end finished reaches.
@@ -449,35 +606,100 @@ impl Mind {
         bp: &BoxerParams,
     ) {
         let now = state.t_s;
-        // Finished reaches are held a little, then the part returns to standby; a dodged part
-        // stays out while a user's fist is still where it would return to.
-        let fist_in_the_way = targets
-            .iter()
-            .flatten()
-            .any(|t| (t.pos_m - self.body_home_m).length() < self.params.avoid_clearance_m);
-        for i in 0..3 {
-            if let Some(r) = self.reaches[i] {
-                if now > r.start_s + r.duration_s + self.params.hold_s && !(i == 2 && fist_in_the_way) {
-                    self.reaches[i] = None;
-                    if i < 2 {
-                        self.hands[i] = Behaviour::Standby;
-                    } else {
-                        self.body = BodyBehaviour::Standby;
-                    }
+        // The user's hands' acceleration, smoothed (for the extrapolation).
+        let k = (model.dt_s / ACC_SMOOTH_S).min(1.0);
+        for h in 0..2 {
+            let v = targets[h].map(|t| t.vel_m_per_s);
+            if let (Some(v), Some(pv)) = (v, self.prev_vel[h]) {
+                let a = (v - pv) / model.dt_s;
+                if a.is_finite() {
+                    self.hand_acc_m_per_s2[h] += (a - self.hand_acc_m_per_s2[h]) * k;
+                }
+            } else {
+                self.hand_acc_m_per_s2[h] = DVec3::ZERO;
+            }
+            self.prev_vel[h] = v;
+        }
+        // A finished attack is held a little, then the hand returns to standby; the body's
+        // way back to its guard is let go of once done (its joints hold it there).
+        for h in 0..2 {
+            if let Some(r) = self.reaches[h] {
+                if self.hands[h] == Behaviour::Attack && now > r.start_s + r.duration_s + self.params.hold_s {
+                    self.reaches[h] = None;
+                    self.hands[h] = Behaviour::Standby;
                 }
             }
+        }
+        if self.body == BodyBehaviour::Standby && self.reaches[2].is_some_and(|r| r.done(now)) {
+            self.reaches[2] = None;
         }
         if !self.active {
             return;
         }
-        if now >= self.next_predict_s && self.triggered(model, ws) {
+        let defending = self.defence.is_some();
+        let closing = self.triggered(model, ws);
+        // A fist coming at it, even slowly: the body does not go back toward it, nor does an
+        // attack start.
+        let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
+        if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
-            if let Some(d) = self.predict(model, state, targets, bp) {
-                self.decide(model, ws, now, &d, bp);
+            // During a defence: what if the virtual human stood by now (its defence's reaches
+            // gone, the body and the blocking hand left to their joints)? Otherwise as the paper
+            // says: its current reaches continue.
+            let mut reaches = self.reaches;
+            if let Some(d) = self.defence {
+                if let Some(h) = d.blocking {
+                    reaches[h] = None;
+                }
+                reaches[2] = None;
+            }
+            let d = self.predict_with(model, state, targets, bp, &reaches);
+            match d {
+                Some(d) if d.class == ContactClass::AvatarAttack => self.decide(model, ws, now, &d, bp),
+                other => {
+                    self.last_decision = other;
+                    // The newest prediction no longer finds the fist on the head or chest: the
+                    // defence ends, and the body goes back to its guard once no fist is closing
+                    // on it any more (it does not step back into a punch on its way).
+                    if !defending || !closing {
+                        self.end_defence(model, ws, now, bp);
+                    }
+                }
             }
         }
-        // Attack: one hand at a time, only while both stand by and the body is not avoiding.
-        let idle = self.hands.iter().all(|&b| b == Behaviour::Standby) && self.body == BodyBehaviour::Standby;
+        // While a fist comes at it and it is not avoiding, the body holds still where it is: it
+        // neither goes back to its guard after a defence (that would be toward the fist) nor
+        // sways there on its joints; the head, its most mobile part, is held if nothing else
+        // is. Once no fist comes, it goes back to its guard.
+        if self.body == BodyBehaviour::Standby {
+            let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
+            if approaching && !held {
+                let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
+                let here = ws.com_world(model, body);
+                let mut hold = Reach::start(
+                    model,
+                    ws,
+                    body,
+                    here,
+                    now,
+                    0.05,
+                    bp.reach_body_k_n_per_m,
+                    bp.reach_body_d_n_s_per_m,
+                );
+                hold.home_m = home.unwrap_or(here);
+                hold.duration_s = f64::INFINITY;
+                self.reaches[2] = Some(hold);
+            } else if !approaching && held && self.defence.is_none() {
+                self.reaches[2] = self.reaches[2].and_then(|r| {
+                    ((r.home_m - r.target_m).length() > 0.01)
+                        .then(|| self.return_reach(model, ws, &r, now, bp))
+                });
+            }
+        }
+        // Attack: one hand at a time, only while both stand by, no defence is under way and no
+        // fist is closing on it.
+        let idle =
+            self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none() && !approaching;
         if idle && self.rng.random::<f64>() < self.params.attack_per_step {
             let h = if self.rng.random::<f64>() < 0.7 { 1 } else { 0 };
             let hand = self.vh.hand[h];
@@ -520,7 +742,7 @@ impl Mind {
     /// least [`HIT_GAP_S`] after the previous one, so a punch whose contact chatters (a penalty
     /// contact may touch, bounce and touch again within a few steps) counts once.
     pub fn after_step(&mut self, rep: &StepReport, t_s: f64) {
-        if rep.vh_hit {
+        if rep.vh_hit() {
             if t_s - self.last_hit_s > HIT_GAP_S {
                 self.hits_taken += 1;
             }
@@ -538,6 +760,57 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A hand speeding up is expected to reach at most this many times its present speed (the peak
+/// of a minimum-jerk punch is 2.4 times its speed a fifth of the way out).
+pub const SPEED_UP_MAX: f64 = 2.5;
+/// The extrapolated path turns at most this far (rad), on a radius of at least this (m).
+pub const TURN_MAX_RAD: f64 = std::f64::consts::FRAC_PI_2;
+pub const RADIUS_MIN_M: f64 = 0.15;
+
+/// Where a user's hand at `t` (smoothed acceleration `acc`) is expected `ahead` seconds on
+/// (section 3.7 extrapolates linearly; this keeps what the present motion says of the next
+/// fraction of a second):
+/// - along its path, its speed changes at the acceleration it has along it: a hand slowing down
+///   at more than `decel_m_per_s2` stops where that brings it to rest (a feint stops short), a
+///   hand speeding up goes on speeding up to at most [`SPEED_UP_MAX`] times its speed (a punch's
+///   first moments are slow, and a line at that speed would see its contact late);
+/// - the path bends as it bends now (the acceleration across the velocity over the speed
+///   squared), on an arc of at least [`RADIUS_MIN_M`] radius, for at most [`TURN_MAX_RAD`], then
+///   goes straight on: hooks and uppercuts curve into their target.
+pub fn extrapolate(t: &HandTarget, acc: DVec3, ahead: f64, decel_m_per_s2: f64) -> HandTarget {
+    let speed = t.vel_m_per_s.length();
+    let linear = HandTarget { pos_m: t.pos_m + t.vel_m_per_s * ahead, vel_m_per_s: t.vel_m_per_s };
+    if !(speed > 1e-6 && acc.is_finite() && ahead > 0.0) {
+        return if speed > 1e-6 { linear } else { *t };
+    }
+    let u = t.vel_m_per_s / speed;
+    let a = acc.dot(u);
+    // Speed changes at `a` for `tt` (until it stops, or reaches the cap), then holds.
+    let (a, tt) = if a < -decel_m_per_s2 {
+        (a, ahead.min(speed / -a))
+    } else if a > 0.0 {
+        (a, ahead.min(speed * (SPEED_UP_MAX - 1.0) / a))
+    } else {
+        (0.0, 0.0)
+    };
+    let v_end = speed + a * tt;
+    let arc = speed * tt + 0.5 * a * tt * tt + v_end * (ahead - tt);
+    // The bend: curvature from the acceleration across the velocity.
+    let across = acc - u * acc.dot(u);
+    let kappa = (across.length() / (speed * speed)).min(1.0 / RADIUS_MIN_M);
+    if !(kappa > 1e-9) {
+        return HandTarget { pos_m: t.pos_m + u * arc, vel_m_per_s: u * v_end };
+    }
+    let n = across.normalize();
+    let turn = arc * kappa;
+    let th = turn.min(TURN_MAX_RAD);
+    let r = 1.0 / kappa;
+    let (s, c) = th.sin_cos();
+    let dir = u * c + n * s;
+    let pos = t.pos_m + (u * s + n * (1.0 - c)) * r + dir * ((turn - th) * r);
+    HandTarget { pos_m: pos, vel_m_per_s: dir * v_end }
 }
 
 /// A contact of `class` replaces the best so far only with a strictly higher priority, so among
@@ -564,7 +837,7 @@ fn offer(best: &mut Option<Decision>, middle_at: &mut Option<usize>, n: usize, d
 /// body slip sideways far more easily than duck (measured: asked for 0.2 m, the head slips
 /// 0.18-0.22 m sideways but ducks 0.10 m); with a cost of 1 this is exactly the paper's R. A
 /// point toward the avatar (+z) keeps B's depth instead, and a part already clear of the path
-/// stays.
+/// stays. Nor does it come toward the fist where it is now (A): that component is dropped.
 /// A punch aimed dead at B leaves a tie: the part slips away from the side the punch comes from.
 pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     let p_ext = a + (p - a) * mp.avoid_extend;
@@ -579,6 +852,7 @@ pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     // On a tie, away from the side the punch comes from: e1 pointing the way B lies from A
     // across the virtual human's front (x), tried first.
     let e1 = if e1.x * (b.x - a.x) >= 0.0 { e1 } else { -e1 };
+    let to_fist = (a - b).normalize_or_zero();
     let cost = |r: DVec3| {
         let d = r - b;
         d.x * d.x + d.z * d.z + mp.avoid_duck_cost * d.y * d.y
@@ -588,8 +862,9 @@ pub fn avoid_target(a: DVec3, p: DVec3, b: DVec3, mp: &MindParams) -> DVec3 {
     for k in 0..N {
         let th = k as f64 * std::f64::consts::TAU / N as f64;
         let mut r = q + (e1 * th.cos() + e2 * th.sin()) * c;
-        // Never toward the avatar: such a point keeps B's depth instead.
+        // Never toward the avatar: such a point keeps B's depth instead; never toward the fist.
         r.z = r.z.min(b.z);
+        r -= to_fist * (r - b).dot(to_fist).max(0.0);
         let e = cost(r);
         // Strictly better only: on a tie the earlier angle (from +e1) stays.
         if e < best.0 - 1e-12 {
@@ -682,6 +957,78 @@ mod tests {
         let a = DVec3::new(0.4, 1.5, 0.0);
         let p = DVec3::new(0.4, 1.5, -0.8);
         assert_eq!(avoid_target(a, p, b, &mp), b);
+    }
+
+    #[test]
+    fn avoidance_never_comes_toward_the_fist() {
+        let mp = mind_params(1.0);
+        let b = DVec3::new(0.0, 1.5, -0.85);
+        // Fists coming from every side at and around the head, from where they are now.
+        for k in 0..40 {
+            let th = k as f64 * 0.41;
+            let a = b + DVec3::new(th.cos() * 0.3, th.sin() * 0.15, 0.2 + 0.1 * th.sin());
+            let r = avoid_target(a, b + (b - a) * 0.1, b, &mp);
+            assert!((r - b).dot((a - b).normalize()) <= 1e-9, "fist at {a}: R {r}");
+        }
+    }
+
+    fn hand(pos: DVec3, vel: DVec3) -> HandTarget {
+        HandTarget { pos_m: pos, vel_m_per_s: vel }
+    }
+
+    #[test]
+    fn a_steady_hand_is_extrapolated_on_a_straight_line() {
+        let t = hand(DVec3::new(0.1, 1.4, -0.3), DVec3::new(0.0, 0.0, -3.0));
+        for ahead in [0.0, 0.05, 0.3] {
+            let e = extrapolate(&t, DVec3::ZERO, ahead, 5.0);
+            assert!((e.pos_m - (t.pos_m + t.vel_m_per_s * ahead)).length() < 1e-12);
+            assert_eq!(e.vel_m_per_s, t.vel_m_per_s);
+        }
+        // A hand at rest stays.
+        assert_eq!(extrapolate(&hand(DVec3::ONE, DVec3::ZERO), DVec3::X, 0.2, 5.0).pos_m, DVec3::ONE);
+    }
+
+    #[test]
+    fn a_slowing_hand_stops_where_its_deceleration_brings_it_to_rest() {
+        // 3 m/s slowing at 30 m/s^2: stops after 0.1 s, 0.15 m on.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -3.0));
+        let acc = DVec3::new(0.0, 0.0, 30.0);
+        for ahead in [0.1, 0.2, 0.5] {
+            let e = extrapolate(&t, acc, ahead, 5.0);
+            assert!((e.pos_m - DVec3::new(0.0, 0.0, -0.15)).length() < 1e-9, "{ahead}: {}", e.pos_m);
+            assert!(e.vel_m_per_s.length() < 1e-9);
+        }
+        // Under the threshold it is not believed: a straight line.
+        let e = extrapolate(&t, DVec3::new(0.0, 0.0, 4.0), 0.1, 5.0);
+        assert!((e.pos_m.z + 0.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_hand_speeding_up_is_expected_to_reach_at_most_its_cap() {
+        // 1 m/s speeding up at 100 m/s^2: capped at 2.5 m/s after 15 ms.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -1.0));
+        let e = extrapolate(&t, DVec3::new(0.0, 0.0, -100.0), 0.2, 5.0);
+        let t_cap = 1.5 / 100.0;
+        let want = 1.0 * t_cap + 0.5 * 100.0 * t_cap * t_cap + 2.5 * (0.2 - t_cap);
+        assert!((e.pos_m.z + want).abs() < 1e-9, "{} vs {want}", e.pos_m.z);
+        assert!((e.vel_m_per_s.length() - SPEED_UP_MAX).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_curving_hand_is_extrapolated_along_its_arc_with_limits() {
+        // 2 m/s along -z bending toward +x at 20 m/s^2: radius v^2 / a = 0.2 m.
+        let t = hand(DVec3::ZERO, DVec3::new(0.0, 0.0, -2.0));
+        let acc = DVec3::new(20.0, 0.0, 0.0);
+        // A quarter turn takes pi/2 x 0.2 m = 0.314 m, 0.157 s.
+        let e = extrapolate(&t, acc, 0.157_079_632_679_489_66, 5.0);
+        assert!((e.pos_m - DVec3::new(0.2, 0.0, -0.2)).length() < 1e-6, "{}", e.pos_m);
+        // Then straight on, turned by no more than a quarter.
+        let e = extrapolate(&t, acc, 0.3, 5.0);
+        assert!(e.vel_m_per_s.normalize().dot(DVec3::X) > 1.0 - 1e-9, "{}", e.vel_m_per_s);
+        assert!((e.pos_m.z + 0.2).abs() < 1e-6 && e.pos_m.x > 0.2);
+        // A sharper bend than 0.15 m radius is taken as 0.15 m.
+        let e = extrapolate(&t, DVec3::new(400.0, 0.0, 0.0), 0.5, 5.0);
+        assert!((e.pos_m.z + RADIUS_MIN_M).abs() < 1e-6, "{}", e.pos_m);
     }
 
     #[test]

@@ -6,13 +6,13 @@
 //! spring-dampers (section 3.4), the reaching springs (appendix, [`reach`]), and the cognitive
 //! model that predicts on a copy of the state and picks avoid / block / attack ([`mind`]).
 //!
-//! Force feedback (sections 3.4, 3.12): the user's hands touch the virtual human through the
-//! rt-loop's 1 kHz rendering against proxies of the virtual human's parts; the impulses of those
-//! virtual contacts (before the rig's force clamp: the user feels them only as far as the rig can
-//! show them) come back and are given to those parts here, and their reaction to the avatar's
-//! hands. So the avatar's hand shapes must not also collide with the virtual human in the world
-//! simulation (that would count each contact twice): those pairs are removed from the world
-//! model. The prediction model keeps them: there is no rt-loop inside a prediction.
+//! Force feedback (sections 3.4, 3.12), the paper's coupling: the avatar's fists are bodies of
+//! this world and collide with the virtual human here, so the virtual human receives the
+//! avatar's contact, a block stops the avatar's fist, and the prediction runs the same contacts.
+//! The user feels the contact force acting on the avatar's hands: every step reports it per
+//! hand as a local model ([`HandContact`]: force, normal, the contact's stiffness in series with
+//! the coupling spring, and the user's hand position it was computed for), which the rt-loop
+//! renders at 1 kHz with the user's motion, clipped to what the rig can push.
 //!
 //! Must never: feed the coupling spring back to the user (it is the avatar's dynamics, not a
 //! contact), or allocate in a step after construction.
@@ -22,14 +22,16 @@ pub mod mind;
 pub mod reach;
 
 use glam::{DMat3, DVec3};
-use spidar_msg::ProxyShape;
+use spidar_msg::{HandContact, ProxyShape};
 
+use crate::aba::aba;
 use crate::collide::Shape;
-
+use crate::contact::contacts;
 use crate::desc::boxing_scene;
 use crate::model::{Model, Part, Side};
+use crate::passive::passive_forces;
 use crate::state::{kinematics, State, Workspace};
-use crate::step::{forward, forward_dynamics, integrate};
+use crate::step::integrate;
 use crate::SimError;
 
 pub use config::{load_boxer, parse_boxer, BOXER_RON};
@@ -81,17 +83,15 @@ pub struct BoxerParams {
     /// Coupling spring from the user's hand to the avatar's hand (N/m) and its damper (N s/m).
     pub coupling_k_n_per_m: f64,
     pub coupling_d_n_s_per_m: f64,
+    /// The coupling's force is limited to this (N): the avatar's arm pushes no harder than an
+    /// arm does, however far past a block or a part the user's real hand goes (the rig cannot
+    /// stop it).
+    pub coupling_max_n: f64,
     /// The avatar's joint springs and dampers as a fraction of the fighter's in body-upper.ron:
     /// the paper gives the avatar softer joints so its hands nearly reach the user's hands.
     pub avatar_joint_scale: f64,
     /// Contacts on the avatar's other parts reach both hands times this (the lab's 0.1).
     pub damage_attenuation: f64,
-    /// Penalty gains of the proxies the rt-loop renders (the rig softens above its own limit).
-    pub proxy_k_n_per_m: f64,
-    pub proxy_d_n_s_per_m: f64,
-    /// Only parts of the virtual human closer than this to a hand (surface to grip centre) are
-    /// published as proxies.
-    pub proxy_range_m: f64,
     /// Reaching spring stiffness (N/m) and damping (N s/m) for a hand / forearm, and for the
     /// head / chest (heavier, held by the stiff waist).
     pub reach_arm_k_n_per_m: f64,
@@ -100,18 +100,10 @@ pub struct BoxerParams {
     pub reach_body_d_n_s_per_m: f64,
     /// The virtual human's cognitive model on (active) or off (passive, section 4.2).
     pub active: bool,
-    /// Radius of the sphere that stands for the user's fist (the rig file's `grip_radius_m`):
-    /// the prediction tests the extrapolated hands with it against the virtual human's parts,
-    /// as the rt-loop will render them.
-    pub grip_radius_m: f64,
     /// The cognitive model's tunables.
     pub mind: MindParams,
     /// Seed of the attack generator (target and duration).
     pub seed: u64,
-    /// Let the avatar's hands collide with the virtual human in the world simulation. Only for
-    /// running the world without a rig (`spidar eval reactions`, as in the lab's simulation):
-    /// behind the rt-loop these contacts come from its rendering and would count twice.
-    pub avatar_hands_collide: bool,
 }
 
 impl Default for BoxerParams {
@@ -129,28 +121,38 @@ pub struct HandTarget {
     pub vel_m_per_s: DVec3,
 }
 
-/// What one step did, for the scene and the tests.
+/// What one step did, for the scene and the tests. Contacts are those of the state the step
+/// ended in: what the world holds until the next step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StepReport {
     /// Force of the coupling spring on each avatar hand (never fed back).
     pub coupling_force_n: [DVec3; 2],
-    /// Contact force on each avatar hand from the rt-loop's contacts with the virtual human (the
-    /// reaction of the impulses it reported), averaged over the step.
-    pub hand_contact_force_n: [DVec3; 2],
-    /// Sum of the contact forces on the avatar's other parts (world simulation).
+    /// Per avatar hand: its contact as the local model the rt-loop renders (the user's hand
+    /// position `at_m` in the rt-loop's world frame, without `user_offset_m`); zero when the hand
+    /// touches nothing or is not tracked.
+    pub hand_contacts: [HandContact; 2],
+    /// Sum of the contact forces on the avatar's other parts.
     pub damage_force_n: DVec3,
-    /// The user's hands touched the virtual human's head or chest this step.
-    pub vh_hit: bool,
-    /// The virtual human's hand touched the avatar's head or chest this step.
+    /// Per avatar hand: it touches the virtual human's head, its chest, one of its hands or
+    /// forearms (a block).
+    pub head_hit: [bool; 2],
+    pub chest_hit: [bool; 2],
+    pub blocked: [bool; 2],
+    /// The virtual human's hand touches the avatar's head or chest.
     pub avatar_hit: bool,
+}
+
+impl StepReport {
+    /// An avatar hand touches the virtual human's head or chest.
+    pub fn vh_hit(&self) -> bool {
+        self.head_hit.iter().chain(&self.chest_hit).any(|&x| x)
+    }
 }
 
 /// The boxing world: both bodies, stepped at the scene's 3 ms.
 pub struct BoxingWorld {
-    /// The world model: avatar hands do not collide with the virtual human (see module doc).
+    /// The world model; the prediction runs the same one (the avatar's fists collide in both).
     pub model: Model,
-    /// The prediction model: every pair, so predicted punches land.
-    pub predict_model: Model,
     pub state: State,
     pub ws: Workspace,
     pub params: BoxerParams,
@@ -158,12 +160,15 @@ pub struct BoxingWorld {
     pub vh: Parts,
     pub mind: Mind,
     pub last: StepReport,
-    /// Impulses from the user's hands gathered for the coming step, per avatar hand.
-    pending_hand_impulse_n_s: [DVec3; 2],
-    pending_vh_hit: bool,
-    /// The state whose kinematics `ws` holds (copied by `begin_step`), so `step` can skip a
-    /// second kinematics pass of the same state and still never use stale kinematics.
+    /// Per avatar hand, per shape of the model: the penalty stiffness of the pair the hand's
+    /// shape forms with it (N/m; 0 for none).
+    hand_pair_k: [Vec<f64>; 2],
+    /// Per avatar hand: the running estimate of how its contact force grows with the user's hand.
+    stiffness: [StiffnessEstimate; 2],
+    /// The state whose kinematics and contacts `ws` holds (its contact forces are already in
+    /// `ws.f_ext`), so a step never computes them twice and never uses stale ones.
     kin_state: State,
+    prepared: bool,
 }
 
 impl BoxingWorld {
@@ -187,28 +192,24 @@ impl BoxingWorld {
                 *d *= s;
             }
         }
-        let predict_model = model.clone();
-        let vh_bodies = model.articulations[BOXER].bodies.clone();
-        let shapes = &model.shapes;
-        let is_avatar_hand = |k: u16| shapes[k as usize].body.is_some_and(|b| avatar.hand.contains(&b));
-        let is_vh = |k: u16| shapes[k as usize].body.is_some_and(|b| vh_bodies.contains(&b));
-        let keep: Vec<bool> = model
-            .pairs
-            .iter()
-            .map(|p| !((is_avatar_hand(p.a) && is_vh(p.b)) || (is_avatar_hand(p.b) && is_vh(p.a))))
-            .collect();
-        if !params.avatar_hands_collide {
-            let mut it = keep.iter();
-            model.pairs.retain(|_| *it.next().unwrap_or(&true));
-        }
+        let hand_pair_k = avatar.hand.map(|hand| {
+            let mut k = vec![0.0; model.shapes.len()];
+            for p in &model.pairs {
+                let (a, b) = (p.a as usize, p.b as usize);
+                if model.shapes[a].body == Some(hand) {
+                    k[b] = p.k_n_per_m;
+                } else if model.shapes[b].body == Some(hand) {
+                    k[a] = p.k_n_per_m;
+                }
+            }
+            k
+        });
         let state = State::new(&model);
-        let mut ws = Workspace::new(&model);
-        kinematics(&model, &state, &mut ws);
-        let mind = Mind::new(&predict_model, &params, &vh, &avatar);
-        Ok(BoxingWorld {
+        let ws = Workspace::new(&model);
+        let mind = Mind::new(&model, &params, &vh, &avatar);
+        let mut w = BoxingWorld {
             kin_state: state.clone(),
             model,
-            predict_model,
             state,
             ws,
             params,
@@ -216,44 +217,36 @@ impl BoxingWorld {
             vh,
             mind,
             last: StepReport::default(),
-            pending_hand_impulse_n_s: [DVec3::ZERO; 2],
-            pending_vh_hit: false,
-        })
+            hand_pair_k,
+            stiffness: [StiffnessEstimate::default(); 2],
+            prepared: false,
+        };
+        w.begin_step();
+        Ok(w)
     }
 
     pub fn dt_s(&self) -> f64 {
         self.model.dt_s
     }
 
-    /// Kinematics of the current state; call before [`BoxingWorld::apply_user_impulse`].
+    /// Kinematics and contacts of the current state (their forces into the workspace), unless
+    /// the workspace already holds them; [`BoxingWorld::step`] leaves them ready, so this only
+    /// works after the state was changed from outside.
     pub fn begin_step(&mut self) {
-        kinematics(&self.model, &self.state, &mut self.ws);
-        self.kin_state.copy_from(&self.state);
-    }
-
-    /// The impulse of a virtual contact the rt-loop rendered between user hand `hand` and
-    /// virtual-human body `body` at `point_m` (simulation frame), not limited by the rig's force
-    /// clamp: given to that body now, and its reaction to the avatar's hand, which carries the
-    /// contact the user's hand feels only up to the rig's limit (the lab's avatar hand collided
-    /// in the simulation the same way).
-    pub fn apply_user_impulse(&mut self, hand: usize, body: usize, point_m: DVec3, impulse_n_s: DVec3) {
-        if !impulse_n_s.is_finite() || !self.model.articulations[BOXER].bodies.contains(&body) {
+        if self.prepared && same_bits(&self.kin_state, &self.state) {
             return;
         }
-        let dt = self.model.dt_s;
-        self.ws.add_impulse_at(body, point_m, impulse_n_s, dt);
-        let h = self.avatar.hand[hand.min(1)];
-        let c = self.ws.com_world(&self.model, h);
-        self.ws.add_impulse_at(h, c, -impulse_n_s, dt);
-        self.pending_hand_impulse_n_s[hand.min(1)] += impulse_n_s;
-        if body == self.vh.head || body == self.vh.chest {
-            self.pending_vh_hit = true;
-        }
+        self.ws.f_ext.fill(crate::spatial::SVec::ZERO);
+        kinematics(&self.model, &self.state, &mut self.ws);
+        contacts(&self.model, &mut self.ws);
+        self.kin_state.copy_from(&self.state);
+        self.prepared = true;
     }
 
     /// One 3 ms step with the avatar's hands pulled toward `targets` (None: that hand is not
-    /// tracked and only its joints hold it).
+    /// tracked and only its joints hold it). The report's contacts are those of the new state.
     pub fn step(&mut self, targets: &[Option<HandTarget>; 2]) -> StepReport {
+        self.begin_step();
         let m = &self.model;
         let mut rep = StepReport::default();
         for (h, t) in targets.iter().enumerate() {
@@ -264,45 +257,135 @@ impl BoxingWorld {
                 self.ws.add_force_at(b, c, f);
                 rep.coupling_force_n[h] = f;
             }
-            rep.hand_contact_force_n[h] = -self.pending_hand_impulse_n_s[h] / m.dt_s;
         }
-        rep.vh_hit = self.pending_vh_hit;
-        self.pending_hand_impulse_n_s = [DVec3::ZERO; 2];
-        self.pending_vh_hit = false;
         // The virtual human thinks (prediction on a copy) and acts (its reaches).
-        self.mind.think(&self.predict_model, &self.state, &self.ws, targets, &self.params);
+        self.mind.think(m, &self.state, &self.ws, targets, &self.params);
         self.mind.act(m, &mut self.ws, self.state.t_s);
-        // `begin_step` normally ran the kinematics of this very state: then only the dynamics
-        // remain (the same bits either way; the full pass when the state changed since).
-        if same_bits(&self.kin_state, &self.state) {
-            forward_dynamics(m, &self.state, &mut self.ws);
-        } else {
-            forward(m, &self.state, &mut self.ws);
-        }
-        let avatar_bodies = m.articulations[AVATAR].bodies.clone();
-        for c in &self.ws.contacts {
-            for (b, f, other) in [(c.body_a, c.force_n, c.body_b), (c.body_b, -c.force_n, c.body_a)] {
-                let Some(b) = b.map(|b| b as usize) else { continue };
-                if avatar_bodies.contains(&b) && !self.avatar.hand.contains(&b) {
-                    rep.damage_force_n += f;
-                    let o = other.map(|o| o as usize);
-                    if (b == self.avatar.head || b == self.avatar.chest)
-                        && o.is_some_and(|o| self.vh.hand.contains(&o))
-                    {
-                        rep.avatar_hit = true;
-                    }
-                }
-            }
-        }
+        // The contacts of this state are already in the workspace (`begin_step`).
+        passive_forces(m, &self.state, &mut self.ws);
+        aba(m, &self.state, &mut self.ws);
         integrate(m, &mut self.state, &mut self.ws);
+        self.prepared = false;
+        self.begin_step();
+        self.report_contacts(targets, &mut rep);
         self.mind.after_step(&rep, self.state.t_s);
         self.last = rep;
         rep
     }
 
+    /// Fills the contact part of `rep` from the workspace's contacts (the new state's).
+    fn report_contacts(&mut self, targets: &[Option<HandTarget>; 2], rep: &mut StepReport) {
+        let m = &self.model;
+        let (av, vh) = (&self.avatar, &self.vh);
+        let avatar_bodies = m.articulations[AVATAR].bodies.clone();
+        // Per hand: the summed force, the stiffness-weighted normal, the summed stiffness and the
+        // power the touched bodies put in.
+        let mut sums = [(DVec3::ZERO, DVec3::ZERO, 0.0f64, 0.0f64); 2];
+        for c in &self.ws.contacts {
+            let (Some(a), Some(b)) = (c.body_a.map(usize::from), c.body_b.map(usize::from)) else {
+                continue;
+            };
+            // Seen from each side: (body, its force, the normal toward it, the other body, the
+            // other body's shape).
+            for (me, f, n, other, other_shape) in
+                [(a, c.force_n, c.normal, b, c.shape_b), (b, -c.force_n, -c.normal, a, c.shape_a)]
+            {
+                if let Some(h) = av.hand.iter().position(|&x| x == me) {
+                    let k = self.hand_pair_k[h][other_shape as usize];
+                    sums[h].0 += f;
+                    sums[h].1 += n * k;
+                    sums[h].2 += k;
+                    let x = &self.ws.x0[other];
+                    let v_other = self.ws.point_velocity(other, x.e * (c.point_m - x.r));
+                    sums[h].3 += f.dot(v_other);
+                    rep.head_hit[h] |= other == vh.head;
+                    rep.chest_hit[h] |= other == vh.chest;
+                    rep.blocked[h] |= vh.hand.contains(&other) || vh.forearm.contains(&other);
+                } else if avatar_bodies.contains(&me) {
+                    rep.damage_force_n += f;
+                    if (me == av.head || me == av.chest) && vh.hand.contains(&other) {
+                        rep.avatar_hit = true;
+                    }
+                }
+            }
+        }
+        let p = &self.params;
+        let kc = p.coupling_k_n_per_m;
+        for h in 0..2 {
+            let (f, nk, k, source) = sums[h];
+            let Some(t) = targets[h] else { continue };
+            if f == DVec3::ZERO || !f.is_finite() {
+                continue;
+            }
+            // How the force grows as the user's hand goes in: measured from the world's own
+            // response (the touched body and the avatar give as well as the springs), never more
+            // than the contact spring in series with the coupling spring, and nothing while the
+            // coupling pulls at its limit (a deeper hand then pulls no harder).
+            let hand = self.avatar.hand[h];
+            let x = self.ws.point_world(hand, m.bodies[hand].com_m);
+            let saturated = ((t.pos_m - x) * kc).length() >= p.coupling_max_n;
+            let normal = nk.normalize_or(f.normalize_or_zero());
+            let at = t.pos_m - p.user_offset_m;
+            let series = if k > 0.0 { kc * k / (kc + k) } else { 0.0 };
+            let est = self.stiffness[h].update(at, f, normal);
+            rep.hand_contacts[h] = HandContact {
+                force_n: f,
+                normal,
+                k_n_per_m: if saturated { 0.0 } else { est.clamp(0.0, series) },
+                at_m: at,
+                source_w: if source.is_finite() { source } else { 0.0 },
+            };
+        }
+        for h in 0..2 {
+            if !rep.hand_contacts[h].touching() {
+                self.stiffness[h] = StiffnessEstimate::default();
+            }
+        }
+    }
+
     /// World position of a body's centre of mass (after `begin_step` or `step`).
     pub fn com(&self, body: usize) -> DVec3 {
         self.ws.com_world(&self.model, body)
+    }
+}
+
+/// How fast an avatar hand's contact force grows as the user's hand goes in, from the world's own
+/// response: a least-squares slope of the force change over the user's hand's motion along the
+/// normal, step by step, weighted toward the last [`StiffnessEstimate::WINDOW_STEPS`] steps.
+/// The first steps of a contact (an impact, which says nothing of the slope) give none.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StiffnessEstimate {
+    last: Option<(DVec3, DVec3)>,
+    sxy: f64,
+    sxx: f64,
+    steps: u32,
+}
+
+impl StiffnessEstimate {
+    /// Steps the estimate mostly remembers (30 ms at 3 ms).
+    pub const WINDOW_STEPS: f64 = 10.0;
+    /// Motion below this over the window (m, rms per step) says nothing of the slope.
+    const MIN_MOTION_M: f64 = 1e-5;
+
+    /// Adds this step's user hand position `at_m` and force `f_n` (normal `n`); returns the slope
+    /// (N/m), 0 while it knows too little.
+    pub fn update(&mut self, at_m: DVec3, f_n: DVec3, n: DVec3) -> f64 {
+        if let Some((at0, f0)) = self.last {
+            // In: against the normal.
+            let dx = (at0 - at_m).dot(n);
+            let df = (f_n - f0).dot(n);
+            let a = 1.0 / Self::WINDOW_STEPS;
+            self.sxy += a * (dx * df - self.sxy);
+            self.sxx += a * (dx * dx - self.sxx);
+            self.steps += 1;
+        }
+        self.last = Some((at_m, f_n));
+        let enough = self.steps as f64 >= Self::WINDOW_STEPS && self.sxx > Self::MIN_MOTION_M.powi(2);
+        if enough && (self.sxy / self.sxx).is_finite() {
+            self.sxy / self.sxx
+        } else {
+            0.0
+        }
     }
 }
 
@@ -320,7 +403,7 @@ pub fn coupling_force(model: &Model, ws: &Workspace, hand: usize, t: &HandTarget
     let v = ws.point_velocity(hand, com);
     let f = (t.pos_m - x) * p.coupling_k_n_per_m + (t.vel_m_per_s - v) * p.coupling_d_n_s_per_m;
     if f.is_finite() {
-        f
+        f.clamp_length_max(p.coupling_max_n)
     } else {
         DVec3::ZERO
     }

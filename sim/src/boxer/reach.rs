@@ -35,6 +35,9 @@ pub struct Reach {
     pub point_body_m: DVec3,
     /// Target point (world).
     pub target_m: DVec3,
+    /// Where the point was when the motion this reach belongs to began (world): a dodge that is
+    /// re-aimed keeps the place it left from.
+    pub home_m: DVec3,
     /// Simulated time the reach started.
     pub start_s: f64,
     pub duration_s: f64,
@@ -58,11 +61,13 @@ impl Reach {
         d_n_s_per_m: f64,
     ) -> Reach {
         let point_body_m = model.bodies[body].com_m;
-        let l0_m = (target_m - ws.point_world(body, point_body_m)).length();
+        let home_m = ws.point_world(body, point_body_m);
+        let l0_m = (target_m - home_m).length();
         Reach {
             body,
             point_body_m,
             target_m,
+            home_m,
             start_s: now_s,
             duration_s: duration_s.max(1e-3),
             l0_m,
