@@ -3,54 +3,40 @@
 //! `q` (abort).
 //!
 //! Why it exists: on a real rig the grip is moved by hand, and the tool must wait for the person
-//! without letting the boards go idle. While it waits it keeps exchanging with the device at the
-//! tick period, every string held at the rig's minimum tension, and it watches for a stop signal:
-//! the boards have no watchdog and hold whatever they were told last, so a tool that stopped
-//! commanding them would leave them at its last command.
+//! without letting the link go quiet. While it waits it keeps ticking the [`Link`] (one exchange
+//! per tick period, every string held at the rig's minimum tension, late replies retried, stop
+//! signals seen). The boards have no watchdog: they hold whatever they were last told, so the
+//! holding output is what they keep if this program stalls or dies.
 //!
 //! What it must never do: block on the keyboard while the device needs commands (the keys are
 //! read on their own thread), or leave the outputs on when the person aborts or the console
-//! closes (it deactivates the device before returning [`CalibError::Aborted`]).
+//! closes (it switches them off before returning [`CalibError::Aborted`]).
 
 use std::io::{BufRead, Write};
-use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, TryRecvError};
-use std::sync::Arc;
-use std::time::Duration;
+use std::sync::mpsc::{self, Receiver, TryRecvError};
 
-use spidar_device::{Device, ErrorKind, Input, Output};
+use spidar_device::Device;
 use spidar_rt::Rig;
 
-use crate::record::{holding_output, Answer, Operator, Request};
+use crate::link::Link;
+use crate::record::{Answer, Operator, Request};
 use crate::CalibError;
-
-/// Consecutive failed exchanges (other than a disconnection) tolerated while waiting, as the
-/// recorder tolerates them while recording.
-const MAX_FAILED_EXCHANGES: u32 = 50;
 
 /// The calibration operator at a console.
 pub struct ConsoleOperator {
     keys: Receiver<String>,
     out: Box<dyn Write + Send>,
-    hold: Output,
-    scratch: Input,
     labels: [String; 2],
     tension_min_n: [f64; 2],
-    /// Wait one tick period between exchanges (a real board); `None`: back to back (the simulated
-    /// rig, whose time is its exchange count).
-    period: Option<Duration>,
-    /// Non-zero once a stop was asked for (a stop signal): abort with the outputs off.
-    stop: Option<Arc<AtomicU32>>,
 }
 
 impl ConsoleOperator {
     /// Reads the answers from `keys` (one line each) on a thread of its own and writes prompts
-    /// to `out`. `paced`: exchange once per tick period of `rig` while waiting.
+    /// to `out`. The pace of the exchanges while waiting is the [`Link`]'s.
     pub fn new<R: BufRead + Send + 'static>(
         keys: R,
         out: Box<dyn Write + Send>,
         rig: &Rig,
-        paced: bool,
     ) -> Result<ConsoleOperator, CalibError> {
         let (tx, rx) = mpsc::channel();
         std::thread::Builder::new()
@@ -72,29 +58,14 @@ impl ConsoleOperator {
         Ok(ConsoleOperator {
             keys: rx,
             out,
-            hold: holding_output(rig),
-            scratch: Input::default(),
             labels: [rig.hands[0].label.clone(), rig.hands[1].label.clone()],
             tension_min_n: [rig.hands[0].tension_min_n, rig.hands[1].tension_min_n],
-            period: paced.then(|| Duration::from_secs_f64(rig.period_s)),
-            stop: None,
         })
-    }
-
-    /// Aborts (outputs off) at the next wait once `stop` is non-zero (the stop signals counted).
-    pub fn with_stop(mut self, stop: Arc<AtomicU32>) -> ConsoleOperator {
-        self.stop = Some(stop);
-        self
     }
 
     /// The terminal: keys from stdin, prompts on stderr (stdout keeps the results).
     pub fn stdio(rig: &Rig) -> Result<ConsoleOperator, CalibError> {
-        ConsoleOperator::new(
-            std::io::BufReader::new(std::io::stdin()),
-            Box::new(std::io::stderr()),
-            rig,
-            true,
-        )
+        ConsoleOperator::new(std::io::BufReader::new(std::io::stdin()), Box::new(std::io::stderr()), rig)
     }
 
     /// What the person needs to know before the first request.
@@ -104,8 +75,9 @@ impl ConsoleOperator {
              For each request: put the grip there, let go of any jig clamp's play, hold it still and press Enter;\n\
              the tool then waits until the grip is still and records (about a second).\n\
              Keys: Enter = the grip is there, s + Enter = skip this free pose, q + Enter = abort (outputs off).\n\
-             The boards have no watchdog: if this program stalls or dies, the motors keep their last \
-             command (minimum tension) until it ends or the boards are switched off; keep hold of the grip.",
+             Ctrl-C switches the outputs off (`record` has saved every kept pose: continue it with --resume).\n\
+             The boards have no watchdog: if this program hangs they hold the strings at minimum tension until \
+             switched off; if it is killed, switch the amplifiers off.",
             self.tension_min_n[0], self.tension_min_n[1]
         );
         self.say(&line);
@@ -118,37 +90,28 @@ impl ConsoleOperator {
         let _ = self.out.flush();
     }
 
-    /// Holds the strings, switches the outputs off and reports why.
-    fn abort<D: Device>(&mut self, dev: &mut D, why: &str) -> CalibError {
-        let _ = dev.exchange(&self.hold, &mut self.scratch);
-        let off = dev.deactivate();
-        let note = match off {
+    /// Switches the outputs off and reports why.
+    fn abort<D: Device>(&mut self, link: &mut Link<D>, why: &str) -> CalibError {
+        let note = match link.switch_off() {
             Ok(()) => "outputs switched off".to_string(),
             Err(e) => format!("switching the outputs off failed ({e}): power the amplifiers down"),
         };
-        self.say(&format!("aborting: {why}; {note}; nothing recorded is saved"));
+        self.say(&format!("aborting: {why}; {note}"));
         CalibError::Aborted(format!("{why}; {note}"))
     }
 
-    /// Waits one period (or not at all) for a key line; `Err(())`: the input closed.
+    /// A key line if one came; `Err(())`: the input closed.
     fn next_key(&mut self) -> Result<Option<String>, ()> {
-        match self.period {
-            Some(p) => match self.keys.recv_timeout(p) {
-                Ok(l) => Ok(Some(l)),
-                Err(RecvTimeoutError::Timeout) => Ok(None),
-                Err(RecvTimeoutError::Disconnected) => Err(()),
-            },
-            None => match self.keys.try_recv() {
-                Ok(l) => Ok(Some(l)),
-                Err(TryRecvError::Empty) => Ok(None),
-                Err(TryRecvError::Disconnected) => Err(()),
-            },
+        match self.keys.try_recv() {
+            Ok(l) => Ok(Some(l)),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(()),
         }
     }
 }
 
 impl<D: Device> Operator<D> for ConsoleOperator {
-    fn request(&mut self, dev: &mut D, hand: usize, req: &Request) -> Result<Answer, CalibError> {
+    fn request(&mut self, link: &mut Link<D>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
         let skippable = matches!(req, Request::Free { .. });
         let label = self.labels[hand].clone();
         self.say(&format!("> hand {hand} ({label}): {req}"));
@@ -157,37 +120,27 @@ impl<D: Device> Operator<D> for ConsoleOperator {
         } else {
             "  press Enter when the grip is there and still (q: abort)"
         });
-        let mut failures = 0u32;
         loop {
-            if self.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst) > 0) {
-                return Err(self.abort(dev, "a stop signal (SIGINT, SIGTERM or SIGHUP)"));
+            // Keep the boards commanded while the person moves the grip (and see a stop signal).
+            if let Err(e) = link.tick() {
+                let _ = link.switch_off();
+                self.say(&format!("stopping: {e}; outputs switched off"));
+                return Err(e);
             }
             match self.next_key() {
-                Err(()) => return Err(self.abort(dev, "the console input closed")),
+                Err(()) => return Err(self.abort(link, "the console input closed")),
                 Ok(None) => {}
                 Ok(Some(line)) => match line.trim() {
                     "" => return Ok(Answer::Ready),
                     "s" | "S" if skippable => return Ok(Answer::Skip),
                     "s" | "S" => self
                         .say("  this point cannot be skipped: press Enter when the grip is there (q: abort)"),
-                    "q" | "Q" => return Err(self.abort(dev, "stopped by the operator (q)")),
+                    "q" | "Q" => return Err(self.abort(link, "stopped by the operator (q)")),
                     other => self.say(&format!(
                         "  '{other}' is not an answer: Enter = the grip is there{}, q = abort",
                         if skippable { ", s = skip" } else { "" }
                     )),
                 },
-            }
-            // Keep the boards commanded while the person moves the grip.
-            match dev.exchange(&self.hold, &mut self.scratch) {
-                Ok(()) => failures = 0,
-                Err(e) if e.kind() != ErrorKind::Disconnected && failures < MAX_FAILED_EXCHANGES => {
-                    failures += 1
-                }
-                Err(e) => {
-                    let why = format!("the device failed while waiting ({e})");
-                    let _ = self.abort(dev, &why);
-                    return Err(e.into());
-                }
             }
         }
     }

@@ -40,7 +40,8 @@ use nalgebra::{storage::Owned, DMatrix, DVector, Dyn};
 use spidar_rt::rig::HandRig;
 
 use crate::model::HandGeometry;
-use crate::session::{PoseKind, SessionFile};
+use crate::quality::{self, Quality, QualityOptions};
+use crate::session::{PoseKind, PoseRecord, SessionFile};
 use crate::CalibError;
 
 /// Weight of the gauge rows against data rows (whose Jacobian entries are of order 1).
@@ -71,8 +72,16 @@ pub struct FitOptions {
     pub duplicate_m: f64,
     /// Poses whose smallest spread about their best plane is below this are planar: error.
     pub min_depth_spread_m: f64,
-    /// An anchor or length whose standard deviation exceeds this is marked weak.
+    /// An anchor or length whose standard deviation exceeds this is marked weak (1 mm: the accuracy
+    /// `spidar calib verify` asks for).
     pub weak_std_m: f64,
+    /// How well the grip sits on a jig point (standard deviation per axis): the jig's machining,
+    /// play, and how far the holding tension pushes the grip (on the simulated rig's stiffly held
+    /// grip: about 5 um). Part of the reported uncertainty: the anchors, metres away, are fixed
+    /// through a jig a few decimetres wide, so this is amplified about a hundredfold.
+    pub jig_tolerance_m: f64,
+    /// The residual against the noise measured at rest, and the causes looked for when it is above.
+    pub quality: QualityOptions,
 }
 
 impl Default for FitOptions {
@@ -86,8 +95,35 @@ impl Default for FitOptions {
             slack_min_poses: 4,
             duplicate_m: 2e-3,
             min_depth_spread_m: 0.03,
-            weak_std_m: 0.5e-3,
+            weak_std_m: 1.0e-3,
+            jig_tolerance_m: 0.005e-3,
+            quality: QualityOptions::default(),
         }
+    }
+}
+
+impl FitOptions {
+    /// Refuses non-finite and out-of-range settings, naming the setting and its range.
+    pub fn check(&self) -> Result<(), CalibError> {
+        let range = |name: &str, v: f64, lo: f64, hi: f64| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(CalibError::Options(format!("fit option {name} must be {lo} .. {hi} (got {v})")))
+            }
+        };
+        range("huber_k", self.huber_k, 0.1, 100.0)?;
+        range("outlier_sigmas", self.outlier_sigmas, 1.0, 1000.0)?;
+        range("outlier_floor_m", self.outlier_floor_m, 0.0, 0.1)?;
+        range("slack_fraction", self.slack_fraction, 0.0, 1.0)?;
+        range("duplicate_m", self.duplicate_m, 0.0, 0.5)?;
+        range("min_depth_spread_m", self.min_depth_spread_m, 0.0, 1.0)?;
+        range("weak_std_m", self.weak_std_m, 1e-9, 1.0)?;
+        range("jig_tolerance_m", self.jig_tolerance_m, 0.0, 0.01)?;
+        if self.slack_min_poses == 0 {
+            return Err(CalibError::Options("fit option slack_min_poses must be at least 1".into()));
+        }
+        self.quality.check().map_err(|m| CalibError::Options(format!("data quality: {m}")))
     }
 }
 
@@ -100,6 +136,20 @@ pub struct Observation {
     pub known_m: Option<DVec3>,
     /// Roughly where it was (the home point): seeds the lengths when there is no jig point.
     pub hint_m: Option<DVec3>,
+    /// Standard deviation of each averaged count from the noise measured while the grip was still
+    /// (counts; quantisation included).
+    pub noise_counts: [f64; 4],
+}
+
+/// Standard deviation of the average of a pose's counts: the scatter measured while the grip was
+/// held still over the number of samples, plus what quantisation leaves when that scatter is too
+/// small to dither the counter (a steady count is off by up to one count: 1/sqrt(12)).
+pub fn averaged_noise_counts(p: &PoseRecord) -> [f64; 4] {
+    let n = f64::from(p.samples.max(1));
+    p.counts_std.map(|s| {
+        let q = (1.0 - 2.0 * s).max(0.0);
+        (s * s / n + q * q / 12.0).sqrt()
+    })
 }
 
 /// The observations of one hand in a session, in recording order.
@@ -107,22 +157,33 @@ pub fn observations(session: &SessionFile, hand: usize) -> Vec<Observation> {
     let mut free = 0;
     session
         .poses_of(hand)
-        .map(|p| match &p.kind {
-            PoseKind::Home { at_m } => Observation {
-                label: "home".into(),
-                counts: p.counts,
-                known_m: None,
-                hint_m: Some(DVec3::from_array(*at_m)),
-            },
-            PoseKind::Jig { label, at_m } => Observation {
-                label: format!("jig {label}"),
-                counts: p.counts,
-                known_m: Some(DVec3::from_array(*at_m)),
-                hint_m: None,
-            },
-            PoseKind::Free => {
-                free += 1;
-                Observation { label: format!("free {free}"), counts: p.counts, known_m: None, hint_m: None }
+        .map(|p| {
+            let noise_counts = averaged_noise_counts(p);
+            match &p.kind {
+                PoseKind::Home { at_m } => Observation {
+                    label: "home".into(),
+                    counts: p.counts,
+                    known_m: None,
+                    hint_m: Some(DVec3::from_array(*at_m)),
+                    noise_counts,
+                },
+                PoseKind::Jig { label, at_m } => Observation {
+                    label: format!("jig {label}"),
+                    counts: p.counts,
+                    known_m: Some(DVec3::from_array(*at_m)),
+                    hint_m: None,
+                    noise_counts,
+                },
+                PoseKind::Free => {
+                    free += 1;
+                    Observation {
+                        label: format!("free {free}"),
+                        counts: p.counts,
+                        known_m: None,
+                        hint_m: None,
+                        noise_counts,
+                    }
+                }
             }
         })
         .collect()
@@ -180,6 +241,8 @@ pub struct HandFit {
     /// Largest over smallest non-null singular value of the (scaled) Jacobian.
     pub condition: f64,
     pub advice: Vec<String>,
+    /// The residual against the noise measured at rest, and what the data show when it is above.
+    pub quality: Quality,
     pub lm_evaluations: usize,
     pub irls_rounds: usize,
 }
@@ -314,14 +377,19 @@ impl Problem<'_> {
     /// Jacobian of the weighted data rows with respect to the geometry, each free pose's
     /// directions projected out (no gauge rows).
     fn data_jacobian(&self) -> DMatrix<f64> {
+        let mut j = self.geometry_columns(&self.sqrt_w);
+        self.project_poses(&mut j, &self.sqrt_w);
+        j
+    }
+    /// Jacobian of the data rows (each row times `sqrt_w`) with respect to the geometry, before
+    /// the free poses are projected out.
+    fn geometry_columns(&self, sqrt_w: &[[f64; 4]]) -> DMatrix<f64> {
         let n = self.layout.n;
         let mut j = DMatrix::zeros(4 * self.obs.len(), n);
-        for k in 0..self.obs.len() {
+        for (k, wk) in sqrt_w.iter().enumerate() {
             let p = self.pose(k);
-            let mut jp = [DVec3::ZERO; 4];
-            for i in 0..4 {
+            for (i, &w) in wk.iter().enumerate() {
                 let row = 4 * k + i;
-                let w = self.sqrt_w[k][i];
                 let d = self.anchor(i) - p;
                 let u = d / d.length().max(1e-9);
                 // r = L + m dc - |a - p|
@@ -332,24 +400,35 @@ impl Problem<'_> {
                 if self.layout.fit_mpc {
                     j[(row, Layout::S + i)] = w * self.mpc0[i] * self.dc[k][i];
                 }
-                jp[i] = u * w;
-            }
-            if self.layout.free[k] {
-                // Project out the pose: J_g -= J_p (J_p^T J_p)^-1 J_p^T J_g over this pose's 4 rows.
-                let jtj = jp
-                    .iter()
-                    .fold(glam::DMat3::ZERO, |m, u| m + glam::DMat3::from_cols(*u * u.x, *u * u.y, *u * u.z));
-                let inv = jtj.inverse();
-                for col in 0..n {
-                    let jtg = (0..4).fold(DVec3::ZERO, |acc, i| acc + jp[i] * j[(4 * k + i, col)]);
-                    let c = inv * jtg;
-                    for i in 0..4 {
-                        j[(4 * k + i, col)] -= jp[i].dot(c);
-                    }
-                }
             }
         }
         j
+    }
+    /// Projects every free pose's directions out of the columns of `j` (rows weighted by
+    /// `sqrt_w`): `J -= J_p (J_p^T J_p)^-1 J_p^T J` over each free pose's 4 rows. What is left of a
+    /// column is what no re-solved grip position can absorb.
+    fn project_poses(&self, j: &mut DMatrix<f64>, sqrt_w: &[[f64; 4]]) {
+        for k in 0..self.obs.len() {
+            if !self.layout.free[k] {
+                continue;
+            }
+            let p = self.pose(k);
+            let jp: [DVec3; 4] = std::array::from_fn(|i| {
+                let d = self.anchor(i) - p;
+                d / d.length().max(1e-9) * sqrt_w[k][i]
+            });
+            let jtj = jp
+                .iter()
+                .fold(glam::DMat3::ZERO, |m, u| m + glam::DMat3::from_cols(*u * u.x, *u * u.y, *u * u.z));
+            let inv = jtj.inverse();
+            for col in 0..j.ncols() {
+                let jtg = (0..4).fold(DVec3::ZERO, |acc, i| acc + jp[i] * j[(4 * k + i, col)]);
+                let c = inv * jtg;
+                for i in 0..4 {
+                    j[(4 * k + i, col)] -= jp[i].dot(c);
+                }
+            }
+        }
     }
     fn gauge_residuals(&self, g: &Gauge) -> Vec<f64> {
         let d: [DVec3; 4] = std::array::from_fn(|i| self.anchor(i) - g.a_cfg[i]);
@@ -451,6 +530,67 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// The residuals of the fit against the noise measured at rest (see [`crate::quality`]).
+fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOptions) -> Quality {
+    let obs = problem.obs;
+    let n = obs.len();
+    let noise_m: Vec<[f64; 4]> = obs
+        .iter()
+        .map(|o| {
+            std::array::from_fn(|i| {
+                (o.noise_counts[i] * problem.mpc0[i].abs())
+                    .hypot(opts.quality.model_floor_m)
+                    .max(SIGMA_FLOOR_M)
+            })
+        })
+        .collect();
+    let whiten: Vec<[f64; 4]> = noise_m.iter().map(|s| s.map(|v| 1.0 / v)).collect();
+    let p = problem.layout.n;
+    let mut geometry = problem.geometry_columns(&whiten);
+    if let Some(g) = problem.gauge {
+        // Only the directions the frame choice leaves free. (Along the scale direction the
+        // residual's own derivative is the residual: scaling everything scales it. Leaving that
+        // direction in would explain any residual away.)
+        let jg = problem.gauge_jacobian(g);
+        if let Some(inv) = (&jg * jg.transpose()).try_inverse() {
+            geometry = &geometry * (DMatrix::identity(p, p) - jg.transpose() * inv * &jg);
+        }
+    }
+    // Geometry, residual, one column per reading and one drift per string side by side, so the
+    // free poses are projected out of all of them at once.
+    let (c_res, c_single, c_drift) = (p, p + 1, p + 1 + 4 * n);
+    let mut m = DMatrix::zeros(4 * n, c_drift + 4);
+    m.columns_mut(0, p).copy_from(&geometry);
+    let mut singles_raw = vec![0.0; 4 * n];
+    let mut drifts_raw = vec![0.0; 4];
+    for k in 0..n {
+        for i in 0..4 {
+            let (row, w) = (4 * k + i, whiten[k][i]);
+            m[(row, c_res)] = residuals[k][i] * w;
+            m[(row, c_single + i * n + k)] = w;
+            singles_raw[i * n + k] = w * w;
+            m[(row, c_drift + i)] = k as f64 * w;
+            drifts_raw[i] += (k as f64 * w).powi(2);
+        }
+    }
+    problem.project_poses(&mut m, &whiten);
+    let noise_rms_m = (noise_m.iter().flatten().map(|v| v * v).sum::<f64>() / (4 * n) as f64).sqrt();
+    quality::analyse(
+        quality::Design {
+            geometry: m.columns(0, p).into_owned(),
+            residual: m.column(c_res).into_owned(),
+            singles: m.columns(c_single, 4 * n).into_owned(),
+            singles_raw,
+            drifts: m.columns(c_drift, 4).into_owned(),
+            drifts_raw,
+            n,
+            rows_dof: 4 * n - 3 * problem.layout.n_free(),
+            noise_rms_m,
+        },
+        &opts.quality,
+    )
+}
+
 /// Fits one hand's geometry to its observations. `hr` gives the configured geometry (start values
 /// and, for free poses only, the frame).
 pub fn fit_hand(
@@ -459,7 +599,21 @@ pub fn fit_hand(
     obs: &[Observation],
     opts: &FitOptions,
 ) -> Result<HandFit, CalibError> {
+    opts.check()?;
     let degenerate = |message: String| CalibError::Degenerate { hand, message };
+    if hand > 1 {
+        return Err(CalibError::Options(format!("hand {hand}: must be 0 (left) or 1 (right)")));
+    }
+    if let Some(k) = obs.iter().position(|o| {
+        !(o.counts.iter().all(|c| c.is_finite())
+            && o.noise_counts.iter().all(|c| c.is_finite() && *c >= 0.0)
+            && o.known_m.is_none_or(|p| p.is_finite()))
+    }) {
+        return Err(degenerate(format!(
+            "pose {k} ({}) holds a number that is not finite: record it again",
+            obs[k].label
+        )));
+    }
     if obs.is_empty() {
         return Err(degenerate("no poses recorded for this hand: run `spidar calib record` for it".into()));
     }
@@ -628,6 +782,7 @@ pub fn fit_hand(
     }
 
     let residuals = problem.raw_residuals();
+    let quality = judge_quality(&problem, &residuals, opts);
     let weights: Vec<[f64; 4]> = problem.sqrt_w.iter().map(|w| w.map(|v| v * v)).collect();
     let all: Vec<f64> = residuals.iter().flatten().copied().collect();
     let rms_m = (all.iter().map(|v| v * v).sum::<f64>() / all.len() as f64).sqrt();
@@ -641,7 +796,9 @@ pub fn fit_hand(
         }
     }
     // A string that disagrees in many poses is slack or slipping: not something to fit through.
-    for i in 0..4 {
+    // (Unless the data-quality check found what it is: then its verdict names it more precisely.)
+    let explained = !quality.findings.is_empty();
+    for i in (0..4).filter(|_| !explained) {
         let bad: Vec<&(usize, usize, f64)> = outliers.iter().filter(|o| o.1 == i).collect();
         if bad.len() >= opts.slack_min_poses.max((opts.slack_fraction * obs.len() as f64).ceil() as usize) {
             let worst = bad.iter().max_by(|a, b| a.2.abs().total_cmp(&b.2.abs())).unwrap();
@@ -728,9 +885,29 @@ pub fn fit_hand(
     let wsum: f64 =
         residuals.iter().zip(&weights).flat_map(|(r, w)| (0..4).map(move |i| w[i] * r[i] * r[i])).sum();
     let s2 = (wsum / redundancy.max(1.0)).max(SIGMA_FLOOR_M * SIGMA_FLOOR_M);
-    let cov = normal.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
+    let inv = normal.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
         degenerate("the normal equations are singular although the rank check passed: report this".into())
-    })? * s2;
+    })?;
+    let mut cov = &inv * s2;
+    if n_jig > 0 && opts.jig_tolerance_m > 0.0 {
+        // A jig point is known to within its tolerance (and the holding tension moves the grip
+        // on it a little): propagate that into the geometry, which the residuals cannot show
+        // (the anchors absorb part of a displaced jig point).
+        let mut jp = DMatrix::zeros(jd.nrows(), 3 * n_jig);
+        let mut col = 0;
+        for k in (0..obs.len()).filter(|&k| obs[k].known_m.is_some()) {
+            let p = problem.pose(k);
+            for i in 0..4 {
+                let u = (problem.anchor(i) - p).normalize_or_zero() * problem.sqrt_w[k][i];
+                for c in 0..3 {
+                    jp[(4 * k + i, col + c)] = u[c];
+                }
+            }
+            col += 3;
+        }
+        let a = &inv * (jd.transpose() * jp);
+        cov += (&a * a.transpose()) * opts.jig_tolerance_m.powi(2);
+    }
     let std = |col: usize| cov[(col, col)].max(0.0).sqrt();
 
     let x = &problem.x;
@@ -839,6 +1016,13 @@ pub fn fit_hand(
             poses.iter().map(|k| format!("{k} ({})", labels[*k])).collect::<Vec<_>>().join(", ")
         ));
     }
+    if !quality.clean() {
+        advice.push(
+            "the data are not clean (see data quality above): weak parameters and outliers may follow from that; \
+             fix the data first"
+                .into(),
+        );
+    }
     if advice.is_empty() {
         advice.push("nothing: every parameter is determined to within the threshold".into());
     }
@@ -865,16 +1049,38 @@ pub fn fit_hand(
         gauge_note,
         condition,
         advice,
+        quality,
         lm_evaluations: evaluations,
         irls_rounds: rounds,
     })
 }
 
 impl HandFit {
-    /// True when no parameter is weakly determined (outliers alone do not count: they were
-    /// down-weighted and are listed in the report).
+    /// True when no parameter is weakly determined and the residual is at the level of the noise
+    /// measured at rest (outliers alone do not count when the residual is: they were down-weighted
+    /// and are listed in the report).
     pub fn is_trustworthy(&self) -> bool {
-        self.params.iter().all(|p| p.status != Observability::Weak)
+        self.params.iter().all(|p| p.status != Observability::Weak) && self.quality.clean()
+    }
+}
+
+impl HandFit {
+    /// What the data-quality check found, one line each with what to re-record; empty when the
+    /// residual is at the level of the noise.
+    pub fn quality_lines(&self) -> Vec<String> {
+        if self.quality.clean() {
+            return Vec::new();
+        }
+        let mut lines = self.quality.describe(self.hand, &self.labels);
+        if lines.is_empty() {
+            lines.push(format!(
+                "unexplained: hand {} has a residual {:.0} times the noise measured at rest and no single slip, \
+                 creep or outlier pose explains it: check the rig file's channels and signs and the jig's \
+                 coordinates, then record hand {} again",
+                self.hand, self.quality.ratio, self.hand
+            ));
+        }
+        lines
     }
 }
 
@@ -906,6 +1112,25 @@ impl std::fmt::Display for HandFit {
             self.lm_evaluations,
             self.irls_rounds
         )?;
+        let q = &self.quality;
+        writeln!(
+            f,
+            "  data quality: residual {:.1} times the noise measured at rest ({:.4} mm RMS per averaged length; limit \
+             {:.1} times){}",
+            q.ratio,
+            q.noise_rms_m * 1e3,
+            q.max_noise_ratio,
+            if q.clean() {
+                ": the model explains the data".to_string()
+            } else if q.findings.is_empty() {
+                ": NOT explained by noise, no single cause found".to_string()
+            } else {
+                format!(": NOT noise; {} cause(s) found, {:.1} times the noise without them", q.findings.len(), q.ratio_after)
+            }
+        )?;
+        for line in self.quality_lines() {
+            writeln!(f, "  {line}")?;
+        }
         for (k, i, r) in &self.outliers {
             writeln!(f, "  outlier: pose {k} ({}) string {i}: {:+.3} mm", self.labels[*k], r * 1e3)?;
         }

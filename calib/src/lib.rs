@@ -11,17 +11,21 @@
 //! data do not determine without saying so (degenerate data is an error, weakly determined
 //! parameters are named), or leave a half-written rig file (see [`rigfile`]).
 //!
-//! Flow: [`record`] (any `Device`; [`sim`] builds a simulated rig with a wrong-on-purpose truth)
-//! -> [`session::SessionFile`] (RON) -> [`fit`] -> [`report`] text and [`plot`] SVGs -> [`rigfile`]
-//! update -> [`verify`] at check points.
+//! Flow: [`record`] (any `Device` behind a [`link::Link`]; [`sim`] builds a simulated rig with a
+//! wrong-on-purpose truth) -> [`session::SessionFile`] (RON, saved after every pose) -> [`fit`]
+//! with its [`quality`] verdict -> report text and [`plot`] SVGs -> [`rigfile`] update (written as
+//! [`safefile`] says) -> [`verify`] at check points.
 
 pub mod console;
 pub mod fit;
 pub mod jig;
+pub mod link;
 pub mod model;
 pub mod plot;
+pub mod quality;
 pub mod record;
 pub mod rigfile;
+pub mod safefile;
 pub mod session;
 pub mod sim;
 pub mod verify;
@@ -72,6 +76,15 @@ pub enum CalibError {
     /// The operator stopped the recording (q, or the console closed); outputs were switched off.
     #[error("aborted: {0}")]
     Aborted(String),
+    /// A stop signal came (Ctrl-C, SIGTERM, SIGHUP); outputs were switched off.
+    #[error("interrupted by {0}")]
+    Interrupted(String),
+    /// The board stopped answering for good (disconnected, or silent past the limit).
+    #[error("the board was lost: {0}")]
+    BoardLost(String),
+    /// An option out of range; the message names it and its range.
+    #[error("{0}")]
+    Options(String),
     #[error("simulated rig: {0}")]
     Sim(#[from] spidar_device::sim::SimError),
     #[error("rig file {file}: {message}")]
@@ -105,12 +118,12 @@ pub(crate) fn parse_ron_kind<T: serde::de::DeserializeOwned>(
     parse_ron(&body, origin)
 }
 
-/// Reads a whole file, naming it in the error.
+/// Reads a whole file of at most `spidar_config::MAX_FILE_BYTES` (a device or a pipe that never
+/// ends is refused), naming it in the error.
 pub(crate) fn read_text(path: &std::path::Path, what: &'static str) -> Result<String, CalibError> {
-    std::fs::read_to_string(path).map_err(|source| CalibError::Io {
+    spidar_config::read_capped(path, spidar_config::MAX_FILE_BYTES).map_err(|e| CalibError::BadFile {
         file: path.display().to_string(),
-        what,
-        source,
+        message: format!("{what}: {}", e.message),
     })
 }
 

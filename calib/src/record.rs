@@ -5,20 +5,36 @@
 //! a slack string, or on top of an earlier pose makes a fit worse or degenerate, so each pose is
 //! checked here, while the operator can still redo it.
 //!
+//! Stillness is judged from averaged string lengths against the noise measured at rest: the
+//! samples are averaged in blocks of `block_s`, and the grip is still when no string's block
+//! averages spread by more than `still_range_m` plus what the noise alone gives them (six standard
+//! deviations of a block average, the noise estimated from successive differences, which a slow
+//! movement does not inflate). So 3 counts of encoder noise pass and a grip that moves does not.
+//!
+//! Sessions survive: every kept pose is handed to a `save` callback at once (the caller writes
+//! the session file atomically), a resumed session continues where it stopped after checking at
+//! the home point that the counters are still the ones it was recorded with, a pose whose grip
+//! would not keep still is asked for again instead of ending the session, and a late reply is
+//! left out and retried ([`crate::link`]).
+//!
 //! What it must never do: render force. While recording, every string is held at the rig's
 //! minimum tension (`tension_min_n`, volts from the configured `volts_per_newton`), which keeps
 //! the strings taut and pulls the grip with at most a few newtons; the device is deactivated
 //! (zero output) when recording ends or fails. It works against any [`Device`]; on the simulated
 //! rig the [`SimOperator`] moves a scripted hand where a person would move the grip.
 
+use std::collections::VecDeque;
+
 use glam::DVec3;
 use spidar_device::sim::{Script, Segment, SimRig};
-use spidar_device::{Device, Input, Output};
+use spidar_device::Device;
 use spidar_rt::Rig;
 
 use crate::jig::JigFile;
+pub use crate::link::holding_output;
+use crate::link::{Link, LinkStats, StopCheck};
 use crate::model::HandGeometry;
-use crate::session::{PoseKind, PoseRecord, SessionFile, SESSION_FILE_VERSION};
+use crate::session::{PoseKind, PoseRecord, SessionFile, SessionPlan};
 use crate::CalibError;
 
 /// What the operator is asked to do.
@@ -63,9 +79,9 @@ pub enum Answer {
 pub trait Operator<D: Device> {
     /// Ask for `req` on `hand`'s grip. Returns once the operator says the grip is there (a real
     /// operator: presses Enter) or that this free pose is skipped; stillness is then checked by
-    /// the recorder. An operator who waits keeps `dev` exchanging (strings held at minimum
-    /// tension, the tick's counts read); aborting returns [`CalibError::Aborted`].
-    fn request(&mut self, dev: &mut D, hand: usize, req: &Request) -> Result<Answer, CalibError>;
+    /// the recorder. An operator who waits keeps `link` ticking (strings held at minimum
+    /// tension, stop requests seen); aborting returns [`CalibError::Aborted`].
+    fn request(&mut self, link: &mut Link<D>, hand: usize, req: &Request) -> Result<Answer, CalibError>;
     /// Progress lines and warnings for the operator.
     fn tell(&mut self, line: &str);
 }
@@ -85,7 +101,8 @@ impl SimOperator {
 }
 
 impl Operator<SimRig> for SimOperator {
-    fn request(&mut self, dev: &mut SimRig, hand: usize, req: &Request) -> Result<Answer, CalibError> {
+    fn request(&mut self, link: &mut Link<SimRig>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
+        let dev = link.device();
         let to = match req {
             Request::Home { at_m } | Request::Jig { at_m, .. } => *at_m,
             Request::Free { suggest_m, .. } => *suggest_m,
@@ -114,13 +131,23 @@ impl Operator<SimRig> for SimOperator {
 /// Recording thresholds.
 #[derive(Clone, Debug)]
 pub struct RecordOptions {
-    /// The grip counts as still when no string moved more than `still_range_m` over this long.
+    /// The grip counts as still when, over this long plus `average_s`, no string's block averages
+    /// spread by more than `still_range_m` beyond what the noise at rest explains.
     pub still_window_s: f64,
     pub still_range_m: f64,
-    /// Counts are averaged over this long once still (and it must stay still throughout).
+    /// Samples are averaged over blocks this long before the stillness test.
+    pub block_s: f64,
+    /// Counts are averaged over at least this long once still (and it must stay still throughout)...
     pub average_s: f64,
-    /// Give up on a pose when the grip is not still this long after the request.
+    /// ... and longer, up to this, while the average is not yet known to `target_sem_m` (noisy
+    /// encoders: 3 counts of noise average for 2 s).
+    pub max_average_s: f64,
+    /// Standard error of an averaged string length that ends the averaging early.
+    pub target_sem_m: f64,
+    /// A pose whose grip is not still this long after the request is not kept (and asked again).
     pub timeout_s: f64,
+    /// Times a home or jig point is asked again after its grip would not keep still.
+    pub attempts: usize,
     /// A pose whose string lengths differ from an earlier pose's by less than this (RMS over the
     /// four strings) adds no information and is refused.
     pub min_separation_m: f64,
@@ -130,9 +157,12 @@ pub struct RecordOptions {
     /// Sleep one tick period between exchanges (a real device paced by the wall clock). The
     /// simulated rig's time is its exchange count, so it runs unpaced.
     pub pace: bool,
-    /// Non-zero once a stop was asked for (a stop signal): the recording ends at the next
-    /// exchange with [`CalibError::Aborted`], and its caller switches the outputs off.
-    pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicU32>>,
+    /// The board counts as lost when no exchange succeeded for this long (late or bad replies
+    /// before that are retried and counted).
+    pub lost_after_s: f64,
+    /// Resuming a session: at the home point the lengths must read within this (RMS over the
+    /// strings) of the session's home pose, or the counters are not the ones it was recorded with.
+    pub resume_max_offset_m: f64,
 }
 
 impl Default for RecordOptions {
@@ -140,13 +170,46 @@ impl Default for RecordOptions {
         RecordOptions {
             still_window_s: 0.3,
             still_range_m: 0.5e-3,
+            block_s: 0.05,
             average_s: 0.5,
+            max_average_s: 2.0,
+            target_sem_m: 1.5e-6,
             timeout_s: 30.0,
+            attempts: 3,
             min_separation_m: 0.02,
             slack_residual_m: 0.05,
             pace: false,
-            stop: None,
+            lost_after_s: 2.0,
+            resume_max_offset_m: 0.02,
         }
+    }
+}
+
+impl RecordOptions {
+    /// Refuses non-finite and out-of-range thresholds, naming the option and its range.
+    pub fn check(&self) -> Result<(), CalibError> {
+        let range = |name: &str, v: f64, lo: f64, hi: f64, unit: &str| {
+            if v.is_finite() && (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(CalibError::Options(format!("{name} must be {lo} .. {hi}{unit} (got {v})")))
+            }
+        };
+        range("the stillness window", self.still_window_s, 0.05, 10.0, " s")?;
+        range("the stillness range", self.still_range_m, 1e-5, 0.02, " m")?;
+        range("the averaging time", self.average_s, 0.01, 10.0, " s")?;
+        range("the longest averaging time", self.max_average_s, self.average_s, 60.0, " s")?;
+        range("the averaging target", self.target_sem_m, 1e-9, 1e-3, " m")?;
+        range("the stillness block", self.block_s, 0.001, self.still_window_s.min(self.average_s), " s")?;
+        range("the pose timeout", self.timeout_s, self.still_window_s + self.max_average_s, 3600.0, " s")?;
+        range("the minimum pose separation", self.min_separation_m, 0.0, 0.5, " m")?;
+        range("the slack residual", self.slack_residual_m, 1e-4, 1.0, " m")?;
+        range("the board-lost time", self.lost_after_s, 0.01, 600.0, " s")?;
+        range("the resume offset", self.resume_max_offset_m, 1e-4, 0.5, " m")?;
+        if !(1..=100).contains(&self.attempts) {
+            return Err(CalibError::Options(format!("attempts must be 1 .. 100 (got {})", self.attempts)));
+        }
+        Ok(())
     }
 }
 
@@ -161,6 +224,49 @@ pub struct Plan {
 }
 
 impl Plan {
+    /// Refuses what cannot give a fit: an unknown or repeated hand, more free poses than
+    /// [`crate::session::MAX_FREE_PER_HAND`], a box out of 0.05 .. 1 m, 1 to 3 jig points for a hand (they leave a
+    /// rotation unobservable), or fewer poses than the fit needs (with metres per count fitted:
+    /// free poses only need 17 per hand; home and 8 jig points need none).
+    pub fn check(&self) -> Result<(), CalibError> {
+        self.session_plan(None).check().map_err(CalibError::Options)?;
+        let h = self.free_half_extent_m;
+        if !(h.is_finite() && h.x == h.y && h.y == h.z) {
+            return Err(CalibError::Options("the free-pose box must be a cube".into()));
+        }
+        for &hand in &self.hands {
+            let jig = self.jig.iter().flat_map(|j| j.fit_points.iter()).filter(|p| p.hand == hand).count();
+            if (1..4).contains(&jig) {
+                return Err(CalibError::Options(format!(
+                    "the jig has {jig} fit point(s) for hand {hand}: use at least 4 (not in one plane), or none"
+                )));
+            }
+            // Unknowns 20 + 3 per free pose (less the 7 of the frame without jig points), 4
+            // equations per pose, 8 to spare (as the fit asks).
+            let gauge = if jig == 0 { 7 } else { 0 };
+            let need = (24 - gauge - 4 * jig as i64).max(0) as usize;
+            if self.free_per_hand < need {
+                return Err(CalibError::Options(format!(
+                    "{} free poses per hand: with {jig} jig points the fit needs at least {need} (give --free {need} \
+                     or more{})",
+                    self.free_per_hand,
+                    if jig == 0 { ", or a jig with --jig" } else { "" }
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The plan as a session stores it.
+    pub fn session_plan(&self, jig_file: Option<String>) -> SessionPlan {
+        SessionPlan {
+            hands: self.hands.clone(),
+            jig_file,
+            free_per_hand: self.free_per_hand,
+            free_half_extent_m: self.free_half_extent_m.x,
+        }
+    }
+
     /// Suggested free-pose points for `hand`: a Halton sequence through the box around home, so
     /// any prefix of it is spread evenly (a person may stop early).
     pub fn free_suggestions(&self, rig: &Rig, hand: usize) -> Vec<DVec3> {
@@ -184,48 +290,89 @@ fn halton(mut i: usize, base: usize) -> f64 {
     r
 }
 
+/// A still grip's averaged counts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Still {
+    pub counts: [f64; 4],
+    /// Standard deviation of the samples (the noise at rest).
+    pub counts_std: [f64; 4],
+    pub samples: u32,
+}
+
+/// The noise of each string's counts (standard deviation per sample), from successive
+/// differences: a slow movement barely changes them, so it is the noise at rest even while the
+/// grip settles.
+pub fn noise_counts(buf: &[[i64; 4]]) -> [f64; 4] {
+    std::array::from_fn(|i| {
+        let diff2: f64 = buf.windows(2).map(|w| ((w[1][i] - w[0][i]) as f64).powi(2)).sum();
+        (diff2 / (2.0 * (buf.len().max(2) - 1) as f64)).sqrt()
+    })
+}
+
+/// Whether the samples in `buf` (oldest first) show a still grip: for every string the block
+/// averages (`block` samples each) spread by at most `range_counts` plus six standard deviations
+/// of a block average, with the noise from [`noise_counts`].
+pub fn is_still(buf: &[[i64; 4]], block: usize, range_counts: &[f64; 4]) -> bool {
+    let block = block.max(1);
+    let blocks = buf.len() / block;
+    if blocks < 2 {
+        return false;
+    }
+    let sigma = noise_counts(buf);
+    (0..4).all(|i| {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for b in buf.chunks_exact(block) {
+            let m = b.iter().map(|s| s[i] as f64).sum::<f64>() / block as f64;
+            lo = lo.min(m);
+            hi = hi.max(m);
+        }
+        hi - lo <= range_counts[i] + 6.0 * sigma[i] / (block as f64).sqrt()
+    })
+}
+
 /// Drives a device for recording: strings at minimum tension, counts read once per tick.
 pub struct Recorder<'r, D: Device> {
-    dev: D,
+    link: Link<D>,
     rig: &'r Rig,
     opts: RecordOptions,
-    out: Output,
-    inp: Input,
     /// Geometry used for the checks: configured anchors, lengths at zero from the home pose.
     check_geometry: [Option<HandGeometry>; 2],
     warnings: Vec<String>,
 }
 
-/// The output that holds every string of the rig at its minimum tension: what the device gets
-/// all through recording, also while the operator moves the grip.
-pub fn holding_output(rig: &Rig) -> Output {
-    let mut out = Output::default();
-    for hr in &rig.hands {
-        for i in 0..4 {
-            out.volts[hr.channels[i]] = hr.tension_min_n * hr.volts_per_newton[i];
-        }
-    }
-    out
-}
-
 impl<'r, D: Device> Recorder<'r, D> {
     /// Opens and activates the device with every string of the rig at minimum tension.
     pub fn new(mut dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
+        opts.check()?;
         dev.open()?;
         Recorder::opened(dev, rig, opts)
     }
 
     /// As [`Recorder::new`] for a device already opened (a board opened with detailed errors):
     /// opening again would enumerate the boards twice.
-    pub fn opened(mut dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
-        let out = holding_output(rig);
-        dev.activate()?;
+    pub fn opened(dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
+        opts.check()?;
+        let link = Link::activate(dev, rig, opts.pace, opts.lost_after_s)?;
         let check_geometry = [0, 1].map(|h| HandGeometry::from_rig(&rig.hands[h]));
-        Ok(Recorder { dev, rig, opts, out, inp: Input::default(), check_geometry, warnings: Vec::new() })
+        Ok(Recorder { link, rig, opts, check_geometry, warnings: Vec::new() })
+    }
+
+    /// Polls `stop` every tick: when it says so, the session ends with [`CalibError::Interrupted`].
+    pub fn set_stop(&mut self, stop: StopCheck) {
+        self.link.set_stop(stop);
+    }
+
+    pub fn link(&mut self) -> &mut Link<D> {
+        &mut self.link
     }
 
     pub fn device(&mut self) -> &mut D {
-        &mut self.dev
+        self.link.device()
+    }
+
+    /// Exchanges so far, and the late or bad replies that were retried.
+    pub fn link_stats(&self) -> LinkStats {
+        self.link.stats()
     }
 
     /// Warnings given so far (also told to the operator).
@@ -234,87 +381,83 @@ impl<'r, D: Device> Recorder<'r, D> {
     }
 
     /// Switches the outputs off and hands the device back.
-    pub fn finish(mut self) -> Result<D, CalibError> {
-        self.dev.deactivate()?;
-        Ok(self.dev)
+    pub fn finish(self) -> Result<D, CalibError> {
+        self.link.finish()
     }
 
     fn ticks(&self, s: f64) -> usize {
         (s / self.rig.period_s).round().max(1.0) as usize
     }
 
-    /// One exchange; transient device errors are retried for up to 50 ticks.
-    fn exchange(&mut self) -> Result<[i64; 16], CalibError> {
-        let mut failures = 0;
-        loop {
-            if self.opts.stop.as_ref().is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst) > 0) {
-                return Err(CalibError::Aborted("a stop signal (SIGINT, SIGTERM or SIGHUP)".into()));
-            }
-            if self.opts.pace {
-                std::thread::sleep(std::time::Duration::from_secs_f64(self.rig.period_s));
-            }
-            match self.dev.exchange(&self.out, &mut self.inp) {
-                Ok(()) => return Ok(self.inp.counts),
-                Err(e) if failures < 50 && e.kind() != spidar_device::ErrorKind::Disconnected => {
-                    failures += 1
-                }
-                Err(e) => return Err(e.into()),
-            }
-        }
-    }
-
-    /// Waits until the hand's grip is still, then averages its counts; returns (mean, std, n).
-    fn still_average(&mut self, hand: usize) -> Result<([f64; 4], [f64; 4], u32), CalibError> {
+    /// Waits until the hand's grip is still, then averages its counts: over `average_s`, or longer
+    /// (up to `max_average_s`) when the noise at rest is high, until the average is known to
+    /// `target_sem_m`. `None`: not still before the timeout (the operator was told).
+    fn still_average(
+        &mut self,
+        hand: usize,
+        tell: &mut dyn FnMut(&str),
+    ) -> Result<Option<Still>, CalibError> {
         let ch = self.rig.hands[hand].channels;
         let mpc = self.rig.hands[hand].metres_per_count;
         let window = self.ticks(self.opts.still_window_s);
         let avg = self.ticks(self.opts.average_s);
+        let max_avg = self.ticks(self.opts.max_average_s).max(avg);
+        let block = self.ticks(self.opts.block_s);
         let timeout = self.ticks(self.opts.timeout_s);
         let range_counts: [f64; 4] = std::array::from_fn(|i| self.opts.still_range_m / mpc[i].abs());
-        let mut recent: std::collections::VecDeque<[i64; 4]> =
-            std::collections::VecDeque::with_capacity(window + avg);
-        for _ in 0..timeout {
-            let c = self.exchange()?;
-            recent.push_back(ch.map(|k| c[k]));
-            if recent.len() > window + avg {
+        let mut recent: VecDeque<[i64; 4]> = VecDeque::with_capacity(window + max_avg + 1);
+        for tick in 0..timeout {
+            // A late or bad reply leaves this tick's sample out.
+            let Some(inp) = self.link.tick()? else { continue };
+            recent.push_back(ch.map(|k| inp.counts[k]));
+            if recent.len() > window + max_avg {
                 recent.pop_front();
             }
-            // Still over the whole buffer once it holds the window plus the average.
-            if recent.len() == window + avg {
-                let still = (0..4).all(|i| {
-                    let (lo, hi) =
-                        recent.iter().fold((i64::MAX, i64::MIN), |(lo, hi), s| (lo.min(s[i]), hi.max(s[i])));
-                    ((hi - lo) as f64) <= range_counts[i]
-                });
-                if still {
-                    let tail: Vec<[i64; 4]> = recent.iter().skip(window).copied().collect();
-                    let n = tail.len() as f64;
-                    let mean: [f64; 4] =
-                        std::array::from_fn(|i| tail.iter().map(|s| s[i] as f64).sum::<f64>() / n);
-                    let std: [f64; 4] = std::array::from_fn(|i| {
-                        (tail.iter().map(|s| (s[i] as f64 - mean[i]).powi(2)).sum::<f64>()
-                            / (n - 1.0).max(1.0))
+            // Judged once per block, once the buffer holds the window plus the shortest average.
+            if recent.len() < window + avg || tick % block != 0 {
+                continue;
+            }
+            let buf = recent.make_contiguous();
+            // The noise of the latest samples (older ones may be from the reach to this pose).
+            let sigma = noise_counts(&buf[buf.len() - window - avg..]);
+            let need = (0..4)
+                .map(|i| (sigma[i] * mpc[i].abs() / self.opts.target_sem_m).powi(2).ceil() as usize)
+                .max()
+                .unwrap_or(avg)
+                .clamp(avg, max_avg);
+            if buf.len() < window + need {
+                continue;
+            }
+            let span = &buf[buf.len() - window - need..];
+            if is_still(span, block, &range_counts) {
+                let tail = &span[window..];
+                let n = tail.len() as f64;
+                let counts: [f64; 4] =
+                    std::array::from_fn(|i| tail.iter().map(|s| s[i] as f64).sum::<f64>() / n);
+                let counts_std: [f64; 4] = std::array::from_fn(|i| {
+                    (tail.iter().map(|s| (s[i] as f64 - counts[i]).powi(2)).sum::<f64>() / (n - 1.0).max(1.0))
                         .sqrt()
-                    });
-                    return Ok((mean, std, tail.len() as u32));
-                }
+                });
+                return Ok(Some(Still { counts, counts_std, samples: tail.len() as u32 }));
             }
         }
-        Err(CalibError::Recording(format!(
-            "hand {hand}: the grip did not keep still (within {:.1} mm for {:.1} s) in {:.0} s: hold it steady, \
-             or rest it on the jig",
+        let line = format!(
+            "hand {hand}: the grip did not keep still (within {:.1} mm beyond the noise for {:.1} s) in {:.0} s: \
+             the pose is not kept; hold it steady, or rest it on the jig",
             self.opts.still_range_m * 1e3,
             self.opts.still_window_s + self.opts.average_s,
             self.opts.timeout_s
-        )))
+        );
+        self.warn(tell, line);
+        Ok(None)
     }
 
-    fn warn(&mut self, op: &mut dyn FnMut(&str), line: String) {
-        op(&format!("  warning: {line}"));
+    fn warn(&mut self, tell: &mut dyn FnMut(&str), line: String) {
+        tell(&format!("  warning: {line}"));
         self.warnings.push(line);
     }
 
-    /// Records one pose. `Ok(None)`: refused (the reason was told); ask for another.
+    /// Records one pose. `Ok(None)`: skipped, or refused (the reason was told); ask for another.
     pub fn record_pose<O: Operator<D>>(
         &mut self,
         op: &mut O,
@@ -322,11 +465,16 @@ impl<'r, D: Device> Recorder<'r, D> {
         req: &Request,
         earlier: &[PoseRecord],
     ) -> Result<Option<PoseRecord>, CalibError> {
-        if op.request(&mut self.dev, hand, req)? == Answer::Skip {
+        check_hand(hand)?;
+        if op.request(&mut self.link, hand, req)? == Answer::Skip {
             op.tell("  skipped");
             return Ok(None);
         }
-        let (counts, counts_std, samples) = self.still_average(hand)?;
+        let Some(Still { counts, counts_std, samples }) = self.still_average(hand, &mut |s| op.tell(s))?
+        else {
+            return Ok(None);
+        };
+        let mut tell = |s: &str| op.tell(s);
         let hr = &self.rig.hands[hand];
         let kind = match req {
             Request::Home { at_m } => PoseKind::Home { at_m: at_m.to_array() },
@@ -339,11 +487,10 @@ impl<'r, D: Device> Recorder<'r, D> {
             }
         }
         // No information: the same string lengths as an earlier pose of this hand.
-        for (k, e) in earlier.iter().enumerate().filter(|(_, e)| e.hand == hand) {
+        for (k, e) in earlier.iter().filter(|e| e.hand == hand).enumerate() {
             let d2: f64 = (0..4).map(|i| ((counts[i] - e.counts[i]) * hr.metres_per_count[i]).powi(2)).sum();
             let d = (d2 / 4.0).sqrt();
             if d < self.opts.min_separation_m {
-                let mut tell = |s: &str| op.tell(s);
                 self.warn(
                     &mut tell,
                     format!(
@@ -372,7 +519,6 @@ impl<'r, D: Device> Recorder<'r, D> {
                      check its tension",
                     spread * 1e3
                 );
-                let mut tell = |s: &str| op.tell(s);
                 self.warn(&mut tell, line);
             }
         }
@@ -384,7 +530,6 @@ impl<'r, D: Device> Recorder<'r, D> {
                      off its pulley, or the counter jumped; pose not kept",
                     lengths[i] * 1e3
                 );
-                let mut tell = |s: &str| op.tell(s);
                 self.warn(&mut tell, line);
                 return Ok(None);
             }
@@ -395,7 +540,6 @@ impl<'r, D: Device> Recorder<'r, D> {
                          configured anchors far off; the pose is kept, the fit will tell which",
                         residual * 1e3
                     );
-                    let mut tell = |s: &str| op.tell(s);
                     self.warn(&mut tell, line);
                 }
                 _ => {}
@@ -406,17 +550,47 @@ impl<'r, D: Device> Recorder<'r, D> {
         Ok(Some(PoseRecord { hand, kind, counts, counts_std, samples }))
     }
 
-    /// Records a whole plan, telling progress; free poses that are refused are replaced by the
-    /// next suggestion (at most twice as many attempts as poses asked for).
+    /// Records a home or jig point (which cannot be skipped), asking again while it is refused,
+    /// up to `attempts` times.
+    fn record_required<O: Operator<D>>(
+        &mut self,
+        op: &mut O,
+        hand: usize,
+        req: &Request,
+        earlier: &[PoseRecord],
+    ) -> Result<PoseRecord, CalibError> {
+        for attempt in 1..=self.opts.attempts {
+            if let Some(p) = self.record_pose(op, hand, req, earlier)? {
+                return Ok(p);
+            }
+            if attempt < self.opts.attempts {
+                op.tell(&format!("  again ({}/{}): {req}", attempt + 1, self.opts.attempts));
+            }
+        }
+        Err(CalibError::Recording(format!(
+            "hand {hand}: {req}: refused {} times (see the warnings); what was recorded is kept",
+            self.opts.attempts
+        )))
+    }
+
+    /// Records a whole plan into `session`, telling progress and handing the session to `save`
+    /// after every kept pose. Poses `session` already has are not asked again (a resumed session:
+    /// the counters are checked at the home point first). Free poses that are refused are
+    /// replaced by the next suggestion (at most twice as many attempts as poses asked for).
+    /// On any error `session` holds every pose kept so far (and `save` has seen them).
     pub fn record_plan<O: Operator<D>>(
         &mut self,
         op: &mut O,
         plan: &Plan,
-        device_name: &str,
-    ) -> Result<SessionFile, CalibError> {
-        let mut poses: Vec<PoseRecord> = Vec::new();
+        session: &mut SessionFile,
+        save: &mut dyn FnMut(&SessionFile) -> Result<(), CalibError>,
+    ) -> Result<(), CalibError> {
+        // Hands, counts and box in range (whether the poses will be enough for a fit is
+        // [`Plan::check`], for the command line: a test may record a partial plan).
+        plan.session_plan(None).check().map_err(CalibError::Options)?;
         for &hand in &plan.hands {
             let hr = &self.rig.hands[hand];
+            let home = Request::Home { at_m: hr.home_m };
             let jig: Vec<_> = plan
                 .jig
                 .iter()
@@ -425,76 +599,220 @@ impl<'r, D: Device> Recorder<'r, D> {
                 .cloned()
                 .collect();
             let total = 1 + jig.len() + plan.free_per_hand;
-            op.tell(&format!(
-                "hand {hand} ({}): {total} poses: home, {} jig points, {} free poses",
-                hr.label,
-                jig.len(),
-                plan.free_per_hand
-            ));
-            let mut done = 0;
-            let home = Request::Home { at_m: hr.home_m };
-            op.tell(&format!("[{}/{total}] {home}", done + 1));
-            match self.record_pose(op, hand, &home, &poses)? {
-                Some(p) => poses.push(p),
-                None => {
-                    return Err(CalibError::Recording(format!(
-                        "hand {hand}: the home pose was refused (see warnings)"
-                    )))
-                }
+            let mut done = session.poses_of(hand).count();
+            if done == 0 {
+                op.tell(&format!(
+                    "hand {hand} ({}): {total} poses: home, {} jig points, {} free poses",
+                    hr.label,
+                    jig.len(),
+                    plan.free_per_hand
+                ));
+                op.tell(&format!("[1/{total}] {home}"));
+                let p = self.record_required(op, hand, &home, &session.poses)?;
+                keep(session, p, save)?;
+                done = 1;
+            } else {
+                self.check_resume(op, hand, session)?;
+                op.tell(&format!("hand {hand} ({}): resuming at pose {}/{total}", hr.label, done + 1));
             }
-            done += 1;
             for jp in &jig {
+                let recorded = session
+                    .poses_of(hand)
+                    .any(|p| matches!(&p.kind, PoseKind::Jig { label, .. } if *label == jp.label));
+                if recorded {
+                    continue;
+                }
                 let req = Request::Jig { label: jp.label.clone(), at_m: jp.at() };
                 op.tell(&format!("[{}/{total}] {req}", done + 1));
-                if let Some(p) = self.record_pose(op, hand, &req, &poses)? {
-                    poses.push(p);
-                    done += 1;
-                }
+                let p = self.record_required(op, hand, &req, &session.poses)?;
+                keep(session, p, save)?;
+                done += 1;
             }
-            // Twice as many suggestions as poses, so refused ones are replaced.
+            // Twice as many suggestions as poses, so refused ones are replaced; a resumed session
+            // goes on from the suggestion after its last kept free pose.
+            let mut kept = session.poses_of(hand).filter(|p| p.kind == PoseKind::Free).count();
             let extended = Plan { free_per_hand: plan.free_per_hand * 2, ..plan.clone() };
-            let suggestions = extended.free_suggestions(self.rig, hand);
-            let mut kept = 0;
-            for s in suggestions {
-                if kept == plan.free_per_hand {
+            for s in extended.free_suggestions(self.rig, hand).into_iter().skip(kept) {
+                if kept >= plan.free_per_hand {
                     break;
                 }
                 let req = Request::Free { index: kept, of: plan.free_per_hand, suggest_m: s };
                 op.tell(&format!("[{}/{total}] {req}", done + 1));
-                if let Some(p) = self.record_pose(op, hand, &req, &poses)? {
-                    poses.push(p);
+                if let Some(p) = self.record_pose(op, hand, &req, &session.poses)? {
+                    keep(session, p, save)?;
                     kept += 1;
                     done += 1;
                 }
             }
             if kept < plan.free_per_hand {
                 let line = format!("hand {hand}: only {kept} of {} free poses were kept", plan.free_per_hand);
-                let mut tell = |s: &str| op.tell(s);
-                self.warn(&mut tell, line);
+                self.warn(&mut |s| op.tell(s), line);
             }
             // Back home, so the grip is where the next hand's operator expects it.
-            op.request(&mut self.dev, hand, &home)?;
+            op.request(&mut self.link, hand, &home)?;
         }
-        Ok(SessionFile {
-            version: SESSION_FILE_VERSION,
-            rig_name: self.rig.name.clone(),
-            device: device_name.to_string(),
-            recorded_utc: crate::utc_now(),
-            poses,
-        })
+        Ok(())
     }
 
-    /// Records the grip at `at_m` without the checks (homing, verification).
+    /// Records `plan` into a new session kept in memory only (tests, benchmarks; the command
+    /// line saves after every pose with [`Recorder::record_plan`]).
+    pub fn record_session<O: Operator<D>>(
+        &mut self,
+        op: &mut O,
+        plan: &Plan,
+        device_name: &str,
+    ) -> Result<SessionFile, CalibError> {
+        let mut session = SessionFile::new(&self.rig.name, "", device_name, plan.session_plan(None));
+        self.record_plan(op, plan, &mut session, &mut |_| Ok(()))?;
+        session.complete = true;
+        Ok(session)
+    }
+
+    /// A resumed hand: the grip back at the home point must read the lengths of the session's
+    /// home pose, or the counters are not the ones the session was recorded with.
+    fn check_resume<O: Operator<D>>(
+        &mut self,
+        op: &mut O,
+        hand: usize,
+        session: &SessionFile,
+    ) -> Result<(), CalibError> {
+        let hr = &self.rig.hands[hand];
+        let Some(home) = session.poses_of(hand).find(|p| matches!(p.kind, PoseKind::Home { .. })) else {
+            return Err(CalibError::Recording(format!(
+                "hand {hand}: the session has poses of this hand but no home pose: it cannot be resumed; \
+                 start a new session"
+            )));
+        };
+        let PoseKind::Home { at_m } = home.kind else { unreachable!("filtered above") };
+        op.tell(&format!(
+            "hand {hand}: resuming; first the counters are checked at the home point (as recorded)"
+        ));
+        let (counts, _) = self.record_at(op, hand, &Request::Home { at_m: DVec3::from_array(at_m) })?;
+        let d2: f64 = (0..4).map(|i| ((counts[i] - home.counts[i]) * hr.metres_per_count[i]).powi(2)).sum();
+        let offset = (d2 / 4.0).sqrt();
+        if offset > self.opts.resume_max_offset_m {
+            return Err(CalibError::Recording(format!(
+                "hand {hand}: at the home point the strings read {:.1} mm (RMS) from the session's home pose (limit \
+                 {:.1} mm): the counters restarted (the board was power-cycled or reconnected) or the grip is not at \
+                 home. Hold it at home and resume again, or start a new session without --resume",
+                offset * 1e3,
+                self.opts.resume_max_offset_m * 1e3
+            )));
+        }
+        op.tell(&format!("  counters as recorded (home within {:.1} mm RMS)", offset * 1e3));
+        if self.check_geometry[hand].is_none() {
+            self.check_geometry[hand] = Some(HandGeometry::homed(hr, &home.counts, DVec3::from_array(at_m)));
+        }
+        Ok(())
+    }
+
+    /// Records the grip at `req` without the checks (homing, verification), asking again while
+    /// it does not keep still (up to `attempts` times).
     pub fn record_at<O: Operator<D>>(
         &mut self,
         op: &mut O,
         hand: usize,
         req: &Request,
     ) -> Result<([f64; 4], [f64; 4]), CalibError> {
-        if op.request(&mut self.dev, hand, req)? == Answer::Skip {
-            return Err(CalibError::Recording(format!("hand {hand}: {req}: this point cannot be skipped")));
+        check_hand(hand)?;
+        for attempt in 1..=self.opts.attempts {
+            if op.request(&mut self.link, hand, req)? == Answer::Skip {
+                return Err(CalibError::Recording(format!(
+                    "hand {hand}: {req}: this point cannot be skipped"
+                )));
+            }
+            if let Some(s) = self.still_average(hand, &mut |l| op.tell(l))? {
+                return Ok((s.counts, s.counts_std));
+            }
+            if attempt < self.opts.attempts {
+                op.tell(&format!("  again ({}/{}): {req}", attempt + 1, self.opts.attempts));
+            }
         }
-        let (c, s, _) = self.still_average(hand)?;
-        Ok((c, s))
+        Err(CalibError::Recording(format!(
+            "hand {hand}: {req}: the grip did not keep still in {} tries: hold it steady, or rest it on the jig",
+            self.opts.attempts
+        )))
+    }
+}
+
+fn check_hand(hand: usize) -> Result<(), CalibError> {
+    if hand > 1 {
+        return Err(CalibError::Options(format!("hand {hand}: must be 0 (left) or 1 (right)")));
+    }
+    Ok(())
+}
+
+/// Adds a pose to the session and saves it.
+fn keep(
+    session: &mut SessionFile,
+    p: PoseRecord,
+    save: &mut dyn FnMut(&SessionFile) -> Result<(), CalibError>,
+) -> Result<(), CalibError> {
+    session.poses.push(p);
+    session.recorded_utc = crate::utc_now();
+    save(session)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples of one string's counts: a value, gaussian-ish noise (sum of uniforms), a ramp.
+    fn samples(n: usize, noise: f64, ramp_per_sample: f64, seed: u64) -> Vec<[i64; 4]> {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+        (0..n)
+            .map(|k| {
+                std::array::from_fn(|_| {
+                    let z: f64 = (0..12).map(|_| rng.random_range(0.0..1.0)).sum::<f64>() - 6.0;
+                    (1000.0 + k as f64 * ramp_per_sample + noise * z).floor() as i64
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn thresholds_out_of_range_are_refused_by_name() {
+        RecordOptions::default().check().unwrap();
+        for (o, says) in [
+            (RecordOptions { still_range_m: f64::NAN, ..RecordOptions::default() }, "stillness range"),
+            (RecordOptions { average_s: -1.0, ..RecordOptions::default() }, "averaging time"),
+            (RecordOptions { lost_after_s: f64::INFINITY, ..RecordOptions::default() }, "board-lost time"),
+            (RecordOptions { attempts: 0, ..RecordOptions::default() }, "attempts"),
+            (RecordOptions { max_average_s: 0.1, ..RecordOptions::default() }, "longest averaging"),
+        ] {
+            let e = o.check().unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        let plan = |hands: Vec<usize>, free| Plan {
+            hands,
+            jig: None,
+            free_per_hand: free,
+            free_half_extent_m: DVec3::splat(0.3),
+        };
+        assert!(plan(vec![0, 1], 17).check().is_ok());
+        assert!(plan(vec![0, 1], 16).check().unwrap_err().to_string().contains("at least 17"));
+        assert!(plan(vec![2], 40).check().unwrap_err().to_string().contains("hand 2"));
+        assert!(plan(vec![0, 0], 40).check().unwrap_err().to_string().contains("twice"));
+    }
+
+    #[test]
+    fn three_counts_of_noise_are_still_and_a_moving_grip_is_not() {
+        // 0.5 mm at 2.9e-5 m per count: 17 counts.
+        let range = [17.0; 4];
+        let mut raw_too_wide = 0;
+        for seed in 0..20 {
+            let still = samples(800, 3.0, 0.0, seed);
+            assert!(is_still(&still, 50, &range), "3 counts of noise, seed {seed}");
+            assert!(is_still(&samples(800, 0.0, 0.0, seed), 50, &range), "no noise");
+            // Judged sample by sample, the noise alone spans more than the range.
+            let (lo, hi) = still.iter().fold((i64::MAX, i64::MIN), |(l, h), s| (l.min(s[0]), h.max(s[0])));
+            raw_too_wide += usize::from(hi - lo > 17);
+            // Moving 1.5 mm/s (52 counts over 0.8 s) with the same noise: not still.
+            assert!(!is_still(&samples(800, 3.0, 0.065, seed), 50, &range), "a moving grip, seed {seed}");
+        }
+        assert!(raw_too_wide >= 15, "the raw spread exceeded the range in only {raw_too_wide} of 20");
+        // A slow drift well inside the range is still.
+        assert!(is_still(&samples(800, 3.0, 0.01, 1), 50, &range));
     }
 }

@@ -8,19 +8,19 @@
 //! holding its `channel:`), replaces the values of `anchor_m`, `metres_per_count` and
 //! `length_at_zero_m` (inserting the last after `metres_per_count` if absent), and updates or
 //! appends the `calibration` record; every other byte stays as it was. The new text is parsed and
-//! validated as a rig and must read back the values written, then it is written to a temporary file
-//! in the same folder, flushed to disk, the old file is copied to `<name>.bak`, and the temporary
-//! file is renamed over the old one (atomic on POSIX file systems), and the folder is flushed.
+//! validated as a rig and must read back the values written, then it replaces the file as
+//! [`crate::safefile`] does: exclusively created temporary file, mode and owner kept, a symlink's
+//! target updated, the previous version kept as `<name>.<UTC time>.bak`.
 //!
 //! What it must never do: write a file that does not load, or write over a rig file that changed
 //! on disk since it was read.
 
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use spidar_rt::Rig;
 
 use crate::model::HandGeometry;
+use crate::safefile::Replaced;
 use crate::CalibError;
 
 /// What goes into the `calibration` record (empty strings leave a field as it was).
@@ -279,58 +279,16 @@ pub fn updated_rig_text(
     Ok(out)
 }
 
-/// Path of the backup kept next to `path`.
-pub fn backup_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().map(|n| n.to_os_string()).unwrap_or_default();
-    name.push(".bak");
-    path.with_file_name(name)
-}
-
-/// Writes `text` to `path` atomically: temp file in the same folder, fsync, (backup of the old
-/// file), rename, fsync of the folder. On error the old file is untouched and the temp removed.
-pub fn write_atomically(path: &Path, text: &str, keep_backup: bool) -> Result<(), CalibError> {
-    let io =
-        |what: &'static str| move |source| CalibError::Io { file: path.display().to_string(), what, source };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path.file_name().ok_or_else(|| CalibError::RigFile {
-        file: path.display().to_string(),
-        message: "not a file path".into(),
-    })?;
-    let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp).map_err(io("cannot create the temporary file"))?;
-        f.write_all(text.as_bytes()).map_err(io("cannot write the temporary file"))?;
-        f.sync_all().map_err(io("cannot flush the temporary file to disk"))?;
-        drop(f);
-        if keep_backup && path.exists() {
-            let bak = backup_path(path);
-            std::fs::copy(path, &bak).map_err(io("cannot keep a backup of the old file"))?;
-            std::fs::File::open(&bak).and_then(|f| f.sync_all()).map_err(io("cannot flush the backup"))?;
-        }
-        std::fs::rename(&tmp, path).map_err(io("cannot rename the temporary file over the old one"))?;
-        // The rename itself is durable only once the folder is flushed.
-        if let Ok(d) = std::fs::File::open(&dir) {
-            let _ = d.sync_all();
-        }
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
-
-/// Updates the rig file at `path` with new geometry and stamp, keeping `<path>.bak`. Fails without
-/// touching the file if it changed on disk since `read_text` was read.
+/// Updates the rig file at `path` with new geometry and stamp (see [`crate::safefile`]: a
+/// symlinked rig file has its target updated, mode and owner are kept, the previous version stays
+/// as a dated backup). Fails without touching the file if it changed on disk since `read_text`
+/// was read.
 pub fn update_rig_file(
     path: &Path,
     read_text: &str,
     geometry: &[Option<HandGeometry>; 2],
     stamp: &Stamp,
-) -> Result<PathBuf, CalibError> {
+) -> Result<Replaced, CalibError> {
     let new = updated_rig_text(read_text, &path.display().to_string(), geometry, stamp)?;
     let now = crate::read_text(path, "cannot re-read the rig file")?;
     if now != read_text {
@@ -339,8 +297,7 @@ pub fn update_rig_file(
             message: "changed on disk while calibrating; nothing was written: run the command again".into(),
         });
     }
-    write_atomically(path, &new, true)?;
-    Ok(backup_path(path))
+    crate::safefile::replace(path, &new, true)
 }
 
 #[cfg(test)]
@@ -410,6 +367,8 @@ mod tests {
         let path = dir.join("rig.ron");
         std::fs::write(&path, DEFAULT_RIG_RON).unwrap();
         let bak = update_rig_file(&path, DEFAULT_RIG_RON, &[Some(geometry(0.01)), None], &Stamp::default())
+            .unwrap()
+            .backup
             .unwrap();
         assert_eq!(std::fs::read_to_string(&bak).unwrap(), DEFAULT_RIG_RON);
         let new = std::fs::read_to_string(&path).unwrap();

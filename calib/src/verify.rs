@@ -105,7 +105,7 @@ pub fn verify<D: Device, O: Operator<D>>(
         });
     }
     for &h in hands {
-        op.request(rec.device(), h, &Request::Home { at_m: rig.hands[h].home_m })?;
+        op.request(rec.link(), h, &Request::Home { at_m: rig.hands[h].home_m })?;
     }
     Ok(report)
 }

@@ -3,7 +3,7 @@
 //! point each prompt names, and then types Enter, `s` or `q`.
 
 use std::io::{BufReader, Read, Write};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -89,8 +89,8 @@ enum Key {
     Quit,
     /// Close the keyboard (Ctrl-D, or the terminal going away).
     Close,
-    /// A stop signal (Ctrl-C, SIGTERM, SIGHUP): the counter `spidar calib` gives the operator and
-    /// the recorder goes up by one.
+    /// A stop signal (Ctrl-C, SIGTERM, SIGHUP): the flag `spidar calib` gives the recorder's
+    /// link is raised.
     Signal,
 }
 
@@ -129,7 +129,7 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let (screen_tx, screen_rx) = mpsc::channel::<String>();
     let info = shared.lock().unwrap().info().clone();
     let dev = Shared(shared.clone(), info);
-    let stop = Arc::new(AtomicU32::new(0));
+    let stop = Arc::new(AtomicBool::new(false));
     let worker_stop = stop.clone();
     let plan = Plan {
         hands: vec![0],
@@ -140,12 +140,11 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let worker = std::thread::spawn(move || {
         let keyboard = BufReader::new(Keyboard { rx: key_rx, pending: Vec::new() });
         let screen = Box::new(Screen { tx: screen_tx, partial: String::new() });
-        let mut op =
-            ConsoleOperator::new(keyboard, screen, &rig, false).unwrap().with_stop(worker_stop.clone());
+        let mut op = ConsoleOperator::new(keyboard, screen, &rig).unwrap();
         op.introduce();
-        let opts = RecordOptions { stop: Some(worker_stop), ..RecordOptions::default() };
-        let mut rec = Recorder::new(dev, &rig, opts).unwrap();
-        let r = rec.record_plan(&mut op, &plan, "simulated rig behind a console");
+        let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
+        rec.set_stop(Arc::new(move || worker_stop.load(Ordering::SeqCst)));
+        let r = rec.record_session(&mut op, &plan, "simulated rig behind a console");
         // As `spidar calib record`: outputs off when the recording ends, whichever way.
         if r.is_ok() {
             rec.finish().unwrap();
@@ -184,9 +183,7 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
             Key::Skip => tx.send(b"s\n".to_vec()).unwrap(),
             Key::Quit => tx.send(b"q\n".to_vec()).unwrap(),
             Key::Close => key_tx = None,
-            Key::Signal => {
-                stop.fetch_add(1, Ordering::SeqCst);
-            }
+            Key::Signal => stop.store(true, Ordering::SeqCst),
         }
     }
     let result = worker.join().unwrap();
@@ -247,11 +244,11 @@ fn console_q_aborts_with_the_device_deactivated() {
 fn a_stop_signal_while_waiting_aborts_with_the_device_deactivated() {
     let o = drive(2, &[Key::Move, Key::Signal]);
     match &o.result {
-        Err(CalibError::Aborted(why)) => assert!(why.contains("a stop signal"), "{why}"),
-        other => panic!("expected an abort, got {:?}", other.as_ref().map(|s| s.poses.len())),
+        Err(CalibError::Interrupted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an interruption, got {:?}", other.as_ref().map(|s| s.poses.len())),
     }
     assert!(!o.rig.lock().unwrap().is_active(), "a stop signal must switch the outputs off");
-    assert!(o.screen.iter().any(|l| l.starts_with("aborting: a stop signal")), "{}", o.screen.join("\n"));
+    assert!(o.screen.iter().any(|l| l.starts_with("stopping: ")), "{}", o.screen.join("\n"));
 }
 
 #[test]

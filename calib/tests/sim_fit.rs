@@ -8,6 +8,7 @@ use glam::DVec3;
 use spidar_calib::fit::{fit_hand, observations, FitOptions, Observability, Observation};
 use spidar_calib::jig::JigFile;
 use spidar_calib::model::{align, HandGeometry};
+use spidar_calib::quality::Cause;
 use spidar_calib::record::{Plan, RecordOptions, Recorder, SimOperator};
 use spidar_calib::session::SessionFile;
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
@@ -31,7 +32,7 @@ fn record(jig: Option<JigFile>, free: usize, opts: &SimTruthOptions) -> (Session
     let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
     let mut op = SimOperator::new(false);
     let plan = Plan { hands: vec![0, 1], jig, free_per_hand: free, free_half_extent_m: DVec3::splat(0.3) };
-    let session = rec.record_plan(&mut op, &plan, "sim").unwrap();
+    let session = rec.record_session(&mut op, &plan, "sim").unwrap();
     (session, truth)
 }
 
@@ -210,6 +211,7 @@ fn poses_all_in_one_plane_are_refused_with_the_plane_named() {
                 }),
                 known_m: None,
                 hint_m: (k == 0).then_some(p),
+                noise_counts: [0.29; 4],
             }
         })
         .collect();
@@ -243,14 +245,24 @@ fn a_string_slack_in_a_few_poses_is_down_weighted_and_named_and_in_many_is_an_er
         );
     }
     assert!(fit.advice.iter().any(|a| a.contains("re-record")), "{:?}", fit.advice);
-    // Slack in six of the eight jig poses: the string is not to be trusted at all.
+    // Slack in six of the eight jig poses: the string is not to be trusted at all. The
+    // data-quality check names the string and the run of poses, and the fit is not trustworthy.
     let mut obs = clean;
     for k in 1..=6 {
         obs[k].counts[2] += 5e-3 / mpc;
     }
-    let e = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap_err();
-    assert!(matches!(e, CalibError::InconsistentString { hand: 0, string: 2, .. }), "{e}");
-    assert!(e.to_string().contains("slack"), "{e}");
+    let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+    assert!(!fit.is_trustworthy());
+    assert_eq!(fit.quality.findings.len(), 1, "{:?}", fit.quality.findings);
+    match fit.quality.findings[0].cause {
+        Cause::Burst { string, from, to, size_m } => {
+            assert_eq!((string, from, to), (Some(2), 1, 6));
+            assert!((size_m - 5e-3).abs() < 0.1e-3, "{size_m}");
+        }
+        ref c => panic!("expected slack in poses 1..6, got {c:?}"),
+    }
+    let lines = fit.quality_lines().join("\n");
+    assert!(lines.contains("slack: hand 0 string 2") && lines.contains("pose 1 (jig"), "{lines}");
 }
 
 #[test]
@@ -282,25 +294,228 @@ fn two_jig_points_leave_a_rotation_unobservable_and_the_fit_says_so() {
     assert!(msg.contains("rank deficient") && msg.contains("at least 4"), "{msg}");
 }
 
+// ---------------------------------------------------------------------------------------------
+// Data quality: the residual against the noise measured at rest, and the cause the data show.
+
+/// The hand's observations with string `s` reading `by(k)` metres longer at pose k.
+fn shifted(
+    obs: &[Observation],
+    truth: &HandGeometry,
+    s: usize,
+    by: impl Fn(usize) -> f64,
+) -> Vec<Observation> {
+    let mut obs = obs.to_vec();
+    for (k, o) in obs.iter_mut().enumerate() {
+        o.counts[s] += by(k) / truth.metres_per_count[s];
+    }
+    obs
+}
+
+fn only_finding(fit: &spidar_calib::HandFit) -> Cause {
+    assert!(!fit.quality.clean(), "ratio {}", fit.quality.ratio);
+    assert!(!fit.is_trustworthy(), "a fit through bad data must not be trusted");
+    assert_eq!(fit.quality.findings.len(), 1, "{:?}", fit.quality.findings);
+    fit.quality.findings[0].cause.clone()
+}
+
+#[test]
+fn fit_settings_and_observations_out_of_range_are_refused() {
+    let rig = Rig::default_rig();
+    let (session, _) = record(Some(jig()), 10, &truth_opts());
+    let obs = observations(&session, 0);
+    let bad = FitOptions {
+        quality: spidar_calib::quality::QualityOptions { max_noise_ratio: f64::NAN, ..Default::default() },
+        ..FitOptions::default()
+    };
+    let e = fit_hand(0, &rig.hands[0], &obs, &bad).unwrap_err().to_string();
+    assert!(e.contains("max_noise_ratio"), "{e}");
+    let e = fit_hand(0, &rig.hands[0], &obs, &FitOptions { jig_tolerance_m: -1.0, ..FitOptions::default() })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("jig_tolerance_m"), "{e}");
+    assert!(fit_hand(5, &rig.hands[0], &obs, &FitOptions::default())
+        .unwrap_err()
+        .to_string()
+        .contains("hand 5"));
+    let mut nan = obs.clone();
+    nan[3].counts[1] = f64::NAN;
+    let e = fit_hand(0, &rig.hands[0], &nan, &FitOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("pose 3") && e.contains("not finite"), "{e}");
+}
+
+#[test]
+fn clean_data_fit_at_the_noise_level_and_name_no_cause() {
+    let rig = Rig::default_rig();
+    let (session, _) = jig_session();
+    for h in 0..2 {
+        let fit = fit_hand(h, &rig.hands[h], &observations(&session, h), &FitOptions::default()).unwrap();
+        assert!(fit.quality.ratio < 2.0, "hand {h}: residual {:.2} times the noise", fit.quality.ratio);
+        assert!(fit.quality.findings.is_empty() && fit.quality_lines().is_empty());
+    }
+}
+
+#[test]
+fn a_5_mm_slip_midway_is_named_with_its_string_and_poses_and_the_fit_is_refused() {
+    let rig = Rig::default_rig();
+    let (session, truth) = jig_session();
+    for (h, s, at, d) in [(0, 2, 25, 5e-3), (1, 0, 30, -5e-3)] {
+        let obs = shifted(&observations(&session, h), &truth[h], s, |k| if k >= at { d } else { 0.0 });
+        let fit = fit_hand(h, &rig.hands[h], &obs, &FitOptions::default()).unwrap();
+        match only_finding(&fit) {
+            Cause::Slip { string, at: a, size_m } => {
+                assert_eq!((string, a), (Some(s), at), "hand {h}");
+                assert!((size_m - d).abs() < 0.05e-3, "size {size_m}");
+            }
+            c => panic!("hand {h}: expected a slip, got {c:?}"),
+        }
+        let lines = fit.quality_lines().join("\n");
+        assert!(
+            lines.contains(&format!("slip: hand {h} string {s} reads"))
+                && lines.contains(&format!("between pose {} (", at - 1))
+                && lines.contains("record hand"),
+            "{lines}"
+        );
+    }
+}
+
+#[test]
+fn a_1_mm_slip_names_the_right_string_whichever_it_is() {
+    let rig = Rig::default_rig();
+    let (session, truth) = jig_session();
+    let clean = observations(&session, 0);
+    for (s, at) in [(0, 40), (1, 25), (2, 12), (3, 33)] {
+        let obs = shifted(&clean, &truth[0], s, |k| if k >= at { 1e-3 } else { 0.0 });
+        let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+        match only_finding(&fit) {
+            Cause::Slip { string, at: a, size_m } => {
+                assert_eq!((string, a), (Some(s), at));
+                assert!((size_m - 1e-3).abs() < 0.02e-3, "size {size_m}");
+            }
+            c => panic!("string {s}: expected a slip, got {c:?}"),
+        }
+    }
+}
+
+#[test]
+fn a_creep_of_0_18_mm_per_pose_is_named_and_refused() {
+    let rig = Rig::default_rig();
+    let (session, truth) = jig_session();
+    for (s, per_pose) in [(3, 0.18e-3), (1, -0.018e-3)] {
+        let obs = shifted(&observations(&session, 0), &truth[0], s, |k| k as f64 * per_pose);
+        let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+        match only_finding(&fit) {
+            Cause::Creep { string, per_pose_m } => {
+                assert_eq!(string, Some(s));
+                assert!((per_pose_m / per_pose - 1.0).abs() < 0.02, "{per_pose_m}");
+            }
+            c => panic!("expected a creep, got {c:?}"),
+        }
+        assert!(fit.quality.ratio > 50.0, "the residual is far above the noise: {}", fit.quality.ratio);
+        let lines = fit.quality_lines().join("\n");
+        assert!(lines.contains(&format!("creep: hand 0 string {s}")), "{lines}");
+    }
+}
+
+#[test]
+fn an_outlier_pose_is_named_with_its_string_on_a_jig_point_and_without_on_a_free_pose() {
+    let rig = Rig::default_rig();
+    let (session, truth) = jig_session();
+    let clean = observations(&session, 0);
+    let obs = shifted(&clean, &truth[0], 2, |k| if k == 4 { 1e-3 } else { 0.0 });
+    let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+    assert_eq!(
+        only_finding(&fit),
+        match only_finding(&fit) {
+            Cause::Outlier { pose: 4, string: Some(2), size_m } if (size_m - 1e-3).abs() < 0.02e-3 => {
+                only_finding(&fit)
+            }
+            c => panic!("expected jig pose 4 string 2, got {c:?}"),
+        }
+    );
+    // At a free pose the four strings share one residual direction: the pose, not the string.
+    let obs = shifted(&clean, &truth[0], 1, |k| if k == 30 { 0.5e-3 } else { 0.0 });
+    let fit = fit_hand(0, &rig.hands[0], &obs, &FitOptions::default()).unwrap();
+    assert!(matches!(only_finding(&fit), Cause::Outlier { pose: 30, string: None, .. }), "{:?}", fit.quality);
+    assert!(fit.quality_lines()[0].contains("pose 30 (free 22)"), "{:?}", fit.quality_lines());
+}
+
+#[test]
+fn three_counts_of_encoder_noise_record_and_fit_within_a_millimetre() {
+    let rig = Rig::default_rig();
+    let opts = SimTruthOptions { noise_counts: 3.0, ..truth_opts() };
+    // The recording itself must pass: the stillness test reads the noise as noise.
+    let (session, truth) = record(Some(jig()), 40, &opts);
+    for h in 0..2 {
+        let obs = observations(&session, h);
+        assert_eq!(obs.len(), 49);
+        let fit = fit_hand(h, &rig.hands[h], &obs, &FitOptions::default()).unwrap();
+        assert!(fit.quality.clean(), "hand {h}: {:?}", fit.quality);
+        assert!(fit.is_trustworthy(), "{fit}");
+        for i in 0..4 {
+            let err = fit.geometry.anchors_m[i].distance(truth[h].anchors_m[i]);
+            assert!(err < 1e-3, "hand {h} anchor {i}: {:.3} mm from the truth", err * 1e3);
+        }
+    }
+}
+
+#[test]
+fn a_grip_that_keeps_moving_is_not_recorded() {
+    use spidar_calib::link::Link;
+    use spidar_calib::record::{Answer, Operator, Request};
+    use spidar_device::sim::{Script, Segment, SimRig};
+    /// Moves the grip round a circle of 5 mm radius at 1.6 mm/s, for minutes.
+    struct Drifting;
+    impl Operator<SimRig> for Drifting {
+        fn request(
+            &mut self,
+            link: &mut Link<SimRig>,
+            hand: usize,
+            _: &Request,
+        ) -> Result<Answer, CalibError> {
+            let from = link.device().truth().hands[hand].pos_m;
+            let centre = (from + DVec3::new(0.005, 0.0, 0.0)).to_array();
+            let circle = Segment::Circle {
+                centre_m: centre,
+                radius_m: 0.005,
+                normal: [0.0, 0.0, 1.0],
+                period_s: 20.0,
+                turns: 10.0,
+            };
+            let script = Script::from_segments(vec![circle], false);
+            link.device().try_set_script(hand, script).unwrap();
+            Ok(Answer::Ready)
+        }
+        fn tell(&mut self, _: &str) {}
+    }
+    let rig = Rig::default_rig();
+    let opts = SimTruthOptions { noise_counts: 3.0, ..truth_opts() };
+    let truth = truth_geometry(&rig, &opts);
+    let ro = RecordOptions { timeout_s: 5.0, ..RecordOptions::default() };
+    let mut rec = Recorder::new(sim_rig(&rig, &truth, 3.0, 1).unwrap(), &rig, ro).unwrap();
+    let req = Request::Free { index: 0, of: 1, suggest_m: DVec3::ZERO };
+    assert_eq!(rec.record_pose(&mut Drifting, 0, &req, &[]).unwrap(), None);
+    assert!(rec.warnings()[0].contains("did not keep still"), "{:?}", rec.warnings());
+}
+
 #[test]
 fn a_stop_signal_during_recording_aborts_at_the_next_exchange() {
-    use std::sync::atomic::{AtomicU32, Ordering};
+    use std::sync::atomic::{AtomicBool, Ordering};
     use std::sync::Arc;
     let rig = Rig::default_rig();
     let opts = truth_opts();
     let truth = truth_geometry(&rig, &opts);
     let dev = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
-    let stop = Arc::new(AtomicU32::new(0));
-    let mut rec =
-        Recorder::new(dev, &rig, RecordOptions { stop: Some(stop.clone()), ..RecordOptions::default() })
-            .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
+    let flag = stop.clone();
+    rec.set_stop(Arc::new(move || flag.load(Ordering::SeqCst)));
     let mut op = SimOperator::new(false);
     let plan = Plan { hands: vec![0], jig: None, free_per_hand: 3, free_half_extent_m: DVec3::splat(0.2) };
-    stop.fetch_add(1, Ordering::SeqCst);
-    match rec.record_plan(&mut op, &plan, "sim") {
-        Err(CalibError::Aborted(why)) => assert!(why.contains("a stop signal"), "{why}"),
-        other => panic!("expected an abort, got {:?}", other.map(|s| s.poses.len())),
+    stop.store(true, Ordering::SeqCst);
+    match rec.record_session(&mut op, &plan, "sim") {
+        Err(CalibError::Interrupted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an interruption, got {:?}", other.map(|s| s.poses.len())),
     }
-    // As `spidar calib`: the outputs are switched off after the abort.
+    // As `spidar calib`: the outputs are switched off after the stop.
     assert!(!rec.finish().unwrap().is_active());
 }

@@ -239,6 +239,10 @@ pub struct RigInfo {
     pub tension_max_n: [f64; HANDS],
     /// The largest force the rig renders on a hand.
     pub force_limit_n: [f64; HANDS],
+    /// Radius of the sphere that stands for each fist in contact rendering.
+    pub grip_radius_m: [f64; HANDS],
+    /// The user's eye point (world frame), for a first-person view.
+    pub eye_m: DVec3,
 }
 
 impl Default for RigInfo {
@@ -250,6 +254,8 @@ impl Default for RigInfo {
             tension_min_n: [0.0; HANDS],
             tension_max_n: [0.0; HANDS],
             force_limit_n: [0.0; HANDS],
+            grip_radius_m: [0.0; HANDS],
+            eye_m: DVec3::ZERO,
         }
     }
 }

@@ -31,7 +31,7 @@ use crate::{
 
 pub const MAGIC: [u8; 4] = *b"SPDR";
 /// Raised whenever any message's layout changes; both ends must speak the same one.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 pub const HEADER_LEN: usize = 20;
 
 /// What a datagram carries.
@@ -515,7 +515,8 @@ impl Field for HandSample {
 }
 
 impl Field for RigInfo {
-    const SIZE: usize = 8 + <[[DVec3; STRINGS]; HANDS]>::SIZE + <[DVec3; HANDS]>::SIZE + 3 * 8 * HANDS;
+    const SIZE: usize =
+        8 + <[[DVec3; STRINGS]; HANDS]>::SIZE + <[DVec3; HANDS]>::SIZE + 4 * 8 * HANDS + DVec3::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.period_s.put(w);
         self.anchors_m.put(w);
@@ -523,6 +524,8 @@ impl Field for RigInfo {
         self.tension_min_n.put(w);
         self.tension_max_n.put(w);
         self.force_limit_n.put(w);
+        self.grip_radius_m.put(w);
+        self.eye_m.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         RigInfo {
@@ -532,6 +535,8 @@ impl Field for RigInfo {
             tension_min_n: Field::get(r),
             tension_max_n: Field::get(r),
             force_limit_n: Field::get(r),
+            grip_radius_m: Field::get(r),
+            eye_m: Field::get(r),
         }
     }
 }

@@ -51,6 +51,10 @@ impl<'a> Writer<'a> {
         self.align(4);
         self.buf.extend_from_slice(&x.to_le_bytes());
     }
+    pub fn i32(&mut self, x: i32) {
+        self.align(4);
+        self.buf.extend_from_slice(&x.to_le_bytes());
+    }
     pub fn u64(&mut self, x: u64) {
         self.align(8);
         self.buf.extend_from_slice(&x.to_le_bytes());
@@ -114,6 +118,9 @@ impl<'a> Reader<'a> {
     }
     pub fn u32(&mut self) -> Result<u32, DecodeError> {
         Ok(u32::from_le_bytes(self.array()?))
+    }
+    pub fn i32(&mut self) -> Result<i32, DecodeError> {
+        Ok(i32::from_le_bytes(self.array()?))
     }
     pub fn u64(&mut self) -> Result<u64, DecodeError> {
         Ok(u64::from_le_bytes(self.array()?))
@@ -271,7 +278,7 @@ mod itoa_like {
             }
         )*};
     }
-    int!(u8, u16, u32, u64, i64);
+    int!(u8, u16, u32, i32, u64, i64);
 }
 
 macro_rules! primitive {
@@ -299,6 +306,7 @@ macro_rules! primitive {
 primitive!(u8, "uint8", u8, csv_int);
 primitive!(u16, "uint16", u16, csv_int);
 primitive!(u32, "uint32", u32, csv_int);
+primitive!(i32, "int32", i32, csv_int);
 primitive!(u64, "uint64", u64, csv_int);
 primitive!(i64, "int64", i64, csv_int);
 primitive!(f64, "float64", f64, csv_f64);
@@ -376,6 +384,47 @@ impl<T: Field, const N: usize> Field for [T; N] {
     }
 }
 
+/// A sequence (`T[]`): a `uint32` count, then the items. In CSV, one cell: the items' cells
+/// joined by `;`.
+impl<T: Field> Field for Vec<T> {
+    fn ros_type() -> String {
+        format!("{}[]", T::ros_type())
+    }
+    fn collect(out: &mut Vec<(String, String)>) {
+        T::collect(out)
+    }
+    fn write(&self, w: &mut Writer<'_>) {
+        w.u32(self.len() as u32);
+        for x in self {
+            x.write(w);
+        }
+    }
+    fn read(r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        let n = r.count(1)?;
+        let mut v = Vec::with_capacity(n);
+        for _ in 0..n {
+            v.push(T::read(r)?);
+        }
+        Ok(v)
+    }
+    fn columns(prefix: &str, out: &mut Vec<String>) {
+        out.push(prefix.to_string());
+    }
+    fn csv(&self, out: &mut String) {
+        out.push(',');
+        let mut cell = String::new();
+        for (i, x) in self.iter().enumerate() {
+            let mut one = String::new();
+            x.csv(&mut one);
+            if i > 0 {
+                cell.push(';');
+            }
+            cell.push_str(one.trim_start_matches(',').replace(',', " ").trim_matches('"'));
+        }
+        out.push_str(&cell);
+    }
+}
+
 /// Implements [`Field`] for a struct as a `ros2msg` message of the listed fields, in order. Doc
 /// comments on the fields become the schema's comments. Fields of the struct that the message
 /// does not carry (filled from other channels) are listed after `skip` and decode as their
@@ -398,7 +447,7 @@ macro_rules! message {
                     $( d.push('#'); d.push_str($doc.trim_end()); d.push('\n'); )*
                     d.push_str(&<$fty as $crate::cdr::Field>::ros_type());
                     d.push(' ');
-                    d.push_str(stringify!($field));
+                    d.push_str(stringify!($field).trim_start_matches("r#"));
                     d.push('\n');
                 )*
                 Some(d)
@@ -418,7 +467,7 @@ macro_rules! message {
                 })
             }
             fn columns(prefix: &str, out: &mut Vec<String>) {
-                $( <$fty as $crate::cdr::Field>::columns(&$crate::cdr::join(prefix, stringify!($field)), out); )*
+                $( <$fty as $crate::cdr::Field>::columns(&$crate::cdr::join(prefix, stringify!($field).trim_start_matches("r#")), out); )*
             }
             fn csv(&self, out: &mut String) {
                 $( $crate::cdr::Field::csv(&self.$field, out); )*

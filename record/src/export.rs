@@ -198,3 +198,50 @@ pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> 
         Ok(ExportReport { recording, files, skipped })
     })
 }
+
+/// Writes one CSV file per spidar channel of a world recording (`world_step.csv`,
+/// `world_boxer.csv`, `world_crowd.csv`, `world_event.csv`) into `dir`; the Foxglove drawing
+/// channels (`/world/tf`, `/world/scene`) are listed as skipped. A world recording is small: one
+/// thread.
+pub fn export_world_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> {
+    use crate::world::{self, BoxerMsg, CrowdMsg, WorldEventMsg, WorldMsg, WorldStep};
+    std::fs::create_dir_all(dir).map_err(|e| RecordError::Create { path: dir.to_path_buf(), cause: e })?;
+    let mut sinks = [
+        Sink::new::<WorldStep>(dir, world::TOPIC_STEP)?,
+        Sink::new::<BoxerMsg>(dir, world::TOPIC_BOXER)?,
+        Sink::new::<CrowdMsg>(dir, world::TOPIC_CROWD)?,
+        Sink::new::<WorldEventMsg>(dir, world::TOPIC_WORLD_EVENT)?,
+    ];
+    let mut skipped: Vec<String> = Vec::new();
+    let recording = reader::read(path, |_, m| {
+        let Msg::Other { channel, data, .. } = m else { return Ok(Flow::Continue) };
+        let msg = match world::decode(&channel.topic, &channel.schema, data) {
+            Some(Ok(m)) => m,
+            Some(Err(e)) => {
+                return Err(RecordError::Corrupt {
+                    path: path.to_path_buf(),
+                    what: format!("a message on {}: {e}", channel.topic),
+                })
+            }
+            None => WorldMsg::Drawing,
+        };
+        match msg {
+            WorldMsg::Step(x) => sinks[0].row(&x)?,
+            WorldMsg::Boxer(x) => sinks[1].row(x.as_ref())?,
+            WorldMsg::Crowd(x) => sinks[2].row(&x)?,
+            WorldMsg::Event(x) => sinks[3].row(&x)?,
+            WorldMsg::Drawing => {
+                if !skipped.contains(&channel.topic) {
+                    skipped.push(channel.topic.clone());
+                }
+            }
+        }
+        Ok(Flow::Continue)
+    })?;
+    let mut files = Vec::new();
+    for mut s in sinks {
+        s.w.flush().map_err(|e| RecordError::Write { path: s.path.clone(), why: e.to_string() })?;
+        files.push((s.path, s.rows));
+    }
+    Ok(ExportReport { recording, files, skipped })
+}

@@ -11,6 +11,7 @@
 
 pub mod cdr;
 pub mod export;
+pub mod foxglove;
 pub mod plot;
 pub mod schema;
 
@@ -25,10 +26,13 @@ pub const SPIDAR_VERSION: &str = env!("CARGO_PKG_VERSION");
 pub mod reader;
 pub mod summary;
 pub mod verify;
+pub mod world;
 pub mod writer;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod world_tests;
 
 use std::path::PathBuf;
 

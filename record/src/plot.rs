@@ -1,6 +1,7 @@
 //! `spidar plot FILE`: one SVG of a recorded session: the force on each hand, the tension of
 //! every string, the wake-up lateness histogram, and a timeline of the rig's lifecycle with the
-//! hands' hits and the faults.
+//! hands' hits and the faults; with the world's recording (`FILE.world.mcap`, or given alone),
+//! the virtual human's behaviour timeline (each hand and the body) and its hits taken and given.
 //!
 //! SVG through `plotters` without its font features (nothing needs fontconfig or freetype), as
 //! the calibration's plots. A long session is drawn as the peak of each time bucket (at most
@@ -91,9 +92,111 @@ struct Data {
     span: (f64, f64),
 }
 
+/// What the world's recording adds to the plot.
+#[derive(Default)]
+struct WorldData {
+    /// (start, end, code) stretches of the left hand's, the right hand's and the body's behaviour.
+    rows: [Vec<(f64, f64, u8)>; 3],
+    hits_taken: Vec<f64>,
+    hits_given: Vec<f64>,
+    boxer_steps: u64,
+    span: (f64, f64),
+}
+
+fn gather_world(path: &Path) -> Result<(Recording, WorldData), RecordError> {
+    use crate::world::{decode, WorldMsg, EVENT_HIT_GIVEN, EVENT_HIT_TAKEN};
+    let mut d = WorldData::default();
+    let rec = reader::read(path, |_, m| {
+        let Msg::Other { channel, data, .. } = m else { return Ok(Flow::Continue) };
+        let msg = match decode(&channel.topic, &channel.schema, data) {
+            None => return Ok(Flow::Continue),
+            Some(r) => r.map_err(|e| RecordError::Corrupt {
+                path: path.to_path_buf(),
+                what: format!("a message on {}: {e}", channel.topic),
+            })?,
+        };
+        match msg {
+            WorldMsg::Boxer(b) => {
+                let t = b.t_s;
+                if d.boxer_steps == 0 {
+                    d.span.0 = t;
+                }
+                d.boxer_steps += 1;
+                d.span.1 = t;
+                for (row, code) in d.rows.iter_mut().zip([b.d.hands[0], b.d.hands[1], b.d.body]) {
+                    match row.last_mut() {
+                        Some(s) if s.2 == code => s.1 = t,
+                        _ => row.push((t, t, code)),
+                    }
+                }
+            }
+            WorldMsg::Event(e) if e.kind == EVENT_HIT_TAKEN => d.hits_taken.push(e.t_s),
+            WorldMsg::Event(e) if e.kind == EVENT_HIT_GIVEN => d.hits_given.push(e.t_s),
+            _ => {}
+        }
+        Ok(Flow::Continue)
+    })?;
+    Ok((rec, d))
+}
+
+/// Colours of the hands' behaviours (standby, attack, block) and the body's (standby, avoidance).
+const HAND_BEHAVIOUR_COLOURS: [RGBColor; 3] =
+    [RGBColor(200, 200, 200), RGBColor(255, 127, 14), RGBColor(31, 119, 180)];
+const BODY_BEHAVIOUR_COLOURS: [RGBColor; 2] = [RGBColor(200, 200, 200), RGBColor(148, 103, 189)];
+
+fn behaviour(
+    area: &Area<'_>,
+    w: &WorldData,
+    span: (f64, f64),
+    err: &impl Fn(String) -> RecordError,
+) -> Result<(), RecordError> {
+    let (t0, t1) = (span.0, span.1.max(span.0 + 1e-3));
+    let mut c = ChartBuilder::on(area)
+        .caption(
+            "the virtual human: hands (grey standby, orange attack, blue block), body (grey standby, purple avoidance); hits taken (red) and given (black)",
+            ("sans-serif", 14),
+        )
+        .margin(8)
+        .x_label_area_size(30)
+        .y_label_area_size(80)
+        .build_cartesian_2d(t0..t1, 0.0..4.0)
+        .map_err(|e| err(e.to_string()))?;
+    c.configure_mesh()
+        .x_desc("t (s)")
+        .y_labels(9)
+        .y_label_formatter(&|v: &f64| match (v * 2.0).round() as i32 {
+            1 => "hits".into(),
+            3 => "body".into(),
+            5 => "right hand".into(),
+            7 => "left hand".into(),
+            _ => String::new(),
+        })
+        .disable_y_mesh()
+        .draw()
+        .map_err(|e| err(e.to_string()))?;
+    for (r, row) in w.rows.iter().enumerate() {
+        let y = 3.5 - r as f64;
+        let colours: &[RGBColor] = if r < 2 { &HAND_BEHAVIOUR_COLOURS } else { &BODY_BEHAVIOUR_COLOURS };
+        c.draw_series(row.iter().map(|(a, b, code)| {
+            let col = colours.get(*code as usize).copied().unwrap_or(BLACK);
+            Rectangle::new([(*a, y - 0.3), (b.max(*a + 1e-3), y + 0.3)], col.filled())
+        }))
+        .map_err(|e| err(e.to_string()))?;
+    }
+    for (hits, col, lo) in [(&w.hits_taken, RED, 0.5), (&w.hits_given, BLACK, 0.15)] {
+        c.draw_series(
+            hits.iter().map(|t| PathElement::new(vec![(*t, lo), (*t, lo + 0.35)], col.stroke_width(2))),
+        )
+        .map_err(|e| err(e.to_string()))?;
+    }
+    Ok(())
+}
+
 /// What `plot` wrote.
 pub struct PlotReport {
     pub recording: Recording,
+    /// The world's recording plotted with it, and the virtual human's hits taken and given.
+    pub world: Option<(PathBuf, [usize; 2])>,
     pub file: PathBuf,
     pub bucket_s: f64,
     pub hits: [usize; 2],
@@ -103,15 +206,26 @@ pub struct PlotReport {
 impl std::fmt::Display for PlotReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "plot {}", self.recording.path.display())?;
-        writeln!(
-            f,
-            "  wrote        {} (force and tension: peak per {:.0} ms; {} / {} hits, {} faults)",
-            self.file.display(),
-            self.bucket_s * 1e3,
-            self.hits[0],
-            self.hits[1],
-            self.faults
-        )?;
+        if self.recording.ticks == 0 {
+            writeln!(f, "  wrote        {}", self.file.display())?;
+        } else {
+            writeln!(
+                f,
+                "  wrote        {} (force and tension: peak per {:.0} ms; {} / {} hits, {} faults)",
+                self.file.display(),
+                self.bucket_s * 1e3,
+                self.hits[0],
+                self.hits[1],
+                self.faults
+            )?;
+        }
+        if let Some((p, [taken, given])) = &self.world {
+            writeln!(
+                f,
+                "  world        {}: behaviour timeline; hits taken {taken}, given {given}",
+                p.display()
+            )?;
+        }
         write!(f, "  recording    {}", self.recording.ends())
     }
 }
@@ -307,14 +421,46 @@ fn timeline(area: &Area<'_>, d: &Data, err: &impl Fn(String) -> RecordError) -> 
 }
 
 /// Writes the SVG of the recording at `path` to `out`.
+///
+/// A rig recording is plotted with its world's (`FILE.world.mcap` next to it) when there is one;
+/// a world recording alone gives the behaviour timeline only.
 pub fn plot(path: &Path, out: &Path) -> Result<PlotReport, RecordError> {
     let (rec, d) = gather(path)?;
+    let is_world = rec.meta("role") == "world";
+    let world_file = if is_world { path.to_path_buf() } else { crate::world::world_path(path) };
+    let world = if is_world || world_file.exists() { Some(gather_world(&world_file)?.1) } else { None };
+    let err = |m: String| RecordError::Write { path: out.to_path_buf(), why: m };
+    if is_world {
+        let w = world.unwrap_or_default();
+        if w.boxer_steps == 0 {
+            return Err(RecordError::Replay {
+                path: path.to_path_buf(),
+                why: "it holds no virtual human to plot (a scene without one)".into(),
+            });
+        }
+        {
+            let root = SVGBackend::new(out, (1200, 400)).into_drawing_area();
+            root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
+            behaviour(&root, &w, w.span, &err)?;
+            root.present().map_err(|e| err(e.to_string()))?;
+        }
+        let hits = [w.hits_taken.len(), w.hits_given.len()];
+        return Ok(PlotReport {
+            recording: rec,
+            file: out.to_path_buf(),
+            bucket_s: 0.0,
+            hits: [0, 0],
+            faults: 0,
+            world: Some((path.to_path_buf(), hits)),
+        });
+    }
     if rec.ticks == 0 {
         return Err(RecordError::Replay { path: path.to_path_buf(), why: "it holds no tick to plot".into() });
     }
-    let err = |m: String| RecordError::Write { path: out.to_path_buf(), why: m };
+    let world = world.filter(|w| w.boxer_steps > 0);
     {
-        let root = SVGBackend::new(out, (1200, 1400)).into_drawing_area();
+        let h = if world.is_some() { 1750 } else { 1400 };
+        let root = SVGBackend::new(out, (1200, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(e.to_string()))?;
         let (title, rest) = root.split_vertically(40);
         title
@@ -330,11 +476,14 @@ pub fn plot(path: &Path, out: &Path) -> Result<PlotReport, RecordError> {
                 (12, 10),
             )
             .map_err(|e| err(e.to_string()))?;
-        let areas = rest.split_evenly((4, 1));
+        let areas = rest.split_evenly((if world.is_some() { 5 } else { 4 }, 1));
         forces(&areas[0], &d, &err)?;
         tensions(&areas[1], &d, &err)?;
         lateness(&areas[2], &d, &err)?;
         timeline(&areas[3], &d, &err)?;
+        if let Some(w) = &world {
+            behaviour(&areas[4], w, d.span, &err)?;
+        }
         root.present().map_err(|e| err(e.to_string()))?;
     }
     Ok(PlotReport {
@@ -343,6 +492,7 @@ pub fn plot(path: &Path, out: &Path) -> Result<PlotReport, RecordError> {
         bucket_s: d.force[0].width_s(),
         hits: [d.hits[0].len(), d.hits[1].len()],
         faults: d.faults.len(),
+        world: world.map(|w| (world_file, [w.hits_taken.len(), w.hits_given.len()])),
     })
 }
 

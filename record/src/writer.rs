@@ -401,6 +401,11 @@ impl<W: Write + Seek> Recorder<W> {
     pub fn report(&self) -> &RecordingReport {
         &self.report
     }
+
+    /// Unix time (ns) the recording's times count from (loop-clock zero).
+    pub fn start_unix_ns(&self) -> u64 {
+        self.start_unix_ns
+    }
 }
 
 /// Records handed over per batch.

@@ -50,7 +50,16 @@ pub struct RigFile {
     /// ([`crate::boards`]). Optional: every part has a default.
     #[serde(default)]
     pub boards: crate::boards::BoardsFile,
+    /// The user's eye point (rig frame, m), for the live view's first-person camera; absent: the
+    /// built-in [`DEFAULT_EYE_M`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eye_m: Option<[f64; 3]>,
 }
+
+/// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
+/// rig origin (1.45 m above the floor with the default `rig_to_world`), 0.4 m behind the grips'
+/// home points.
+pub const DEFAULT_EYE_M: [f64; 3] = [0.0, 0.35, 0.4];
 
 /// The calibration record of a rig file (informational: the geometry itself is in `hands`).
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -204,6 +213,8 @@ pub struct Rig {
     pub overrides: Vec<String>,
     /// What the boards' commands mean and their ranges ([`crate::boards`]).
     pub boards: crate::boards::BoardScales,
+    /// The user's eye point (rig frame).
+    pub eye_m: DVec3,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -300,6 +311,15 @@ impl Rig {
                     "this build reads rig files of version {RIG_FILE_VERSION}, the file says {}",
                     f.version
                 ),
+            ));
+        }
+        let eye = f.eye_m.unwrap_or(DEFAULT_EYE_M);
+        if !eye.iter().all(|v| v.is_finite() && v.abs() < 10.0) {
+            return Err(bad(
+                "eye_m".into(),
+                "eye_m",
+                0,
+                "must be finite, within 10 m of the rig origin".into(),
             ));
         }
         for (i, o) in f.overrides.iter().enumerate() {
@@ -700,6 +720,7 @@ impl Rig {
             estimation: f.estimation,
             overrides: f.overrides,
             boards,
+            eye_m: DVec3::from_array(eye),
         })
     }
 

@@ -20,7 +20,7 @@ const BUCKETS: usize = 4 * 20 + 1;
 /// The rig's geometry in the world frame, for the world's viewers.
 pub fn rig_info(rig: &Rig) -> RigInfo {
     let xf = &rig.rig_to_world;
-    let mut info = RigInfo { period_s: rig.period_s, ..Default::default() };
+    let mut info = RigInfo { period_s: rig.period_s, eye_m: xf.point(rig.eye_m), ..Default::default() };
     for (h, hr) in rig.hands.iter().enumerate().take(HANDS) {
         for s in 0..STRINGS {
             info.anchors_m[h][s] = xf.point(hr.anchors_m[s]);
@@ -29,6 +29,7 @@ pub fn rig_info(rig: &Rig) -> RigInfo {
         info.tension_min_n[h] = hr.tension_min_n;
         info.tension_max_n[h] = hr.tension_max_n;
         info.force_limit_n[h] = hr.force_limit_n;
+        info.grip_radius_m[h] = hr.grip_radius_m;
     }
     info
 }

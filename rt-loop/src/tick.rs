@@ -800,6 +800,10 @@ impl TickCore {
                 }
                 sample.hands[hi] = h.last.state;
                 rec.hands[hi] = HandRecord { held: true, ..h.last.rec };
+                // The held output is what the strings apply this tick: the energy reserve books
+                // the hand's motion over a run of held ticks against it, not against the force
+                // commanded before the run.
+                h.passivity.commanded(h.last.rec.output_n);
                 continue;
             }
             let pose_ok = h.pose.valid && h.zero_m.is_some() && device_ok && !hold[hi];
@@ -1129,6 +1133,50 @@ mod tests {
         assert_ne!(out, pressing);
         let k = c.counters();
         assert_eq!((k.faults, k.late_replies, k.device_errors), (1, 2 * n as u64 - 2, 2 * n as u64 - 1));
+    }
+
+    /// After a run of held ticks the energy reserve books the hand's motion over them against the
+    /// held output (what the strings applied), not against the force commanded two ticks before
+    /// the run.
+    #[test]
+    fn motion_over_held_ticks_is_booked_against_the_held_output() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let at_w = c.rig().rig_to_world.point(home[0]);
+        let contact = |seq: u64, f: f64| {
+            let mut m = ContactModel { seq, ..Default::default() };
+            m.hand_contacts[0] = spidar_msg::HandContact {
+                force_n: DVec3::Z * f,
+                normal: DVec3::Z,
+                k_n_per_m: 0.0,
+                at_m: at_w,
+                source_w: 0.0,
+            };
+            m
+        };
+        let mut out = Output::default();
+        let still = counts_at(&c, home);
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(contact(1, 1.0)), &still, Ok(()));
+        }
+        let (_, before) = tick_io(&mut c, &mut out, Some(contact(1, 1.0)), &still, Ok(()));
+        let (_, last) = tick_io(&mut c, &mut out, Some(contact(2, 3.0)), &still, Ok(()));
+        let (f_before, f_held) = (before.hands[0].output_n, last.hands[0].output_n);
+        assert!(f_held.length() > 2.0 * f_before.length(), "{f_before} {f_held}");
+        let reserve0 = last.hands[0].reserve_j;
+        for _ in 0..3 {
+            let (_, r) = tick_io(&mut c, &mut out, Some(contact(2, 3.0)), &still, Err(TIMEOUT));
+            assert!(r.hands[0].held);
+        }
+        // The hand went 1 mm into the held force over the held ticks.
+        let d = -f_held.normalize() * 0.001;
+        let moved = counts_at(&c, [home[0] + d, home[1]]);
+        let (_, r) = tick_io(&mut c, &mut out, Some(contact(2, 3.0)), &moved, Ok(()));
+        assert!(!r.hands[0].held && r.hands[0].valid);
+        let booked = r.hands[0].reserve_j - reserve0;
+        let want = -f_held.dot(d);
+        assert!((booked - want).abs() < 0.1 * want, "booked {booked} J, the held force did {want} J");
     }
 
     /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.

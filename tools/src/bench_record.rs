@@ -74,7 +74,7 @@ pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordB
         let s = run_live(
             dev,
             rig,
-            WorldChoice::Thread(scene),
+            WorldChoice::Thread(spidar_world::host::Stepper::new(scene)),
             LiveOptions {
                 seconds: Some(block_s),
                 rt: o.rt.clone(),

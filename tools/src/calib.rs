@@ -1,15 +1,23 @@
 //! `spidar calib`: home, record, fit and verify the string geometry of a rig (see
 //! `spidar-calib`). Arguments are checked here; the work is in the calib crate.
 //!
+//! The rig file: `--rig`, else the user's own (`rigpath`), created from the built-in template by
+//! the first `calib home`; the shipped template itself is never written. Every summary names the
+//! rig file in use and every hint carries the same `--rig` (and device options).
+//!
 //! `--device sim` (the default) is the simulated rig, its grips moved by a scripted operator. Its
 //! true geometry is the built-in rig file perturbed by `--seed` (anchors off by centimetres,
 //! metres per count by up to 10 %, counters starting anywhere), whatever `--rig` says, so that
 //! home, record, fit --write and verify all run against the same simulated hardware while the rig
 //! file is being corrected. `--device uart|usb-simple|usb-sh4` opens the boards as `spidar run`
 //! does (`hardware::open_hardware`) and asks a person at the console to move the grips
-//! (`ConsoleOperator`: Enter, s, q); the outputs are switched off however the command ends.
+//! (`ConsoleOperator`: Enter, s, q).
+//!
+//! Whatever ends a command (done, q, a lost board, Ctrl-C / SIGTERM / SIGHUP, an error) the
+//! outputs are switched off, and `record` has saved every kept pose: `record --resume` continues.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand, ValueEnum};
@@ -18,15 +26,18 @@ use spidar_calib::console::ConsoleOperator;
 use spidar_calib::fit::{fit_hand, observations, FitOptions};
 use spidar_calib::jig::JigFile;
 use spidar_calib::model::HandGeometry;
+use spidar_calib::quality::QualityOptions;
 use spidar_calib::record::{Operator, Plan, RecordOptions, Recorder, Request, SimOperator};
 use spidar_calib::rigfile::{update_rig_file, Stamp};
-use spidar_calib::session::SessionFile;
+use spidar_calib::session::{PoseKind, SessionFile};
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
+use spidar_calib::CalibError;
 use spidar_device::sim::SimRig;
 use spidar_device::Device;
 use spidar_rt::Rig;
 
 use crate::hardware::{self, DeviceKind, HardwareArgs};
+use crate::rigpath::{self, shell_quote, RigSource};
 use crate::signals::Stop;
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
@@ -48,9 +59,10 @@ impl Hands {
 
 #[derive(Args, Clone, Debug)]
 pub struct DeviceArgs {
-    /// Rig file (RON) whose geometry is calibrated (and written with --write).
-    #[arg(long, default_value = "configs/rig-spidar-h.ron")]
-    pub rig: PathBuf,
+    /// Rig file (RON) to calibrate. Default: yours ($XDG_CONFIG_HOME/spidar/rig.ron or
+    /// ~/.config/spidar/rig.ron), created from the built-in template by the first `calib home`.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
     /// Which device to record from: the simulated rig (a scripted hand moves the grips) or the
     /// real boards (you move the grips and answer at the console: Enter, s, q).
     #[arg(long, value_enum, default_value = "sim")]
@@ -69,6 +81,13 @@ pub struct DeviceArgs {
     /// Simulated rig: encoder noise, standard deviation in counts (plus quantisation).
     #[arg(long, default_value_t = 0.5)]
     pub noise_counts: f64,
+    /// Give up on a pose whose grip does not keep still this long (it is asked again).
+    #[arg(long, default_value_t = 30.0)]
+    pub pose_timeout_s: f64,
+    /// The board counts as lost after this long without a good reply (late or bad replies before
+    /// that are retried and counted).
+    #[arg(long, default_value_t = 2.0)]
+    pub lost_after_s: f64,
     /// Simulated rig: print every request and progress line (a console operator always sees them).
     #[arg(long, short)]
     pub verbose: bool,
@@ -78,39 +97,44 @@ pub struct DeviceArgs {
 pub enum CalibCmd {
     /// Hold each grip at its home point and preset the lengths at counter zero from the
     /// configured anchors (what `spidar run` does at start); --write stores them and the time.
+    /// The first one creates your rig file from the built-in template.
     Home {
         #[command(flatten)]
         dev: DeviceArgs,
         #[arg(long, value_enum, default_value = "both")]
         hands: Hands,
-        /// Write the lengths into the rig file (atomically, old file kept as <file>.bak).
+        /// Write the lengths into the rig file (atomically, the previous version kept as a dated backup).
         #[arg(long)]
         write: bool,
     },
-    /// Guided recording: home pose, jig points, free poses; saves a session file.
+    /// Guided recording: home pose, jig points, free poses; the session file is saved after every pose.
     Record {
         #[command(flatten)]
         dev: DeviceArgs,
-        #[arg(long, value_enum, default_value = "both")]
+        #[arg(long, value_enum, default_value = "both", conflicts_with = "resume")]
         hands: Hands,
         /// Jig file with known points (fit_points are recorded). Without it: free poses only.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "resume")]
         jig: Option<PathBuf>,
-        /// Free poses per hand.
-        #[arg(long, default_value_t = 40)]
+        /// Free poses per hand (without a jig the fit needs at least 17).
+        #[arg(long, default_value_t = 40, conflicts_with = "resume")]
         free: usize,
         /// Half size of the box around each home point that free-pose suggestions fill.
-        #[arg(long, default_value_t = 0.3)]
+        #[arg(long, default_value_t = 0.3, conflicts_with = "resume")]
         free_half_extent_m: f64,
-        /// Session file to write.
+        /// Session file to write (an existing one is kept as a dated backup, unless --resume).
         #[arg(long, default_value = "calib-session.ron")]
         out: PathBuf,
+        /// Continue the session in --out where it stopped (its plan: hands, jig, free poses).
+        #[arg(long)]
+        resume: bool,
     },
     /// Fit the geometry to a session; report, plots, optionally write the rig file.
     Fit {
-        /// Rig file with the configured geometry (start values; written with --write).
-        #[arg(long, default_value = "configs/rig-spidar-h.ron")]
-        rig: PathBuf,
+        /// Rig file with the configured geometry (start values; written with --write). Default:
+        /// yours (see `calib home`).
+        #[arg(long)]
+        rig: Option<PathBuf>,
         #[arg(long, default_value = "calib-session.ron")]
         session: PathBuf,
         /// Keep the configured metres per count instead of fitting them.
@@ -119,10 +143,20 @@ pub enum CalibCmd {
         /// Folder for the SVG plots (default: <session>.plots).
         #[arg(long)]
         plots: Option<PathBuf>,
-        /// Write the fitted geometry into the rig file (atomically, old file kept as <file>.bak).
+        /// The residual may be this many times the noise measured at rest before the data count
+        /// as bad (then the cause is looked for and the fit is not written without --force).
+        #[arg(long, default_value_t = 3.0)]
+        max_noise_ratio: f64,
+        /// How well the grip sits on a jig point (standard deviation per axis), part of the
+        /// reported uncertainty.
+        #[arg(long, default_value_t = 0.005e-3)]
+        jig_tolerance_m: f64,
+        /// Write the fitted geometry into the rig file (atomically, the previous version kept as
+        /// a dated backup).
         #[arg(long)]
         write: bool,
-        /// Write even if some parameter is weakly determined or the frame is not observable.
+        /// Write even if the data are bad, some parameter is weakly determined or the frame is
+        /// not observable.
         #[arg(long)]
         force: bool,
     },
@@ -134,35 +168,31 @@ pub enum CalibCmd {
         hands: Hands,
         #[arg(long, default_value = "configs/jig-spidar-h.ron")]
         jig: PathBuf,
-        /// Fail (exit status 1) when any check point is off by more than this.
+        /// Fail (exit status 1) when any check point is off by more than this (0 .. 0.1 m).
         #[arg(long, default_value_t = 0.001)]
         max_error_m: f64,
     },
 }
 
-fn check_device_args(d: &DeviceArgs) -> anyhow::Result<()> {
-    if !(d.sim_anchor_error_m.is_finite() && (0.0..=0.5).contains(&d.sim_anchor_error_m)) {
-        bail!("--sim-anchor-error-m must be in 0 .. 0.5 m");
-    }
-    if !(d.sim_mpc_error.is_finite() && (0.0..0.5).contains(&d.sim_mpc_error)) {
-        bail!("--sim-mpc-error must be in 0 .. 0.5");
-    }
-    if !(d.noise_counts.is_finite() && d.noise_counts >= 0.0) {
-        bail!("--noise-counts must be >= 0");
+/// A number option in `lo ..= hi`, or a clear error.
+fn check_range(name: &str, v: f64, lo: f64, hi: f64) -> anyhow::Result<()> {
+    if !(v.is_finite() && (lo..=hi).contains(&v)) {
+        bail!("{name} must be a number in {lo} .. {hi} (got {v})");
     }
     Ok(())
 }
 
-fn load_rig(path: &Path) -> anyhow::Result<(Rig, String)> {
-    let text = spidar_config::read_capped(path, spidar_config::MAX_FILE_BYTES)
-        .with_context(|| format!("reading the rig file {} (give one with --rig)", path.display()))?;
-    let rig = Rig::from_str(&text, &path.display().to_string())?;
-    Ok((rig, text))
+fn check_device_args(d: &DeviceArgs) -> anyhow::Result<()> {
+    check_range("--sim-anchor-error-m", d.sim_anchor_error_m, 0.0, 0.5)?;
+    check_range("--sim-mpc-error", d.sim_mpc_error, 0.0, 0.49)?;
+    check_range("--noise-counts", d.noise_counts, 0.0, 100.0)?;
+    check_range("--pose-timeout-s", d.pose_timeout_s, 3.0, 3600.0)?;
+    check_range("--lost-after-s", d.lost_after_s, 0.01, 600.0)?;
+    Ok(())
 }
 
 /// The simulated device: the built-in rig perturbed by the seed (see the module doc).
 fn sim_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(SimRig, String)> {
-    check_device_args(d)?;
     let base = Rig::default_rig();
     let opts = SimTruthOptions {
         seed: d.seed,
@@ -194,7 +224,8 @@ enum Opened {
 fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
     match d.hw.choice(d.device, rig)? {
         None => {
-            let (dev, name) = sim_device(d, rig)?;
+            let (mut dev, name) = sim_device(d, rig)?;
+            dev.open()?;
             Ok((Opened::Sim(Box::new(dev)), name))
         }
         Some(choice) => {
@@ -206,76 +237,155 @@ fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
     }
 }
 
-/// Recording on a board is paced by the wall clock (one exchange per tick period), which also
-/// keeps the strings at minimum tension (the boards hold their last command: no watchdog).
-/// A stop signal (SIGINT, SIGTERM, SIGHUP) aborts either kind with the outputs switched off.
-fn board_record_options() -> anyhow::Result<RecordOptions> {
-    Ok(RecordOptions { pace: true, ..sim_record_options()? })
+/// Recording options: a board is paced by the wall clock (one exchange per tick period).
+fn record_options(d: &DeviceArgs, board: bool) -> RecordOptions {
+    RecordOptions {
+        pace: board,
+        timeout_s: d.pose_timeout_s,
+        lost_after_s: d.lost_after_s,
+        ..RecordOptions::default()
+    }
 }
 
-/// The simulated rig's recording: unpaced, stopped by a stop signal like a board's.
-fn sim_record_options() -> anyhow::Result<RecordOptions> {
-    Ok(RecordOptions { stop: Some(Stop::install()?.counter()), ..RecordOptions::default() })
+/// The device options of a hint (empty for the simulated rig with its defaults).
+fn device_hint(d: &DeviceArgs) -> String {
+    let mut s = String::new();
+    match d.device {
+        DeviceKind::Sim => {
+            if d.seed != 7 {
+                s += &format!(" --seed {}", d.seed);
+            }
+            if d.noise_counts != 0.5 {
+                s += &format!(" --noise-counts {}", d.noise_counts);
+            }
+        }
+        DeviceKind::Uart => s += " --device uart",
+        DeviceKind::UsbSimple => s += " --device usb-simple",
+        DeviceKind::UsbSh4 => s += " --device usb-sh4",
+    }
+    if d.device != DeviceKind::Sim {
+        if let Some(p) = &d.hw.port {
+            s += &format!(" --port {}", shell_quote(Path::new(p)));
+        }
+        if let Some(sw) = d.hw.switch {
+            s += &format!(" --switch {sw}");
+        }
+        if let Some(v) = d.hw.digits_per_volt {
+            s += &format!(" --digits-per-volt {v}");
+        }
+        if d.hw.reply_timeout_us != 800 {
+            s += &format!(" --reply-timeout-us {}", d.hw.reply_timeout_us);
+        }
+    }
+    s
 }
 
-/// The person at the console, told how it works.
-fn console_operator(rig: &Rig) -> anyhow::Result<ConsoleOperator> {
-    let mut op = ConsoleOperator::stdio(rig)?.with_stop(Stop::install()?.counter());
-    op.introduce();
-    Ok(op)
+/// `--rig <file>` for a hint (empty when there is no file: the built-in template).
+fn rig_hint(src: &RigSource) -> String {
+    src.path().map_or(String::new(), |p| format!(" --rig {}", shell_quote(p)))
+}
+
+/// The stop signals (SIGINT, SIGTERM, SIGHUP), polled by the recorder every tick.
+fn stop_check() -> anyhow::Result<spidar_calib::link::StopCheck> {
+    let stop = Stop::install()?;
+    Ok(Arc::new(move || stop.requested()))
 }
 
 /// Runs `body` on an activated recorder and switches the outputs off afterwards, also when
-/// `body` failed or the operator aborted.
+/// `body` failed, the operator aborted, a stop signal came or the board was lost.
 fn with_recorder<D: Device, O: Operator<D>, T>(
     mut rec: Recorder<'_, D>,
     op: &mut O,
-    body: impl FnOnce(&mut Recorder<'_, D>, &mut O) -> anyhow::Result<T>,
-) -> anyhow::Result<T> {
+    body: impl FnOnce(&mut Recorder<'_, D>, &mut O) -> Result<T, CalibError>,
+) -> anyhow::Result<(T, String)> {
+    rec.set_stop(stop_check()?);
     let r = body(&mut rec, op);
+    let stats = format!("board link: {}", rec.link_stats());
     let off = rec.finish();
-    let t = r?;
-    off.context("switching the outputs off")?;
-    Ok(t)
+    match (r, off) {
+        (Ok(t), Ok(_)) => Ok((t, stats)),
+        (Ok(_), Err(e)) => Err(anyhow::Error::new(e).context("switching the outputs off")),
+        (Err(e), off) => {
+            eprintln!("{stats}");
+            let note = match off {
+                Ok(_) => "outputs switched off".to_string(),
+                Err(o) => format!("switching the outputs off failed ({o}): power the amplifiers down"),
+            };
+            Err(anyhow::Error::new(e).context(note))
+        }
+    }
+}
+
+/// Runs `body` (a closure of `rec`, `op`) with the recorder and operator the opened device needs:
+/// the scripted hand on the simulated rig, the person at the console on a board. (A macro: the
+/// body is generic over both, and only one arm's closure borrows what the body uses.)
+macro_rules! drive {
+    ($d:expr, $rig:expr, $dev:expr, |$rec:ident, $op:ident| $body:expr) => {
+        match $dev {
+            Opened::Sim(dev) => with_recorder(
+                Recorder::opened(*dev, $rig, record_options($d, false))?,
+                &mut SimOperator::new($d.verbose),
+                |$rec, $op| $body,
+            ),
+            Opened::Board(dev) => {
+                let mut op = ConsoleOperator::stdio($rig)?;
+                op.introduce();
+                with_recorder(Recorder::opened(dev, $rig, record_options($d, true))?, &mut op, |$rec, $op| {
+                    $body
+                })
+            }
+        }
+    };
 }
 
 pub fn run(cmd: CalibCmd) -> anyhow::Result<()> {
     match cmd {
         CalibCmd::Home { dev, hands, write } => home(&dev, hands, write),
-        CalibCmd::Record { dev, hands, jig, free, free_half_extent_m, out } => {
-            record(&dev, hands, jig, free, free_half_extent_m, &out)
+        CalibCmd::Record { dev, hands, jig, free, free_half_extent_m, out, resume } => {
+            record(&dev, hands, jig, free, free_half_extent_m, &out, resume)
         }
-        CalibCmd::Fit { rig, session, fixed_mpc, plots, write, force } => {
-            fit(&rig, &session, fixed_mpc, plots, write, force)
+        CalibCmd::Fit { rig, session, fixed_mpc, plots, max_noise_ratio, jig_tolerance_m, write, force } => {
+            check_range("--max-noise-ratio", max_noise_ratio, 1.0, 1e6)?;
+            check_range("--jig-tolerance-m", jig_tolerance_m, 0.0, 0.01)?;
+            let opts = FitOptions {
+                fit_metres_per_count: !fixed_mpc,
+                jig_tolerance_m,
+                quality: QualityOptions { max_noise_ratio, ..QualityOptions::default() },
+                ..FitOptions::default()
+            };
+            fit(rig.as_deref(), &session, &opts, plots, write, force)
         }
         CalibCmd::Verify { dev, hands, jig, max_error_m } => verify(&dev, hands, &jig, max_error_m),
     }
 }
 
 fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
-    let (rig, text) = load_rig(&d.rig)?;
+    check_device_args(d)?;
+    let src = rigpath::calibration_target(d.rig.as_deref(), true)?;
+    let (rig, text) = src.load()?;
     let (dev, name) = open_device(d, &rig)?;
-    eprintln!("spidar calib home: {name}");
-    let geometry = match dev {
-        Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, sim_record_options()?)?,
-            &mut SimOperator::new(d.verbose),
-            |rec, op| home_hands(rec, op, &rig, hands),
-        )?,
-        Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options()?)?,
-            &mut console_operator(&rig)?,
-            |rec, op| home_hands(rec, op, &rig, hands),
-        )?,
-    };
+    eprintln!("spidar calib home: {name}; rig file {}", src.describe());
+    let (geometry, stats) = drive!(d, &rig, dev, |rec, op| home_hands(rec, op, &rig, hands))?;
+    eprintln!("{stats}");
+    let path = src.path().context("homing needs a rig file")?;
     if write {
         let stamp = Stamp { homed_utc: spidar_calib::utc_now(), ..Stamp::default() };
-        let bak = update_rig_file(&d.rig, &text, &geometry, &stamp)?;
-        println!("wrote {} (previous file kept as {})", d.rig.display(), bak.display());
+        let w = update_rig_file(path, &text, &geometry, &stamp)?;
+        println!("wrote {}{}", w.target.display(), backup_note(&w.backup));
+        println!("next: spidar calib verify{}{}", rig_hint(&src), device_hint(d));
     } else {
-        println!("(not written: add --write to store these lengths in {})", d.rig.display());
+        println!(
+            "(not written: add --write to store these lengths in {}: spidar calib home{}{} --write)",
+            path.display(),
+            rig_hint(&src),
+            device_hint(d)
+        );
     }
     Ok(())
+}
+
+fn backup_note(b: &Option<PathBuf>) -> String {
+    b.as_ref().map_or(String::new(), |b| format!(" (previous version kept as {})", b.display()))
 }
 
 fn home_hands<D: Device, O: Operator<D>>(
@@ -283,7 +393,7 @@ fn home_hands<D: Device, O: Operator<D>>(
     op: &mut O,
     rig: &Rig,
     hands: Hands,
-) -> anyhow::Result<[Option<HandGeometry>; 2]> {
+) -> Result<[Option<HandGeometry>; 2], CalibError> {
     let mut geometry = [None, None];
     for h in hands.list() {
         let home = rig.hands[h].home_m;
@@ -300,6 +410,52 @@ fn home_hands<D: Device, O: Operator<D>>(
     Ok(geometry)
 }
 
+/// The plan of a new session, checked (pose counts the fit needs, hands, box).
+fn new_plan(hands: Hands, jig: Option<&Path>, free: usize, half: f64) -> anyhow::Result<Plan> {
+    check_range("--free-half-extent-m", half, 0.05, 1.0)?;
+    let jig = jig.map(JigFile::load).transpose()?;
+    let plan = Plan { hands: hands.list(), jig, free_per_hand: free, free_half_extent_m: DVec3::splat(half) };
+    plan.check()?;
+    Ok(plan)
+}
+
+/// The plan of a session to resume, with its jig file (which must still hold the points recorded).
+fn resumed_plan(session: &SessionFile, out: &Path) -> anyhow::Result<Plan> {
+    let Some(p) = &session.plan else {
+        bail!("{}: a version 1 session has no plan and cannot be resumed: record a new one", out.display())
+    };
+    let jig = match &p.jig_file {
+        Some(f) => {
+            let jig = JigFile::load(Path::new(f)).with_context(|| format!("the session's jig file {f}"))?;
+            for pose in &session.poses {
+                if let PoseKind::Jig { label, at_m } = &pose.kind {
+                    let same = jig
+                        .fit_points
+                        .iter()
+                        .any(|q| q.hand == pose.hand && &q.label == label && q.at_m == *at_m);
+                    if !same {
+                        bail!(
+                            "the jig file {f} no longer has point {label} of hand {} at {at_m:?} as recorded: \
+                             restore it, or record a new session",
+                            pose.hand
+                        );
+                    }
+                }
+            }
+            Some(jig)
+        }
+        None => None,
+    };
+    let plan = Plan {
+        hands: p.hands.clone(),
+        jig,
+        free_per_hand: p.free_per_hand,
+        free_half_extent_m: DVec3::splat(p.free_half_extent_m),
+    };
+    plan.check()?;
+    Ok(plan)
+}
+
 fn record(
     d: &DeviceArgs,
     hands: Hands,
@@ -307,68 +463,122 @@ fn record(
     free: usize,
     half: f64,
     out: &Path,
+    resume: bool,
 ) -> anyhow::Result<()> {
-    if !(half.is_finite() && (0.05..=1.0).contains(&half)) {
-        bail!("--free-half-extent-m must be in 0.05 .. 1 m");
-    }
-    let (rig, _) = load_rig(&d.rig)?;
-    let jig = jig.map(|p| JigFile::load(&p)).transpose()?;
-    let plan = Plan { hands: hands.list(), jig, free_per_hand: free, free_half_extent_m: DVec3::splat(half) };
-    let (dev, name) = open_device(d, &rig)?;
-    eprintln!("spidar calib record: {name}");
-    let t0 = std::time::Instant::now();
-    let (session, warnings) = match dev {
-        Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, sim_record_options()?)?,
-            &mut SimOperator::new(d.verbose),
-            |rec, op| {
-                let session = rec.record_plan(op, &plan, &name)?;
-                Ok((session, rec.warnings().to_vec()))
-            },
-        )?,
-        Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options()?)?,
-            &mut console_operator(&rig)?,
-            |rec, op| {
-                let session = rec.record_plan(op, &plan, &name)?;
-                Ok((session, rec.warnings().to_vec()))
-            },
-        )?,
+    check_device_args(d)?;
+    let src = RigSource::resolve(d.rig.as_deref());
+    let (rig, _) = src.load()?;
+    // Everything that can be checked is checked before the first pose.
+    spidar_calib::safefile::check_writable(out)?;
+    let (mut session, plan) = if resume {
+        let session = SessionFile::load(out)
+            .with_context(|| format!("resuming {} (start a new session without --resume)", out.display()))?;
+        if session.complete {
+            bail!(
+                "{} is complete already: fit it with spidar calib fit{} --session {}",
+                out.display(),
+                rig_hint(&src),
+                shell_quote(out)
+            );
+        }
+        if session.rig_name != rig.name {
+            bail!(
+                "{} was recorded with the rig '{}', the rig file {} is '{}': give the same --rig",
+                out.display(),
+                session.rig_name,
+                src.describe(),
+                rig.name
+            );
+        }
+        let plan = resumed_plan(&session, out)?;
+        (session, plan)
+    } else {
+        let plan = new_plan(hands, jig.as_deref(), free, half)?;
+        if let Some(b) = spidar_calib::safefile::keep_dated_copy(out)? {
+            eprintln!("{} exists: kept as {}", out.display(), b.display());
+        }
+        let rig_file = src.path().map_or("(built in)".to_string(), |p| p.display().to_string());
+        let sp = plan.session_plan(jig.as_ref().map(|j| j.display().to_string()));
+        (SessionFile::new(&rig.name, &rig_file, "", sp), plan)
     };
+    let (dev, name) = open_device(d, &rig)?;
+    if session.device.is_empty() {
+        session.device = name.clone();
+    }
+    eprintln!("spidar calib record: {name}; rig file {}; session {}", src.describe(), out.display());
+    let t0 = std::time::Instant::now();
+    let before = session.poses.len();
+    let mut save = |s: &SessionFile| s.save(out);
+    let result = drive!(d, &rig, dev, |rec, op| {
+        rec.record_plan(op, &plan, &mut session, &mut save).map(|_| rec.warnings().to_vec())
+    });
+    let resume_hint = format!(
+        "spidar calib record{}{} --out {} --resume",
+        rig_hint(&src),
+        device_hint(d),
+        shell_quote(out)
+    );
+    let (warnings, stats) = match result {
+        Ok(w) => w,
+        Err(e) => {
+            let total: usize = plan.hands.iter().map(|&h| session.poses_of(h).count()).sum();
+            eprintln!(
+                "{} poses kept in {} ({} this time); continue with: {resume_hint}",
+                total,
+                out.display(),
+                total - before
+            );
+            return Err(e);
+        }
+    };
+    session.complete = true;
     session.save(out)?;
-    for h in hands.list() {
-        println!("hand {h}: {} poses recorded", session.poses_of(h).count());
+    for h in &plan.hands {
+        println!("hand {h}: {} poses recorded", session.poses_of(*h).count());
     }
     for w in &warnings {
         println!("warning: {w}");
     }
-    println!(
-        "saved {} ({:.1} s); next: spidar calib fit --session {}",
-        out.display(),
-        t0.elapsed().as_secs_f64(),
-        out.display()
-    );
+    println!("{stats}");
+    println!("saved {} ({:.1} s); rig file {}", out.display(), t0.elapsed().as_secs_f64(), src.describe());
+    println!("next: spidar calib fit{} --session {} --write", rig_hint(&src), shell_quote(out));
     Ok(())
 }
 
 fn fit(
-    rig_path: &Path,
+    rig: Option<&Path>,
     session_path: &Path,
-    fixed_mpc: bool,
+    opts: &FitOptions,
     plots: Option<PathBuf>,
     write: bool,
     force: bool,
 ) -> anyhow::Result<()> {
-    let (rig, text) = load_rig(rig_path)?;
+    let src = if write { rigpath::calibration_target(rig, true)? } else { RigSource::resolve(rig) };
+    let (rig, text) = src.load()?;
     let session = SessionFile::load(session_path)?;
+    println!("spidar calib fit: session {}; rig file {}", session_path.display(), src.describe());
+    if session.rig_name != rig.name {
+        eprintln!(
+            "warning: the session was recorded with the rig '{}', this rig file is '{}'",
+            session.rig_name, rig.name
+        );
+    }
+    if !session.complete {
+        println!(
+            "note: the session is incomplete ({} poses); fitting what is there (continue it with spidar calib \
+             record{} --out {} --resume)",
+            session.poses.len(),
+            rig_hint(&src),
+            shell_quote(session_path)
+        );
+    }
     let plots = plots.unwrap_or_else(|| {
         let mut p = session_path.as_os_str().to_owned();
         p.push(".plots");
         PathBuf::from(p)
     });
-    let opts = FitOptions { fit_metres_per_count: !fixed_mpc, ..FitOptions::default() };
     let mut geometry = [None, None];
-    let mut trustworthy = true;
+    let mut refusals: Vec<String> = Vec::new();
     let mut rms = 0.0f64;
     for (h, slot) in geometry.iter_mut().enumerate() {
         let obs = observations(&session, h);
@@ -376,7 +586,7 @@ fn fit(
             continue;
         }
         let t0 = std::time::Instant::now();
-        let fit = fit_hand(h, &rig.hands[h], &obs, &opts)?;
+        let fit = fit_hand(h, &rig.hands[h], &obs, opts)?;
         let dt = t0.elapsed();
         print!("{fit}");
         println!("  fit took {:.0} ms", dt.as_secs_f64() * 1e3);
@@ -384,72 +594,84 @@ fn fit(
         for f in files {
             println!("  plot: {}", f.display());
         }
-        trustworthy &= fit.is_trustworthy() && fit.gauge_dof == 0;
+        refusals.extend(fit.quality_lines());
+        // (Weak parameters through bad data follow from the data: the quality line says what to do.)
+        let weak = fit.params.iter().any(|p| p.status == spidar_calib::fit::Observability::Weak);
+        if weak && fit.quality.clean() {
+            refusals.push(format!(
+                "hand {h}: some parameter is weakly determined (marked WEAK): record more poses"
+            ));
+        }
+        if fit.gauge_dof > 0 {
+            refusals
+                .push(format!("hand {h}: the rig frame is not observable from free poses alone: add a jig"));
+        }
         rms = rms.max(fit.rms_m);
         *slot = Some(fit.geometry);
     }
     if geometry.iter().all(Option::is_none) {
         bail!("the session {} has no poses", session_path.display());
     }
-    if write {
-        if !trustworthy && !force {
-            bail!(
-                "not written: some parameter is weakly determined or the frame is not observable (see above); \
-                 record more data as advised, or add --force to write anyway"
-            );
-        }
-        let stamp = Stamp {
-            fitted_utc: spidar_calib::utc_now(),
-            fit_residual_rms_m: Some(rms),
-            session: session_path.display().to_string(),
-            ..Stamp::default()
-        };
-        let bak = update_rig_file(rig_path, &text, &geometry, &stamp)?;
+    let Some(path) = src.path().filter(|_| write) else {
         println!(
-            "wrote the fitted geometry into {} (previous file kept as {})",
-            rig_path.display(),
-            bak.display()
+            "(rig file not changed: add --write to store the fitted geometry: spidar calib fit{} --session {} --write)",
+            rig_hint(&src),
+            shell_quote(session_path)
         );
-    } else {
-        println!(
-            "(rig file not changed: add --write to store the fitted geometry in {})",
-            rig_path.display()
+        return Ok(());
+    };
+    if !refusals.is_empty() && !force {
+        bail!(
+            "not written to {}:\n  {}\nrecord again as said, or add --force to write anyway",
+            path.display(),
+            refusals.join("\n  ")
         );
     }
+    let stamp = Stamp {
+        fitted_utc: spidar_calib::utc_now(),
+        fit_residual_rms_m: Some(rms),
+        session: session_path.display().to_string(),
+        ..Stamp::default()
+    };
+    let w = update_rig_file(path, &text, &geometry, &stamp)?;
+    println!("wrote the fitted geometry into {}{}", w.target.display(), backup_note(&w.backup));
+    println!("next: spidar calib verify{}", rig_hint(&src));
     Ok(())
 }
 
 fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow::Result<()> {
-    let (rig, _) = load_rig(&d.rig)?;
+    check_device_args(d)?;
+    check_range("--max-error-m", max_error_m, 1e-6, 0.1)?;
+    let src = RigSource::resolve(d.rig.as_deref());
+    let (rig, _) = src.load()?;
     let jig = JigFile::load(jig)?;
     let geometry: [Option<HandGeometry>; 2] = std::array::from_fn(|h| HandGeometry::from_rig(&rig.hands[h]));
     let geometry = match geometry {
         [Some(a), Some(b)] => [a, b],
         _ => bail!(
-            "the rig file {} has no length_at_zero_m: run `spidar calib home --write` or `spidar calib fit --write` first",
-            d.rig.display()
+            "the rig file {} has no length_at_zero_m: run `spidar calib home{} --write` or `spidar calib fit{} --write` first",
+            src.describe(),
+            rig_hint(&src),
+            rig_hint(&src)
         ),
     };
     let (dev, name) = open_device(d, &rig)?;
-    eprintln!("spidar calib verify: {name}");
-    let report = match dev {
-        Opened::Sim(dev) => with_recorder(
-            Recorder::new(*dev, &rig, sim_record_options()?)?,
-            &mut SimOperator::new(d.verbose),
-            |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
-        )?,
-        Opened::Board(dev) => with_recorder(
-            Recorder::opened(dev, &rig, board_record_options()?)?,
-            &mut console_operator(&rig)?,
-            |rec, op| Ok(spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &hands.list())?),
-        )?,
-    };
+    eprintln!("spidar calib verify: {name}; rig file {}", src.describe());
+    let list = hands.list();
+    let (report, stats) =
+        drive!(d, &rig, dev, |rec, op| spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &list))?;
     println!("{report}");
+    eprintln!("{stats}");
+    println!("rig file {}", src.describe());
     if report.max_error_m() > max_error_m {
         bail!(
-            "a check point is off by {:.3} mm (limit {:.3} mm): calibrate (spidar calib record, fit --write) and verify again",
+            "a check point is off by {:.3} mm (limit {:.3} mm): calibrate (spidar calib record{}{} --jig ..., then \
+             spidar calib fit{} --write) and verify again",
             report.max_error_m() * 1e3,
-            max_error_m * 1e3
+            max_error_m * 1e3,
+            rig_hint(&src),
+            device_hint(d),
+            rig_hint(&src)
         );
     }
     Ok(())

@@ -70,6 +70,8 @@ pub struct ChildWorld {
     /// How each world that ended on its own ended.
     pub exits: Vec<String>,
     gave_up: bool,
+    /// Lines already read (while the world started), given to `show` at the next read.
+    held: Vec<String>,
 }
 
 /// Says how a process ended.
@@ -102,6 +104,7 @@ impl ChildWorld {
             report: None,
             exits: Vec::new(),
             gave_up: false,
+            held: Vec::new(),
         };
         w.spawn()?;
         Ok(w)
@@ -174,6 +177,9 @@ impl ChildWorld {
 
     /// Sorts the world's new output lines: `@status` and `@report` are kept, the rest go to `show`.
     pub fn read_lines(&mut self, show: &mut dyn FnMut(String)) {
+        for line in self.held.drain(..) {
+            show(line);
+        }
         for line in self.lines.try_iter() {
             if let Some(rest) = line.strip_prefix(STATUS_PREFIX) {
                 let (steps, text) = rest.split_once('\t').unwrap_or((rest, ""));
@@ -184,6 +190,11 @@ impl ChildWorld {
                 show(line.strip_prefix("spidar world: ").unwrap_or(&line).to_string());
             }
         }
+    }
+
+    /// Lines read elsewhere (already sorted by `read_lines`), to go to `show` at the next read.
+    pub fn hold_lines(&mut self, lines: Vec<String>) {
+        self.held.extend(lines);
     }
 
     /// If the world has ended: how (kept in `exits`), after its last lines went to `show`.

@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod bench_record;
+pub mod bench_view;
 pub mod calib;
 pub mod child_world;
 pub mod crowd_run;
@@ -13,6 +14,7 @@ pub mod eval_poses;
 pub mod hardware;
 pub mod recording;
 pub mod report;
+pub mod rigpath;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

@@ -216,7 +216,8 @@ struct EmulateArgs {
 
 #[derive(clap::Args)]
 struct RigArgs {
-    /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+    /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron, made by `spidar calib home`) if
+    /// it exists, else the built-in configs/rig-spidar-h.ron.
     #[arg(long)]
     rig: Option<PathBuf>,
     /// Do not ask for SCHED_FIFO and locked memory.
@@ -297,6 +298,9 @@ struct RunArgs {
     /// No live status line.
     #[arg(long, short)]
     quiet: bool,
+    /// The live view of the world (served by the world: the child process or the thread).
+    #[command(flatten)]
+    view: spidar_tools::world_process::ViewArgs,
     /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
     /// contact model, the events, and the files that made the session. See docs/recording.md.
     #[arg(long, value_name = "FILE.mcap")]
@@ -308,6 +312,32 @@ struct RunArgs {
 
 #[derive(Subcommand)]
 enum BenchCmd {
+    /// The world step's time with the live view off, on without viewers and on with viewers
+    /// reading every frame, in alternating blocks; and the viewers' frame rate.
+    View {
+        /// Rig file (RON). Default: the built-in configs/rig-spidar-h.ron.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// `boxing` (the box script), `boxing-passive` (no predictions: the step's time is steady)
+        /// or `crowd` (the spar script).
+        #[arg(long, default_value = "boxing")]
+        scene: String,
+        /// Characters in the crowd scene (at most 100000).
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(0..=100_000))]
+        characters: u32,
+        /// Seconds of each block (at most 3600).
+        #[arg(long, default_value_t = 2.0, value_parser = bench_seconds)]
+        seconds: f64,
+        /// Rounds of the three blocks.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+        rounds: u32,
+        /// Viewers in the viewers' blocks (at most 64).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=64))]
+        viewers: u32,
+        /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
+        fifo: Option<u8>,
+    },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
         #[command(flatten)]
@@ -374,14 +404,7 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    Ok(match &args.rig {
-        Some(p) => Rig::load_with_overrides(p, &args.overrides)?,
-        None => Rig::from_str_with_overrides(
-            spidar_rt::rig::DEFAULT_RIG_RON,
-            spidar_rt::rig::DEFAULT_RIG_NAME,
-            &args.overrides,
-        )?,
-    })
+    spidar_tools::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
 }
 
 fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
@@ -565,11 +588,28 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                     rt: rt_options(&rig)?,
                     scene,
                     echoes,
-                    world: ChildWorldSpec::this_executable("walls", 0)?,
+                    world: ChildWorldSpec {
+                        extra: vec!["--no-view".into()],
+                        ..ChildWorldSpec::this_executable("walls", 0)?
+                    },
                     world_priority,
                 },
             )?;
             outln!("{rep}");
+            Ok(0)
+        }
+        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
+            use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
+            let (characters, viewers) = (characters as usize, viewers as usize);
+            let r = match &rig {
+                Some(p) => Rig::load(p)?,
+                None => Rig::default_rig(),
+            };
+            errln!(
+                "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+            );
+            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
+            outln!("{}", bench_view(&r, &o)?);
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
@@ -772,6 +812,8 @@ fn stopped_eval(stop: &Stop, done: usize, total: usize, what: &str) {
 fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     check_run_options(&a, m)?;
     let rig = load_rig(&a.rig)?;
+    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
+    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     let choice = a.hw.choice(a.device, &rig)?;
     // Real boards hold their last command if this process dies: a supervisor watches over it.
     let supervised = supervisor::attached();
@@ -787,20 +829,39 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
-    let (world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
+    let (mut world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
         (true, _) | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
-            (WorldChoice::Thread(scene), name)
+            // The live view runs on the real clock only.
+            let view = if a.virtual_clock {
+                if a.view.view.is_some() {
+                    errln!("spidar: no live view with --virtual (it runs faster than real time)");
+                }
+                None
+            } else {
+                spidar_tools::world_process::start_view(&a.view, &*scene)?
+            };
+            let mut stepper = spidar_world::host::Stepper::new(scene);
+            if let Some(v) = view {
+                stepper.add_observer(Box::new(v));
+            }
+            (WorldChoice::Thread(stepper), name)
         }
         (false, "child") => {
             let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
             if let Some(p) = a.world_priority {
                 spec.extra.extend(["--priority".into(), p.to_string().into()]);
             }
+            spec.extra.extend(a.view.child_args());
             (WorldChoice::Child(spec), scene_arg.clone())
         }
         (false, addr) => {
+            if a.view.view.is_some() || a.view.no_view {
+                errln!(
+                    "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
+                );
+            }
             let at = spidar_link::Endpoint::parse(addr)
                 .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?;
             let name = a.scene.clone().unwrap_or_else(|| "as the world runs it".into());
@@ -812,7 +873,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     let mut recorder = match &a.record {
         Some(path) => {
             let info = spidar_tools::recording::session_info(
-                a.rig.rig.as_deref(),
+                rig_src.path(),
                 &scene_arg,
                 &script,
                 &format!("{:?}", a.device),
@@ -823,6 +884,40 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         }
         None => None,
     };
+    // The world's share: FILE.world.mcap next to FILE.mcap, written by the world wherever it
+    // runs (this process or the child), on the rig recording's time line.
+    let mut world_recording = None;
+    let mut world_observer = None;
+    if let Some(path) = &a.record {
+        let wpath = spidar_record::world::world_path(path);
+        let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
+        match &mut world {
+            WorldChoice::Thread(stepper) => {
+                let (rec, obs) = spidar_tools::recording::start_world_recording(
+                    &wpath,
+                    &scene_arg,
+                    stepper.scene(),
+                    a.virtual_clock,
+                    start_ns,
+                )?;
+                world_recording = Some(rec);
+                if a.virtual_clock {
+                    world_observer = Some(obs);
+                } else {
+                    stepper.add_observer(Box::new(obs));
+                }
+            }
+            WorldChoice::Child(spec) => {
+                spec.extra.extend(["--record".into(), wpath.into_os_string()]);
+                if let Some(ns) = start_ns {
+                    spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
+                }
+            }
+            WorldChoice::Connect { at, .. } => errln!(
+                "spidar: the world at {at} is not recorded here; record it where it runs (spidar world --record FILE.mcap)"
+            ),
+        }
+    }
     let (dev, script_name): (Box<dyn Device>, String) = match choice {
         None => {
             let scripts = load_scripts(&script, &rig, a.seed)?;
@@ -868,13 +963,13 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        let WorldChoice::Thread(scene) = world else {
+        let WorldChoice::Thread(stepper) = world else {
             unreachable!("--virtual runs the world in this process")
         };
-        let summary = session::run_virtual(
+        let mut summary = session::run_virtual(
             dev,
             &rig,
-            scene,
+            stepper.into_scene(),
             VirtualOptions {
                 seconds,
                 stop,
@@ -884,12 +979,18 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 script_name,
                 supervisor: supervised,
                 recorder: recorder.take(),
+                observers: world_observer.take().into_iter().map(|o| Box::new(o) as _).collect(),
             },
         )?;
+        summary.rig_file = rig_src.describe();
+        let world_rec = world_recording.take().map(|r| r.finish());
         if a.json {
             outln!("{:#}", report::virtual_json(&summary));
         } else {
             outln!("{summary}");
+            if let Some(r) = &world_rec {
+                outln!("  world rec.   {r}");
+            }
         }
         report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
         return Ok(0);
@@ -916,13 +1017,20 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             },
         },
     )?;
+    let mut summary = summary;
+    summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
+    // The scene thread has stopped: the world's recording ends with its last step.
+    let world_rec = world_recording.take().map(|r| r.finish());
     if a.json {
         outln!("{:#}", report::run_json(&summary, recording.as_ref()));
     } else {
         outln!("{summary}");
         if let Some(r) = &recording {
             outln!("  recording    {r}");
+        }
+        if let Some(r) = &world_rec {
+            outln!("  world rec.   {r}");
         }
     }
     let lat = summary.stats.lateness.percentiles();

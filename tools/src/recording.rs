@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use anyhow::Context;
+use spidar_record::world::{WorldInfo, WorldRecorder, WorldRecording};
 use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
 use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
 
@@ -50,6 +51,34 @@ pub fn session_info(
 /// before the rig moves.
 pub fn create(path: &Path, info: &SessionInfo) -> anyhow::Result<Recorder> {
     Ok(Recorder::create(path, info)?)
+}
+
+/// Starts the world's recording of `scene` (asked as `scene_arg`) into `path`: the file is
+/// created here (an unwritable path fails before the session starts). Returns the recording (to
+/// finish when the world stops) and the observer to add to the scene's host.
+pub fn start_world_recording(
+    path: &Path,
+    scene_arg: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    start_unix_ns: Option<u64>,
+) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
+    let mut files = Vec::new();
+    if scene_arg.ends_with(".ron") {
+        let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
+        let name = Path::new(scene_arg)
+            .file_name()
+            .map_or(scene_arg.to_string(), |n| n.to_string_lossy().into_owned());
+        files.push((name, text));
+    }
+    let info = WorldInfo {
+        scene: format!("{scene_arg} ({})", scene.name()),
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        clock: if virtual_clock { "virtual" } else { "real" }.into(),
+        start_unix_ns,
+        files,
+    };
+    Ok(WorldRecording::start(path, &info, &scene.look())?)
 }
 
 /// How a live session ended, for the recording's `spidar.end` record.
@@ -121,6 +150,19 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
+    // A world recording given alone, or the world's file next to the rig's.
+    let world_file = spidar_record::world::world_path(&a.file);
+    let is_world = a.file.to_string_lossy().ends_with(".world.mcap");
+    if is_world {
+        let w = spidar_record::world::summarize(&a.file)?;
+        if a.json {
+            println!("{:#}", world_json(&w));
+        } else {
+            println!("{w}");
+        }
+        return Ok(());
+    }
+    let world = if world_file.exists() { Some(spidar_record::world::summarize(&world_file)?) } else { None };
     let s = spidar_record::summary::summarize(&a.file)?;
     if a.json {
         let r = &s.recording;
@@ -145,12 +187,37 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
             "faults": s.faults,
             "ends": r.ends(),
             "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+            "world": world.as_ref().map(world_json),
         });
         println!("{j:#}");
     } else {
         println!("{s}");
+        if let Some(w) = &world {
+            println!("{w}");
+        }
     }
     Ok(())
+}
+
+fn world_json(w: &spidar_record::world::WorldSummary) -> serde_json::Value {
+    let r = &w.recording;
+    serde_json::json!({
+        "file": r.path.display().to_string(),
+        "session": r.session,
+        "end": r.end_meta,
+        "channels": r.channels.iter().map(|c| serde_json::json!({
+            "topic": c.topic, "schema": c.schema, "messages": c.messages,
+        })).collect::<Vec<_>>(),
+        "steps": w.steps,
+        "first_t_s": w.first_t_s,
+        "last_t_s": w.last_t_s,
+        "dropped": w.dropped,
+        "events": w.events,
+        "hits_taken": w.hits_taken,
+        "hits_given": w.hits_given,
+        "characters": w.characters,
+        "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+    })
 }
 
 /// `spidar export`.
@@ -165,8 +232,16 @@ pub struct ExportArgs {
 
 pub fn export(a: &ExportArgs) -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
-    let r = spidar_record::export::export_csv(&a.file, &a.csv)?;
-    println!("{r}");
+    if a.file.to_string_lossy().ends_with(".world.mcap") {
+        println!("{}", spidar_record::export::export_world_csv(&a.file, &a.csv)?);
+    } else {
+        println!("{}", spidar_record::export::export_csv(&a.file, &a.csv)?);
+        // The world's file next to it goes into the same directory (world_*.csv).
+        let w = spidar_record::world::world_path(&a.file);
+        if w.exists() {
+            println!("{}", spidar_record::export::export_world_csv(&w, &a.csv)?);
+        }
+    }
     println!("  took         {:.2} s", t0.elapsed().as_secs_f64());
     Ok(())
 }

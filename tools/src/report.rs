@@ -91,6 +91,7 @@ pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
         "device": s.device,
         "scene": s.scene,
         "script": s.script,
+        "rig_file": s.rig_file,
         "wall_s": s.wall_s,
         "real_time": {
             "policy": s.rt.policy,
@@ -134,6 +135,7 @@ pub fn virtual_json(s: &VirtualSummary) -> Value {
         "device": s.device,
         "scene": s.scene,
         "script": s.script,
+        "rig_file": s.rig_file,
         "ticks": c.ticks,
         "rig_seconds": c.ticks as f64 * s.period_s,
         "seconds_asked": s.seconds,

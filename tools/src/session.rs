@@ -370,6 +370,8 @@ pub struct VirtualOptions {
     pub supervisor: Option<&'static Shared>,
     /// Records every tick, the ramp-out included (`spidar run --virtual --record`).
     pub recorder: Option<spidar_record::writer::Recorder>,
+    /// Watch the world's steps (the world's recording, `FILE.world.mcap`).
+    pub observers: Vec<Box<dyn Observer>>,
 }
 
 /// What a virtual run reports at the end.
@@ -378,6 +380,8 @@ pub struct VirtualSummary {
     pub device: String,
     pub scene: String,
     pub script: String,
+    /// The rig file the run used (`RigSource::describe`; set by the caller).
+    pub rig_file: String,
     /// Rig time asked for, and wall time taken (s).
     pub seconds: f64,
     pub wall_s: f64,
@@ -408,6 +412,9 @@ impl std::fmt::Display for VirtualSummary {
             rig_s / self.wall_s.max(1e-9)
         )?;
         writeln!(f, "  on           {}, scene {}, script {}", self.device, self.scene, self.script)?;
+        if !self.rig_file.is_empty() {
+            writeln!(f, "  rig file     {}", self.rig_file)?;
+        }
         writeln!(f, "  ticks        {} active", c.active_ticks)?;
         writeln!(f, "  compute      {}", self.stats.compute.percentiles())?;
         if !self.scene_status.is_empty() {
@@ -459,6 +466,7 @@ pub fn run_virtual<D: Device>(
     mut opts: VirtualOptions,
 ) -> anyhow::Result<VirtualSummary> {
     let mut v = VirtualRun::new(dev, rig, Some(scene))?;
+    v.observers.append(&mut opts.observers);
     let mut recorder = opts.recorder.take();
     let lifeline: &'static Lifeline = match opts.supervisor {
         Some(s) => &s.lifeline,
@@ -536,6 +544,7 @@ pub fn run_virtual<D: Device>(
         device: opts.device,
         scene: opts.scene_name,
         script: opts.script_name,
+        rig_file: String::new(),
         seconds: opts.seconds,
         wall_s,
         period_s: rig.period_s,
@@ -628,6 +637,8 @@ pub struct Summary {
     pub recording: Option<spidar_record::writer::RecordingReport>,
     /// Rig-file bounds overridden for this run (shown, never silent).
     pub overrides: Vec<String>,
+    /// The rig file the run used (`RigSource::describe`; empty: not said).
+    pub rig_file: String,
 }
 
 /// Faults and refused commands seen during a session, counted per kind in the order each kind
@@ -689,6 +700,9 @@ impl std::fmt::Display for Summary {
             "spidar run: {:.2} s on {}, scene {}, script {}",
             self.wall_s, self.device, self.scene, self.script
         )?;
+        if !self.rig_file.is_empty() {
+            writeln!(f, "  rig file     {}", self.rig_file)?;
+        }
         writeln!(f, "  real time    {}", self.rt)?;
         if !self.overrides.is_empty() {
             writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
@@ -789,8 +803,8 @@ fn end_words(clean_stop: bool, halted: bool) -> &'static str {
 
 /// Where the world of a live run is.
 pub enum WorldChoice {
-    /// A thread of the rig's process, stepping this scene.
-    Thread(Box<dyn Scene>),
+    /// A thread of the rig's process, stepping this scene (with its observers: the live view).
+    Thread(Stepper),
     /// A world process started (and restarted) by the session, on a Unix socket in a private
     /// directory.
     Child(ChildWorldSpec),
@@ -885,7 +899,12 @@ pub fn start_child_world_at(
     loop {
         let try_for = until.saturating_duration_since(Instant::now()).min(Duration::from_millis(200));
         match connect_world(rig, &at, dir, None, clock.now_ns() as f64 * 1e-9, try_for) {
-            Ok((link, w)) => return Ok((child, link, w)),
+            Ok((link, w)) => {
+                // What the world said as it started (where its live view is) goes to the
+                // session's next `poll`, with the world's later lines.
+                child.hold_lines(said);
+                return Ok((child, link, w));
+            }
             Err(LinkError::NoWorld { .. }) if Instant::now() < until => {}
             // Not there yet: the socket file does not exist or nobody listens on it.
             Err(LinkError::Io { .. }) if Instant::now() < until => {
@@ -913,11 +932,11 @@ impl<D: Device + 'static> LiveSession<D> {
         let (mut ep, far) = Endpoints::pair();
         let FarEnds { commands, events, models, samples, status, telemetry } = far;
         let live_world = match world {
-            WorldChoice::Thread(scene) => {
+            WorldChoice::Thread(stepper) => {
                 let stop = Arc::new(AtomicBool::new(false));
                 let counters = Arc::new(SceneCounters::default());
                 let handle = scene_thread::spawn(
-                    Stepper::new(scene),
+                    stepper,
                     clock,
                     ChannelWorldEnd { models, samples, status },
                     rig_info(rig),
@@ -1229,6 +1248,7 @@ impl<D: Device + 'static> LiveSession<D> {
             signals,
             recording: None,
             overrides: Vec::new(),
+            rig_file: String::new(),
         })
     }
 }

@@ -55,6 +55,64 @@ pub struct WorldArgs {
     /// link` measures the link's round trip with it).
     #[arg(long, hide = true)]
     pub echo: bool,
+    #[command(flatten)]
+    pub view: ViewArgs,
+    /// Record the world into this MCAP file (zstd chunks): every step's body poses (Foxglove
+    /// FrameTransforms and SceneUpdate, for a 3D panel), the virtual human's decisions, the
+    /// crowd's control states and the world's events (hits). See docs/recording.md.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<std::path::PathBuf>,
+    /// Unix time (ns) of scene time zero in the recording (set by `spidar run --record`, so the
+    /// rig's file and the world's share one time line).
+    #[arg(long, hide = true, requires = "record")]
+    pub record_start_unix_ns: Option<u64>,
+}
+
+/// Where the live view is served (`spidar world`, and `spidar run` for its world).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ViewArgs {
+    /// Serve the live 3D view at this address (HOST:PORT, :PORT or http://HOST:PORT; frames on the
+    /// next port). Default http://127.0.0.1:8080, or a free port when that one is taken.
+    #[arg(long, value_name = "ADDR")]
+    pub view: Option<String>,
+    /// No live view.
+    #[arg(long, conflicts_with = "view")]
+    pub no_view: bool,
+}
+
+impl ViewArgs {
+    /// The same choice as arguments of a child `spidar world`.
+    pub fn child_args(&self) -> Vec<std::ffi::OsString> {
+        match (&self.view, self.no_view) {
+            (_, true) => vec!["--no-view".into()],
+            (Some(a), false) => vec!["--view".into(), a.into()],
+            (None, false) => Vec::new(),
+        }
+    }
+}
+
+/// Starts the live view of `scene` as `--view`/`--no-view` say, and says where it is on stderr.
+pub fn start_view(
+    a: &ViewArgs,
+    scene: &dyn spidar_world::Scene,
+) -> anyhow::Result<Option<spidar_world::view::View>> {
+    use spidar_world::view::{parse_addr, View, ViewOptions};
+    if a.no_view {
+        return Ok(None);
+    }
+    let look = scene.look();
+    let view = match &a.view {
+        Some(addr) => {
+            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
+        }
+        // The default port may be taken (another spidar): then any free one.
+        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
+            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
+            View::start(scene.name(), &look, &any)
+        })?,
+    };
+    eprintln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
+    Ok(Some(view))
 }
 
 /// Where an echo world puts what it measured in the model it answers with: the sample's tick
@@ -142,6 +200,18 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let scene = spidar_world::load(&a.scene)?;
     let step_s = scene.step_s();
     let scene_label = format!("{} ({})", a.scene, scene.name());
+    // Created before the world listens: a path that cannot be written is refused before any rig
+    // connects.
+    let recording = match &a.record {
+        Some(p) => Some(crate::recording::start_world_recording(
+            p,
+            &a.scene,
+            &*scene,
+            a.lockstep,
+            a.record_start_unix_ns,
+        )?),
+        None => None,
+    };
     // The default directory lives as long as the world.
     let mut _dir = None;
     let listen = match &a.listen {
@@ -169,14 +239,25 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if !a.report_status {
         crate::errln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
     }
+    let view = start_view(&a.view, &*scene)?;
     let mut stepper = Stepper::new(scene);
+    if let Some(v) = view {
+        stepper.add_observer(Box::new(v));
+    }
     if a.report_status {
         stepper.add_observer(Box::new(StatusLines { last: None, steps: 0 }));
     }
+    let recording = recording.map(|(rec, observer)| {
+        stepper.add_observer(Box::new(observer));
+        rec
+    });
     let stop_fn = || stop.requested();
     let rep = serve(&mut stepper, &mut link, &ServeOptions { lockstep: a.lockstep }, &stop_fn, &mut |line| {
         crate::errln!("spidar world: {line}")
     });
+    if let Some(r) = recording {
+        eprintln!("spidar world: recording {}", r.finish());
+    }
     if a.report_status {
         crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
         crate::errln!("{REPORT_PREFIX}{rep}");

@@ -52,6 +52,57 @@ impl BoxingScene {
         }
     }
 
+    /// The virtual human's behaviours, reaches, latest prediction and counters.
+    pub fn decisions(&self) -> crate::decisions::Decisions {
+        use crate::decisions::{Decisions, Prediction, ReachTarget};
+        use spidar_sim::boxer::{Behaviour, BodyBehaviour, ContactClass};
+        let m = &self.world.mind;
+        let hand = |b: Behaviour| match b {
+            Behaviour::Standby => 0,
+            Behaviour::Attack => 1,
+            Behaviour::Block => 2,
+        };
+        let mut reaches = [ReachTarget::default(); 3];
+        for (out, r) in reaches.iter_mut().zip(m.reaches.iter()) {
+            if let Some(r) = r {
+                *out = ReachTarget {
+                    active: true,
+                    body: r.body as u16,
+                    target_m: r.target_m,
+                    start_s: r.start_s,
+                    duration_s: r.duration_s,
+                };
+            }
+        }
+        let prediction = m.last_decision.map_or(Prediction::default(), |d| Prediction {
+            class: match d.class {
+                ContactClass::AvatarAttack => 1,
+                ContactClass::BoxerAttack => 2,
+                ContactClass::BoxerBlocked => 3,
+                ContactClass::AvatarBlocked => 4,
+                ContactClass::Other => 5,
+            },
+            vh_body: d.vh_body as u16,
+            av_body: d.av_body as u16,
+            point_m: d.point_m,
+            at_s: d.at_s,
+        });
+        Decisions {
+            active: m.active,
+            hands: [hand(m.hands[0]), hand(m.hands[1])],
+            body: u8::from(m.body == BodyBehaviour::Avoidance),
+            reaches,
+            prediction,
+            predictions: m.predictions,
+            attacks: m.attacks,
+            avoidances: m.avoidances,
+            blocks: m.blocks,
+            hits_taken: m.hits_taken,
+            hits_given: m.hits_given,
+            last_predict_s: m.last_predict_ns as f64 * 1e-9,
+        }
+    }
+
     /// The virtual human's behaviours (body and each hand), the newest decision (the Table I class
     /// of the deciding predicted contact and the part it names), and its counters.
     pub fn status_text(&self) -> String {
@@ -121,5 +172,17 @@ impl Scene for BoxingScene {
 
     fn status(&self) -> String {
         self.status_text()
+    }
+
+    fn look(&self) -> crate::look::Look {
+        crate::looks::boxing::look(self)
+    }
+
+    fn pose(&self, out: &mut crate::look::Poses<'_>) {
+        crate::looks::boxing::pose(self, out)
+    }
+
+    fn decisions(&self) -> Option<crate::decisions::Decisions> {
+        Some(self.decisions())
     }
 }

@@ -275,4 +275,12 @@ impl Scene for CrowdScene {
             c.stand_ups
         )
     }
+
+    fn look(&self) -> crate::look::Look {
+        crate::looks::crowd::look(self)
+    }
+
+    fn pose(&self, out: &mut crate::look::Poses<'_>) {
+        crate::looks::crowd::pose(self, out)
+    }
 }

@@ -12,7 +12,11 @@
 
 pub mod boxing;
 pub mod crowd;
+pub mod decisions;
 pub mod host;
+pub mod look;
+mod looks;
+pub mod view;
 pub mod walls;
 
 use spidar_msg::{ContactModel, HandSample, RigInfo, RigStatus};
@@ -27,6 +31,19 @@ pub trait Scene: Send {
     /// A short live status for the status line.
     fn status(&self) -> String {
         String::new()
+    }
+    /// What the scene looks like to a viewer (called once, when a view starts). The default draws
+    /// only what every scene has: the rig, the hands and the contact proxies.
+    fn look(&self) -> look::Look {
+        look::Look::default()
+    }
+    /// Writes the poses of what [`Scene::look`] described, after a step, at display rate. Runs on
+    /// the stepping thread: it only copies numbers (no allocation, no locks).
+    fn pose(&self, _out: &mut look::Poses<'_>) {}
+    /// What the scene's virtual human decided (recorded after every step); `None` for scenes
+    /// without one. Runs on the stepping thread: it only copies numbers.
+    fn decisions(&self) -> Option<decisions::Decisions> {
+        None
     }
 }
 

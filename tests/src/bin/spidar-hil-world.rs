@@ -13,7 +13,9 @@ struct Cli {
 }
 
 fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
+    let mut cli = Cli::parse();
+    // The tests' worlds serve no live view unless a test asks for one.
+    cli.world.view.no_view |= cli.world.view.view.is_none();
     let stop = spidar_tools::signals::Stop::install()?;
     spidar_tools::world_process::run_world(&cli.world, &stop).map(|_| ())
 }

@@ -137,7 +137,9 @@ fn child_records_a_live_session_until_killed() {
         supervisor: None,
         recorder: Some(RecorderThread::spawn(rec).unwrap()),
     };
-    let world = spidar_tools::session::WorldChoice::Thread(Box::new(WallsScene::builtin()));
+    let world = spidar_tools::session::WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(
+        WallsScene::builtin(),
+    )));
     let _ = spidar_tools::session::run_live(dev, &r, world, opts);
 }
 

@@ -1,0 +1,1072 @@
+//! The world's share of a recording: a [`WorldRecorder`] watches every world step (an
+//! [`Observer`] of the scene's host) and writes, on its own thread, one MCAP file (zstd chunks)
+//! with the bodies' poses as Foxglove `FrameTransforms` and their shapes as `SceneUpdate` (so the
+//! file opens in a Foxglove or Lichtblick 3D panel), the virtual human's decisions, the crowd's
+//! control states, and the world's events (hits, behaviour changes, characters falling).
+//!
+//! The stepping thread never waits for the disk: the observer copies one step's numbers into a
+//! buffer taken from a fixed pool and hands it over with `try_send`; when every buffer is still
+//! queued (the writer or the disk lags) the step is dropped and counted. It allocates nothing
+//! after the first step.
+//!
+//! Channels (see docs/recording.md): `/world/tf`, `/world/scene`, `/world/step`,
+//! `/world/boxer`, `/world/crowd`, `/world/event`.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use crossbeam_channel::{bounded, Receiver, Sender};
+use glam::{DQuat, DVec3, Quat, Vec3};
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Attachment, WriteOptions, Writer};
+use spidar_sim::collide::Shape;
+use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
+use spidar_world::look::{Look, LookShape, SHAPE_FLOATS};
+use spidar_world::view::Layout;
+use spidar_world::{Observer, StepView};
+
+use crate::cdr::{self, Field};
+use crate::foxglove::*;
+use crate::writer::{META_END, META_SESSION};
+use crate::{message, RecordError, FORMAT_VERSION, PROFILE, SPIDAR_VERSION};
+
+pub const TOPIC_TF: &str = "/world/tf";
+pub const TOPIC_SCENE: &str = "/world/scene";
+pub const TOPIC_STEP: &str = "/world/step";
+pub const TOPIC_BOXER: &str = "/world/boxer";
+pub const TOPIC_CROWD: &str = "/world/crowd";
+pub const TOPIC_WORLD_EVENT: &str = "/world/event";
+/// The fixed frame every world frame hangs from.
+pub const WORLD_FRAME: &str = "world";
+/// The scene's whole look (every entity) is written again this often (scene time), so a player
+/// that seeks, or a file cut short, always has the shapes to draw.
+pub const SCENE_EVERY_S: f64 = 1.0;
+/// The crowd's skeletons (which move within their characters' frames) are drawn at most this
+/// often (scene time): display rate, a third of the steps.
+pub const SKELETON_EVERY_S: f64 = 1.0 / 60.0;
+/// Steps the queue to the writer holds (a second of boxing steps).
+pub const QUEUE_STEPS: usize = 384;
+/// Uncompressed bytes of messages per chunk.
+pub const CHUNK_BYTES: u64 = 1 << 20;
+
+/// The world recording of `spidar run --record FILE.mcap`: `FILE.world.mcap`, next to it.
+pub fn world_path(rig_path: &Path) -> PathBuf {
+    let stem = rig_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let stem = stem.strip_suffix(".world").unwrap_or(&stem).to_string();
+    rig_path.with_file_name(format!("{stem}.world.mcap"))
+}
+
+/// One world step, as `/world/step`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WorldStep {
+    pub step: u64,
+    pub t_s: f64,
+    pub samples: u32,
+    pub proxies: u8,
+    /// Steps the recorder dropped so far (its queue was full).
+    pub dropped: u64,
+}
+message!(WorldStep = "spidar/WorldStep" {
+    step: u64,
+    /// scene time (the rig's loop clock for the first rig)
+    t_s: f64,
+    /// hand samples the step consumed
+    samples: u32,
+    /// proxies in the contact model it produced
+    proxies: u8,
+    /// steps not recorded so far (the recorder's queue was full)
+    dropped: u64,
+});
+
+message!(ReachTarget = "spidar/Reach" {
+    active: bool,
+    /// the model body that moves
+    body: u16,
+    /// scene frame
+    target_m: DVec3,
+    start_s: f64,
+    duration_s: f64,
+});
+
+message!(Prediction = "spidar/Prediction" {
+    /// 0 none, 1 the user's attack lands, 2 the virtual human's attack lands, 3 the virtual human blocked, 4 the user blocked, 5 other
+    class: u8,
+    vh_body: u16,
+    av_body: u16,
+    /// predicted contact point (scene frame) and scene time
+    point_m: DVec3,
+    at_s: f64,
+});
+
+/// The virtual human after a step, as `/world/boxer`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BoxerMsg {
+    pub t_s: f64,
+    pub d: Decisions,
+}
+
+impl Field for BoxerMsg {
+    fn ros_type() -> String {
+        "spidar/Boxer".into()
+    }
+    fn definition() -> Option<String> {
+        Some(
+            "float64 t_s\nbool active\n# per hand (left, right): 0 standby, 1 attack, 2 block\nuint8[2] hands\n\
+             # 0 standby, 1 avoidance\nuint8 body\n# hands (left, right), then the body\nspidar/Reach[3] reaches\n\
+             spidar/Prediction prediction\nuint64 predictions\nuint64 attacks\nuint64 avoidances\nuint64 blocks\n\
+             # the user's hands on its head or chest; its hands on the avatar's\nuint64 hits_taken\nuint64 hits_given\n\
+             # wall time of the latest prediction\nfloat64 last_predict_s\n"
+                .into(),
+        )
+    }
+    fn collect(out: &mut Vec<(String, String)>) {
+        if cdr::add_definition::<Self>(out) {
+            ReachTarget::collect(out);
+            Prediction::collect(out);
+        }
+    }
+    fn write(&self, w: &mut cdr::Writer<'_>) {
+        let d = &self.d;
+        self.t_s.write(w);
+        d.active.write(w);
+        d.hands.write(w);
+        d.body.write(w);
+        d.reaches.write(w);
+        d.prediction.write(w);
+        for c in [d.predictions, d.attacks, d.avoidances, d.blocks, d.hits_taken, d.hits_given] {
+            c.write(w);
+        }
+        d.last_predict_s.write(w);
+    }
+    fn read(r: &mut cdr::Reader<'_>) -> Result<Self, cdr::DecodeError> {
+        let t_s = f64::read(r)?;
+        let mut d = Decisions {
+            active: bool::read(r)?,
+            hands: <[u8; 2]>::read(r)?,
+            body: u8::read(r)?,
+            reaches: <[ReachTarget; 3]>::read(r)?,
+            prediction: Prediction::read(r)?,
+            ..Default::default()
+        };
+        for c in [
+            &mut d.predictions,
+            &mut d.attacks,
+            &mut d.avoidances,
+            &mut d.blocks,
+            &mut d.hits_taken,
+            &mut d.hits_given,
+        ] {
+            *c = u64::read(r)?;
+        }
+        d.last_predict_s = f64::read(r)?;
+        Ok(BoxerMsg { t_s, d })
+    }
+    fn columns(prefix: &str, out: &mut Vec<String>) {
+        for n in ["t_s", "active", "hands[0]", "hands[1]", "body"] {
+            out.push(cdr::join(prefix, n));
+        }
+        <[ReachTarget; 3]>::columns(&cdr::join(prefix, "reaches"), out);
+        Prediction::columns(&cdr::join(prefix, "prediction"), out);
+        for n in
+            ["predictions", "attacks", "avoidances", "blocks", "hits_taken", "hits_given", "last_predict_s"]
+        {
+            out.push(cdr::join(prefix, n));
+        }
+    }
+    fn csv(&self, out: &mut String) {
+        let d = &self.d;
+        self.t_s.csv(out);
+        d.active.csv(out);
+        for h in d.hands {
+            out.push(',');
+            out.push_str(HAND_BEHAVIOURS.get(h as usize).unwrap_or(&"?"));
+        }
+        out.push(',');
+        out.push_str(BODY_BEHAVIOURS.get(d.body as usize).unwrap_or(&"?"));
+        d.reaches.csv(out);
+        d.prediction.csv(out);
+        for c in [d.predictions, d.attacks, d.avoidances, d.blocks, d.hits_taken, d.hits_given] {
+            c.csv(out);
+        }
+        d.last_predict_s.csv(out);
+    }
+}
+
+/// The crowd's control states after a step, as `/world/crowd`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CrowdMsg {
+    pub t_s: f64,
+    pub states: Vec<u8>,
+    pub not_balancing: u32,
+}
+message!(CrowdMsg = "spidar/Crowd" {
+    t_s: f64,
+    /// per character: 0 balance, 1 fall, 2 down, 3 stand up
+    states: Vec<u8>,
+    not_balancing: u32,
+});
+
+/// Names of the crowd's control states, by code.
+pub const CROWD_STATES: [&str; 4] = ["balance", "fall", "down", "stand-up"];
+
+/// A world event, as `/world/event`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WorldEventMsg {
+    pub t_s: f64,
+    pub kind: u8,
+    pub index: u16,
+    pub state: u8,
+    pub text: String,
+}
+message!(WorldEventMsg = "spidar/WorldEvent" {
+    t_s: f64,
+    /// 1 hit taken (the user's hand on the virtual human's head or chest), 2 hit given (its hand on the avatar's head or chest), 3 a hand's behaviour changed, 4 the body's behaviour changed, 5 a character's control state changed
+    kind: u8,
+    /// the hand (0 left, 1 right) or the character
+    index: u16,
+    /// the new behaviour or control state (codes as in spidar/Boxer and spidar/Crowd)
+    state: u8,
+    text: String,
+});
+
+pub const EVENT_HIT_TAKEN: u8 = 1;
+pub const EVENT_HIT_GIVEN: u8 = 2;
+pub const EVENT_HAND: u8 = 3;
+pub const EVENT_BODY: u8 = 4;
+pub const EVENT_CHARACTER: u8 = 5;
+
+/// The world channels: (topic, schema name, schema text).
+pub fn channels() -> Vec<(&'static str, String, String)> {
+    fn c<T: Field>(topic: &'static str) -> (&'static str, String, String) {
+        (topic, T::ros_type(), cdr::schema_text::<T>())
+    }
+    vec![
+        c::<FrameTransforms>(TOPIC_TF),
+        c::<SceneUpdate>(TOPIC_SCENE),
+        c::<WorldStep>(TOPIC_STEP),
+        c::<BoxerMsg>(TOPIC_BOXER),
+        c::<CrowdMsg>(TOPIC_CROWD),
+        c::<WorldEventMsg>(TOPIC_WORLD_EVENT),
+    ]
+}
+
+/// A decoded world message.
+#[derive(Clone, Debug)]
+pub enum WorldMsg {
+    Step(WorldStep),
+    Boxer(Box<BoxerMsg>),
+    Crowd(CrowdMsg),
+    Event(WorldEventMsg),
+    /// `/world/tf` and `/world/scene` are left encoded (for Foxglove); their sizes are counted.
+    Drawing,
+}
+
+/// Decodes a message of a world channel (`None` for other topics). The channel's schema must be
+/// this spidar's.
+pub fn decode(topic: &str, schema: &str, data: &[u8]) -> Option<Result<WorldMsg, String>> {
+    fn one<T: Field>(schema: &str, data: &[u8], f: impl Fn(T) -> WorldMsg) -> Result<WorldMsg, String> {
+        if schema != T::ros_type() {
+            return Err(format!("schema '{schema}' where this spidar writes '{}'", T::ros_type()));
+        }
+        cdr::decode::<T>(data).map(f).map_err(|e| e.to_string())
+    }
+    Some(match topic {
+        TOPIC_STEP => one(schema, data, WorldMsg::Step),
+        TOPIC_BOXER => one(schema, data, |b| WorldMsg::Boxer(Box::new(b))),
+        TOPIC_CROWD => one(schema, data, WorldMsg::Crowd),
+        TOPIC_WORLD_EVENT => one(schema, data, WorldMsg::Event),
+        TOPIC_TF | TOPIC_SCENE => Ok(WorldMsg::Drawing),
+        _ => return None,
+    })
+}
+
+/// What made a world recording.
+#[derive(Clone, Debug, Default)]
+pub struct WorldInfo {
+    /// The scene as asked (`boxing`, a file) and the scene's own name.
+    pub scene: String,
+    pub command_line: String,
+    /// `real` or `virtual`.
+    pub clock: String,
+    /// Unix time (ns) of scene time zero; default: when the file is created. `spidar run` gives
+    /// the rig recording's, so both files share one time line.
+    pub start_unix_ns: Option<u64>,
+    /// Files that made the scene (name, text), attached.
+    pub files: Vec<(String, String)>,
+}
+
+/// What a world recorder wrote and what it could not keep.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WorldRecordingReport {
+    pub path: PathBuf,
+    pub steps: u64,
+    pub messages: u64,
+    pub events: u64,
+    /// Steps the queue had no room for (the writer or the disk lagged).
+    pub dropped: u64,
+    /// Steps not written because writing failed (see `error`).
+    pub write_failed: u64,
+    pub error: Option<String>,
+    pub bytes: u64,
+}
+
+impl std::fmt::Display for WorldRecordingReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: {} world steps, {} messages, {} events, {:.1} MB; not kept: {} steps (recorder queue {}, write {})",
+            self.path.display(),
+            self.steps,
+            self.messages,
+            self.events,
+            self.bytes as f64 / 1e6,
+            self.dropped + self.write_failed,
+            self.dropped,
+            self.write_failed
+        )?;
+        if let Some(e) = &self.error {
+            write!(f, "; WRITING FAILED: {e} (the file holds everything before it)")?;
+        }
+        Ok(())
+    }
+}
+
+/// One step's numbers, copied on the stepping thread into a pooled buffer.
+pub(crate) struct Snap {
+    step: u64,
+    t_s: f64,
+    samples: u32,
+    proxies: u8,
+    /// The scene's poses, in the live view's frame layout ([`Layout`]).
+    frame: Vec<f32>,
+    counters: Vec<f64>,
+    contacts: usize,
+    decisions: Option<Decisions>,
+}
+
+enum ToWriter {
+    Step(Box<Snap>),
+    Finish,
+}
+
+/// The observer half: copies each step into a pooled buffer and queues it (never waits).
+pub struct WorldRecorder {
+    layout: Layout,
+    full: Sender<ToWriter>,
+    pub(crate) free: Receiver<Box<Snap>>,
+    dropped: Arc<AtomicU64>,
+    steps: u64,
+}
+
+impl Observer for WorldRecorder {
+    fn after_step(&mut self, s: &StepView<'_>) {
+        self.steps += 1;
+        let Ok(mut snap) = self.free.try_recv() else {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
+        };
+        snap.step = self.steps;
+        snap.t_s = s.t_s;
+        snap.samples = s.samples.len() as u32;
+        snap.proxies = s.model.proxy_count;
+        snap.contacts = 0;
+        {
+            let Snap { frame, counters, contacts, .. } = &mut *snap;
+            let mut poses = self.layout.poses(frame, counters, contacts);
+            s.scene.pose(&mut poses);
+        }
+        snap.decisions = s.scene.decisions();
+        if self.full.try_send(ToWriter::Step(snap)).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// The writer half: owns the file and its thread; [`WorldRecording::finish`] ends the file.
+pub struct WorldRecording {
+    tx: Sender<ToWriter>,
+    dropped: Arc<AtomicU64>,
+    handle: Option<JoinHandle<WorldRecordingReport>>,
+}
+
+impl WorldRecording {
+    /// Creates the file (an unwritable path fails here, before any step) and starts the writer
+    /// thread; returns it and the observer to add to the scene's host.
+    pub fn start(
+        path: &Path,
+        info: &WorldInfo,
+        look: &Look,
+    ) -> Result<(WorldRecording, WorldRecorder), RecordError> {
+        let w = WorldWriter::create(path, info, look)?;
+        let layout = Layout::of(look, 0);
+        let (full_tx, full_rx) = bounded::<ToWriter>(QUEUE_STEPS + 1);
+        let (free_tx, free_rx) = bounded::<Box<Snap>>(QUEUE_STEPS);
+        for _ in 0..QUEUE_STEPS {
+            let snap = Snap {
+                step: 0,
+                t_s: 0.0,
+                samples: 0,
+                proxies: 0,
+                frame: vec![0.0; layout.max_words],
+                counters: vec![0.0; look.counters.len()],
+                contacts: 0,
+                decisions: None,
+            };
+            let _ = free_tx.try_send(Box::new(snap));
+        }
+        let dropped = Arc::new(AtomicU64::new(0));
+        let d = dropped.clone();
+        let handle = std::thread::Builder::new()
+            .name("spidar-world-recorder".into())
+            .spawn(move || w.run(full_rx, free_tx, d))
+            .map_err(|e| RecordError::Write {
+                path: path.to_path_buf(),
+                why: format!("starting the recorder thread: {e}"),
+            })?;
+        let rec = WorldRecorder {
+            layout,
+            full: full_tx.clone(),
+            free: free_rx,
+            dropped: dropped.clone(),
+            steps: 0,
+        };
+        Ok((WorldRecording { tx: full_tx, dropped, handle: Some(handle) }, rec))
+    }
+
+    /// Steps queued to the writer and not yet written.
+    pub fn queued(&self) -> usize {
+        self.tx.len()
+    }
+
+    /// Steps dropped so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Writes what is queued and ends the file (summary and footer).
+    pub fn finish(mut self) -> WorldRecordingReport {
+        self.end()
+    }
+
+    fn end(&mut self) -> WorldRecordingReport {
+        let _ = self.tx.send(ToWriter::Finish);
+        let mut r = self.handle.take().and_then(|h| h.join().ok()).unwrap_or_else(|| WorldRecordingReport {
+            error: Some("the world recorder thread panicked".into()),
+            ..Default::default()
+        });
+        r.dropped = self.dropped.load(Ordering::Relaxed);
+        r
+    }
+}
+
+impl Drop for WorldRecording {
+    fn drop(&mut self) {
+        if self.handle.is_some() {
+            self.end();
+        }
+    }
+}
+
+/// What is drawn for each moving shape: its frame and its entity.
+struct Drawn {
+    frame: String,
+    entity: SceneEntity,
+}
+
+struct WorldWriter {
+    w: Option<Writer<File>>,
+    path: PathBuf,
+    channels: [u16; 6],
+    seq: [u32; 6],
+    start_ns: u64,
+    buf: Vec<u8>,
+    look: Look,
+    layout: Layout,
+    shapes: Vec<Drawn>,
+    statics: Vec<SceneEntity>,
+    next_scene_t_s: f64,
+    next_skeleton_t_s: f64,
+    prev: Option<Decisions>,
+    prev_labels: Vec<u8>,
+    prev_states: Vec<u8>,
+    report: WorldRecordingReport,
+}
+
+const TF: usize = 0;
+const SCENE: usize = 1;
+const STEP: usize = 2;
+const BOXER: usize = 3;
+const CROWD: usize = 4;
+const EVENT: usize = 5;
+
+fn describe(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}
+
+fn pose(pos: DVec3, q: DQuat) -> Pose {
+    Pose {
+        position: Point { x: pos.x, y: pos.y, z: pos.z },
+        orientation: Quaternion { x: q.x, y: q.y, z: q.z, w: q.w },
+    }
+}
+
+fn v3(x: f64, y: f64, z: f64) -> Vector3 {
+    Vector3 { x, y, z }
+}
+
+/// `virtual human/head` -> `virtual_human/head`.
+fn frame_name(name: &str) -> String {
+    name.replace(' ', "_")
+}
+
+/// Adds the primitives drawing `shape` at `at` (in the entity's frame).
+fn draw_shape(e: &mut SceneEntity, shape: &Shape, at: Pose, colour: Color) {
+    let (p, q) = (
+        DVec3::new(at.position.x, at.position.y, at.position.z),
+        DQuat::from_xyzw(at.orientation.x, at.orientation.y, at.orientation.z, at.orientation.w),
+    );
+    match *shape {
+        Shape::Sphere { radius_m } => {
+            let d = 2.0 * radius_m;
+            e.spheres.push(SpherePrimitive { pose: at, size: v3(d, d, d), color: colour });
+        }
+        Shape::Capsule { half_length_m, radius_m } => {
+            let d = 2.0 * radius_m;
+            // A cylinder's axis is its z; a capsule's is its y.
+            let z_to_y = q * DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2);
+            e.cylinders.push(CylinderPrimitive {
+                pose: pose(p, z_to_y),
+                size: v3(d, d, 2.0 * half_length_m),
+                bottom_scale: 1.0,
+                top_scale: 1.0,
+                color: colour,
+            });
+            for s in [-1.0, 1.0] {
+                let c = p + q * DVec3::new(0.0, s * half_length_m, 0.0);
+                e.spheres.push(SpherePrimitive { pose: pose(c, q), size: v3(d, d, d), color: colour });
+            }
+        }
+        Shape::Box { half_extents_m: h } => {
+            e.cubes.push(CubePrimitive {
+                pose: at,
+                size: v3(2.0 * h.x, 2.0 * h.y, 2.0 * h.z),
+                color: colour,
+            });
+        }
+        Shape::Plane => {
+            // The solid is below the plane through the origin with normal +y: a thin wide slab.
+            let c = p + q * DVec3::new(0.0, -0.005, 0.0);
+            e.cubes.push(CubePrimitive { pose: pose(c, q), size: v3(8.0, 0.01, 8.0), color: colour });
+        }
+    }
+}
+
+fn shape_entity(id: String, frame: String, s: &LookShape, at: Pose) -> SceneEntity {
+    let mut e = SceneEntity { frame_id: frame, id, frame_locked: true, ..Default::default() };
+    draw_shape(&mut e, &s.shape, at, Color::srgb(s.colour, 1.0));
+    e
+}
+
+impl WorldWriter {
+    fn create(path: &Path, info: &WorldInfo, look: &Look) -> Result<WorldWriter, RecordError> {
+        let create = |e: std::io::Error| RecordError::Create { path: path.to_path_buf(), cause: e };
+        if path.is_dir() {
+            return Err(create(std::io::Error::other("it is a directory")));
+        }
+        let file = File::create(path).map_err(create)?;
+        let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
+        let opts = WriteOptions::new()
+            .disable_seeking(true)
+            .profile(PROFILE)
+            .library(format!("spidar {SPIDAR_VERSION}"))
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_level(crate::writer::ZSTD_LEVEL)
+            .compression_threads(0)
+            .chunk_size(Some(CHUNK_BYTES));
+        let mut w = opts.create(file).map_err(write)?;
+        let start_ns = info.start_unix_ns.unwrap_or_else(|| {
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64)
+        });
+        let mut meta = BTreeMap::new();
+        for (k, v) in [
+            ("format_version", FORMAT_VERSION.to_string()),
+            ("spidar_version", SPIDAR_VERSION.to_string()),
+            ("role", "world".to_string()),
+            ("scene", info.scene.clone()),
+            ("command_line", info.command_line.clone()),
+            ("clock", info.clock.clone()),
+            ("start_unix_ns", start_ns.to_string()),
+        ] {
+            meta.insert(k.to_string(), v);
+        }
+        w.write_metadata(&Metadata { name: META_SESSION.into(), metadata: meta }).map_err(write)?;
+        for (name, text) in &info.files {
+            w.attach(&Attachment {
+                log_time: start_ns,
+                create_time: start_ns,
+                name: name.clone(),
+                media_type: "text/plain".into(),
+                data: text.as_bytes().into(),
+            })
+            .map_err(write)?;
+        }
+        let mut channels = [0u16; 6];
+        for (i, (topic, name, schema)) in self::channels().into_iter().enumerate() {
+            let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
+            channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
+        }
+        w.flush().map_err(write)?;
+        // Frames of the moving shapes (unique names), and their entities in their own frames.
+        let mut shapes: Vec<Drawn> = Vec::with_capacity(look.shapes.len());
+        for (k, s) in look.shapes.iter().enumerate() {
+            let mut frame = frame_name(&s.name);
+            if shapes.iter().any(|d| d.frame == frame) {
+                frame = format!("{frame}_{k}");
+            }
+            let entity = shape_entity(frame.clone(), frame.clone(), s, Pose::default());
+            shapes.push(Drawn { frame, entity });
+        }
+        let statics = look
+            .statics
+            .iter()
+            .enumerate()
+            .map(|(i, (s, p, q))| {
+                let mut e = shape_entity(format!("static/{i}"), WORLD_FRAME.into(), s, pose(*p, *q));
+                e.frame_locked = false;
+                e
+            })
+            .collect();
+        Ok(WorldWriter {
+            w: Some(w),
+            path: path.to_path_buf(),
+            channels,
+            seq: [0; 6],
+            start_ns,
+            buf: Vec::with_capacity(1 << 16),
+            layout: Layout::of(look, 0),
+            look: look.clone(),
+            shapes,
+            statics,
+            next_scene_t_s: f64::NEG_INFINITY,
+            next_skeleton_t_s: f64::NEG_INFINITY,
+            prev: None,
+            prev_labels: Vec::new(),
+            prev_states: Vec::new(),
+            report: WorldRecordingReport { path: path.to_path_buf(), ..Default::default() },
+        })
+    }
+
+    fn run(
+        mut self,
+        rx: Receiver<ToWriter>,
+        free: Sender<Box<Snap>>,
+        dropped: Arc<AtomicU64>,
+    ) -> WorldRecordingReport {
+        for m in rx {
+            match m {
+                ToWriter::Step(snap) => {
+                    self.write_step(&snap, dropped.load(Ordering::Relaxed));
+                    let _ = free.try_send(snap);
+                }
+                ToWriter::Finish => break,
+            }
+        }
+        self.finish(dropped.load(Ordering::Relaxed))
+    }
+
+    fn log_ns(&self, t_s: f64) -> u64 {
+        self.start_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64)
+    }
+
+    fn put<T: Field>(&mut self, ch: usize, t_s: f64, x: &T) -> bool {
+        let t = self.log_ns(t_s);
+        let Some(w) = self.w.as_mut() else { return false };
+        cdr::encode(x, &mut self.buf);
+        self.seq[ch] = self.seq[ch].wrapping_add(1);
+        let h = MessageHeader {
+            channel_id: self.channels[ch],
+            sequence: self.seq[ch],
+            log_time: t,
+            publish_time: t,
+        };
+        match w.write_to_known_channel(&h, &self.buf) {
+            Ok(()) => {
+                self.report.messages += 1;
+                true
+            }
+            Err(e) => {
+                self.report.error.get_or_insert(describe(&e));
+                self.w = None;
+                false
+            }
+        }
+    }
+
+    fn write_step(&mut self, s: &Snap, dropped: u64) {
+        if self.w.is_none() {
+            self.report.write_failed += 1;
+            return;
+        }
+        let stamp = Time::from_ns(self.log_ns(s.t_s));
+        let mut ok = self.put(
+            STEP,
+            s.t_s,
+            &WorldStep { step: s.step, t_s: s.t_s, samples: s.samples, proxies: s.proxies, dropped },
+        );
+        // Where every body is.
+        let l = self.layout;
+        let mut tf = FrameTransforms { transforms: Vec::with_capacity(l.shapes + l.characters + 1) };
+        let off = self.look.link_offset_m;
+        tf.transforms.push(FrameTransform {
+            timestamp: stamp,
+            parent_frame_id: WORLD_FRAME.into(),
+            child_frame_id: "link".into(),
+            translation: v3(off.x, off.y, off.z),
+            rotation: Quaternion::default(),
+        });
+        for (k, d) in self.shapes.iter().enumerate() {
+            let f = &s.frame[l.shapes_at + k * SHAPE_FLOATS..l.shapes_at + (k + 1) * SHAPE_FLOATS];
+            tf.transforms.push(FrameTransform {
+                timestamp: stamp,
+                parent_frame_id: WORLD_FRAME.into(),
+                child_frame_id: d.frame.clone(),
+                translation: v3(f[0] as f64, f[1] as f64, f[2] as f64),
+                rotation: Quaternion { x: f[3] as f64, y: f[4] as f64, z: f[5] as f64, w: f[6] as f64 },
+            });
+        }
+        let mut states = Vec::with_capacity(l.characters);
+        for i in 0..l.characters {
+            let c = &s.frame[l.characters_at + i * l.character_floats..];
+            tf.transforms.push(FrameTransform {
+                timestamp: stamp,
+                parent_frame_id: WORLD_FRAME.into(),
+                child_frame_id: format!("character/{i}"),
+                translation: v3(c[0] as f64, c[1] as f64, c[2] as f64),
+                rotation: Quaternion { x: c[3] as f64, y: c[4] as f64, z: c[5] as f64, w: c[6] as f64 },
+            });
+            states.push(c[10].max(0.0) as u8);
+        }
+        ok = ok && self.put(TF, s.t_s, &tf);
+        // What the bodies look like: every entity now and then; labels when they change; the
+        // crowd's skeletons every step (they move within their frames).
+        let labels: Vec<u8> = (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
+        let full = s.t_s >= self.next_scene_t_s;
+        let mut update = SceneUpdate::default();
+        if full {
+            self.next_scene_t_s = s.t_s + SCENE_EVERY_S;
+            for d in &self.shapes {
+                update.entities.push(SceneEntity { timestamp: stamp, ..d.entity.clone() });
+            }
+            for e in &self.statics {
+                update.entities.push(SceneEntity { timestamp: stamp, ..e.clone() });
+            }
+        }
+        if full || labels != self.prev_labels {
+            for (i, lab) in self.look.labels.iter().enumerate() {
+                let state = labels[i] as usize;
+                let text = format!("{}: {}", lab.name, lab.states.get(state).map_or("?", |x| x.as_str()));
+                let frame = self.shapes.get(lab.shape).map_or(WORLD_FRAME.to_string(), |d| d.frame.clone());
+                update.entities.push(SceneEntity {
+                    timestamp: stamp,
+                    frame_id: frame,
+                    id: format!("label/{i}"),
+                    frame_locked: true,
+                    texts: vec![TextPrimitive {
+                        pose: pose(DVec3::new(0.0, 0.2 + 0.07 * i as f64, 0.0), DQuat::IDENTITY),
+                        billboard: true,
+                        font_size: 14.0,
+                        scale_invariant: true,
+                        color: Color { r: 1.0, g: 1.0, b: 1.0, a: 1.0 },
+                        text,
+                    }],
+                    ..Default::default()
+                });
+            }
+        }
+        let skeletons = full || s.t_s >= self.next_skeleton_t_s || states != self.prev_states;
+        if let Some(crowd) = self.look.crowd.as_ref().filter(|_| skeletons) {
+            self.next_skeleton_t_s = s.t_s + SKELETON_EVERY_S;
+            for (i, state) in states.iter().enumerate() {
+                let c = &s.frame[l.characters_at + i * l.character_floats
+                    ..(i + 1) * l.character_floats + l.characters_at];
+                let colour = crowd.colours.get(*state as usize).copied().unwrap_or([200, 200, 200]);
+                update.entities.push(SceneEntity {
+                    timestamp: stamp,
+                    frame_id: format!("character/{i}"),
+                    id: format!("character/{i}"),
+                    frame_locked: true,
+                    lines: vec![skeleton(crowd, c, Color::srgb(colour, 1.0))],
+                    ..Default::default()
+                });
+            }
+        }
+        if !update.entities.is_empty() {
+            ok = ok && self.put(SCENE, s.t_s, &update);
+        }
+        // The virtual human's decisions, the crowd's states, and what changed.
+        if let Some(d) = s.decisions {
+            ok = ok && self.put(BOXER, s.t_s, &BoxerMsg { t_s: s.t_s, d });
+            let p = self.prev.unwrap_or_default();
+            let mut events = Vec::new();
+            if d.hits_taken > p.hits_taken {
+                events.push((
+                    EVENT_HIT_TAKEN,
+                    0,
+                    0,
+                    format!(
+                        "hit taken (the user's hand on the virtual human's head or chest), {} so far",
+                        d.hits_taken
+                    ),
+                ));
+            }
+            if d.hits_given > p.hits_given {
+                events.push((
+                    EVENT_HIT_GIVEN,
+                    0,
+                    0,
+                    format!(
+                        "hit given (the virtual human's hand on the avatar's head or chest), {} so far",
+                        d.hits_given
+                    ),
+                ));
+            }
+            for h in 0..2 {
+                if d.hands[h] != p.hands[h] || self.prev.is_none() {
+                    let name = HAND_BEHAVIOURS.get(d.hands[h] as usize).unwrap_or(&"?");
+                    events.push((
+                        EVENT_HAND,
+                        h as u16,
+                        d.hands[h],
+                        format!("{} hand: {name}", ["left", "right"][h]),
+                    ));
+                }
+            }
+            if d.body != p.body || self.prev.is_none() {
+                let name = BODY_BEHAVIOURS.get(d.body as usize).unwrap_or(&"?");
+                events.push((EVENT_BODY, 0, d.body, format!("body: {name}")));
+            }
+            for (kind, index, state, text) in events {
+                ok = ok && self.put(EVENT, s.t_s, &WorldEventMsg { t_s: s.t_s, kind, index, state, text });
+                self.report.events += 1;
+            }
+            self.prev = Some(d);
+        }
+        if self.look.crowd.is_some() {
+            for (i, st) in states.iter().enumerate() {
+                if self.prev_states.get(i) != Some(st) {
+                    let name = CROWD_STATES.get(*st as usize).unwrap_or(&"?");
+                    let e = WorldEventMsg {
+                        t_s: s.t_s,
+                        kind: EVENT_CHARACTER,
+                        index: i as u16,
+                        state: *st,
+                        text: format!("character {i}: {name}"),
+                    };
+                    ok = ok && self.put(EVENT, s.t_s, &e);
+                    self.report.events += 1;
+                }
+            }
+            let not_balancing = states.iter().filter(|s| **s != 0).count() as u32;
+            ok =
+                ok && self.put(CROWD, s.t_s, &CrowdMsg { t_s: s.t_s, states: states.clone(), not_balancing });
+            self.prev_states = states;
+        }
+        self.prev_labels = labels;
+        if ok {
+            self.report.steps += 1;
+        } else {
+            self.report.write_failed += 1;
+        }
+    }
+
+    fn finish(mut self, dropped: u64) -> WorldRecordingReport {
+        if let Some(mut w) = self.w.take() {
+            let mut meta = BTreeMap::new();
+            meta.insert("steps_recorded".to_string(), self.report.steps.to_string());
+            meta.insert("steps_dropped".to_string(), dropped.to_string());
+            meta.insert("steps_write_failed".to_string(), self.report.write_failed.to_string());
+            let r = w
+                .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
+                .and_then(|_| w.finish());
+            if let Err(e) = r {
+                self.report.error.get_or_insert(describe(&e));
+            }
+        }
+        self.report.bytes = std::fs::metadata(&self.path).map_or(0, |m| m.len());
+        self.report.clone()
+    }
+}
+
+/// A character's skeleton as line segments in its body frame: each joint's position from its
+/// parent's, posed by the frame's joint rotations (root: rest offset plus the root's offset).
+fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> LinePrimitive {
+    let n = crowd.joints.len();
+    let mut pos = vec![Vec3::ZERO; n];
+    let mut rot = vec![Quat::IDENTITY; n];
+    let root = Vec3::new(c[7], c[8], c[9]);
+    let mut points = Vec::with_capacity(2 * n);
+    for (j, joint) in crowd.joints.iter().enumerate() {
+        let o = 12 + 4 * j;
+        let local = c.get(o..o + 4).map_or(Quat::IDENTITY, |q| Quat::from_xyzw(q[0], q[1], q[2], q[3]));
+        let off = joint.offset_m.as_vec3();
+        match joint.parent.filter(|p| *p < j) {
+            None => {
+                pos[j] = off + root;
+                rot[j] = local;
+            }
+            Some(p) => {
+                pos[j] = pos[p] + rot[p] * off;
+                rot[j] = rot[p] * local;
+                for q in [pos[p], pos[j]] {
+                    points.push(Point { x: q.x as f64, y: q.y as f64, z: q.z as f64 });
+                }
+            }
+        }
+    }
+    LinePrimitive {
+        r#type: 2,
+        pose: Pose::default(),
+        thickness: 0.04,
+        scale_invariant: false,
+        points,
+        color: colour,
+        ..Default::default()
+    }
+}
+
+/// What a world recording holds (`spidar replay` prints it with the rig's).
+#[derive(Clone, Debug, Default)]
+pub struct WorldSummary {
+    pub recording: crate::reader::Recording,
+    pub steps: u64,
+    pub first_t_s: f64,
+    pub last_t_s: f64,
+    /// Steps the recorder had dropped by the last recorded step.
+    pub dropped: u64,
+    /// The virtual human's last state (scenes with one).
+    pub boxer: Option<Decisions>,
+    /// Steps with each hand attacking, blocking; with the body avoiding.
+    pub attack_steps: [u64; 2],
+    pub block_steps: [u64; 2],
+    pub avoid_steps: u64,
+    pub hits_taken: u64,
+    pub hits_given: u64,
+    pub events: u64,
+    /// Crowd: characters, and the most not balancing at once.
+    pub characters: usize,
+    pub most_not_balancing: u32,
+    pub drawing_messages: u64,
+}
+
+/// Reads a world recording through.
+pub fn summarize(path: &Path) -> Result<WorldSummary, RecordError> {
+    let mut s = WorldSummary::default();
+    let recording = crate::reader::read(path, |_, m| {
+        let crate::reader::Msg::Other { channel, data, .. } = m else {
+            return Ok(crate::reader::Flow::Continue);
+        };
+        let Some(msg) = decode(&channel.topic, &channel.schema, data) else {
+            return Ok(crate::reader::Flow::Continue);
+        };
+        let msg = msg.map_err(|e| RecordError::Corrupt {
+            path: path.to_path_buf(),
+            what: format!("a message on {}: {e}", channel.topic),
+        })?;
+        match msg {
+            WorldMsg::Step(st) => {
+                if s.steps == 0 {
+                    s.first_t_s = st.t_s;
+                }
+                s.steps += 1;
+                s.last_t_s = st.t_s;
+                s.dropped = st.dropped;
+            }
+            WorldMsg::Boxer(b) => {
+                for h in 0..2 {
+                    s.attack_steps[h] += u64::from(b.d.hands[h] == 1);
+                    s.block_steps[h] += u64::from(b.d.hands[h] == 2);
+                }
+                s.avoid_steps += u64::from(b.d.body == 1);
+                s.boxer = Some(b.d);
+            }
+            WorldMsg::Crowd(c) => {
+                s.characters = c.states.len();
+                s.most_not_balancing = s.most_not_balancing.max(c.not_balancing);
+            }
+            WorldMsg::Event(e) => {
+                s.events += 1;
+                s.hits_taken += u64::from(e.kind == EVENT_HIT_TAKEN);
+                s.hits_given += u64::from(e.kind == EVENT_HIT_GIVEN);
+            }
+            WorldMsg::Drawing => s.drawing_messages += 1,
+        }
+        Ok(crate::reader::Flow::Continue)
+    })?;
+    s.recording = recording;
+    Ok(s)
+}
+
+impl std::fmt::Display for WorldSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let r = &self.recording;
+        writeln!(f, "world recording {}", r.path.display())?;
+        writeln!(
+            f,
+            "  scene        {} ({} clock), spidar {}",
+            r.meta("scene"),
+            r.meta("clock"),
+            r.meta("spidar_version")
+        )?;
+        writeln!(
+            f,
+            "  steps        {} from t = {:.3} s to {:.3} s; {} dropped while recording; {} drawing messages (/world/tf, /world/scene)",
+            self.steps, self.first_t_s, self.last_t_s, self.dropped, self.drawing_messages
+        )?;
+        if let Some(d) = &self.boxer {
+            writeln!(
+                f,
+                "  virtual human {}: attacks {}, blocks {}, avoidances {}, predictions {}; steps attacking L/R {}/{}, blocking {}/{}, avoiding {}",
+                if d.active { "active" } else { "passive" },
+                d.attacks,
+                d.blocks,
+                d.avoidances,
+                d.predictions,
+                self.attack_steps[0],
+                self.attack_steps[1],
+                self.block_steps[0],
+                self.block_steps[1],
+                self.avoid_steps
+            )?;
+        }
+        if self.characters > 0 {
+            writeln!(
+                f,
+                "  crowd        {} characters, at most {} not balancing at once",
+                self.characters, self.most_not_balancing
+            )?;
+        }
+        writeln!(
+            f,
+            "  events       {} (hits taken {}, given {})",
+            self.events, self.hits_taken, self.hits_given
+        )?;
+        let e = match &r.ending {
+            Some(e) => e.to_string(),
+            None => "not read to its end".into(),
+        };
+        write!(f, "  ends         {e}; last step read at t = {:.3} s", self.last_t_s)
+    }
+}

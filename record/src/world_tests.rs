@@ -1,0 +1,281 @@
+//! Tests of the world's recordings: what an independent reader (the `mcap` crate's) finds in one,
+//! the Foxglove messages decoding as drawn, a kill part way, and the stepping thread never waiting.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use spidar_msg::HandSample;
+use spidar_world::host::Stepper;
+
+use crate::cdr::{self, Field};
+use crate::foxglove::{FrameTransforms, SceneUpdate};
+use crate::reader::{self, Ending};
+use crate::world::*;
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("spidar-world-record-tests-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// The user's hands in front of the virtual human, the left one jabbing now and then.
+fn sample(k: u64, t_s: f64) -> HandSample {
+    let mut s = HandSample { tick: k, t_s, ..Default::default() };
+    let jab = ((k % 300) as f64 / 300.0 * std::f64::consts::TAU).sin().max(0.0);
+    s.hands[0].pos_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
+    s.hands[1].pos_m = DVec3::new(0.15, 0.0, 0.0);
+    for h in &mut s.hands {
+        h.valid = true;
+    }
+    s
+}
+
+/// Steps `scene` `steps` times with a recorder on `path`; returns the look's shape and label
+/// counts and the report.
+fn record_scene(scene: &str, path: &Path, steps: u64) -> (usize, usize, WorldRecordingReport) {
+    let scene = spidar_world::load(scene).unwrap();
+    let look = scene.look();
+    let info = WorldInfo { scene: "test".into(), clock: "virtual".into(), ..Default::default() };
+    let (rec, obs) = WorldRecording::start(path, &info, &look).unwrap();
+    let mut st = Stepper::new(scene);
+    st.add_observer(Box::new(obs));
+    let dt = st.step_s();
+    for k in 0..steps {
+        let t = dt * (k + 1) as f64;
+        st.step(t, &[sample(k, t)], None, None);
+        if k % 64 == 63 {
+            // The writer thread keeps up (the queue holds QUEUE_STEPS): no step is dropped here.
+            while rec.dropped() == 0 && !queue_has_room(&rec) {
+                std::thread::yield_now();
+            }
+        }
+    }
+    (look.shapes.len(), look.labels.len(), rec.finish())
+}
+
+fn queue_has_room(rec: &WorldRecording) -> bool {
+    rec.queued() < QUEUE_STEPS / 2
+}
+
+#[test]
+fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_decodes() {
+    let p = temp("boxing.world.mcap");
+    let (shapes, labels, rep) = record_scene("boxing", &p, 600);
+    assert_eq!((rep.steps, rep.dropped, rep.write_failed, rep.error.clone()), (600, 0, 0, None), "{rep}");
+    let bytes = std::fs::read(&p).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
+    let mut topics: Vec<(String, String, String, String)> = summary
+        .channels
+        .values()
+        .map(|c| {
+            let s = c.schema.as_ref().expect("every channel has a schema");
+            (c.topic.clone(), s.name.clone(), s.encoding.clone(), c.message_encoding.clone())
+        })
+        .collect();
+    topics.sort();
+    let want = |t: &str, s: &str| (t.to_string(), s.to_string(), "ros2msg".to_string(), "cdr".to_string());
+    assert_eq!(
+        topics,
+        vec![
+            want(TOPIC_BOXER, "spidar/Boxer"),
+            want(TOPIC_CROWD, "spidar/Crowd"),
+            want(TOPIC_WORLD_EVENT, "spidar/WorldEvent"),
+            want(TOPIC_SCENE, "foxglove_msgs/msg/SceneUpdate"),
+            want(TOPIC_STEP, "spidar/WorldStep"),
+            want(TOPIC_TF, "foxglove_msgs/msg/FrameTransforms"),
+        ]
+    );
+    assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"));
+    // Every message, streamed by the mcap crate.
+    let mut per_topic = BTreeMap::<String, u64>::new();
+    let (mut first_scene, mut last_tf) = (None, None);
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        *per_topic.entry(m.channel.topic.clone()).or_default() += 1;
+        match m.channel.topic.as_str() {
+            TOPIC_SCENE if first_scene.is_none() => first_scene = Some(m.data.into_owned()),
+            TOPIC_TF => last_tf = Some(m.data.into_owned()),
+            _ => {}
+        }
+    }
+    for t in [TOPIC_STEP, TOPIC_TF, TOPIC_BOXER] {
+        assert_eq!(per_topic[t], 600, "{t}: one per step");
+    }
+    assert!(!per_topic.contains_key(TOPIC_CROWD), "no crowd in boxing");
+    assert!(per_topic[TOPIC_WORLD_EVENT] >= 3, "the first behaviours at least: {per_topic:?}");
+    // Every body has its frame, and the first scene update draws every one in its frame.
+    let tf: FrameTransforms = cdr::decode(&last_tf.unwrap()).unwrap();
+    assert_eq!(tf.transforms.len(), shapes + 1, "the link frame and every moving shape");
+    assert!(tf.transforms.iter().any(|t| t.child_frame_id == "virtual_human/head"), "{:?}", tf.transforms);
+    assert!(tf.transforms.iter().all(|t| t.parent_frame_id == WORLD_FRAME));
+    let q = &tf.transforms[2].rotation;
+    assert!(((q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) - 1.0).abs() < 1e-5, "a unit quaternion");
+    let scene: SceneUpdate = cdr::decode(&first_scene.unwrap()).unwrap();
+    assert_eq!(scene.entities.len(), shapes + labels, "every shape and every behaviour label");
+    for e in &scene.entities[..shapes] {
+        assert!(e.frame_locked && tf.transforms.iter().any(|t| t.child_frame_id == e.frame_id), "{}", e.id);
+        assert!(!(e.spheres.is_empty() && e.cylinders.is_empty() && e.cubes.is_empty()), "{} is drawn", e.id);
+    }
+    // The Foxglove schemas name their nested types the ROS 2 way.
+    let s = cdr::schema_text::<SceneUpdate>();
+    assert!(s.starts_with(
+        "foxglove_msgs/SceneEntityDeletion[] deletions\nfoxglove_msgs/SceneEntity[] entities\n"
+    ));
+    for t in [
+        "foxglove_msgs/SceneEntity",
+        "foxglove_msgs/CylinderPrimitive",
+        "geometry_msgs/Pose",
+        "builtin_interfaces/Time",
+    ] {
+        assert_eq!(s.matches(&format!("MSG: {t}\n")).count(), 1, "{t}");
+    }
+    assert!(s.contains("\nuint8 type\n"), "the raw identifier is named as the schema names it");
+    // spidar's own reader and summary agree.
+    let w = summarize(&p).unwrap();
+    assert_eq!((w.steps, w.recording.ending.clone()), (600, Some(Ending::Complete)));
+    assert_eq!(w.recording.meta("role"), "world");
+    assert!(w.boxer.is_some());
+}
+
+#[test]
+fn a_crowd_recording_carries_every_characters_state_and_frame() {
+    let p = temp("crowd.world.mcap");
+    let (_, _, rep) = record_scene("crowd", &p, 200);
+    assert_eq!(rep.steps, 200, "{rep}");
+    // As many as the shipped crowd scene holds (its look says how many).
+    let n =
+        spidar_world::load("crowd").unwrap().look().crowd.expect("the crowd scene has a crowd").characters;
+    assert!(n >= 2, "{n} characters");
+    let w = summarize(&p).unwrap();
+    assert_eq!(w.characters, n);
+    assert!(w.events >= n as u64, "every character's first state is an event: {}", w.events);
+    let mut crowd = 0;
+    reader::read(&p, |_, m| {
+        if let reader::Msg::Other { channel, data, .. } = m {
+            if channel.topic == TOPIC_TF {
+                let tf: FrameTransforms = cdr::decode(data).unwrap();
+                assert_eq!(tf.transforms.len(), n + 1, "the link frame and one per character");
+            }
+            if let Some(Ok(WorldMsg::Crowd(c))) = decode(&channel.topic, &channel.schema, data) {
+                assert_eq!(c.states.len(), n);
+                crowd += 1;
+            }
+        }
+        Ok(reader::Flow::Continue)
+    })
+    .unwrap();
+    assert_eq!(crowd, 200);
+}
+
+#[test]
+fn the_stepping_thread_drops_and_counts_a_step_when_every_buffer_is_queued() {
+    let p = temp("full.world.mcap");
+    let scene = spidar_world::load("walls").unwrap();
+    let look = scene.look();
+    let (rec, obs) = WorldRecording::start(&p, &WorldInfo::default(), &look).unwrap();
+    // Take every free buffer away, as a writer stuck on the disk would keep them.
+    let mut held = Vec::new();
+    while let Ok(b) = obs.free.try_recv() {
+        held.push(b);
+    }
+    assert_eq!(held.len(), QUEUE_STEPS);
+    let mut st = Stepper::new(scene);
+    st.add_observer(Box::new(obs));
+    for k in 0..5u64 {
+        let t = 0.003 * (k + 1) as f64;
+        st.step(t, &[sample(k, t)], None, None);
+    }
+    assert_eq!(rec.dropped(), 5, "each step found no buffer: dropped, counted, never waited for");
+    let r = rec.finish();
+    assert_eq!((r.steps, r.dropped), (0, 5), "{r}");
+    let meta = summarize(&p).unwrap().recording.end_meta.unwrap();
+    assert_eq!(meta["steps_dropped"], "5");
+}
+
+/// Run by `a_killed_world_leaves_a_recording_read_up_to_its_last_chunk` as its own child
+/// process (skipped otherwise): a boxing world recording until killed.
+#[test]
+#[ignore = "the child process of the kill test"]
+fn child_records_a_world_until_killed() {
+    let Ok(path) = std::env::var("SPIDAR_WORLD_RECORD_CHILD") else { return };
+    let scene = spidar_world::load("boxing").unwrap();
+    let look = scene.look();
+    let (rec, obs) = WorldRecording::start(Path::new(&path), &WorldInfo::default(), &look).unwrap();
+    let mut st = Stepper::new(scene);
+    st.add_observer(Box::new(obs));
+    // Ends by itself if nobody kills it (about 100 s).
+    for k in 0..100_000u64 {
+        let t = 0.003 * (k + 1) as f64;
+        st.step(t, &[sample(k, t)], None, None);
+        std::thread::sleep(std::time::Duration::from_micros(500));
+    }
+    rec.finish();
+}
+
+#[test]
+fn a_killed_world_leaves_a_recording_read_up_to_its_last_chunk() {
+    let path = temp("killed.world.mcap");
+    let _ = std::fs::remove_file(&path);
+    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "world_tests::child_records_a_world_until_killed", "--ignored", "--nocapture"])
+        .env("SPIDAR_WORLD_RECORD_CHILD", &path)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Wait until two or more chunks are on disk, then SIGKILL.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(100);
+    loop {
+        let len = std::fs::metadata(&path).map_or(0, |m| m.len());
+        if len > 400_000 {
+            break;
+        }
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("the recording child ended by itself ({status}) at {len} bytes");
+        }
+        assert!(std::time::Instant::now() < deadline, "the recording child wrote only {len} bytes");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap(); // SIGKILL: no clean-up of any kind
+    child.wait().unwrap();
+    let mut steps = Vec::new();
+    let rec = reader::read(&path, |_, m| {
+        if let reader::Msg::Other { channel, data, .. } = m {
+            if let Some(Ok(WorldMsg::Step(s))) = decode(&channel.topic, &channel.schema, data) {
+                steps.push(s.step);
+            }
+        }
+        Ok(reader::Flow::Continue)
+    })
+    .unwrap();
+    assert!(matches!(rec.ending, Some(Ending::CutShort { .. })), "{:?}", rec.ending);
+    assert!(rec.end_meta.is_none(), "the world never ended normally");
+    assert!(steps.len() > 300, "{} steps read", steps.len());
+    assert_eq!(steps.first(), Some(&1));
+    assert!(steps.windows(2).all(|w| w[1] == w[0] + 1), "consecutive steps, none lost in the file");
+    let w = summarize(&path).unwrap();
+    assert_eq!(w.steps, steps.len() as u64);
+    assert!(w.to_string().contains("cut short"), "{w}");
+}
+
+#[test]
+fn docs_list_every_world_schema_as_implemented() {
+    let docs = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/recording.md")).unwrap();
+    for (name, text) in [
+        ("spidar/WorldStep", cdr::schema_text::<WorldStep>()),
+        ("spidar/Boxer", cdr::schema_text::<BoxerMsg>()),
+        ("spidar/Crowd", cdr::schema_text::<CrowdMsg>()),
+        ("spidar/WorldEvent", cdr::schema_text::<WorldEventMsg>()),
+    ] {
+        if std::env::var("SPIDAR_PRINT_SCHEMAS").is_ok() {
+            println!("### `{name}`\n\n```\n{text}```\n");
+            continue;
+        }
+        assert!(
+            docs.contains(&text),
+            "docs/recording.md does not list the schema of {name} as written:\n{text}"
+        );
+    }
+    let _ = BoxerMsg::ros_type();
+}

@@ -1,0 +1,217 @@
+// The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
+// ASK lines): `node view.mjs boxing|crowd|live URL`, and `node view.mjs screenshot URL CAMERA FILE`
+// for the README's pictures.
+import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
+
+const [mode, url, ...rest] = process.argv.slice(2);
+const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+const describe = async () => (await fetch(`${url}/scene.json`)).json();
+
+// Waits until the page has a status (its HUD shows it) composed at world time >= t with the link
+// up: a status of the world as it is now, not one on its way since before.
+const statusAfter = (page, t) => page.waitForFunction((t) => {
+  const s = spidarView.state().status;
+  return s && s.t_s >= t && s.link.state === 'up';
+}, { timeout: 60000, polling: 50 }, t);
+
+async function shapes(page, names) {
+  return page.evaluate((names) => Object.fromEntries(names.map((n) => [n, spidarView.shape(n)])), names);
+}
+
+async function boxing(browser) {
+  const desc = await describe();
+  const vh = desc.shapes.filter((s) => s.name.startsWith('virtual human/')).map((s) => s.name);
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+
+  // 1. The virtual human is drawn where the world says it is.
+  const pa = await pause(a);
+  const A = await shapes(a, vh);
+  await ask({ ask: 'check_shapes', t: pa.t, shapes: Object.fromEntries(vh.map((n) => [n, A[n].frame])) });
+  for (const n of vh) check(dist(A[n].pos, A[n].frame.slice(0, 3)) < 1e-5, `${n} mesh is at its frame position`);
+  const head = A['virtual human/head'];
+  const atHead = await pixels(a, RED, around(head.screen, 45));
+  check(atHead.n > 400, `the head is drawn at its place on the screen (${atHead.n} red pixels within 45 px of (${head.screen.x.toFixed(0)}, ${head.screen.y.toFixed(0)}))`);
+  check(Math.hypot(atHead.cx - head.screen.x, atHead.cy - head.screen.y) < 20, `the red pixels there centre on the head (${atHead.cx.toFixed(0)}, ${atHead.cy.toFixed(0)})`);
+  const above = await pixels(a, RED, around({ x: head.screen.x, y: head.screen.y - 160 }, 45));
+  check(above.n < 40, `nothing red where the world has nothing, above the head (${above.n} pixels)`);
+  const maskA = (await pixels(a, RED)).mask;
+
+  // 2. A scripted punch moves it (the world is held with the fist out).
+  const { t_punch } = await ask({ ask: 'punch' });
+  await a.evaluate(() => spidarView.resume());
+  await untilTime(a, t_punch + 0.5);
+  const pb = await pause(a);
+  const B = await shapes(a, vh);
+  await ask({ ask: 'check_shapes', t: pb.t, shapes: Object.fromEntries(vh.map((n) => [n, B[n].frame])) });
+  let moved = vh[0];
+  for (const n of vh) if (dist(B[n].pos, A[n].pos) > dist(B[moved].pos, A[moved].pos)) moved = n;
+  const d = dist(B[moved].pos, A[moved].pos);
+  check(d > 0.03, `the punch moved the virtual human: ${moved} by ${(d * 100).toFixed(1)} cm`);
+  // The part that moved most is drawn at its new place (or the next: the avatar may hide one).
+  let seen = null;
+  const byMotion = vh.filter((n) => dist(B[n].pos, A[n].pos) > 0.03)
+    .sort((x, y) => dist(B[y].pos, A[y].pos) - dist(B[x].pos, A[x].pos));
+  for (const n of byMotion) {
+    const px = await pixels(a, RED, around(B[n].screen, 25));
+    if (px.n > 80 && !seen) seen = `${n} (${px.n} red pixels)`;
+  }
+  check(seen !== null, `a moved part is drawn at its new place: ${seen}`);
+  const maskB = (await pixels(a, RED)).mask;
+  const changed = maskA.reduce((s, v, i) => s + (v !== maskB[i] ? 1 : 0), 0);
+  check(changed > 30, `the drawing changed with it (${changed} cells of 4 px)`);
+
+  // 3. The heads-up display shows the world's numbers (the world held still), 4. in every browser.
+  await ask({ ask: 'hold' });
+  await a.evaluate(() => spidarView.resume());
+  const second = await launch(); // a second browser, not a tab: both draw all the time
+  const b = await open(second.browser, url, 'camera=orbit');
+  // A status composed after the second browser came (and after the hold): both count it.
+  const tb = (await state(b)).t + 0.3;
+  for (const p of [a, b]) await statusAfter(p, tb);
+  for (const [name, p] of [['first', a], ['second', b]]) {
+    await ask({ ask: 'check_hud', browser: name, hud: await p.evaluate(() => spidarView.hud()) });
+  }
+  const [sa, sb] = [await pause(a), await pause(b)];
+  const [SA, SB] = [await shapes(a, vh), await shapes(b, vh)];
+  for (const n of vh) check(dist(SA[n].frame, SB[n].frame) < 1e-6, `both browsers show ${n} at the same pose`);
+  const [ma, mb] = [(await pixels(a, RED)).mask, (await pixels(b, RED)).mask];
+  const differ = ma.reduce((s, v, i) => s + (v !== mb[i] ? 1 : 0), 0);
+  const red = ma.reduce((s, v) => s + v, 0);
+  check(red > 100 && differ <= red * 0.02, `both browsers draw the same picture (${differ} of ${red} red cells differ; frames ${sa.seq} and ${sb.seq})`);
+  const [stA, stB] = [await state(a), await state(b)];
+  check(stA.status.viewers === 2 && stB.status.viewers === 2, 'both count two viewers');
+  await second.close();
+}
+
+// The world positions of a character's joints from a frame's numbers (body pose, root offset, the
+// joints' rotations relative to their parents): where the world says its skeleton is.
+const rot = (q, v) => { // q * v * q^-1
+  const [x, y, z, w] = q;
+  const t = [2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])];
+  return [v[0] + w * t[0] + y * t[2] - z * t[1], v[1] + w * t[1] + z * t[0] - x * t[2], v[2] + w * t[2] + x * t[1] - y * t[0]];
+};
+
+function skeleton(joints, c) {
+  const mul = (a, b) => [
+    a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
+    a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
+    a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
+    a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]];
+  const body = { p: c.slice(0, 3), q: c.slice(3, 7) };
+  const out = [];
+  joints.forEach((j, k) => {
+    const parent = j.parent === null ? body : out[j.parent];
+    const off = j.parent === null ? j.offset_m.map((x, i) => x + c[7 + i]) : j.offset_m;
+    const d = rot(parent.q, off);
+    out.push({ p: parent.p.map((x, i) => x + d[i]), q: mul(parent.q, c.slice(12 + 4 * k, 16 + 4 * k)) });
+  });
+  return out.map((o) => o.p);
+}
+
+async function crowd(browser) {
+  const desc = await describe();
+  const n = desc.crowd.characters;
+  const joints = desc.crowd.joints;
+  const states = desc.crowd.states;
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+  const snap = async () => {
+    const p = await pause(a);
+    const chars = await a.evaluate((n) => Array.from({ length: n }, (_, i) => ({
+      f: spidarView.character(i), joints: spidarView.characterJoints(i).map((j) => j.pos) })), n);
+    await ask({ ask: 'check_characters', t: p.t, characters: chars.map((c) => c.f) });
+    // Every drawn joint is where the frame's numbers put it.
+    let worst = 0;
+    chars.forEach((c) => skeleton(joints, c.f).forEach((p, j) => { worst = Math.max(worst, dist(p, c.joints[j])); }));
+    check(worst < 1e-3, `every character's joints are drawn where the world's pose puts them (worst ${(worst * 1000).toFixed(2)} mm)`);
+    return { t: p.t, chars };
+  };
+  const s1 = await snap();
+  await a.evaluate(() => spidarView.resume());
+  await untilTime(a, s1.t + 0.6);
+  const s2 = await snap();
+  // The characters that walked, and how much their drawn limbs moved relative to their pelvis, in
+  // their body's frame (turning is not a change of pose).
+  const rel = (s, i, j) => {
+    const J = s.chars[i].joints;
+    const q = s.chars[i].f.slice(3, 7);
+    return rot([-q[0], -q[1], -q[2], q[3]], J[j].map((x, k) => x - J[0][k]));
+  };
+  const limbs = joints.map((j, k) => [j.name, k]).filter(([name]) => /knee|elbow/.test(name)).map(([, k]) => k);
+  let w = -1; let wd = 0; let change = 0;
+  for (let i = 0; i < n; i++) {
+    const [f1, f2] = [s1.chars[i].f, s2.chars[i].f];
+    const d = Math.hypot(f2[0] - f1[0], f2[2] - f1[2]);
+    const c = Math.max(...limbs.map((k) => dist(rel(s1, i, k), rel(s2, i, k))));
+    if (f2[10] === 0 && d > 0.15 && c > change) { w = i; wd = d; change = c; }
+  }
+  check(w >= 0, `a character walks (character ${w}: ${wd.toFixed(2)} m in ${(s2.t - s1.t).toFixed(2)} s)`);
+  check(change > 0.03, `its drawn pose changes as it walks (knees and elbows move ${(change * 100).toFixed(1)} cm relative to the pelvis)`);
+  const spine = joints.findIndex((j) => j.name === 'spine');
+  const at2 = await a.evaluate((p) => spidarView.project(p), skeleton(joints, s2.chars[w].f)[spine]);
+  const green = await pixels(a, GREEN, around(at2, 40));
+  check(green.n > 150, `it is drawn where the world has it, in the balancing colour (${green.n} green pixels)`);
+
+  // A push makes it fall: the world holds still once it is down.
+  const { t_down } = await ask({ ask: 'push', i: w });
+  await a.evaluate(() => spidarView.resume());
+  const s3 = await (async () => {
+    const { t } = await state(a);
+    await untilTime(a, t + 0.2);
+    return snap();
+  })();
+  const f3 = s3.chars[w].f;
+  const st = states[f3[10]];
+  check(st === 'down', `the frame says character ${w} is ${st}`);
+  const neck = joints.findIndex((j) => j.name === 'neck');
+  const neckY = s3.chars[w].joints[neck][1];
+  check(neckY < 0.6, `its drawn neck is near the floor (${neckY.toFixed(2)} m; standing it was ${s2.chars[w].joints[neck][1].toFixed(2)} m)`);
+  const labels = await a.evaluate(() => spidarView.labels());
+  const lab = labels.find((l) => l.character === String(w));
+  check(lab && lab.state === st, `its label says ${lab && lab.text}`);
+  // Look down on it from above (a push may send it out of the picture, or behind the others).
+  const sk = skeleton(joints, f3);
+  const mid = sk[spine].map((x, i) => (x + sk[neck][i]) / 2);
+  await a.evaluate((p) => spidarView.orbitTo([p[0], 2.4, p[2] + 0.01], [p[0], 0, p[2]]), mid);
+  await a.evaluate(() => spidarView.rendered());
+  const at3 = await a.evaluate((p) => spidarView.project(p), mid);
+  const red = await pixels(a, RED, around(at3, 30));
+  check(red.n > 300, `it is drawn lying there in the down colour (${red.n} red pixels around its chest)`);
+  await a.evaluate(() => spidarView.resume());
+  await statusAfter(a, t_down + 0.3);
+  await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
+}
+
+// The page as a user opens it from the address `spidar run`'s world process printed: frames flow,
+// the virtual human is drawn where they put it, the grips are shown, the HUD shows the rig and the
+// world's link (checked against the world's own /status.json by the Rust test).
+async function live(browser) {
+  const a = await open(browser, url, 'camera=orbit');
+  await a.waitForFunction(() => { const s = spidarView.state().status; return s && s.rig && s.rig.state === 'active' && s.link.state === 'up'; },
+    { timeout: 60000, polling: 100 });
+  const t0 = (await state(a)).t;
+  await untilTime(a, t0 + 1.0);
+  const st = await state(a);
+  check(st.scene === 'boxing' && st.hasRig, `the page has the world's scene (${st.scene}) and the rig's geometry`);
+  check(st.framesReceived > 10, `frames arrive (${st.framesReceived} received)`);
+  const p = await pause(a);
+  const head = await a.evaluate(() => spidarView.shape('virtual human/head'));
+  check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');
+  const px = await pixels(a, RED, around(head.screen, 45));
+  check(px.n > 400, `the virtual human's head is drawn at its place (${px.n} red pixels)`);
+  const grips = await a.evaluate(() => spidarView.grips());
+  check(grips.length === 2 && grips.every((g) => g.visible), 'both grips are shown');
+  await ask({ ask: 'check_live', t: p.t, hud: await a.evaluate(() => spidarView.hud()), page_steps: st.status.steps });
+}
+
+async function shot(browser) {
+  const [camera, file, seconds] = rest;
+  const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
+  await sleep(1000 * Number(seconds || 2));
+  await pause(p);
+  await screenshot(p, file);
+}
+
+run({ boxing, crowd, live, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

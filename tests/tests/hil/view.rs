@@ -1,0 +1,863 @@
+//! The live view: the world hosted by `spidar run`'s scene thread with the view as its observer,
+//! watched by Debian's chromium through puppeteer-core (`tests/browser/`), and by raw WebSocket
+//! clients.
+//!
+//! The browser tests need node, chromium and `npm ci` in `tests/browser`; without them they say so
+//! loudly and pass, unless `SPIDAR_BROWSER_TESTS=required` (set by `.ci/run`), which makes a
+//! missing browser a failure.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender};
+use glam::{DQuat, DVec3};
+use serde_json::{json, Value};
+use spidar_link::channel::ChannelWorldEnd;
+use spidar_msg::{ContactModel, HandSample, HandState, RigState, RigStatus};
+use spidar_rt::status::rig_info;
+use spidar_rt::{Clock, MonotonicClock};
+use spidar_sim::character::controller::Policy;
+use spidar_sim::character::keyframe::Pose as SkeletonPose;
+use spidar_tools::scene_thread::{self, SceneCounters};
+use spidar_world::boxing::BoxingScene;
+use spidar_world::crowd::CrowdScene;
+use spidar_world::host::Stepper;
+use spidar_world::view::{View, ViewHandle, ViewOptions};
+use spidar_world::{Observer, Scene, StepView};
+
+use super::{forbidden_allocs, no_alloc, rig};
+
+// ---------------------------------------------------------------------------------------------
+// A world hosted as `spidar run` hosts it, with the test's hands, pushes and a pause.
+
+#[derive(Default)]
+struct Ctl {
+    /// Stop stepping the world (it stays where it is; the host's steps, samples, frames and the
+    /// records go on).
+    hold: AtomicBool,
+    /// Loop-clock time (bits of an f64; 0: none) the scripted punch starts at.
+    punch_at: AtomicU64,
+    /// A character to push over at the next step.
+    push: Mutex<Option<usize>>,
+}
+
+/// What the world was after one step.
+#[derive(Clone)]
+struct Rec {
+    t: f64,
+    /// Boxing: every shape's pose. Crowd: every character's body pose.
+    parts: Vec<(DVec3, DQuat)>,
+    /// Crowd: every character's skeleton pose and policy.
+    skeletons: Vec<(SkeletonPose, Policy)>,
+    counters: Vec<f64>,
+}
+
+/// The scene behind the view, recording itself after every step and obeying the test.
+struct Hosted<S> {
+    inner: S,
+    record: fn(&S, f64) -> Rec,
+    act: fn(&mut S, &Ctl),
+    ctl: Arc<Ctl>,
+    log: Arc<Mutex<Vec<Rec>>>,
+    last: ContactModel,
+}
+
+impl<S: Scene> Scene for Hosted<S> {
+    fn name(&self) -> &str {
+        self.inner.name()
+    }
+    fn step_s(&self) -> f64 {
+        self.inner.step_s()
+    }
+    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
+        if !self.ctl.hold.load(Ordering::Relaxed) {
+            (self.act)(&mut self.inner, &self.ctl);
+            self.last = self.inner.step(t_s, samples);
+        }
+        let r = (self.record)(&self.inner, t_s);
+        self.log.lock().unwrap().push(r);
+        self.last
+    }
+    fn look(&self) -> spidar_world::look::Look {
+        self.inner.look()
+    }
+    fn pose(&self, out: &mut spidar_world::look::Poses<'_>) {
+        self.inner.pose(out)
+    }
+}
+
+fn record_boxing(s: &BoxingScene, t: f64) -> Rec {
+    let w = &s.world;
+    let m = &w.mind;
+    Rec {
+        t,
+        parts: w.ws.shape_pose.iter().map(|p| (p.pos_m, DQuat::from_mat3(&p.rot).normalize())).collect(),
+        skeletons: Vec::new(),
+        counters: [m.hits_taken, m.hits_given, m.attacks, m.avoidances, m.blocks, m.predictions]
+            .iter()
+            .map(|c| *c as f64)
+            .collect(),
+    }
+}
+
+fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
+    let c = &s.crowd;
+    let down = c.chars.iter().filter(|ch| ch.control.policy != Policy::Balance).count();
+    Rec {
+        t,
+        parts: c.bodies.iter().map(|b| (b.pos_m, b.rot)).collect(),
+        skeletons: (0..c.len()).map(|i| (c.poses[i], c.chars[i].control.policy)).collect(),
+        counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
+    }
+}
+
+/// A push that tips a character over: 200 N s backward at its chest (it falls on its back,
+/// the way its narrow feet let it fall most easily).
+fn push_crowd(s: &mut CrowdScene, ctl: &Ctl) {
+    if let Some(i) = ctl.push.lock().unwrap().take() {
+        let b = s.crowd.body_space(i);
+        let front = b.heading.to_world(0.0, 1.0);
+        s.crowd.add_impulse_at(i, b.r_m + DVec3::Y * 0.45, front * -200.0);
+    }
+}
+
+/// The test's known rig status, as the rig would send it.
+fn known_rig_status() -> RigStatus {
+    RigStatus {
+        tick: 1,
+        t_s: 0.0,
+        state: RigState::Active,
+        rate_hz: 999.8,
+        lateness_p99_s: 57.3e-6,
+        force_n: [DVec3::new(0.0, 0.0, -1.5), DVec3::new(0.6, 0.8, 0.0)],
+        tensions_n: [[1.0, 2.0, 3.0, 20.0], [1.0, 1.0, 5.0, 9.0]],
+        faults: 3,
+        device_errors: 1,
+        stale_ticks: 2,
+        clamped_ticks: 7,
+        misses: 4,
+    }
+}
+
+struct Hosting {
+    stop: Arc<AtomicBool>,
+    scene: Option<JoinHandle<Stepper>>,
+    feeder: Option<JoinHandle<()>>,
+    view: ViewHandle,
+    ctl: Arc<Ctl>,
+    log: Arc<Mutex<Vec<Rec>>>,
+    clock: MonotonicClock,
+    look: spidar_world::look::Look,
+    _status: Sender<RigStatus>,
+    _models: Receiver<ContactModel>,
+}
+
+impl Drop for Hosting {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(f) = self.feeder.take() {
+            let _ = f.join();
+        }
+        if let Some(s) = self.scene.take() {
+            let _ = s.join();
+        }
+    }
+}
+
+/// The user's hands: both at home, the right one jabbing at `target` (link frame) from `punch_at`.
+fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
+    let r = rig();
+    let w = r.rig_to_world;
+    let home = [w.point(r.hands[0].home_m), w.point(r.hands[1].home_m)];
+    let mut h = home.map(|p| HandState { pos_m: p, valid: true, ..Default::default() });
+    let (out_s, hold_s) = (0.2, 0.3);
+    let s = t - punch_at;
+    if punch_at > 0.0 && s > 0.0 && s < out_s + hold_s + out_s {
+        // Minimum jerk out, hold, and back.
+        let (from, to, tau) = if s < out_s {
+            (home[1], target, s / out_s)
+        } else if s < out_s + hold_s {
+            (target, target, 0.0)
+        } else {
+            (target, home[1], (s - out_s - hold_s) / out_s)
+        };
+        let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
+        let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / out_s;
+        h[1].pos_m = from + (to - from) * p;
+        h[1].vel_m_per_s = (to - from) * v;
+    }
+    h
+}
+
+fn host<S: Scene + 'static>(
+    inner: S,
+    record: fn(&S, f64) -> Rec,
+    act: fn(&mut S, &Ctl),
+    target: DVec3,
+    opts: &ViewOptions,
+) -> Hosting {
+    let look = inner.look();
+    let ctl = Arc::new(Ctl::default());
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let hosted =
+        Hosted { inner, record, act, ctl: ctl.clone(), log: log.clone(), last: ContactModel::default() };
+    let view = View::start(hosted.name(), &look, opts).expect("starting the view");
+    let handle = view.counters_handle();
+    let (status_tx, status_rx) = crossbeam_channel::bounded(4);
+    status_tx.send(known_rig_status()).unwrap();
+    let (samples_tx, samples_rx) = crossbeam_channel::bounded(256);
+    let (models_tx, models_rx) = crossbeam_channel::bounded(1);
+    let clock = MonotonicClock::new();
+    let stop = Arc::new(AtomicBool::new(false));
+    let counters = Arc::new(SceneCounters::default());
+    let mut stepper = Stepper::new(Box::new(hosted));
+    stepper.add_observer(Box::new(view));
+    // The world as `spidar run --world thread` hosts it.
+    let scene = scene_thread::spawn(
+        stepper,
+        clock,
+        ChannelWorldEnd { models: models_tx, samples: samples_rx, status: status_rx },
+        rig_info(&rig()),
+        stop.clone(),
+        counters.clone(),
+        None,
+    )
+    .unwrap();
+    // The user's hands at 1 kHz on the scene's clock.
+    let feeder = {
+        let (stop, ctl) = (stop.clone(), ctl.clone());
+        std::thread::spawn(move || {
+            let mut tick = 0;
+            while !stop.load(Ordering::Relaxed) {
+                let t = clock.now_ns() as f64 * 1e-9;
+                let punch_at = f64::from_bits(ctl.punch_at.load(Ordering::Relaxed));
+                let s =
+                    HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
+                let _ = samples_tx.try_send(s);
+                tick += 1;
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        })
+    };
+    Hosting {
+        stop,
+        scene: Some(scene),
+        feeder: Some(feeder),
+        view: handle,
+        ctl,
+        log,
+        clock,
+        look,
+        _status: status_tx,
+        _models: models_rx,
+    }
+}
+
+fn boxing_world(opts: &ViewOptions) -> Hosting {
+    let scene = BoxingScene::new(Default::default()).unwrap();
+    // The right jab aims at the virtual human's head, in the rt-loop's frame.
+    let target = scene.world.com(scene.world.vh.head) - scene.world.params.user_offset_m;
+    host(scene, record_boxing, |_, _| {}, target, opts)
+}
+
+fn crowd_world(opts: &ViewOptions) -> Hosting {
+    host(CrowdScene::builtin().unwrap(), record_crowd, push_crowd, DVec3::ZERO, opts)
+}
+
+/// The view's tests run one at a time: browsers and big frames would load the machine under the
+/// other view tests' worlds.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn any_port() -> ViewOptions {
+    ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() }
+}
+
+// ---------------------------------------------------------------------------------------------
+// What the browser asks.
+
+impl Hosting {
+    fn now(&self) -> f64 {
+        self.clock.now_ns() as f64 * 1e-9
+    }
+
+    /// The record of the step at loop time `t` (a frame's time is its step's, in f32).
+    fn at(&self, t: f64) -> Rec {
+        let log = self.log.lock().unwrap();
+        let r =
+            log.iter().min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs())).expect("no step recorded");
+        assert!((r.t - t).abs() < 1e-5 * t.max(1.0), "no step at t = {t} (nearest {})", r.t);
+        r.clone()
+    }
+
+    /// Holds the world still; gives the loop time of a step taken after the hold (every status
+    /// from then on shows the held world's numbers).
+    fn hold(&self) -> f64 {
+        self.ctl.hold.store(true, Ordering::Relaxed);
+        // The step under way may have read the flag before: two more steps.
+        let n = self.log.lock().unwrap().len();
+        while self.log.lock().unwrap().len() < n + 2 {
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        self.latest().t
+    }
+
+    fn latest(&self) -> Rec {
+        self.log.lock().unwrap().last().cloned().expect("no step recorded")
+    }
+
+    fn answer(&self, q: &Value) -> Value {
+        let f = |v: &Value| v.as_f64().unwrap();
+        let close = |a: DVec3, b: &[Value], what: &str| {
+            let d = (a - DVec3::new(f(&b[0]), f(&b[1]), f(&b[2]))).length();
+            assert!(d < 1e-4, "{what}: the frame is {d} m from the world");
+        };
+        let same_rot = |a: DQuat, b: &[Value], what: &str| {
+            let q = DQuat::from_xyzw(f(&b[0]), f(&b[1]), f(&b[2]), f(&b[3]));
+            assert!(a.dot(q).abs() > 1.0 - 1e-5, "{what}: the frame's rotation {q} is not the world's {a}");
+        };
+        match q["ask"].as_str().unwrap() {
+            "check_shapes" => {
+                let rec = self.at(f(&q["t"]));
+                let shapes = q["shapes"].as_object().unwrap();
+                for (name, v) in shapes {
+                    let k =
+                        self.look.shapes.iter().position(|s| &s.name == name).expect("a shape of the look");
+                    let v = v.as_array().unwrap();
+                    close(rec.parts[k].0, &v[0..3], name);
+                    same_rot(rec.parts[k].1, &v[3..7], name);
+                }
+                json!({"ok": shapes.len()})
+            }
+            "check_characters" => {
+                let rec = self.at(f(&q["t"]));
+                let states = &self.look.crowd.as_ref().unwrap().states;
+                for (i, c) in q["characters"].as_array().unwrap().iter().enumerate() {
+                    let c = c.as_array().unwrap();
+                    let what = format!("character {i}");
+                    close(rec.parts[i].0, &c[0..3], &what);
+                    same_rot(rec.parts[i].1, &c[3..7], &what);
+                    let (pose, policy) = &rec.skeletons[i];
+                    close(pose.root_m.as_dvec3(), &c[7..10], &what);
+                    assert_eq!(states[c[10].as_u64().unwrap() as usize], policy.name(), "{what}'s state");
+                    for j in 0..self.look.crowd.as_ref().unwrap().joints.len() {
+                        same_rot(
+                            pose.rot[j].as_dquat(),
+                            &c[12 + 4 * j..16 + 4 * j],
+                            &format!("{what} joint {j}"),
+                        );
+                    }
+                }
+                json!({"ok": true})
+            }
+            "punch" => {
+                // The world is held with the fist out (0.45 s after the punch starts), so a slow
+                // browser still shows the virtual human's reaction.
+                let at = self.now() + 0.05;
+                self.ctl.punch_at.store(at.to_bits(), Ordering::Relaxed);
+                while self.latest().t < at + 0.45 {
+                    std::thread::sleep(Duration::from_millis(2));
+                }
+                self.ctl.hold.store(true, Ordering::Relaxed);
+                json!({"t_punch": at})
+            }
+            "push" => {
+                // Pushed (again every 3 s while it stands), and held still once it is down.
+                let i = q["i"].as_u64().unwrap() as usize;
+                let until = Instant::now() + Duration::from_secs(15);
+                let mut next_push = Instant::now();
+                loop {
+                    if Instant::now() >= next_push {
+                        *self.ctl.push.lock().unwrap() = Some(i);
+                        next_push += Duration::from_secs(3);
+                    }
+                    let r = self.latest();
+                    if r.skeletons[i].1 == Policy::Down {
+                        return json!({"t_down": self.hold()});
+                    }
+                    if Instant::now() > until {
+                        return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+            }
+            "hold" => json!({"t_hold": self.hold()}),
+            "check_hud" => {
+                let hud = q["hud"].as_object().unwrap();
+                let text = |k: &str| {
+                    hud.get(k).and_then(|v| v.as_str()).unwrap_or_else(|| panic!("no {k} in the HUD"))
+                };
+                let r = known_rig_status();
+                let want = [
+                    ("rig_state", "active".to_string()),
+                    ("rate_hz", format!("{:.1}", r.rate_hz)),
+                    ("lateness_p99", format!("{:.1} us", r.lateness_p99_s * 1e6)),
+                    ("force_l", format!("{:.2}", r.force_n[0].length())),
+                    ("force_r", format!("{:.2}", r.force_n[1].length())),
+                    ("faults", r.faults.to_string()),
+                    ("device_errors", r.device_errors.to_string()),
+                    ("stale_ticks", r.stale_ticks.to_string()),
+                    ("misses", r.misses.to_string()),
+                    ("link", "up".to_string()),
+                ];
+                for (k, v) in want {
+                    assert_eq!(text(k), v, "the HUD's {k} in the {} browser", q["browser"]);
+                }
+                let world = self.latest();
+                for (name, v) in self.look.counters.iter().zip(world.counters.iter()) {
+                    let shown = if v.fract() == 0.0 { format!("{}", *v as i64) } else { format!("{v:.1}") };
+                    assert_eq!(
+                        text(&format!("counter:{name}")),
+                        shown,
+                        "the HUD's {name} in the {} browser",
+                        q["browser"]
+                    );
+                }
+                json!({"ok": true})
+            }
+            other => json!({"error": format!("unknown question {other}")}),
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Running the browser.
+
+fn browser_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("browser")
+}
+
+/// Whether node, chromium and the test folder's packages are here; if not, why.
+fn browser_missing() -> Option<String> {
+    let chromium = std::env::var("SPIDAR_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
+    if !std::path::Path::new(&chromium).exists() {
+        return Some(format!("no chromium at {chromium} (apt-get install chromium, or set SPIDAR_CHROMIUM)"));
+    }
+    if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
+        return Some("no node on PATH".into());
+    }
+    if !browser_dir().join("node_modules/puppeteer-core").exists() {
+        return Some(format!("no puppeteer-core: run npm ci in {}", browser_dir().display()));
+    }
+    None
+}
+
+/// True when the browser tests can run; false (after a loud message) when they are skipped.
+fn browser_here(test: &str) -> bool {
+    let Some(why) = browser_missing() else { return true };
+    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
+        panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
+    }
+    eprintln!("\n*** SKIPPED {test}: {why}. The view's browser tests did not run. ***\n");
+    false
+}
+
+/// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
+/// unless it ends with `RESULT ok`.
+fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+    let mut child = Command::new("node")
+        .arg("view.mjs")
+        .args(args)
+        .current_dir(browser_dir())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("starting node");
+    let mut stdin = child.stdin.take().unwrap();
+    let out = BufReader::new(child.stdout.take().unwrap());
+    let mut transcript = String::new();
+    let mut result = None;
+    for line in out.lines() {
+        let line = line.unwrap();
+        transcript.push_str(&line);
+        transcript.push('\n');
+        if let Some(q) = line.strip_prefix("ASK ") {
+            let q: Value = serde_json::from_str(q).unwrap();
+            let a = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| answer(&q)));
+            let reply = match &a {
+                Ok(v) => v.clone(),
+                Err(e) => {
+                    json!({"error": e.downcast_ref::<String>().cloned().unwrap_or_else(|| "a check failed".into())})
+                }
+            };
+            writeln!(stdin, "{reply}").unwrap();
+            stdin.flush().unwrap();
+            if let Err(e) = a {
+                let _ = child.wait();
+                eprintln!("{transcript}");
+                std::panic::resume_unwind(e);
+            }
+        } else if let Some(r) = line.strip_prefix("RESULT ") {
+            result = Some(r.to_string());
+        }
+    }
+    let status = child.wait().unwrap();
+    eprintln!("{transcript}");
+    assert!(status.success() && result.as_deref() == Some("ok"), "the browser test failed: {result:?}");
+}
+
+/// Boxing in a browser: the virtual human drawn where the world has it, moved by a scripted punch,
+/// the HUD's numbers the world's, a second browser showing the same.
+#[test]
+fn view_boxing_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_boxing_in_a_browser") {
+        return;
+    }
+    let w = boxing_world(&any_port());
+    node(&["boxing", w.view.url()], |q| w.answer(q));
+    assert_eq!(w.view.counters().viewers_total.load(Ordering::Relaxed), 2);
+}
+
+/// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
+#[test]
+fn view_crowd_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_crowd_in_a_browser") {
+        return;
+    }
+    let w = crowd_world(&any_port());
+    node(&["crowd", w.view.url()], |q| w.answer(q));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Without a browser.
+
+/// A WebSocket viewer on the view's frames port; `read` says whether it reads.
+fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) -> JoinHandle<()> {
+    let url = url.to_string();
+    std::thread::spawn(move || {
+        let addr = url.trim_start_matches("ws://").to_string();
+        let stream = std::net::TcpStream::connect(&addr).unwrap();
+        let (mut ws, _) = tungstenite::client(format!("{url}/"), stream).unwrap();
+        while !stop.load(Ordering::Relaxed) {
+            if !read {
+                std::thread::sleep(Duration::from_millis(20));
+                continue;
+            }
+            match ws.read() {
+                Ok(tungstenite::Message::Binary(_)) => {
+                    frames.fetch_add(1, Ordering::Relaxed);
+                }
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+    })
+}
+
+/// A viewer that never reads does not hold the world back: with it connected (and never dropped:
+/// the write timeout is an hour), the world takes 4,000 steps whose frames (about 65 MB) are far
+/// more than its socket can buffer, every frame is published, and the viewer that reads gets its
+/// frames all along. A world that waited for the stalled viewer would block inside a step once its
+/// socket filled. Judged by counts; the only clock is a ten-minute bound that turns such a block
+/// into a failure instead of a hang.
+#[test]
+fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
+    let _one = one_at_a_time();
+    // Big frames (400 characters, about 90 kB each).
+    let mut scene = spidar_tools::bench_view::crowd_of(400).unwrap();
+    let look = scene.look();
+    let opts = ViewOptions { write_timeout: Duration::from_secs(3600), ..any_port() };
+    let mut view = View::start("crowd", &look, &opts).unwrap();
+    let handle = view.counters_handle();
+    let stop = Arc::new(AtomicBool::new(false));
+    let (read, stalled_read) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
+    let reader = viewer(view.ws_url(), true, read.clone(), stop.clone());
+    let stalled = viewer(view.ws_url(), false, stalled_read, stop.clone());
+    let c = handle.counters();
+    let mut waited = 0;
+    while c.viewers.load(Ordering::Relaxed) < 2 {
+        std::thread::sleep(Duration::from_millis(10));
+        waited += 1;
+        assert!(waited < 6000, "the two viewers never connected");
+    }
+    const STEPS: usize = 4000;
+    let (done_tx, done_rx) = crossbeam_channel::bounded(1);
+    let info = rig_info(&rig());
+    let status = known_rig_status();
+    let stepping = std::thread::spawn(move || {
+        let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
+        for i in 0..STEPS {
+            let t = i as f64 * 0.003;
+            sample.t_s = t;
+            let m = scene.step(t, std::slice::from_ref(&sample));
+            let v = StepView {
+                t_s: t,
+                scene: &scene,
+                samples: std::slice::from_ref(&sample),
+                model: &m,
+                rig_info: Some(&info),
+                rig_status: Some(&status),
+            };
+            view.after_step(&v);
+        }
+        let _ = done_tx.send(());
+        view
+    });
+    assert!(
+        done_rx.recv_timeout(Duration::from_secs(600)).is_ok(),
+        "the world did not finish {STEPS} steps with a stalled viewer connected: it waits for viewers"
+    );
+    let view = stepping.join().unwrap();
+    let c = handle.counters();
+    let offered = c.frames_published.load(Ordering::Relaxed) + c.frames_skipped.load(Ordering::Relaxed);
+    // A frame is due at the first step at or past each 1/60 s: every sixth 3 ms step.
+    let due = (STEPS / (1.0 / (opts.frame_hz * 0.003)).ceil() as usize) as u64;
+    assert!(offered + 1 >= due, "{offered} frames offered in {STEPS} steps, {due} due");
+    assert_eq!(
+        c.viewers_dropped.load(Ordering::Relaxed),
+        0,
+        "the stalled viewer stayed connected throughout"
+    );
+    assert_eq!(c.viewers.load(Ordering::Relaxed), 2);
+    // The reading viewer gets frames while the stalled one holds its socket full.
+    let mut waited = 0;
+    while read.load(Ordering::Relaxed) < 10 {
+        std::thread::sleep(Duration::from_millis(10));
+        waited += 1;
+        assert!(waited < 6000, "the reading viewer got {} frames", read.load(Ordering::Relaxed));
+    }
+    stop.store(true, Ordering::Relaxed);
+    drop(view);
+    let _ = (reader.join(), stalled.join());
+}
+
+/// The observer's call after a step allocates nothing, with viewers connected and frames flowing.
+#[test]
+fn view_observer_allocates_nothing_per_step() {
+    let _one = one_at_a_time();
+    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    let look = scene.look();
+    let mut view = View::start("boxing", &look, &any_port()).unwrap();
+    let handle = view.counters_handle();
+    let stop = Arc::new(AtomicBool::new(false));
+    let frames = Arc::new(AtomicU64::new(0));
+    let reader = viewer(view.ws_url(), true, frames.clone(), stop.clone());
+    while handle.counters().viewers.load(Ordering::Relaxed) == 0 {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let info = rig_info(&rig());
+    let status = known_rig_status();
+    let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
+    let mut run = |n: usize, guarded: bool| {
+        for i in 0..n {
+            let t = i as f64 * 0.003;
+            sample.t_s = t;
+            let m = scene.step(t, std::slice::from_ref(&sample));
+            let v = StepView {
+                t_s: t,
+                scene: &scene,
+                samples: std::slice::from_ref(&sample),
+                model: &m,
+                rig_info: Some(&info),
+                rig_status: Some(&status),
+            };
+            if guarded {
+                no_alloc(|| view.after_step(&v));
+            } else {
+                view.after_step(&v);
+            }
+        }
+    };
+    run(100, false);
+    let (before, _) = forbidden_allocs();
+    run(1000, true);
+    let (after, first) = forbidden_allocs();
+    assert_eq!(after - before, 0, "the observer allocated (first: {first} bytes)");
+    assert!(handle.counters().frames_published.load(Ordering::Relaxed) >= 150, "frames were written");
+    stop.store(true, Ordering::Relaxed);
+    drop(view);
+    let _ = reader.join();
+}
+
+// ---------------------------------------------------------------------------------------------
+// `spidar run`'s path: the view served by its child world process.
+
+/// `spidar run --scene SCENE --script SCRIPT --view 127.0.0.1:0` on the simulated rig: the
+/// rt-loop, and the child world process (this package's `spidar world`) started, watched and
+/// linked by the session as `spidar run` does, with the view option passed through. The session
+/// is polled on its own thread until `stop`.
+struct RunPath {
+    /// The view's address, as the world printed it.
+    url: String,
+    stop: spidar_tools::signals::Stop,
+    run: Option<JoinHandle<spidar_tools::session::Summary>>,
+    said: Arc<Mutex<Vec<String>>>,
+}
+
+impl RunPath {
+    fn start(scene: &str, script: &str) -> RunPath {
+        use spidar_rt::rt_thread::RtOptions;
+        use spidar_tools::child_world::ChildWorldSpec;
+        use spidar_tools::session::{
+            load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice,
+        };
+        let stop = spidar_tools::signals::Stop::detached();
+        let said = Arc::new(Mutex::new(Vec::<String>::new()));
+        let (url_tx, url_rx) = crossbeam_channel::bounded(1);
+        let opts = LiveOptions {
+            seconds: None,
+            rt: RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() },
+            spin_ns: 0,
+            status_every: None,
+            stop: stop.clone(),
+            scene_name: scene.into(),
+            script_name: script.into(),
+            connect_timeout: Duration::from_secs(60),
+            world_priority: None,
+            recorder: None,
+        };
+        let spec = ChildWorldSpec {
+            program: env!("CARGO_BIN_EXE_spidar-hil-world").into(),
+            prefix: Vec::new(),
+            scene: scene.into(),
+            restarts: 0,
+            extra: vec!["--view".into(), "127.0.0.1:0".into()],
+        };
+        let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
+        let run = std::thread::spawn(move || {
+            let r = rig();
+            let dev = sim_device(&r, load_scripts(&script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
+            let mut s = LiveSession::start(dev, &r, WorldChoice::Child(spec), &opts).unwrap();
+            let mut url_tx = Some(url_tx);
+            let mut say = |l: String| {
+                // "live view at http://127.0.0.1:PORT (frames on ws://...)"
+                if let Some(at) = l.split("live view at ").nth(1) {
+                    if let Some(tx) = url_tx.take() {
+                        let _ = tx.send(at.split(' ').next().unwrap_or("").to_string());
+                    }
+                }
+                sd.lock().unwrap().push(l);
+            };
+            while s.poll(&mut |_| {}, &mut say) {
+                if st.requested() {
+                    s.request_stop();
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            s.finish(&mut say).unwrap()
+        });
+        let url = url_rx.recv_timeout(Duration::from_secs(90)).unwrap_or_else(|_| {
+            stop.request();
+            panic!("the world process printed no view address; it said {:?}", said.lock().unwrap())
+        });
+        RunPath { url, stop, run: Some(run), said }
+    }
+
+    /// Stops the run (the rig stops, the world process ends) and gives its summary.
+    fn finish(mut self) -> spidar_tools::session::Summary {
+        self.stop.request();
+        self.run.take().unwrap().join().expect("the session")
+    }
+
+    /// `GET path` from the world process's view server: the JSON it answers.
+    fn get(&self, path: &str) -> Value {
+        use std::io::Read;
+        let host = self.url.trim_start_matches("http://");
+        let mut c = std::net::TcpStream::connect(host).unwrap();
+        write!(c, "GET {path} HTTP/1.0\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+        let mut text = String::new();
+        c.read_to_string(&mut text).unwrap();
+        let (head, body) = text.split_once("\r\n\r\n").expect("an HTTP answer");
+        assert!(head.starts_with("HTTP/1.") && head.contains(" 200 "), "GET {path}: {head}");
+        serde_json::from_str(body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
+    }
+
+    fn answer(&self, q: &Value) -> Value {
+        match q["ask"].as_str().unwrap() {
+            "check_live" => {
+                let hud = q["hud"].as_object().unwrap();
+                let text = |k: &str| hud.get(k).and_then(|v| v.as_str()).unwrap_or("(missing)").to_string();
+                let world = self.get("/status.json");
+                assert_eq!(world["rig"]["state"], "active", "the world's status: {world}");
+                assert_eq!(world["link"]["state"], "up", "the world's status: {world}");
+                assert_eq!(
+                    text("rig_state"),
+                    "active",
+                    "the HUD's rig state; the world says {}",
+                    world["rig"]["state"]
+                );
+                assert_eq!(
+                    text("link"),
+                    "up",
+                    "the HUD's world link; the world says {}",
+                    world["link"]["state"]
+                );
+                assert!(text("scene").ends_with("boxing"), "the HUD's scene: {}", text("scene"));
+                assert_eq!(world["viewers"], 1, "the world counts the browser");
+                assert_eq!(text("viewers"), "1", "the HUD's viewers");
+                let (page, steps) = (q["page_steps"].as_u64().unwrap(), world["steps"].as_u64().unwrap());
+                assert!(steps >= page && page > 0, "the world's steps ({steps}) and the page's ({page})");
+                let scene = self.get("/scene.json");
+                assert_eq!(scene["name"], "boxing");
+                json!({"ok": true})
+            }
+            other => json!({"error": format!("unknown question {other}")}),
+        }
+    }
+}
+
+impl Drop for RunPath {
+    fn drop(&mut self) {
+        self.stop.request();
+        if let Some(r) = self.run.take() {
+            let _ = r.join();
+        }
+    }
+}
+
+/// The page as a user opens it: `spidar run --view` passes the address to its child world
+/// process, which serves the view there and prints where; a browser opened at that address
+/// draws the virtual human, the grips and a HUD that agrees with the world's `/status.json`.
+#[test]
+fn view_served_by_spidar_runs_child_world_process() {
+    let _one = one_at_a_time();
+    if !browser_here("view_served_by_spidar_runs_child_world_process") {
+        return;
+    }
+    let run = RunPath::start("boxing", "box");
+    assert!(run.url.starts_with("http://127.0.0.1:") && !run.url.ends_with(":0"), "printed {}", run.url);
+    node(&["live", &run.url], |q| run.answer(q));
+    // (Faults are not checked: this rig loop runs at normal priority, and a loaded machine makes
+    // its replies late; the HUD shows whatever the rig reports.)
+    let said = run.said.clone();
+    let sum = run.finish();
+    assert!(sum.clean_stop, "{sum}; the world said {:?}", said.lock().unwrap());
+}
+
+/// The README's pictures (`docs/img/`), taken by the same harness from `spidar run`'s path: the
+/// simulated rig, the rt-loop and the child world process serving the view.
+/// `cargo test -p spidar-tests --test hil view_screenshots -- --ignored`
+#[test]
+#[ignore = "writes docs/img: run by hand"]
+fn view_screenshots_for_the_readme() {
+    if !browser_here("view_screenshots_for_the_readme") {
+        return;
+    }
+    let _one = one_at_a_time();
+    let img = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../docs/img");
+    for (scene_name, script, shots) in [
+        ("boxing", "box", vec![("eye", "boxing-eye.png", "4"), ("orbit", "boxing-side.png", "3")]),
+        ("crowd", "spar", vec![("orbit", "crowd.png", "5")]),
+    ] {
+        let run = RunPath::start(scene_name, script);
+        for (camera, file, wait) in shots {
+            let path = img.join(file);
+            node(
+                &["screenshot", &run.url, camera, path.to_str().unwrap(), wait],
+                |_| json!({"error": "no questions"}),
+            );
+        }
+        let sum = run.finish();
+        assert!(sum.clean_stop, "{sum}");
+    }
+}

@@ -1,0 +1,293 @@
+//! `spidar bench view`: what the live view costs the world's step, with no viewer and with three,
+//! in alternating blocks of one run, and how fast the viewers get their frames.
+//!
+//! The world thread here is the scene thread's loop (3 ms on the real clock), fed by the simulated
+//! rig and the rt-loop ticked on the virtual clock in step with it (the user's path: the `box`
+//! script's punches reach the virtual human through the loop's proxies). Each step is timed from
+//! the scene's step through the observers' calls. Blocks cycle: view off (no observer), view on
+//! with no viewer, view on with `viewers` WebSocket clients reading every frame.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use spidar_rt::telemetry::{DurationHist, Percentiles};
+use spidar_rt::{Clock, MonotonicClock, Rig};
+use spidar_world::crowd::CrowdScene;
+use spidar_world::view::{View, ViewOptions};
+use spidar_world::{Observer, Scene, StepView};
+
+use crate::session::{load_scripts, sim_device, SimOptions, VirtualRun};
+use spidar_rt::status::rig_info;
+
+/// A crowd scene of `n` characters: the built-in one, spread over an area that holds them.
+pub fn crowd_of(n: usize) -> anyhow::Result<CrowdScene> {
+    use spidar_sim::character::keyframe::KEYFRAMES_HUMANOID_RON;
+    use spidar_sim::character::scene::{build_crowd, BODY_CHARACTER_RON, SCENE_CROWD_RON};
+    // The built-in scene with `n` characters on a square area 1.2 m apart in front of the user,
+    // its near edge where the built-in scene has it.
+    let side = ((n as f64).sqrt().ceil() * 1.2 + 1.2).max(4.8);
+    let field = |key: &str| -> anyhow::Result<(usize, usize)> {
+        let at = SCENE_CROWD_RON.find(key).ok_or_else(|| anyhow::anyhow!("no {key} in the crowd scene"))?;
+        let end = at + SCENE_CROWD_RON[at..].find(',').unwrap_or(0);
+        let end = if key == "area_m:" { at + SCENE_CROWD_RON[at..].find(')').unwrap_or(0) + 1 } else { end };
+        Ok((at, end))
+    };
+    let (area_at, area_end) = field("area_m:")?;
+    let near: f64 = SCENE_CROWD_RON[area_at..area_end - 1]
+        .rsplit(',')
+        .next()
+        .and_then(|v| v.trim().parse().ok())
+        .ok_or_else(|| anyhow::anyhow!("the crowd scene's area_m is not four numbers"))?;
+    let (count_at, count_end) = field("count:")?;
+    let area = format!("area_m: ({:.1}, {:.1}, {:.1}, {near})", -side / 2.0, near - side, side / 2.0);
+    let mut text = SCENE_CROWD_RON.to_string();
+    // The later field first: the earlier one's offsets stay valid.
+    let mut edits = [(area_at, area_end, area), (count_at, count_end, format!("count: {n}"))];
+    edits.sort_by_key(|e| std::cmp::Reverse(e.0));
+    for (a, b, with) in edits {
+        text.replace_range(a..b, &with);
+    }
+    let crowd = build_crowd(&text, &format!("the built-in crowd with {n} characters"), |name| {
+        let t = if name == "body-character.ron" { BODY_CHARACTER_RON } else { KEYFRAMES_HUMANOID_RON };
+        Ok((t.to_string(), name.to_string()))
+    })?;
+    Ok(CrowdScene::new(crowd, &format!("crowd of {n} keyframe characters")))
+}
+
+pub struct ViewBenchOptions {
+    /// `boxing`, `boxing-passive` or `crowd`.
+    pub scene: String,
+    /// Characters of the crowd scene.
+    pub characters: usize,
+    pub seconds_per_block: f64,
+    /// Rounds of the three blocks.
+    pub rounds: u32,
+    pub viewers: usize,
+    /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
+    pub fifo: Option<u8>,
+}
+
+#[derive(Default)]
+pub struct Phase {
+    pub step: DurationHist,
+    pub observer: DurationHist,
+    /// Steps that started more than one step late.
+    pub late: u64,
+    /// Frames the viewers read, and the seconds they were connected (summed over viewers).
+    pub frames_read: u64,
+    pub viewer_seconds: f64,
+    pub min_viewer_hz: f64,
+}
+
+pub struct ViewBenchReport {
+    pub scene: String,
+    pub frame_bytes: u64,
+    pub phases: [(String, Phase); 3],
+    pub load: String,
+    pub rt: String,
+}
+
+type Spawn = (String, Arc<AtomicBool>, Arc<AtomicU64>, Arc<AtomicU64>);
+
+/// One viewer: a WebSocket client that reads every message until told to stop.
+fn viewer(
+    url: String,
+    stop: Arc<AtomicBool>,
+    frames: Arc<AtomicU64>,
+    bytes: Arc<AtomicU64>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let addr = url.trim_start_matches("ws://").to_string();
+        let Ok(stream) = std::net::TcpStream::connect(&addr) else { return };
+        let Ok((mut ws, _)) = tungstenite::client(format!("{url}/"), stream) else { return };
+        let _ = ws.get_mut().set_read_timeout(Some(Duration::from_millis(100)));
+        while !stop.load(Ordering::Relaxed) {
+            match ws.read() {
+                Ok(tungstenite::Message::Binary(b)) => {
+                    frames.fetch_add(1, Ordering::Relaxed);
+                    bytes.store(b.len() as u64, Ordering::Relaxed);
+                }
+                Ok(_) => {}
+                Err(tungstenite::Error::Io(e))
+                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+                Err(_) => break,
+            }
+        }
+    })
+}
+
+pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchReport> {
+    let (mut scene, script): (Box<dyn Scene>, &str) = match o.scene.as_str() {
+        "boxing" | "boxing-passive" => (spidar_world::load(&o.scene)?, "box"),
+        "crowd" => (Box::new(crowd_of(o.characters)?), "spar"),
+        other => {
+            anyhow::bail!("unknown scene '{other}' for the view bench: use boxing, boxing-passive or crowd")
+        }
+    };
+    let scripts = load_scripts(script, rig, 1)?;
+    let dev = sim_device(rig, scripts, &SimOptions::default())?;
+    let mut v = VirtualRun::new(dev, rig, None)?;
+    v.home_and_activate();
+    let look = scene.look();
+    let mut view = View::start(
+        scene.name(),
+        &look,
+        &ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() },
+    )
+    .context("starting the view")?;
+    let handle = view.counters_handle();
+    let info = rig_info(rig);
+    // Viewers are started by a thread of normal priority: threads inherit their creator's policy.
+    let (spawn_tx, spawn_rx) = std::sync::mpsc::channel::<Spawn>();
+    let (joined_tx, joined_rx) = std::sync::mpsc::channel();
+    let spawner = std::thread::spawn(move || {
+        for (url, stop, frames, bytes) in spawn_rx {
+            let _ = joined_tx.send(viewer(url, stop, frames, bytes));
+        }
+    });
+    let rt = match o.fifo {
+        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
+            fifo_priority: Some(p),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        })
+        .to_string(),
+        None => "normal priority".to_string(),
+    };
+    let step_ns = (scene.step_s() * 1e9).round() as u64;
+    let ticks_per_step = (scene.step_s() / rig.period_s).round().max(1.0) as u64;
+    let mut phases: [(String, Phase); 3] = [
+        ("view off".into(), Phase::default()),
+        ("view, no viewer".into(), Phase::default()),
+        (format!("view, {} viewers", o.viewers), Phase::default()),
+    ];
+    let mut clock = MonotonicClock::new();
+    let mut samples = Vec::with_capacity(64);
+    let bytes = Arc::new(AtomicU64::new(0));
+    let steps_per_block = (o.seconds_per_block / scene.step_s()).round().max(1.0) as u64;
+    for _ in 0..o.rounds {
+        for (p, (_, phase)) in phases.iter_mut().enumerate() {
+            let stop = Arc::new(AtomicBool::new(false));
+            let want = if p == 2 { o.viewers } else { 0 };
+            let counts: Vec<Arc<AtomicU64>> = (0..want).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            for c in &counts {
+                spawn_tx.send((handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))?;
+            }
+            let threads: Vec<_> = counts.iter().filter_map(|_| joined_rx.recv().ok()).collect();
+            let until = Instant::now() + Duration::from_secs(5);
+            while handle.counters().viewers.load(Ordering::Relaxed) != want && Instant::now() < until {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let started = Instant::now();
+            let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
+            let mut deadline = clock.now_ns();
+            for _ in 0..steps_per_block {
+                let wake = clock.sleep_until(deadline);
+                if wake > deadline + step_ns {
+                    phase.late += 1;
+                }
+                for _ in 0..ticks_per_step {
+                    v.rt.tick();
+                }
+                for _ in v.far.telemetry.try_iter() {}
+                samples.clear();
+                samples.extend(v.far.samples.try_iter());
+                let t = v.clock.now_ns() as f64 * 1e-9;
+                let t0 = Instant::now();
+                let m = scene.step(t, &samples);
+                let t1 = Instant::now();
+                if p > 0 {
+                    let sv = StepView {
+                        t_s: t,
+                        scene: &*scene,
+                        samples: &samples,
+                        model: &m,
+                        rig_info: Some(&info),
+                        rig_status: None,
+                    };
+                    view.after_step(&sv);
+                }
+                let t2 = Instant::now();
+                let _ = v.far.models.try_send(m);
+                phase.step.record((t2 - t0).as_secs_f64());
+                phase.observer.record((t2 - t1).as_secs_f64());
+                deadline += step_ns;
+                if clock.now_ns() > deadline + 10 * step_ns {
+                    deadline = clock.now_ns();
+                }
+            }
+            let secs = started.elapsed().as_secs_f64();
+            for (c, s) in counts.iter().zip(at_start) {
+                let n = c.load(Ordering::Relaxed) - s;
+                phase.frames_read += n;
+                phase.viewer_seconds += secs;
+                let hz = n as f64 / secs;
+                phase.min_viewer_hz =
+                    if phase.min_viewer_hz == 0.0 { hz } else { phase.min_viewer_hz.min(hz) };
+            }
+            stop.store(true, Ordering::Relaxed);
+            for t in threads {
+                let _ = t.join();
+            }
+        }
+    }
+    drop(spawn_tx);
+    let _ = spawner.join();
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default();
+    Ok(ViewBenchReport {
+        scene: scene.name().to_string(),
+        frame_bytes: bytes.load(Ordering::Relaxed),
+        phases,
+        load,
+        rt,
+    })
+}
+
+fn row(p: &Percentiles) -> String {
+    use spidar_rt::telemetry::fmt_dur;
+    format!(
+        "{:>9} {:>9} {:>9} {:>9}",
+        fmt_dur(p.p50_s),
+        fmt_dur(p.p99_s),
+        fmt_dur(p.p999_s),
+        fmt_dur(p.max_s)
+    )
+}
+
+impl std::fmt::Display for ViewBenchReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "spidar bench view: scene {}, world step = scene step + observers, blocks alternating (load average {})", self.scene, self.load)?;
+        writeln!(f, "  world thread: {}", self.rt)?;
+        writeln!(
+            f,
+            "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   observer p99   frames/s per viewer",
+            "", "steps", "p50", "p99", "p99.9", "max", "late"
+        )?;
+        for (name, p) in &self.phases {
+            let rate = if p.viewer_seconds > 0.0 {
+                format!(
+                    "{:.1} (min {:.1}), {} kB a frame",
+                    p.frames_read as f64 / p.viewer_seconds,
+                    p.min_viewer_hz,
+                    self.frame_bytes / 1000
+                )
+            } else {
+                "-".into()
+            };
+            writeln!(
+                f,
+                "  {name:<18} {:>7} {} {:>6}   {:>12}   {rate}",
+                p.step.len(),
+                row(&p.step.percentiles()),
+                p.late,
+                spidar_rt::telemetry::fmt_dur(p.observer.percentiles().p99_s),
+            )?;
+        }
+        Ok(())
+    }
+}

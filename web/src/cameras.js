@@ -1,0 +1,57 @@
+// Two cameras: the user's eye (first person, from the rig file's eye point, looking through the
+// rig frame at what the scene puts in front of the user; for the rig's screen, full-screen
+// capable) and an orbit camera for an observer (drag to turn, wheel to zoom, right-drag to pan).
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+export class Cameras {
+  constructor(canvas) {
+    this.eye = new THREE.PerspectiveCamera(70, 1, 0.02, 200);
+    this.orbit = new THREE.PerspectiveCamera(50, 1, 0.02, 300);
+    this.controls = new OrbitControls(this.orbit, canvas);
+    this.controls.enableDamping = true;
+    this.active = 'orbit';
+    this.focus = new THREE.Vector3(0, 1.2, -1);
+  }
+
+  // Places both cameras for a scene: the eye at `eyeM` looking at the focus; the orbit camera to
+  // the side (boxing) or behind and above the user (a crowd).
+  place(desc, eyeM) {
+    this.focus.fromArray(desc.focus_m);
+    const eye = eyeM ?? [desc.link_offset_m[0], 1.45 + desc.link_offset_m[1], 0.4 + desc.link_offset_m[2]];
+    this.eye.position.fromArray(eye);
+    this.eye.lookAt(this.focus);
+    if (desc.crowd) {
+      this.controls.target.set(0, 0.8, -2.2);
+      this.orbit.position.set(0.0, 3.8, 3.2);
+    } else {
+      // From the side, halfway between the user and what they face.
+      const mid = new THREE.Vector3().fromArray(eye).lerp(this.focus, 0.5);
+      this.controls.target.copy(mid).setY(this.focus.y - 0.15);
+      this.orbit.position.set(mid.x + 2.6, this.focus.y + 0.25, mid.z);
+    }
+    this.controls.update();
+  }
+
+  use(name) {
+    this.active = name === 'eye' ? 'eye' : 'orbit';
+    this.controls.enabled = this.active === 'orbit';
+  }
+
+  get camera() {
+    return this.active === 'eye' ? this.eye : this.orbit;
+  }
+
+  resize(w, h) {
+    for (const c of [this.eye, this.orbit]) { c.aspect = w / Math.max(h, 1); c.updateProjectionMatrix(); }
+  }
+
+  update() {
+    if (this.active === 'orbit') this.controls.update();
+  }
+}
+
+export function toggleFullScreen() {
+  if (document.fullscreenElement) document.exitFullscreen();
+  else document.documentElement.requestFullscreen?.();
+}

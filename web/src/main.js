@@ -1,0 +1,200 @@
+// The live view's page: connects to the world, builds the scene graph from the world's
+// description, moves it with every frame, draws it from the user's eye or an orbit camera, and
+// shows the heads-up display. `window.spidarView` lets tests (and a curious operator's console)
+// look at what is drawn.
+import * as THREE from 'three';
+import { CSS2DRenderer } from 'three/addons/renderers/CSS2DRenderer.js';
+import { connect } from './connection.js';
+import { World } from './world.js';
+import { Crowd } from './crowd.js';
+import { Rig } from './rig.js';
+import { Cameras, toggleFullScreen } from './cameras.js';
+import { Hud } from './hud.js';
+
+const params = new URLSearchParams(location.search);
+const container = document.getElementById('view');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+container.appendChild(renderer.domElement);
+const labelRenderer = new CSS2DRenderer();
+labelRenderer.domElement.style.position = 'absolute';
+labelRenderer.domElement.style.top = '0';
+labelRenderer.domElement.style.pointerEvents = 'none';
+if (params.get('labels') === '0') labelRenderer.domElement.style.display = 'none';
+container.appendChild(labelRenderer.domElement);
+
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x1c1e22);
+scene.add(new THREE.HemisphereLight(0xdfe8ff, 0x3a3530, 1.6));
+const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+sun.position.set(2, 5, 3);
+scene.add(sun);
+
+const cameras = new Cameras(renderer.domElement);
+const rig = new Rig(scene);
+const hud = new Hud(document.getElementById('hud'), {
+  onCamera: (c) => setCamera(c),
+  onFullScreen: toggleFullScreen,
+});
+if (params.get('hud') === '0') document.getElementById('hud').style.display = 'none';
+
+let desc = null;
+let world = null;
+let crowd = null;
+let root = null;
+let rigInfo = null;
+let status = null;
+let connection = 'connecting';
+let latest = null; // { f: Float32Array, seq, t }
+let applied = null;
+let paused = false;
+let framesReceived = 0;
+let rateCount = 0;
+let rateSince = performance.now();
+let renders = 0;
+const renderWaiters = [];
+
+function setCamera(name) {
+  cameras.use(name);
+  hud.setCamera(cameras.active);
+}
+setCamera(params.get('camera') || 'orbit');
+
+function onScene(d) {
+  if (root) scene.remove(root);
+  desc = d;
+  root = new THREE.Group();
+  scene.add(root);
+  world = new World(desc, root);
+  world.proxyGroup.visible = params.get('proxies') !== '0';
+  crowd = desc.crowd ? new Crowd(desc, root) : null;
+  latest = null;
+  applied = null;
+  cameras.place(desc, rigInfo ? rigInfo.eye_m : null);
+  hud.setScene(desc);
+}
+
+function onRig(r) {
+  rigInfo = r;
+  rig.setInfo(r);
+  if (desc) cameras.place(desc, r.eye_m);
+}
+
+function onFrame(buffer, layoutId, seq) {
+  if (!desc || layoutId !== desc.layout.id) return;
+  const f = new Float32Array(buffer);
+  latest = { f, seq, t: f[desc.layout.globals_at] };
+  framesReceived++;
+  rateCount++;
+}
+
+connect({
+  onScene,
+  onRig,
+  onStatus: (s) => { status = s; hud.setStatus(s); },
+  onFrame,
+  onState: (s) => { connection = s; hud.setConnection(s); },
+});
+
+function resize() {
+  const w = container.clientWidth;
+  const h = container.clientHeight;
+  renderer.setSize(w, h);
+  labelRenderer.setSize(w, h);
+  cameras.resize(w, h);
+}
+window.addEventListener('resize', resize);
+resize();
+
+window.addEventListener('keydown', (e) => {
+  if (e.key === 'f') toggleFullScreen();
+  else if (e.key === 'c') setCamera(cameras.active === 'eye' ? 'orbit' : 'eye');
+  else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
+  else if (e.key === ' ') paused = !paused;
+});
+
+// `?fps=N` caps the drawing rate (a slow machine, or one shared with other work).
+const minFrameMs = params.get('fps') ? 1000 / Number(params.get('fps')) : 0;
+let lastDraw = 0;
+
+function frameLoop(now) {
+  requestAnimationFrame(frameLoop);
+  if (minFrameMs && now - lastDraw < minFrameMs - 1) return;
+  lastDraw = now;
+  if (!paused && latest && latest !== applied) {
+    const dt = applied ? Math.max(0, latest.t - applied.t) : 0;
+    world.apply(latest.f, dt);
+    if (crowd) crowd.apply(latest.f);
+    rig.apply(latest.f, desc.layout);
+    applied = latest;
+  }
+  if (now - rateSince >= 1000) {
+    hud.setFrameRate((rateCount * 1000) / (now - rateSince));
+    rateCount = 0;
+    rateSince = now;
+  }
+  cameras.update();
+  // From the user's eye, their own avatar's head is in the way.
+  if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
+  renderer.render(scene, cameras.camera);
+  labelRenderer.render(scene, cameras.camera);
+  renders++;
+  while (renderWaiters.length) renderWaiters.shift()();
+}
+requestAnimationFrame(frameLoop);
+
+// ---- for tests and the console ----
+const tmp = new THREE.Vector3();
+function project(p) {
+  tmp.set(p[0], p[1], p[2]).project(cameras.camera);
+  const r = renderer.domElement.getBoundingClientRect();
+  return { x: r.left + ((tmp.x + 1) / 2) * r.width, y: r.top + ((1 - tmp.y) / 2) * r.height, z: tmp.z };
+}
+
+window.spidarView = {
+  state: () => ({
+    connection,
+    scene: desc ? desc.name : null,
+    layoutId: desc ? desc.layout.id : null,
+    hasRig: !!rigInfo,
+    framesReceived,
+    seq: applied ? applied.seq : null,
+    t: applied ? applied.t : null,
+    paused,
+    camera: cameras.active,
+    status,
+    renders,
+  }),
+  pause: () => { paused = true; return { seq: applied ? applied.seq : null, t: applied ? applied.t : null }; },
+  resume: () => { paused = false; },
+  // Resolves after the next two renders (the screen then shows the applied frame).
+  rendered: () => new Promise((res) => renderWaiters.push(() => renderWaiters.push(res))),
+  setCamera,
+  orbitTo: (pos, target) => {
+    cameras.orbit.position.fromArray(pos);
+    cameras.controls.target.fromArray(target);
+    cameras.controls.update();
+  },
+  project,
+  // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
+  shape: (name) => {
+    const i = desc.shapes.findIndex((s) => s.name === name);
+    if (i < 0) return null;
+    const m = world.meshes[i];
+    m.getWorldPosition(tmp);
+    const pos = [tmp.x, tmp.y, tmp.z];
+    const o = desc.layout.shapes_at + i * desc.layout.shape_floats;
+    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash };
+  },
+  characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
+  character: (i) => {
+    const L = desc.layout;
+    const o = L.characters_at + i * L.character_floats;
+    return Array.from(applied.f.subarray(o, o + L.character_floats));
+  },
+  hud: () => Object.fromEntries(Array.from(document.querySelectorAll('#hud [data-hud], #hud [data-counter]'))
+    .map((e) => [e.dataset.hud ?? `counter:${e.dataset.counter}`, e.textContent])),
+  labels: () => Array.from(document.querySelectorAll('.label')).map((e) => ({
+    label: e.dataset.label ?? null, character: e.dataset.character ?? null, state: e.dataset.state, text: e.textContent })),
+  grips: () => rig.grips.map((g) => ({ visible: g.visible, pos: g.position.toArray() })),
+};

@@ -1,0 +1,235 @@
+//! What a scene looks like to a viewer: a [`Look`] described once (the bodies as their collision
+//! shapes in the scene's colours, the behaviour labels, the counters a heads-up display shows, a
+//! crowd's skeleton) and the [`Poses`] a scene writes at display rate into the view's buffer.
+//!
+//! Why here and not in the view: a scene knows its bodies, the view knows only this plain data, so
+//! the view serves any scene and a scene needs no network code. The layout of the poses is fixed
+//! by the look, so a frame is a flat array of numbers the page reads at offsets it computed once.
+//!
+//! Must never: allocate or block in [`Poses`] (it runs on the world's stepping thread).
+
+use glam::{DQuat, DVec3};
+use spidar_msg::ProxyId;
+use spidar_sim::character::keyframe::{Pose as SkeletonPose, MAX_JOINTS};
+use spidar_sim::collide::Shape;
+
+/// Numbers per moving shape in a frame: position (3), rotation quaternion x, y, z, w (4).
+pub const SHAPE_FLOATS: usize = 7;
+/// Numbers per character before its joints: body position (3), body rotation (4), the skeleton
+/// root's offset from rest (3), control state (1), push force on it this step (1).
+pub const CHARACTER_HEAD_FLOATS: usize = 12;
+/// Numbers per skeleton joint: its rotation relative to its parent (quaternion x, y, z, w).
+pub const JOINT_FLOATS: usize = 4;
+/// Numbers per contact: point (3), force on the body named first (3).
+pub const CONTACT_FLOATS: usize = 6;
+/// Most contacts one frame carries (the scene's own and the rig's rendered ones).
+pub const MAX_CONTACTS: usize = 32;
+/// Most counters a scene shows.
+pub const MAX_COUNTERS: usize = 8;
+
+/// One drawn shape.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookShape {
+    /// `actor/part`, for labels and tests.
+    pub name: String,
+    /// The collision shape, in its own frame (a capsule's axis is its y axis).
+    pub shape: Shape,
+    /// sRGB colour.
+    pub colour: [u8; 3],
+    /// The contact proxy id that stands for this shape's body, so the rig's rendered contacts on
+    /// that proxy flash it.
+    pub proxy: Option<ProxyId>,
+}
+
+/// A label that follows a shape and shows one of a few states (the virtual human's behaviour).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookLabel {
+    pub name: String,
+    /// Index into `Look::shapes` the label floats above.
+    pub shape: usize,
+    /// The names of the states, indexed by the state a frame carries.
+    pub states: Vec<String>,
+}
+
+/// One joint of a crowd's skeleton (the keyframe set's).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookJoint {
+    pub name: String,
+    pub parent: Option<usize>,
+    /// Rest position in the parent's frame (the root's: in the body frame) (m).
+    pub offset_m: DVec3,
+}
+
+/// A crowd of keyframe characters, each drawn as its skeleton posed by the keyframe set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookCrowd {
+    pub characters: usize,
+    pub joints: Vec<LookJoint>,
+    /// Names of the control states (the controller's policies), indexed by a frame's state.
+    pub states: Vec<String>,
+    /// Colour of each state.
+    pub colours: Vec<[u8; 3]>,
+    /// A proxy's `ProxyId::body` is the index of the character it stands for.
+    pub proxy_body_is_character: bool,
+}
+
+/// The description of a scene for the view, built once.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Look {
+    /// Shapes moved every frame.
+    pub shapes: Vec<LookShape>,
+    /// Immovable scenery at its pose (the floor).
+    pub statics: Vec<(LookShape, DVec3, DQuat)>,
+    pub labels: Vec<LookLabel>,
+    /// Names of the counters (at most [`MAX_COUNTERS`]).
+    pub counters: Vec<String>,
+    pub crowd: Option<LookCrowd>,
+    /// Where the link's frame (the hand samples, contact proxies and rig geometry) sits in the
+    /// scene's: scene = link + this (the boxing scene's `user_offset_m`).
+    pub link_offset_m: DVec3,
+    /// What the user's-eye camera looks at (scene frame).
+    pub focus_m: DVec3,
+}
+
+impl Default for Look {
+    fn default() -> Self {
+        Look {
+            shapes: Vec::new(),
+            statics: Vec::new(),
+            labels: Vec::new(),
+            counters: Vec::new(),
+            crowd: None,
+            link_offset_m: DVec3::ZERO,
+            focus_m: DVec3::new(0.0, 1.3, -1.0),
+        }
+    }
+}
+
+impl Look {
+    /// Numbers per character in a frame.
+    pub fn character_floats(&self) -> usize {
+        self.crowd.as_ref().map_or(0, |c| CHARACTER_HEAD_FLOATS + JOINT_FLOATS * c.joints.len())
+    }
+}
+
+/// A contact to draw: a point and the force on the body named first (scene frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DrawnContact {
+    pub point_m: DVec3,
+    pub force_n: DVec3,
+}
+
+/// Where a scene writes one frame's poses: sections of the view's frame buffer, sized by the
+/// scene's [`Look`]. Indices out of range are ignored (a scene that grew after its look was
+/// taken is drawn as it was described).
+pub struct Poses<'a> {
+    pub(crate) shapes: &'a mut [f32],
+    pub(crate) shape_force: &'a mut [f32],
+    pub(crate) labels: &'a mut [f32],
+    pub(crate) counters: &'a mut [f64],
+    pub(crate) characters: &'a mut [f32],
+    pub(crate) character_floats: usize,
+    pub(crate) contacts: &'a mut [f32],
+    pub(crate) contact_count: &'a mut usize,
+}
+
+impl Poses<'_> {
+    /// Pose of moving shape `k` (scene frame).
+    #[inline]
+    pub fn shape(&mut self, k: usize, pos_m: DVec3, rot: DQuat) {
+        if let Some(s) = self.shapes.get_mut(k * SHAPE_FLOATS..(k + 1) * SHAPE_FLOATS) {
+            put3(&mut s[0..3], pos_m);
+            put_quat(&mut s[3..7], rot);
+        }
+    }
+
+    /// Adds a contact force's magnitude to shape `k` (a flash on the part hit).
+    #[inline]
+    pub fn shape_force(&mut self, k: usize, force_n: f64) {
+        if let Some(f) = self.shape_force.get_mut(k) {
+            *f += force_n as f32;
+        }
+    }
+
+    #[inline]
+    pub fn label(&mut self, i: usize, state: usize) {
+        if let Some(l) = self.labels.get_mut(i) {
+            *l = state as f32;
+        }
+    }
+
+    #[inline]
+    pub fn counter(&mut self, i: usize, value: f64) {
+        if let Some(c) = self.counters.get_mut(i) {
+            *c = value;
+        }
+    }
+
+    /// Character `i`: its body pose (scene frame), its skeleton pose (in the body frame, the
+    /// first `joints` joints), its control state and the force pushing it.
+    #[inline]
+    pub fn character(
+        &mut self,
+        i: usize,
+        pos_m: DVec3,
+        rot: DQuat,
+        pose: &SkeletonPose,
+        state: usize,
+        push_n: f64,
+    ) {
+        let n = self.character_floats;
+        let Some(c) = self.characters.get_mut(i * n..(i + 1) * n) else { return };
+        put3(&mut c[0..3], pos_m);
+        put_quat(&mut c[3..7], rot);
+        c[7] = pose.root_m.x;
+        c[8] = pose.root_m.y;
+        c[9] = pose.root_m.z;
+        c[10] = state as f32;
+        c[11] = push_n as f32;
+        let joints = ((n - CHARACTER_HEAD_FLOATS) / JOINT_FLOATS).min(MAX_JOINTS);
+        for (j, q) in pose.rot.iter().take(joints).enumerate() {
+            let o = CHARACTER_HEAD_FLOATS + j * JOINT_FLOATS;
+            c[o] = q.x;
+            c[o + 1] = q.y;
+            c[o + 2] = q.z;
+            c[o + 3] = q.w;
+        }
+    }
+
+    /// Adds the push force on character `i` (magnitude, N).
+    #[inline]
+    pub fn character_push(&mut self, i: usize, push_n: f64) {
+        let n = self.character_floats;
+        if let Some(p) = self.characters.get_mut(i * n + 11) {
+            *p += push_n as f32;
+        }
+    }
+
+    /// Adds a contact to draw (scene frame); false when the frame's contacts are full.
+    #[inline]
+    pub fn contact(&mut self, c: DrawnContact) -> bool {
+        let k = *self.contact_count;
+        let Some(s) = self.contacts.get_mut(k * CONTACT_FLOATS..(k + 1) * CONTACT_FLOATS) else {
+            return false;
+        };
+        put3(&mut s[0..3], c.point_m);
+        put3(&mut s[3..6], c.force_n);
+        *self.contact_count += 1;
+        true
+    }
+}
+
+#[inline]
+fn put3(s: &mut [f32], v: DVec3) {
+    s[0] = v.x as f32;
+    s[1] = v.y as f32;
+    s[2] = v.z as f32;
+}
+
+#[inline]
+fn put_quat(s: &mut [f32], q: DQuat) {
+    s[0] = q.x as f32;
+    s[1] = q.y as f32;
+    s[2] = q.z as f32;
+    s[3] = q.w as f32;
+}

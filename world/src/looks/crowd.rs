@@ -1,0 +1,69 @@
+//! The crowd scene's look: every character as the 11-joint humanoid of its keyframe set, posed as
+//! the world interpolated it, tinted by its control state (balance, fall, down, stand up).
+
+use glam::DVec3;
+use spidar_sim::character::controller::Policy;
+
+use super::quat;
+use crate::crowd::CrowdScene;
+use crate::look::{Look, LookCrowd, LookJoint, LookShape, Poses};
+
+const POLICIES: [Policy; 4] = [Policy::Balance, Policy::Fall, Policy::Down, Policy::StandUp];
+const STATE_COLOURS: [[u8; 3]; 4] = [[80, 165, 95], [235, 160, 35], [200, 55, 55], [80, 135, 225]];
+
+/// The counters the heads-up display shows, in the order [`pose`] writes them.
+pub(crate) const COUNTERS: [&str; 3] = ["characters", "not balancing", "pushed (N s)"];
+
+pub(crate) fn look(scene: &CrowdScene) -> Look {
+    let c = &scene.crowd;
+    let joints = c
+        .set
+        .joints
+        .iter()
+        .map(|j| LookJoint { name: j.name.clone(), parent: j.parent, offset_m: j.offset_m })
+        .collect();
+    let statics = c
+        .statics
+        .iter()
+        .enumerate()
+        .map(|(i, (shape, p))| {
+            let s = LookShape {
+                name: format!("scenery/{i}"),
+                shape: *shape,
+                colour: [120, 120, 115],
+                proxy: None,
+            };
+            (s, p.pos_m, quat(&p.rot))
+        })
+        .collect();
+    Look {
+        shapes: Vec::new(),
+        statics,
+        labels: Vec::new(),
+        counters: COUNTERS.iter().map(|c| c.to_string()).collect(),
+        crowd: Some(LookCrowd {
+            characters: c.len(),
+            joints,
+            states: POLICIES.iter().map(|p| p.name().to_string()).collect(),
+            colours: STATE_COLOURS.to_vec(),
+            proxy_body_is_character: true,
+        }),
+        link_offset_m: DVec3::ZERO,
+        focus_m: DVec3::new(0.0, 1.0, -2.0),
+    }
+}
+
+pub(crate) fn pose(scene: &CrowdScene, out: &mut Poses<'_>) {
+    let c = &scene.crowd;
+    let mut not_balancing = 0;
+    for i in 0..c.len() {
+        let policy = c.chars[i].control.policy;
+        let state = POLICIES.iter().position(|p| *p == policy).unwrap_or(0);
+        not_balancing += usize::from(policy != Policy::Balance);
+        let b = &c.bodies[i];
+        out.character(i, b.pos_m, b.rot, &c.poses[i], state, 0.0);
+    }
+    out.counter(0, c.len() as f64);
+    out.counter(1, not_balancing as f64);
+    out.counter(2, scene.impulse_total_n_s.length());
+}
