@@ -186,6 +186,8 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
             Key::Signal => stop.store(true, Ordering::SeqCst),
         }
     }
+    // A worker still waiting for a key ends (input closed) rather than hanging the test.
+    drop(key_tx);
     let result = worker.join().unwrap();
     Outcome { result, screen, rig: shared, keys_used: used }
 }

@@ -111,7 +111,7 @@ pub fn start_view(
             View::start(scene.name(), &look, &any)
         })?,
     };
-    eprintln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
+    crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))
 }
 
@@ -256,7 +256,7 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         crate::errln!("spidar world: {line}")
     });
     if let Some(r) = recording {
-        eprintln!("spidar world: recording {}", r.finish());
+        crate::errln!("spidar world: recording {}", r.finish());
     }
     if a.report_status {
         crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
