@@ -51,7 +51,7 @@ impl JigFile {
     }
 
     pub fn from_str(text: &str, origin: &str) -> Result<JigFile, CalibError> {
-        let f: JigFile = crate::parse_ron(text, origin)?;
+        let f: JigFile = crate::parse_ron_kind(text, origin, spidar_config::FileKind::Jig)?;
         let bad = |message: String| CalibError::BadFile { file: origin.to_string(), message };
         if f.version != JIG_FILE_VERSION {
             return Err(bad(format!(
@@ -93,7 +93,7 @@ mod tests {
     #[test]
     fn bad_jig_file_names_line_and_column() {
         let e = JigFile::from_str(
-            "(version: 1, name: \"x\", fit_points: [], check_points: [], extra: 1)",
+            "(kind: \"jig\", version: 1, name: \"x\", fit_points: [], check_points: [], extra: 1)",
             "j.ron",
         )
         .unwrap_err();

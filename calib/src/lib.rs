@@ -103,6 +103,21 @@ pub(crate) fn parse_ron<T: serde::de::DeserializeOwned>(text: &str, origin: &str
     })
 }
 
+/// Parses RON text that must say it is of kind `kind` (its top-level `kind` entry).
+pub(crate) fn parse_ron_kind<T: serde::de::DeserializeOwned>(
+    text: &str,
+    origin: &str,
+    kind: spidar_config::FileKind,
+) -> Result<T, CalibError> {
+    let body = spidar_config::expect_kind(text, origin, kind).map_err(|e| CalibError::Parse {
+        file: e.origin,
+        line: e.line,
+        column: e.column,
+        message: e.message,
+    })?;
+    parse_ron(&body, origin)
+}
+
 /// Reads a whole file of at most `spidar_config::MAX_FILE_BYTES` (a device or a pipe that never
 /// ends is refused), naming it in the error.
 pub(crate) fn read_text(path: &std::path::Path, what: &'static str) -> Result<String, CalibError> {

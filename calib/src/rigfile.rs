@@ -332,7 +332,8 @@ mod tests {
         for line in DEFAULT_RIG_RON.lines().filter(|l| l.trim_start().starts_with("//")) {
             assert!(out.contains(line), "comment lost: {line}");
         }
-        let file: spidar_rt::rig::RigFile = ron::from_str(&out).unwrap();
+        let file: spidar_rt::rig::RigFile =
+            spidar_config::parse_kind(&out, "rig.ron", spidar_config::FileKind::Rig).unwrap();
         let cal = file.calibration;
         assert_eq!(cal.fitted_utc, "2025-01-02T03:04:05Z");
         assert_eq!(cal.fit_residual_rms_m, 2e-5);
@@ -345,7 +346,8 @@ mod tests {
         )
         .unwrap();
         assert_eq!(again.matches("calibration:").count(), 1);
-        let file: spidar_rt::rig::RigFile = ron::from_str(&again).unwrap();
+        let file: spidar_rt::rig::RigFile =
+            spidar_config::parse_kind(&again, "rig.ron", spidar_config::FileKind::Rig).unwrap();
         assert_eq!(file.calibration.homed_utc, "x");
     }
 

@@ -138,7 +138,12 @@ impl SessionFile {
     /// Parses and checks a session: every value a fit or a resume relies on is in range, and an
     /// error names the line and column of the offending field.
     pub fn from_str(text: &str, origin: &str) -> Result<SessionFile, CalibError> {
-        let mut f: SessionFile = crate::parse_ron(text, origin)?;
+        // Sessions written before files said their kind (versions 1 and 2 as first written) have
+        // no `kind` entry and are read as they are; a session that names a kind must name this one.
+        let mut f: SessionFile = match spidar_config::find_kind(text) {
+            Ok(None) => crate::parse_ron(text, origin)?,
+            _ => crate::parse_ron_kind(text, origin, spidar_config::FileKind::CalibrationSession)?,
+        };
         let invalid = |field: String, key: &str, occurrence: usize, message: String| {
             CalibError::Config(spidar_config::invalid(text, origin, &field, key, occurrence, message))
         };
@@ -211,6 +216,7 @@ impl SessionFile {
         let pretty = ron::ser::PrettyConfig::new().depth_limit(3);
         let body = ron::ser::to_string_pretty(self, pretty)
             .map_err(|e| CalibError::BadFile { file: path.display().to_string(), message: e.to_string() })?;
+        let body = spidar_config::with_kind(&body, spidar_config::FileKind::CalibrationSession);
         let rig = if self.rig_file.is_empty() || self.rig_file.starts_with('(') {
             String::new()
         } else {
@@ -296,5 +302,20 @@ mod tests {
             let e = SessionFile::from_str(&with_plan(&bad), "s.ron").unwrap_err().to_string();
             assert!(e.contains("plan") && e.contains(why), "{e}");
         }
+    }
+
+    #[test]
+    fn a_session_says_its_kind_and_one_of_another_kind_is_refused() {
+        // Written before kinds: read as it is, at version 1 and 2.
+        let old = SessionFile::from_str(&text(1), "s.ron").unwrap();
+        SessionFile::from_str(&text(1).replacen("version: 2", "version: 1", 1), "s.ron").unwrap();
+        // Written now: the kind is the first entry, and the file reads back.
+        let written = old.to_text(Path::new("s.ron")).unwrap();
+        assert!(written.contains("kind: \"calibration-session\""), "{written}");
+        assert_eq!(SessionFile::from_str(&written, "s.ron").unwrap().poses.len(), old.poses.len());
+        // A file that says it is something else is refused where it says so.
+        let rig = text(1).replacen("(version", "(kind: \"rig\", version", 1);
+        let e = SessionFile::from_str(&rig, "s.ron").unwrap_err().to_string();
+        assert!(e.contains("kind \"rig\"") && e.contains("check the path"), "{e}");
     }
 }

@@ -3,6 +3,7 @@
 //! point each prompt names, and then types Enter, `s` or `q`.
 
 use std::io::{BufReader, Read, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -88,6 +89,9 @@ enum Key {
     Quit,
     /// Close the keyboard (Ctrl-D, or the terminal going away).
     Close,
+    /// A stop signal (Ctrl-C, SIGTERM, SIGHUP): the flag `spidar calib` gives the recorder's
+    /// link is raised.
+    Signal,
 }
 
 struct Outcome {
@@ -125,6 +129,8 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
     let (screen_tx, screen_rx) = mpsc::channel::<String>();
     let info = shared.lock().unwrap().info().clone();
     let dev = Shared(shared.clone(), info);
+    let stop = Arc::new(AtomicBool::new(false));
+    let worker_stop = stop.clone();
     let plan = Plan {
         hands: vec![0],
         jig: Some(two_jig_points()),
@@ -137,6 +143,7 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
         let mut op = ConsoleOperator::new(keyboard, screen, &rig).unwrap();
         op.introduce();
         let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
+        rec.set_stop(Arc::new(move || worker_stop.load(Ordering::SeqCst)));
         let r = rec.record_session(&mut op, &plan, "simulated rig behind a console");
         // As `spidar calib record`: outputs off when the recording ends, whichever way.
         if r.is_ok() {
@@ -176,8 +183,11 @@ fn drive(free: usize, keys: &[Key]) -> Outcome {
             Key::Skip => tx.send(b"s\n".to_vec()).unwrap(),
             Key::Quit => tx.send(b"q\n".to_vec()).unwrap(),
             Key::Close => key_tx = None,
+            Key::Signal => stop.store(true, Ordering::SeqCst),
         }
     }
+    // A worker still waiting for a key ends (input closed) rather than hanging the test.
+    drop(key_tx);
     let result = worker.join().unwrap();
     Outcome { result, screen, rig: shared, keys_used: used }
 }
@@ -230,6 +240,17 @@ fn console_q_aborts_with_the_device_deactivated() {
     }
     assert!(!o.rig.lock().unwrap().is_active(), "q must switch the outputs off");
     assert!(o.screen.iter().any(|l| l.starts_with("aborting: stopped by the operator")));
+}
+
+#[test]
+fn a_stop_signal_while_waiting_aborts_with_the_device_deactivated() {
+    let o = drive(2, &[Key::Move, Key::Signal]);
+    match &o.result {
+        Err(CalibError::Interrupted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an interruption, got {:?}", other.as_ref().map(|s| s.poses.len())),
+    }
+    assert!(!o.rig.lock().unwrap().is_active(), "a stop signal must switch the outputs off");
+    assert!(o.screen.iter().any(|l| l.starts_with("stopping: ")), "{}", o.screen.join("\n"));
 }
 
 #[test]

@@ -496,3 +496,26 @@ fn a_grip_that_keeps_moving_is_not_recorded() {
     assert_eq!(rec.record_pose(&mut Drifting, 0, &req, &[]).unwrap(), None);
     assert!(rec.warnings()[0].contains("did not keep still"), "{:?}", rec.warnings());
 }
+
+#[test]
+fn a_stop_signal_during_recording_aborts_at_the_next_exchange() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let rig = Rig::default_rig();
+    let opts = truth_opts();
+    let truth = truth_geometry(&rig, &opts);
+    let dev = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut rec = Recorder::new(dev, &rig, RecordOptions::default()).unwrap();
+    let flag = stop.clone();
+    rec.set_stop(Arc::new(move || flag.load(Ordering::SeqCst)));
+    let mut op = SimOperator::new(false);
+    let plan = Plan { hands: vec![0], jig: None, free_per_hand: 3, free_half_extent_m: DVec3::splat(0.2) };
+    stop.store(true, Ordering::SeqCst);
+    match rec.record_session(&mut op, &plan, "sim") {
+        Err(CalibError::Interrupted(why)) => assert!(why.contains("a stop signal"), "{why}"),
+        other => panic!("expected an interruption, got {:?}", other.map(|s| s.poses.len())),
+    }
+    // As `spidar calib`: the outputs are switched off after the stop.
+    assert!(!rec.finish().unwrap().is_active());
+}

@@ -4,9 +4,15 @@
 //! Parsing (serde + ron) gives positions for syntax and type errors; semantic checks done after
 //! parsing find their field's position again with [`locate`].
 
+mod kind;
+
 use std::path::Path;
 
 use serde::de::DeserializeOwned;
+
+pub use kind::{
+    expect_kind, find_kind, load_file_kind, parse_kind, peek_kind, with_kind, FileKind, KindEntry,
+};
 
 /// An error in a configuration file.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

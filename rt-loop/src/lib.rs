@@ -29,7 +29,7 @@ pub mod velocity;
 pub use clock::{Clock, MonotonicClock, VirtualClock};
 pub use config::ConfigError;
 pub use rig::Rig;
-pub use runner::{Endpoints, FarEnds, RtLoop};
+pub use runner::{Endpoints, FarEnds, Lifeline, RtLoop};
 pub use tick::{Command, Counters, Event, FaultReason, Lifecycle, TickCore};
 
 /// Errors of the rt-loop crate (set-up time only; the tick itself reports by counters and events).

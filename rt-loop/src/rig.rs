@@ -276,7 +276,7 @@ impl Rig {
     /// Loads and validates a rig file with more overrides than it lists itself (a command line's
     /// `--override KEY`); they are checked and shown like the file's own.
     pub fn load_with_overrides(path: &Path, extra: &[String]) -> Result<Rig, ConfigError> {
-        let (mut file, text) = config::load_file::<RigFile>(path)?;
+        let (mut file, text) = config::load_file_kind::<RigFile>(path, config::FileKind::Rig)?;
         file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, &text, &path.display().to_string())
     }
@@ -292,7 +292,7 @@ impl Rig {
 
     /// [`Rig::from_str`] with more overrides (see [`Rig::load_with_overrides`]).
     pub fn from_str_with_overrides(text: &str, origin: &str, extra: &[String]) -> Result<Rig, ConfigError> {
-        let mut file = config::parse::<RigFile>(text, origin)?;
+        let mut file = config::parse_kind::<RigFile>(text, origin, config::FileKind::Rig)?;
         file.overrides.extend(extra.iter().cloned());
         Rig::validate(file, text, origin)
     }
@@ -824,7 +824,7 @@ mod tests {
 
     #[test]
     fn coplanar_anchors_are_rejected() {
-        let mut f: RigFile = config::parse(DEFAULT_RIG_RON, "x").unwrap();
+        let mut f: RigFile = config::parse_kind(DEFAULT_RIG_RON, "x", config::FileKind::Rig).unwrap();
         for s in f.hands[1].strings.iter_mut() {
             s.anchor_m[2] = 0.5;
         }

@@ -21,6 +21,7 @@
 //! behind (the machine stalled), the deadline is re-based on now and the skipped periods are
 //! counted as misses, rather than running a burst of catch-up ticks into the user's hand.
 
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -40,6 +41,36 @@ const STOP_HOLD_TICKS: u32 = 20;
 /// Exchanges tried when priming the counters at start before a late or corrupt reply fails it.
 pub const PRIME_TRIES: u32 = 10;
 
+/// What the loop shares without a lock or a system call with whoever watches it: a heartbeat it
+/// writes every tick (a supervising process reads it to tell a running loop from a dead or hung
+/// one) and a flag that stops it at once. Plain atomics in a `#[repr(C)]` struct, so it can live
+/// in memory shared with another process.
+#[repr(C)]
+#[derive(Debug, Default)]
+pub struct Lifeline {
+    /// 0 before the first tick; then the ticks done so far; [`Lifeline::DONE`] once the loop has
+    /// ended with the device switched off.
+    pub beat: AtomicU64,
+    /// Non-zero: stop at the next tick without the ramp-out: outputs zeroed, device switched off
+    /// (the second stop signal).
+    pub halt: AtomicU32,
+}
+
+impl Lifeline {
+    /// The beat of a loop that has ended with its device switched off.
+    pub const DONE: u64 = u64::MAX;
+
+    /// Asks the loop to stop at once with its outputs zeroed.
+    pub fn halt(&self) {
+        self.halt.store(1, Ordering::SeqCst);
+    }
+
+    /// The loop has ended and switched its device off.
+    pub fn done(&self) -> bool {
+        self.beat.load(Ordering::Acquire) == Self::DONE
+    }
+}
+
 /// The loop's ends of its channels and its link to the world. Any of them may be absent.
 #[derive(Default)]
 pub struct Endpoints {
@@ -48,6 +79,8 @@ pub struct Endpoints {
     /// The world: a channel link from [`Endpoints::pair`], or a socket link put in its place.
     pub link: Option<Box<dyn RigLink>>,
     pub telemetry: Option<Sender<TickRecord>>,
+    /// The heartbeat and the halt flag (leaked or in a shared page: it outlives the loop).
+    pub lifeline: Option<&'static Lifeline>,
 }
 
 /// Bounded channel capacities used by [`Endpoints::pair`] (the link's are in `spidar_link::channel`).
@@ -81,6 +114,7 @@ impl Endpoints {
                 events: Some(et),
                 link: Some(Box::new(link)),
                 telemetry: Some(tt),
+                lifeline: None,
             },
             FarEnds {
                 commands: ct,
@@ -159,6 +193,10 @@ pub struct RtLoop<D: Device, C: Clock> {
     status: StatusWindow,
     /// A sample the link could not take, waiting to go with the next one.
     carry: Option<HandSample>,
+    /// Ticks done, for the heartbeat.
+    beats: u64,
+    /// Stopped at once by the lifeline's halt flag (no ramp-out).
+    halted: bool,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -188,6 +226,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             reopen_budget: Duration::from_secs_f64(rig.period_s * 0.5),
             status: StatusWindow::default(),
             carry: None,
+            beats: 0,
+            halted: false,
         })
     }
 
@@ -238,6 +278,14 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     pub fn is_finished(&self) -> bool {
         self.finished
     }
+    /// The loop was stopped at once by the lifeline's halt flag: outputs zeroed, no ramp-out.
+    pub fn halted(&self) -> bool {
+        self.halted
+    }
+    /// Gives the loop a heartbeat and halt flag (before it runs; `Endpoints::lifeline` does the same).
+    pub fn set_lifeline(&mut self, lifeline: &'static Lifeline) {
+        self.ep.lifeline = Some(lifeline);
+    }
     /// Applies a command directly (tests and single-threaded drivers; the channel does the same).
     pub fn command(&mut self, c: Command) {
         if c == Command::Stop {
@@ -251,6 +299,10 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     /// has stopped. Never allocates, locks or panics.
     pub fn tick(&mut self) -> bool {
         if self.finished || !self.configured {
+            return false;
+        }
+        if self.ep.lifeline.is_some_and(|l| l.halt.load(Ordering::Relaxed) != 0) {
+            self.halt();
             return false;
         }
         let wake = self.clock.sleep_until(self.deadline_ns);
@@ -341,6 +393,8 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             self.core_event(Event::Stopped);
         }
 
+        self.beat();
+
         self.deadline_ns += self.period_ns;
         let now = if self.clock.is_virtual() { wake } else { self.clock.now_ns() };
         if now > self.deadline_ns + MAX_BEHIND * self.period_ns {
@@ -349,6 +403,27 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             self.deadline_ns += skipped * self.period_ns;
         }
         !self.finished
+    }
+
+    /// Writes the heartbeat: the ticks done, or `DONE` once the device is off. One atomic store.
+    fn beat(&mut self) {
+        self.beats += 1;
+        if let Some(l) = self.ep.lifeline {
+            l.beat.store(if self.finished { Lifeline::DONE } else { self.beats }, Ordering::Release);
+        }
+    }
+
+    /// Stops at once: zero output, device off, the world told goodbye (the second stop signal).
+    fn halt(&mut self) {
+        self.out = Output::default();
+        let _ = self.dev.deactivate();
+        self.finished = true;
+        self.halted = true;
+        if let Some(link) = self.ep.link.as_mut() {
+            link.close();
+        }
+        self.core_event(Event::Stopped);
+        self.beat();
     }
 
     /// While disconnected: every `reopen_every` ticks, one bounded reopen attempt instead of the
@@ -442,6 +517,90 @@ mod tests {
         s.proxy_impulse_n_s[1] = DVec3::X * x;
         s.proxy_contact_impulse_n_s[2] = DVec3::Y * x;
         s
+    }
+
+    /// A board that keeps what it was last told.
+    struct Recorder {
+        info: spidar_device::DeviceInfo,
+        last: Output,
+        active: bool,
+        deactivations: u32,
+    }
+    impl Default for Recorder {
+        fn default() -> Self {
+            let info = spidar_device::DeviceInfo {
+                board: Default::default(),
+                identity: Default::default(),
+                channels: 8,
+                volts_min: -10.0,
+                volts_max: 10.0,
+            };
+            Recorder { info, last: Output::default(), active: false, deactivations: 0 }
+        }
+    }
+    impl Device for Recorder {
+        fn open(&mut self) -> Result<(), DeviceError> {
+            Ok(())
+        }
+        fn activate(&mut self) -> Result<(), DeviceError> {
+            self.active = true;
+            Ok(())
+        }
+        fn deactivate(&mut self) -> Result<(), DeviceError> {
+            self.active = false;
+            self.deactivations += 1;
+            self.last = Output::default();
+            Ok(())
+        }
+        fn exchange(&mut self, out: &Output, _: &mut Input) -> Result<(), DeviceError> {
+            self.last = *out;
+            Ok(())
+        }
+        fn info(&self) -> &spidar_device::DeviceInfo {
+            &self.info
+        }
+    }
+
+    #[test]
+    fn the_heartbeat_counts_ticks_and_the_halt_flag_zeroes_the_outputs_at_once() {
+        let lifeline: &'static Lifeline = Box::leak(Box::default());
+        let rig = Rig::default_rig();
+        let ep = Endpoints { lifeline: Some(lifeline), ..Endpoints::default() };
+        let mut rt = RtLoop::new(Recorder::default(), crate::VirtualClock::new(), &rig, ep).unwrap();
+        rt.configure().unwrap();
+        assert_eq!(lifeline.beat.load(Ordering::SeqCst), 0, "no beat before the first tick");
+        for _ in 0..50 {
+            assert!(rt.tick());
+        }
+        assert_eq!(lifeline.beat.load(Ordering::SeqCst), 50);
+        // Inactive: the strings are held at minimum tension.
+        assert!(rt.device().last.volts.iter().any(|v| *v > 0.1), "{:?}", rt.device().last);
+        lifeline.halt();
+        assert!(!rt.tick(), "the halted loop ends on its next tick");
+        assert!(rt.is_finished() && rt.halted());
+        assert_eq!(rt.device().last, Output::default());
+        assert!(!rt.device().active && rt.device().deactivations == 1);
+        assert!(lifeline.done());
+        assert!(!rt.tick());
+    }
+
+    #[test]
+    fn a_clean_stop_ends_the_heartbeat_with_done_after_the_device_is_off() {
+        let lifeline: &'static Lifeline = Box::leak(Box::default());
+        let rig = Rig::default_rig();
+        let mut rt =
+            RtLoop::new(Recorder::default(), crate::VirtualClock::new(), &rig, Endpoints::default()).unwrap();
+        rt.set_lifeline(lifeline);
+        rt.configure().unwrap();
+        rt.command(Command::Stop);
+        let mut ticks = 0;
+        while rt.tick() {
+            ticks += 1;
+            assert!(!lifeline.done(), "not done while the device is on");
+            assert!(rt.device().active);
+        }
+        assert!(ticks >= STOP_HOLD_TICKS - 1 && !rt.halted());
+        assert!(lifeline.done() && !rt.device().active);
     }
 
     #[test]

@@ -317,7 +317,7 @@ impl Src<'_> {
 
 /// Parses and validates a body file.
 pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
-    let f: BodyFile = config::parse(text, origin)?;
+    let f: BodyFile = config::parse_kind(text, origin, config::FileKind::Body)?;
     let src = Src { text, origin };
     config::check_version(text, origin, f.version, 1)?;
     if !(f.gain_dt_s > 0.0 && f.gain_dt_s <= 1.0) {
@@ -509,7 +509,7 @@ fn count_before(_text: &str, key: &str, i: usize, f: &BodyFile) -> usize {
 
 /// Parses and validates a scene file (not the bodies it names).
 pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
-    let f: SceneFile = config::parse(text, origin)?;
+    let f: SceneFile = config::parse_kind(text, origin, config::FileKind::BodyScene)?;
     let src = Src { text, origin };
     config::check_version(text, origin, f.version, 1)?;
     if !(f.dt_s > 0.0 && f.dt_s <= 0.02) {

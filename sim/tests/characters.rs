@@ -375,7 +375,7 @@ fn a_stop_settles_into_the_standing_pose() {
 /// The crowd stepper and the general engine give the same motion for one character, pushed.
 #[test]
 fn crowd_stepper_and_engine_agree_for_one_character() {
-    let scene = "(version: 1, dt_s: 0.003, gravity_m_per_s2: (0.0, -9.81, 0.0), \
+    let scene = "(kind: \"body-scene\", version: 1, dt_s: 0.003, gravity_m_per_s2: (0.0, -9.81, 0.0), \
         contact: (stiffness: Abs(4e5), damping: Abs(4000.0), friction: 0.0, slip_m_per_s: 0.01), \
         joint_limit: (stiffness_n_m_per_rad: 300.0, damping_n_m_s_per_rad: 5.0), \
         statics: [(name: \"floor\", shape: Plane)], actors: [(name: \"c\", body: \"c.ron\", pos_m: (0.0, 0.0, 0.0))])";

@@ -18,7 +18,7 @@ mod alloc_count;
 /// A scene with the given header fields, statics and one body file (named "b.ron").
 fn scene(dt_s: f64, gravity: f64, contact: &str, statics: &str, actors: &str, body: &str) -> Model {
     let text = format!(
-        "(version: 1, dt_s: {dt_s}, gravity_m_per_s2: (0.0, {gravity}, 0.0), contact: {contact}, \
+        "(kind: \"body-scene\", version: 1, dt_s: {dt_s}, gravity_m_per_s2: (0.0, {gravity}, 0.0), contact: {contact}, \
          joint_limit: (stiffness_n_m_per_rad: 300.0, damping_n_m_s_per_rad: 5.0), \
          statics: [{statics}], actors: [{actors}])"
     );
@@ -39,7 +39,7 @@ const FLOOR: &str = "(name: \"floor\", shape: Plane)";
 /// One free rigid body with the given mass description and shapes.
 fn free_body(mass: &str, shapes: &str) -> String {
     format!(
-        "(version: 1, name: \"thing\", source: \"test\", gain_dt_s: 0.003, links: [(name: \"thing\", parent: None, \
+        "(kind: \"body\", version: 1, name: \"thing\", source: \"test\", gain_dt_s: 0.003, links: [(name: \"thing\", parent: None, \
          joint: (kind: Free, anchor_m: (0.0, 0.0, 0.0), stiffness: Abs(0.0), damping: Abs(0.0)), \
          mass: {mass}, shapes: [{shapes}])])"
     )
@@ -83,7 +83,7 @@ fn random_state(m: &Model, rng: &mut Pcg64) -> State {
 }
 
 /// A chain exercising every joint kind: free root, ball, universal, revolute, fixed.
-const CHAIN: &str = r#"(version: 1, name: "chain", source: "test", gain_dt_s: 0.003, links: [
+const CHAIN: &str = r#"(kind: "body", version: 1, name: "chain", source: "test", gain_dt_s: 0.003, links: [
     (name: "root", parent: None, joint: (kind: Free, anchor_m: (0.0, 1.0, 0.0), stiffness: Abs(50.0), damping: Abs(2.0),
         linear_stiffness: Some(Abs(300.0)), linear_damping: Some(Abs(10.0))),
      mass: Box(mass_kg: 3.0, size_m: (0.3, 0.2, 0.1), centre_m: (0.01, 0.02, -0.03))),
@@ -213,7 +213,7 @@ fn free_body_conserves_momentum_and_energy() {
 #[test]
 fn pendulum_period_matches_analytic() {
     // A 1 kg, 0.6 m x 0.04 m x 0.04 m bar pivoting about z at one end, hanging down.
-    let body = r#"(version: 1, name: "pendulum", source: "test", gain_dt_s: 0.003, links: [
+    let body = r#"(kind: "body", version: 1, name: "pendulum", source: "test", gain_dt_s: 0.003, links: [
         (name: "bar", parent: None, joint: (kind: Revolute(axis: (0.0, 0.0, 1.0)), anchor_m: (0.0, 2.0, 0.0),
             default_deg: [5.0], stiffness: Abs(0.0), damping: Abs(0.0)),
          mass: Box(mass_kg: 1.0, size_m: (0.04, 0.6, 0.04), centre_m: (0.0, -0.3, 0.0)))])"#;
@@ -243,7 +243,7 @@ fn pendulum_period_matches_analytic() {
 /// spring's torque balances gravity's (checked with RNEA's gravity torques, not the step).
 #[test]
 fn sprung_chain_settles_to_static_equilibrium() {
-    let body = r#"(version: 1, name: "arm", source: "test", gain_dt_s: 0.003, links: [
+    let body = r#"(kind: "body", version: 1, name: "arm", source: "test", gain_dt_s: 0.003, links: [
         (name: "upper", parent: None, joint: (kind: Revolute(axis: (0.0, 0.0, 1.0)), anchor_m: (0.0, 1.5, 0.0),
             default_deg: [90.0], stiffness: Abs(40.0), damping: Abs(3.0)),
          mass: Box(mass_kg: 2.0, size_m: (0.05, 0.3, 0.05), centre_m: (0.0, -0.15, 0.0))),
@@ -672,7 +672,7 @@ fn single_body_character_stands_on_the_floor() {
 /// in these scenes) balances the push, and the limit damper does not hold it when pushed back.
 #[test]
 fn joint_stops_at_its_limit() {
-    let body = r#"(version: 1, name: "bar", source: "test", gain_dt_s: 0.003, links: [
+    let body = r#"(kind: "body", version: 1, name: "bar", source: "test", gain_dt_s: 0.003, links: [
         (name: "bar", parent: None, joint: (kind: Revolute(axis: (0.0, 0.0, 1.0)), anchor_m: (0.0, 1.0, 0.0),
             stiffness: Abs(0.0), damping: Abs(0.5), limits_deg: Some([(-20.0, 20.0)])),
          mass: Box(mass_kg: 1.0, size_m: (0.04, 0.4, 0.04), centre_m: (0.0, -0.2, 0.0)))])"#;

@@ -92,7 +92,7 @@ fn front_wall(k_n_per_m: f64, d_n_s_per_m: f64) -> WallsScene {
 /// The scene file of `front_wall`.
 fn front_wall_text(k_n_per_m: f64, d_n_s_per_m: f64) -> String {
     format!(
-        "(version: 1, name: \"front wall\", step_s: 0.003, planes: [(label: \"wall\", point_m: (0.0, 1.1, -0.30), \
+        "(kind: \"walls-scene\", version: 1, name: \"front wall\", step_s: 0.003, planes: [(label: \"wall\", point_m: (0.0, 1.1, -0.30), \
          normal: (0.0, 0.0, 1.0), k_n_per_m: {k_n_per_m:?}, d_n_s_per_m: {d_n_s_per_m:?})], spheres: [])"
     )
 }
@@ -636,6 +636,9 @@ fn runs_with_the_same_seed_are_bit_identical() {
 fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let r = rig();
     let mut v = sparring(3, 0.5, true);
+    // The heartbeat a supervisor watches is written every tick, inside the guard.
+    let lifeline: &'static spidar_rt::Lifeline = Box::leak(Box::default());
+    v.rt.set_lifeline(lifeline);
     v.run_ticks(1000); // warm-up: histograms, first models
     let (before, _) = forbidden_allocs();
     let mut scene = v.stop_scene().unwrap();
@@ -678,6 +681,12 @@ fn ticks_run_under_an_allocator_that_fails_on_any_allocation() {
     let c = v.counters();
     assert!(c.faults >= 1 && c.late_replies >= 2 && c.stale > 0 && c.active_ticks > 25_000, "{c:?}");
     assert_eq!(v.rt.state(), Lifecycle::Active);
+    assert_eq!(lifeline.beat.load(std::sync::atomic::Ordering::SeqCst), 31_000, "one beat per tick");
+    // The halt (a second stop signal) zeroes the outputs inside the guard too.
+    lifeline.halt();
+    assert!(!no_alloc(|| v.rt.tick()));
+    assert!(v.rt.halted() && lifeline.done());
+    assert_eq!(forbidden_allocs().0 - before, 0, "the halt allocated");
 }
 
 /// The same guard over ticks whose world is a socket away: models and samples as datagrams, a
@@ -770,36 +779,105 @@ fn the_guard_allocator_does_catch_an_allocation() {
 
 #[test]
 fn every_default_config_loads() {
+    use spidar_config::FileKind;
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
-    let mut n = 0;
+    let mut seen = std::collections::HashSet::new();
     for e in std::fs::read_dir(&dir).unwrap() {
         let p = e.unwrap().path();
-        let name = p.file_name().unwrap().to_string_lossy().to_string();
-        if name.starts_with("rig-") {
-            Rig::load(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("scene-walls") {
-            WallsScene::load(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("scene-crowd") {
-            spidar_sim::character::scene::load_crowd(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("keyframes-") {
-            spidar_sim::character::keyframe::KeyframeSet::load(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("scene-") {
-            spidar_sim::load_scene(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("body-") {
-            let text = std::fs::read_to_string(&p).unwrap();
-            spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("boxer") {
-            spidar_sim::boxer::load_boxer(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else if name.starts_with("script-") {
-            ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"));
-        } else {
+        if p.extension().is_none_or(|x| x != "ron") {
             continue;
         }
-        n += 1;
+        let name = p.file_name().unwrap().to_string_lossy().to_string();
+        // Every shipped file says what it is, and its loader takes it.
+        let text = std::fs::read_to_string(&p).unwrap();
+        let kind = spidar_config::peek_kind(&text, &name).unwrap_or_else(|e| panic!("{e}"));
+        match kind {
+            FileKind::Rig => drop(Rig::load(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::WallsScene => drop(WallsScene::load(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::CrowdScene => {
+                drop(spidar_sim::character::scene::load_crowd(&p).unwrap_or_else(|e| panic!("{e}")))
+            }
+            FileKind::Keyframes => {
+                drop(spidar_sim::character::keyframe::KeyframeSet::load(&p).unwrap_or_else(|e| panic!("{e}")))
+            }
+            FileKind::BodyScene => drop(spidar_sim::load_scene(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::Body => {
+                drop(spidar_sim::desc::parse_body(&text, &name).unwrap_or_else(|e| panic!("{e}")))
+            }
+            FileKind::Boxer => drop(spidar_sim::boxer::load_boxer(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::Script => drop(ScriptFile::load(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::Jig => drop(spidar_calib::jig::JigFile::load(&p).unwrap_or_else(|e| panic!("{e}"))),
+            FileKind::CalibrationSession => {
+                drop(spidar_calib::session::SessionFile::load(&p).unwrap_or_else(|e| panic!("{e}")))
+            }
+        }
+        seen.insert(kind);
     }
-    assert!(n >= 4, "found {n} configs");
+    for k in FileKind::ALL {
+        if k != FileKind::CalibrationSession {
+            assert!(seen.contains(&k), "no shipped example of {}", k.what());
+        }
+    }
     // The built-in copies are the files.
     assert_eq!(Rig::default_rig(), Rig::load(&dir.join("rig-spidar-h.ron")).unwrap());
+}
+
+#[test]
+fn a_file_of_any_name_is_taken_for_what_it_says_it_is() {
+    let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+    let dir = std::env::temp_dir().join(format!("spidar-kinds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A boxer file under a walls-like name is the boxing scene with its parameters.
+    let renamed = dir.join("my-walls.ron");
+    std::fs::copy(configs.join("boxer.ron"), &renamed).unwrap();
+    let scene = spidar_world::load(renamed.to_str().unwrap()).unwrap_or_else(|e| panic!("{e:#}"));
+    assert!(scene.name().contains("boxing"), "{}", scene.name());
+    // A crowd scene without "crowd" in its name, a walls scene without .ron.
+    let crowd = dir.join("people.ron");
+    std::fs::copy(configs.join("scene-crowd.ron"), &crowd).unwrap();
+    // The crowd file names its body and keyframe files relative to itself.
+    for f in ["body-character.ron", "keyframes-humanoid.ron"] {
+        std::fs::copy(configs.join(f), dir.join(f)).unwrap();
+    }
+    let scene = spidar_world::load(crowd.to_str().unwrap()).unwrap_or_else(|e| panic!("{e:#}"));
+    assert!(scene.status().contains("characters"), "{}", scene.status());
+    let walls = dir.join("walls-scene.txt");
+    std::fs::copy(configs.join("scene-walls.ron"), &walls).unwrap();
+    assert!(spidar_world::load(walls.to_str().unwrap()).is_ok());
+    // The boxing world's body scene is not a --scene: the error names what it is and what is taken.
+    let e = spidar_world::load(configs.join("scene-boxing.ron").to_str().unwrap()).err().unwrap().to_string();
+    assert!(e.contains("a body scene file (kind \"body-scene\")") && e.contains("--scene takes"), "{e}");
+    // A loader given another kind names both kinds.
+    let e = Rig::load(&renamed).unwrap_err().to_string();
+    assert!(
+        e.contains("a boxer file (kind \"boxer\")") && e.contains("not a rig file (kind \"rig\")"),
+        "{e}"
+    );
+    let e = WallsScene::load(&configs.join("rig-spidar-h.ron")).err().unwrap().to_string();
+    assert!(e.contains("a rig file") && e.contains("not a walls scene file"), "{e}");
+    let e = ScriptFile::load(&configs.join("jig-spidar-h.ron")).unwrap_err().to_string();
+    assert!(e.contains("a calibration jig file") && e.contains("not a script file"), "{e}");
+    let e = spidar_calib::jig::JigFile::load(&configs.join("script-example.ron")).unwrap_err().to_string();
+    assert!(e.contains("a script file") && e.contains("not a calibration jig file"), "{e}");
+    let e = spidar_sim::boxer::load_boxer(&walls).unwrap_err().to_string();
+    assert!(e.contains("a walls scene file") && e.contains("not a boxer file"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_example_script_drives_both_hands_as_its_comments_say() {
+    let r = rig();
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/script-example.ron");
+    let s = load_scripts(p.to_str().unwrap(), &r, 1).unwrap();
+    assert!(s[0].repeat && !s[1].repeat);
+    assert_eq!(s[0].segments.len(), 5);
+    // The right hand ends where its last reach went: home.
+    let end = s[1].target_at(r.hands[1].home_m, 60.0).pos_m;
+    assert!((end - r.hands[1].home_m).length() < 1e-9, "{end}");
+    // The left hand's jab reaches 40 cm forward of the rig origin.
+    let front =
+        (0..4000).map(|i| s[0].target_at(r.hands[0].home_m, i as f64 * 1e-3).pos_m.z).fold(0.0, f64::min);
+    assert!((front + 0.40).abs() < 1e-6, "{front}");
 }
 
 #[test]

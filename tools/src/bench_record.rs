@@ -85,6 +85,7 @@ pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordB
                 script_name: o.script.clone(),
                 connect_timeout: Duration::from_secs(10),
                 world_priority: None,
+                supervisor: None,
                 recorder,
             },
         )?;

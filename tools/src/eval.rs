@@ -305,7 +305,22 @@ struct Frame {
 
 /// Runs `plan` through a [`Bout`] against a virtual human with `params` and reports every punch.
 pub fn punch_outcomes(params: BoxerParams, plan: &BoxPlan, seed: u64) -> anyhow::Result<BoutOutcome> {
+    punch_outcomes_with(params, plan, seed, &mut |_| {})
+}
+
+/// [`punch_outcomes`], calling `progress` with the number of punches over (first with 0), so a
+/// caller can show progress or stop between punches.
+fn punch_outcomes_with(
+    params: BoxerParams,
+    plan: &BoxPlan,
+    seed: u64,
+    progress: &mut dyn FnMut(usize),
+) -> anyhow::Result<BoutOutcome> {
     let active = params.active;
+    let mut ends: Vec<f64> = plan.punches.iter().map(|p| p.end_s()).collect();
+    ends.sort_by(f64::total_cmp);
+    let mut over = 0;
+    progress(over);
     let mut b = Bout::new(params, plan.scripts.clone(), seed)?;
     let end_s = plan.punches.iter().map(|p| p.end_s()).fold(0.0, f64::max) + 0.5;
     let mut frames: Vec<Frame> = Vec::with_capacity((end_s / 0.003) as usize + 16);
@@ -315,6 +330,12 @@ pub fn punch_outcomes(params: BoxerParams, plan: &BoxPlan, seed: u64) -> anyhow:
     while b.script_t_s() < end_s {
         if !b.tick().1 {
             continue;
+        }
+        if ends.get(over).is_some_and(|&e| e <= b.script_t_s()) {
+            while ends.get(over).is_some_and(|&e| e <= b.script_t_s()) {
+                over += 1;
+            }
+            progress(over);
         }
         let w = &b.scene.world;
         let m = &w.mind;
@@ -525,10 +546,21 @@ pub struct PunchReport {
     pub passive: BoutOutcome,
 }
 
-pub fn punch_report(punches: usize, seed: u64) -> anyhow::Result<PunchReport> {
+/// `progress(done, total)` is called as punches end (`total` counts each punch twice: thrown at
+/// the active and at the passive virtual human).
+pub fn punch_report(
+    punches: usize,
+    seed: u64,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<PunchReport> {
     let plan = punch_plan(punches, seed)?;
-    let run = |active: bool| punch_outcomes(BoxerParams { active, seed, ..Default::default() }, &plan, seed);
-    Ok(PunchReport { active: run(true)?, passive: run(false)? })
+    let n = plan.punches.len();
+    let mut run = |active: bool, before: usize| {
+        let params = BoxerParams { active, seed, ..Default::default() };
+        punch_outcomes_with(params, &plan, seed, &mut |over| progress(before + over, 2 * n))
+    };
+    let active = run(true, 0)?;
+    Ok(PunchReport { active, passive: run(false, n)? })
 }
 
 impl fmt::Display for PunchReport {
@@ -793,11 +825,7 @@ const PAPER: [[[f64; 4]; 4]; 2] = [
 
 impl fmt::Display for Reactions {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(
-            f,
-            "reaction experiment (seed 000, section 4.3): {} straights per target and mode",
-            self.trials
-        )?;
+        writeln!(f, "reaction experiment: {} straights per target and mode", self.trials)?;
         writeln!(f, "  path: {PATH}")?;
         writeln!(
             f,

@@ -69,7 +69,7 @@ pub enum ImpactPath {
     /// The user's path (`spidar run --scene crowd --virtual`): a simulated hand pushes the
     /// character through the simulated rig, the rt-loop and the crowd scene.
     Rig,
-    /// The crowd stepper alone, the character hit by a force on its body (the paper's protocol,
+    /// The crowd stepper alone, the character hit by a force on its body (a push anywhere,
     /// heights down to the feet, which the rig's hands cannot reach).
     Stepper,
 }

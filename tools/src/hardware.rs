@@ -160,7 +160,7 @@ pub fn open_hardware(choice: &HardwareChoice) -> anyhow::Result<Box<dyn Device>>
             let mut d = UartDevice::on_port(port, opts.clone())?;
             d.open_detailed().with_context(|| format!("opening the UART boards on {port}"))?;
             for w in d.warnings() {
-                eprintln!("warning: {w}");
+                crate::errln!("warning: {w}");
             }
             Box::new(d)
         }
@@ -294,8 +294,9 @@ fn status(c: &Control) -> String {
     )
 }
 
-/// Runs `spidar emulate` until Ctrl-C, `quit` on stdin, or `seconds`.
-pub fn run_emulator(emu: Emulator, stop: Arc<AtomicBool>, seconds: Option<f64>) -> anyhow::Result<()> {
+/// Runs `spidar emulate` until a stop signal (Ctrl-C, SIGTERM, SIGHUP), `quit` on stdin, or
+/// `seconds`; then prints the boards' final status, stops serving and removes the link.
+pub fn run_emulator(emu: Emulator, stop: &crate::signals::Stop, seconds: Option<f64>) -> anyhow::Result<()> {
     let c = emu.control().clone();
     let quit = Arc::new(AtomicBool::new(false));
     {
@@ -305,7 +306,7 @@ pub fn run_emulator(emu: Emulator, stop: Arc<AtomicBool>, seconds: Option<f64>) 
             for line in std::io::stdin().lock().lines() {
                 let Ok(line) = line else { break };
                 match emulate_command(&c, line.trim()) {
-                    Some(r) if !r.is_empty() => println!("{r}"),
+                    Some(r) if !r.is_empty() => crate::outln!("{r}"),
                     Some(_) => {}
                     None => {
                         quit.store(true, Ordering::SeqCst);
@@ -316,14 +317,22 @@ pub fn run_emulator(emu: Emulator, stop: Arc<AtomicBool>, seconds: Option<f64>) 
         })?;
     }
     let start = Instant::now();
-    while !stop.load(Ordering::SeqCst) && !quit.load(Ordering::SeqCst) {
+    let why = loop {
+        if stop.requested() {
+            break "a stop signal";
+        }
+        if quit.load(Ordering::SeqCst) {
+            break "quit";
+        }
         if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
-            break;
+            break "time up";
         }
         std::thread::sleep(Duration::from_millis(20));
-    }
-    println!("{}", status(&c));
+    };
+    crate::outln!("{}", status(&c));
+    let link = emu.link().display().to_string();
     emu.stop();
+    crate::outln!("spidar emulate: stopped ({why}); link {link} removed");
     Ok(())
 }
 

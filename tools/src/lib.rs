@@ -19,4 +19,6 @@ pub mod scene_thread;
 pub mod scripts;
 pub mod session;
 pub mod signals;
+pub mod supervisor;
+pub mod term;
 pub mod world_process;

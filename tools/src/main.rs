@@ -1,13 +1,17 @@
 //! `spidar`: run a SPIDAR-H (real or simulated) with a scene behind it, and benchmark the loop.
 //! Arguments are parsed here and checked into parameters; the work is in the library.
+//!
+//! Exit status: 0 done; 1 an error, or a session that ended faulted or never became active; 2 a
+//! command line that cannot be used; 3 the rig process died or hung on real boards and its
+//! supervisor wrote zero to them; 4 the supervisor could not (use the emergency stop).
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::{bail, Context};
-use clap::{Parser, Subcommand};
+use anyhow::bail;
+use clap::parser::ValueSource;
+use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use spidar_device::Device;
 use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::telemetry::fmt_dur;
@@ -17,10 +21,48 @@ use spidar_tools::child_world::ChildWorldSpec;
 use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
 use spidar_tools::report;
 use spidar_tools::session::{
-    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualRun, WorldChoice,
+    self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualOptions, WorldChoice,
 };
 use spidar_tools::signals::Stop;
 use spidar_tools::world_process::WorldArgs;
+use spidar_tools::{errln, outln, supervisor, term};
+
+/// Longest `spidar run` or `spidar emulate` (a week): a number that would run for ever is a typo.
+const MAX_RUN_S: f64 = 7.0 * 24.0 * 3600.0;
+/// Longest benchmark or evaluation phase.
+const MAX_BENCH_S: f64 = 3600.0;
+
+/// A number of seconds in (0, `max`].
+fn seconds_upto(s: &str, max: f64) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number of seconds"))?;
+    if v.is_finite() && v > 0.0 && v <= max {
+        Ok(v)
+    } else {
+        Err(format!("must be more than 0 and at most {max} s"))
+    }
+}
+fn run_seconds(s: &str) -> Result<f64, String> {
+    seconds_upto(s, MAX_RUN_S)
+}
+fn bench_seconds(s: &str) -> Result<f64, String> {
+    seconds_upto(s, MAX_BENCH_S)
+}
+/// 0 (skip) or a number of seconds up to an hour.
+fn bout_seconds(s: &str) -> Result<f64, String> {
+    if s.trim().parse::<f64>().is_ok_and(|v| v == 0.0) {
+        return Ok(0.0);
+    }
+    seconds_upto(s, MAX_BENCH_S)
+}
+/// Encoder noise: 0 to 1000 counts.
+fn noise_counts(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number of counts"))?;
+    if v.is_finite() && (0.0..=1000.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err("must be between 0 and 1000 counts".into())
+    }
+}
 
 #[derive(Parser)]
 #[command(name = "spidar", version, about = "Real-time haptics for a two-hand SPIDAR-H string rig")]
@@ -31,8 +73,11 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Run the 1 kHz haptic loop on a rig with a world behind it (Ctrl-C stops cleanly). The
-    /// world runs as a child process unless --world says otherwise.
+    /// Run the 1 kHz haptic loop on a rig with a world behind it. Ctrl-C, SIGTERM or SIGHUP stop
+    /// cleanly (force ramps out, strings at minimum tension, boards off, summary); a second one
+    /// stops at once with the outputs zeroed. The world runs as a child process unless --world
+    /// says otherwise. On real boards a supervisor process writes zero to them if the rig process
+    /// dies or hangs.
     Run(RunArgs),
     /// Run a world: a scene behind the rig-world link, waiting for a rig (`spidar run --world
     /// ADDR`), on this host or another.
@@ -42,7 +87,8 @@ enum Cmd {
         #[command(subcommand)]
         what: spidar_tools::calib::CalibCmd,
     },
-    /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig.
+    /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig (Ctrl-C,
+    /// SIGTERM or SIGHUP print the final status and remove the link).
     Emulate(EmulateArgs),
     /// List serial ports and USB devices, what each is and whether it can be opened.
     Devices {
@@ -58,9 +104,9 @@ enum Cmd {
         #[command(subcommand)]
         what: BenchCmd,
     },
-    /// Evaluations against the papers: `reactions` (seed 000: timing during a bout and the
-    /// reaction experiment), `impacts` (seed 002: impact-force estimation), `poses` (seed 002:
-    /// contact sheets of the characters as drawn).
+    /// Evaluations: `reactions` (the virtual boxer's timing during a bout, and how readable its
+    /// reactions to jabs are), `impacts` (how well impact forces can be told from the keyframe
+    /// characters' motion), `poses` (contact sheets of the characters as drawn).
     Eval {
         #[command(subcommand)]
         what: EvalCmd,
@@ -79,25 +125,27 @@ enum Cmd {
 
 #[derive(Subcommand)]
 enum EvalCmd {
-    /// Seed 002 section 6.2: an automated estimator guesses impact forces from the keyframe
-    /// characters' motion; prints accuracy, mean and std per parameter next to the paper's Table 1.
+    /// Keyframe characters are hit with random strengths, heights and directions; an automated
+    /// estimator that practised on other hits guesses each hit's parameters from the character's
+    /// motion alone. Prints accuracy, mean and standard deviation per parameter, next to the
+    /// figures people reached in the published study this repeats.
     Impacts {
-        /// Scored hits (the paper: 6 subjects x 20).
-        #[arg(long, default_value_t = 120)]
-        trials: usize,
+        /// Scored hits.
+        #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        trials: u64,
         /// Practice hits per parameter combination (54 combinations) for the estimator.
-        #[arg(long, default_value_t = 4)]
-        practice: usize,
+        #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        practice: u64,
         /// Seed of the random nuisance (heading, drift, exact strength and height).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// rig: hands push the character through the simulated rig, the rt-loop and the crowd
-        /// scene (the user's path); stepper: a force on the crowd stepper's character (the paper's
-        /// heights, down to the feet).
+        /// scene (the user's path); stepper: a force on the crowd stepper's character (at heights
+        /// down to the feet).
         #[arg(long, value_enum, default_value = "rig")]
         path: spidar_tools::eval_impacts::ImpactPath,
     },
-    /// Seed 002: contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
+    /// Contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
     /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
     Poses {
         /// Folder the sheets are written to.
@@ -106,21 +154,22 @@ enum EvalCmd {
     },
     /// On the path of `spidar run` (simulated rig, rt-loop, boxing world, virtual clock): sim step
     /// and prediction cost during a bout, what punches of every kind did to an active and a
-    /// passive virtual human, then the section 4.3 experiment: straights at four targets, an
-    /// observer guesses each from the virtual human's motion.
+    /// passive virtual human, then the reaction experiment: straights at four targets, an
+    /// observer guesses each target from the virtual human's motion alone, with its cognitive
+    /// model on and off.
     Reactions {
         /// Straights per target and mode (active, passive).
-        #[arg(long, default_value_t = 24)]
-        trials: usize,
+        #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u64).range(1..=10_000))]
+        trials: u64,
         /// Punches of the punch experiment (each thrown at an active and a passive virtual
-        /// human); 0 skips it.
-        #[arg(long, default_value_t = 400)]
-        punches: usize,
+        /// human), at most 100000; 0 skips it.
+        #[arg(long, default_value_t = 400, value_parser = clap::value_parser!(u64).range(0..=100_000))]
+        punches: u64,
         /// Seed of the jabs (aim, hand, speed) and of the bout.
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Length of the timed bout (s of rig time, virtual clock); 0 skips it.
-        #[arg(long, default_value_t = 60.0)]
+        /// Length of the timed bout (s of rig time, virtual clock; at most 3600); 0 skips it.
+        #[arg(long, default_value_t = 60.0, value_parser = bout_seconds)]
         bout_seconds: f64,
     },
 }
@@ -146,18 +195,19 @@ struct EmulateArgs {
     script: String,
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Encoder noise of the simulated rig, standard deviation in counts.
-    #[arg(long, default_value_t = 0.0)]
+    /// Encoder noise of the simulated rig, standard deviation in counts (0 to 1000).
+    #[arg(long, default_value_t = 0.0, value_parser = noise_counts)]
     noise_counts: f64,
     /// Experiments only: zero the motors when no command came for this long. The real boards
     /// have no watchdog (they hold their last command), so by default neither do these.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     watchdog_ms: Option<u64>,
     /// Advance the rig one period per servo tick received instead of with the wall clock.
     #[arg(long)]
     per_tick: bool,
-    /// Stop after this many seconds (default: until Ctrl-C or `quit` on stdin).
-    #[arg(long)]
+    /// Stop after this many seconds, at most a week (default: until Ctrl-C, SIGTERM, SIGHUP or
+    /// `quit` on stdin).
+    #[arg(long, value_parser = run_seconds)]
     seconds: Option<f64>,
     /// Serve at normal priority instead of SCHED_FIFO 70.
     #[arg(long)]
@@ -198,11 +248,12 @@ struct RunArgs {
     device: DeviceKind,
     #[command(flatten)]
     hw: HardwareArgs,
-    /// Scene behind the loop: `boxing` (the reactive virtual human, seed 000; the default),
-    /// `boxing-passive` (its cognitive model off), a boxer file like configs/boxer.ron, `crowd`
-    /// (keyframe characters to push, seed 002) or a crowd scene file (*crowd*.ron), `walls` (the
-    /// rig check) or a walls scene file (.ron). With --world ADDR: the scene that world must run
-    /// (default: whatever it runs).
+    /// Scene behind the loop: `boxing` (a virtual human who predicts your punches and blocks,
+    /// dodges or hits back; the default), `boxing-passive` (the same body with its mind off),
+    /// `crowd` (keyframe characters to push, who stagger, step, fall and get up), `walls` (the rig
+    /// check), or a boxer, crowd scene or walls scene file of any name (it says what it is: see
+    /// configs/ and docs/formats.md). With --world ADDR: the scene that world must run (default:
+    /// whatever it runs).
     #[arg(long)]
     scene: Option<String>,
     /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
@@ -210,36 +261,38 @@ struct RunArgs {
     /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
     #[arg(long, default_value = "child")]
     world: String,
-    /// How many times a child world that dies is restarted.
-    #[arg(long, default_value_t = 3)]
+    /// How many times a child world that dies is restarted (at most 100).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=100))]
     world_restarts: u32,
-    /// How long to wait for the world's first answer, in seconds.
-    #[arg(long, default_value_t = 30.0)]
+    /// How long to wait for the world's first answer, in seconds (at most 3600).
+    #[arg(long, default_value_t = 30.0, value_parser = bench_seconds)]
     world_timeout_s: f64,
     /// Step the world (child or thread) with SCHED_FIFO at this priority, below the loop's
     /// (--priority): keeps the contact model fresh on a busy machine. Default: normal scheduler.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
     world_priority: Option<u8>,
-    /// The simulated user's hands: box (straights, hooks, uppercuts and feints at the virtual
-    /// human), crowd (pushes at the crowd's front row), hold, circle, spar, tour (for `walls`), or a
-    /// script file (.ron).
+    /// The simulated user's hands (--device sim only): box (straights, hooks, uppercuts and
+    /// feints at the virtual human), crowd (pushes at the crowd's front row), hold, circle, spar,
+    /// tour (for `walls`), or a script file of any name (see configs/script-example.ron).
     /// Default: the scene's own (crowd for a crowd scene, box otherwise).
     #[arg(long)]
     script: Option<String>,
-    /// Stop after this many seconds (default: run until Ctrl-C).
-    #[arg(long)]
+    /// Stop after this many seconds, at most a week (default: run until Ctrl-C, SIGTERM or SIGHUP).
+    #[arg(long, value_parser = run_seconds)]
     seconds: Option<f64>,
-    /// Seed of the simulated rig and of random scripts; the same seed gives the same run on the
-    /// virtual clock.
+    /// Seed of the simulated rig and of random scripts (--device sim only); the same seed gives
+    /// the same run on the virtual clock.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Encoder noise of the simulated rig, standard deviation in counts.
-    #[arg(long, default_value_t = 0.0)]
+    /// Encoder noise of the simulated rig, standard deviation in counts, 0 to 1000 (--device sim
+    /// only).
+    #[arg(long, default_value_t = 0.0, value_parser = noise_counts)]
     noise_counts: f64,
-    /// Simulate string sag when a tension drops below 0.3 N.
+    /// Simulate string sag when a tension drops below 0.3 N (--device sim only).
     #[arg(long)]
     slack: bool,
-    /// Run on the virtual clock, as fast as the machine computes (needs --seconds).
+    /// Run on the virtual clock, as fast as the machine computes (needs --seconds; the world
+    /// runs in this process).
     #[arg(long = "virtual")]
     virtual_clock: bool,
     /// No live status line.
@@ -269,18 +322,18 @@ enum BenchCmd {
         /// or `crowd` (the spar script).
         #[arg(long, default_value = "boxing")]
         scene: String,
-        /// Characters in the crowd scene.
-        #[arg(long, default_value_t = 1000)]
-        characters: usize,
-        /// Seconds of each block.
-        #[arg(long, default_value_t = 2.0)]
+        /// Characters in the crowd scene (at most 100000).
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(0..=100_000))]
+        characters: u32,
+        /// Seconds of each block (at most 3600).
+        #[arg(long, default_value_t = 2.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Rounds of the three blocks.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
         rounds: u32,
-        /// Viewers in the viewers' blocks.
-        #[arg(long, default_value_t = 3)]
-        viewers: usize,
+        /// Viewers in the viewers' blocks (at most 64).
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=64))]
+        viewers: u32,
         /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
         fifo: Option<u8>,
@@ -289,11 +342,11 @@ enum BenchCmd {
     Rt {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds for each of the two loops.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds for each of the two loops (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two loops.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
     },
     /// Wake-up lateness of live sessions with and without --record (alternating blocks), and the
@@ -301,11 +354,11 @@ enum BenchCmd {
     Record {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds of session for each arm.
-        #[arg(long, default_value_t = 60.0)]
+        /// Seconds of session for each arm (at most 3600).
+        #[arg(long, default_value_t = 60.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two arms.
-        #[arg(long, default_value_t = 6)]
+        #[arg(long, default_value_t = 6, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
         #[arg(long, default_value = "boxing")]
         scene: String,
@@ -318,17 +371,17 @@ enum BenchCmd {
     Link {
         #[command(flatten)]
         rig: RigArgs,
-        /// Seconds of the loop with each kind of world.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds of the loop with each kind of world (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Alternations between the two kinds of world.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
         blocks: u32,
         /// The scene of both worlds.
         #[arg(long, default_value = "boxing")]
         scene: String,
         /// Samples echoed per transport for the round-trip figures (at 1 kHz).
-        #[arg(long, default_value_t = 5000)]
+        #[arg(long, default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
         echoes: u64,
         /// SCHED_FIFO priority of both worlds (default: the normal scheduler).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
@@ -339,13 +392,13 @@ enum BenchCmd {
         #[command(flatten)]
         rig: RigArgs,
         /// Back-to-back exchanges for the round-trip figures.
-        #[arg(long, default_value_t = 20_000)]
+        #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
         exchanges: u64,
-        /// Seconds of the 1 kHz loop through the link.
-        #[arg(long, default_value_t = 10.0)]
+        /// Seconds of the 1 kHz loop through the link (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
         /// Deadline of one exchange, in microseconds.
-        #[arg(long, default_value_t = 800)]
+        #[arg(long, default_value_t = 800, value_parser = clap::value_parser!(u64).range(50..=100_000))]
         reply_timeout_us: u64,
     },
 }
@@ -365,58 +418,80 @@ fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
     })
 }
 
-fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
+fn main() -> ExitCode {
+    // A rig process started by its supervisor finds the shared page before any thread starts.
+    if let Err(e) = supervisor::attach_from_env() {
+        errln!("Error: {e:?}");
+        return ExitCode::FAILURE;
+    }
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    match dispatch(cli, &matches) {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            errln!("Error: {e:?}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs a command; the exit status (0 unless a supervisor took the boards over).
+fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
     match cli.command {
-        Cmd::Run(a) => run(a),
+        Cmd::Run(a) => run(a, matches.subcommand_matches("run").unwrap_or(matches)),
         Cmd::World(a) => {
             let stop = Stop::install()?;
-            spidar_tools::world_process::run_world(&a, &stop).map(|_| ())
+            spidar_tools::world_process::run_world(&a, &stop).map(|_| 0)
         }
-        Cmd::Calib { what } => spidar_tools::calib::run(what),
-        Cmd::Emulate(a) => emulate(a),
-        Cmd::Replay(a) => spidar_tools::recording::replay(&a),
-        Cmd::Export(a) => spidar_tools::recording::export(&a),
-        Cmd::Plot(a) => spidar_tools::recording::plot(&a),
+        Cmd::Calib { what } => spidar_tools::calib::run(what).map(|_| 0),
+        Cmd::Emulate(a) => emulate(a).map(|_| 0),
+        Cmd::Replay(a) => spidar_tools::recording::replay(&a).map(|_| 0),
+        Cmd::Export(a) => spidar_tools::recording::export(&a).map(|_| 0),
+        Cmd::Plot(a) => spidar_tools::recording::plot(&a).map(|_| 0),
         Cmd::Eval { what: EvalCmd::Reactions { trials, punches, seed, bout_seconds }, json } => {
             use spidar_tools::eval;
+            let stop = Stop::install()?;
             if !json {
-                println!("measured on {}\n", eval::PATH);
+                outln!("measured on {}\n", eval::PATH);
             }
             let mut bout = None;
             if bout_seconds > 0.0 {
-                eprintln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
+                errln!("timing a {bout_seconds} s bout on the simulated rig (virtual clock) ...");
                 let b = eval::bout_timing(bout_seconds, seed)?;
                 if !json {
-                    println!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
-                    println!("  world step   {}", b.step);
-                    println!("  prediction   {}", b.prediction);
-                    println!("  step+predict {}", b.step_with_prediction);
+                    outln!("bout of {} s (box script, active virtual human), per 3 ms step:", b.seconds);
+                    outln!("  world step   {}", b.step);
+                    outln!("  prediction   {}", b.prediction);
+                    outln!("  step+predict {}", b.step_with_prediction);
                     let [med, p99, max] = b.prediction_steps;
-                    println!(
-                        "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead",
-                        b.horizon_steps
-                    );
-                    println!("  rt misses    {}", b.misses);
-                    println!("  scene        {}\n", b.status);
+                    outln!("  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", b.horizon_steps);
+                    outln!("  rt misses    {}", b.misses);
+                    outln!("  scene        {}\n", b.status);
                 }
                 bout = Some(b);
             }
             let mut punch_report = None;
             if punches > 0 {
-                eprintln!("throwing {punches} punches at an active and a passive virtual human ...");
-                let p = eval::punch_report(punches, seed)?;
+                errln!("throwing {punches} punches at an active and a passive virtual human ...");
+                let p = eval::punch_report(punches as usize, seed, |done, total| {
+                    stopped_eval(&stop, done, total, "punches");
+                    if done % 16 == 0 || done == total {
+                        term::progress(&format!("punches {done}/{total}"));
+                    }
+                })?;
+                term::progress_done();
                 if !json {
-                    println!("{p}\n");
+                    outln!("{p}\n");
                 }
                 punch_report = Some(p);
             }
-            let r = eval::reactions(trials, seed, |done, total| {
+            let r = eval::reactions(trials as usize, seed, |done, total| {
+                stopped_eval(&stop, done, total, "straights");
                 if done % 16 == 0 || done == total {
-                    eprint!("\rjabs {done}/{total}\x1b[K");
+                    term::progress(&format!("straights {done}/{total}"));
                 }
             })?;
-            eprintln!();
+            term::progress_done();
             if json {
                 let j = serde_json::json!({
                     "command": "eval reactions",
@@ -425,32 +500,29 @@ fn main() -> anyhow::Result<()> {
                     "punches": punch_report,
                     "reactions": r,
                 });
-                println!("{j:#}");
+                outln!("{j:#}");
             } else {
-                println!("{r}");
+                outln!("{r}");
             }
-            Ok(())
+            Ok(0)
         }
         Cmd::Eval { what: EvalCmd::Poses { out }, json } => {
             let report = spidar_tools::eval_poses::eval_poses(&out)?;
             if json {
-                println!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
+                outln!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
             } else {
-                println!("{report}");
+                outln!("{report}");
             }
-            Ok(())
+            Ok(0)
         }
         Cmd::Devices { probe, port } => {
-            print!("{}", hardware::devices_report(&port, probe));
-            Ok(())
+            outln!("{}", hardware::devices_report(&port, probe).trim_end());
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Uart { rig, exchanges, seconds, reply_timeout_us } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
             let scripts = load_scripts("hold", &r, 1)?;
-            eprintln!("{exchanges} round trips, then {seconds} s of the 1 kHz loop through the emulator ...");
+            errln!("{exchanges} round trips, then {seconds} s of the 1 kHz loop through the emulator ...");
             let rep = hardware::bench_uart(
                 &r,
                 scripts,
@@ -459,40 +531,36 @@ fn main() -> anyhow::Result<()> {
                 &rt_options(&rig)?,
                 Duration::from_micros(reply_timeout_us),
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
         Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed, path }, json } => {
             use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
-            if trials == 0 || practice == 0 {
-                bail!("--trials and --practice must be at least 1");
-            }
             let o = ImpactOptions {
-                trials,
-                practice_per_combo: practice,
+                trials: trials as usize,
+                practice_per_combo: practice as usize,
                 seed,
                 path,
                 ..ImpactOptions::default()
             };
+            let stop = Stop::install()?;
             let report = eval_impacts(&o, |done, total| {
+                stopped_eval(&stop, done, total, "hits");
                 if done % 50 == 0 || done == total {
-                    eprint!("\r  simulated {done}/{total} hits");
+                    term::progress(&format!("  simulated {done}/{total} hits"));
                 }
             })?;
-            eprintln!();
+            term::progress_done();
             if json {
-                println!("{:#}", serde_json::json!({ "command": "eval impacts", "report": report }));
+                outln!("{:#}", serde_json::json!({ "command": "eval impacts", "report": report }));
             } else {
-                println!("{report}");
+                outln!("{report}");
             }
-            Ok(())
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
-            eprintln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
+            errln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
             let rep = spidar_tools::bench_record::bench_record(
                 &r,
                 &spidar_tools::bench_record::RecordBenchOptions {
@@ -504,15 +572,12 @@ fn main() -> anyhow::Result<()> {
                     dir: std::env::temp_dir().join(format!("spidar-bench-record-{}", std::process::id())),
                 },
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
-            eprintln!(
+            errln!(
                 "{echoes} round trips per transport, then {seconds} s of the loop with each kind of world in {blocks} blocks ..."
             );
             let rep = bench_link(
@@ -530,31 +595,26 @@ fn main() -> anyhow::Result<()> {
                     world_priority,
                 },
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
             use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
-            if !(seconds.is_finite() && seconds > 0.0) || rounds == 0 {
-                bail!("--seconds must be a positive number and --rounds at least 1");
-            }
+            let (characters, viewers) = (characters as usize, viewers as usize);
             let r = match &rig {
                 Some(p) => Rig::load(p)?,
                 None => Rig::default_rig(),
             };
-            eprintln!(
+            errln!(
                 "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
             );
             let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
-            println!("{}", bench_view(&r, &o)?);
-            Ok(())
+            outln!("{}", bench_view(&r, &o)?);
+            Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Rt { rig, seconds, blocks } } => {
-            if !(seconds.is_finite() && seconds > 0.0) {
-                bail!("--seconds must be a positive number");
-            }
             let r = load_rig(&rig)?;
-            eprintln!("running each loop for {seconds} s in {blocks} blocks ...");
+            errln!("running each loop for {seconds} s in {blocks} blocks ...");
             let rep = bench_rt(
                 &r,
                 &RtBenchOptions {
@@ -564,8 +624,8 @@ fn main() -> anyhow::Result<()> {
                     spin_ns: rig.spin_us * 1000,
                 },
             )?;
-            println!("{rep}");
-            Ok(())
+            outln!("{rep}");
+            Ok(0)
         }
     }
 }
@@ -575,9 +635,6 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         Some(p) => Rig::load(p)?,
         None => Rig::default_rig(),
     };
-    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
-        bail!("--noise-counts must be >= 0");
-    }
     let models =
         spidar_device::emulator::parse_models(&a.boards).map_err(|e| anyhow::anyhow!("--boards: {e}"))?;
     let scripts = load_scripts(&a.script, &rig, a.seed)?;
@@ -595,6 +652,8 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         Some(l) => l,
         None => hardware::default_link()?,
     };
+    // Signals end the emulator cleanly (status, link removed) from here on.
+    let stop = Stop::install()?;
     let opts = hardware::EmulateOptions {
         link,
         emulator: spidar_device::emulator::EmulatorOptions {
@@ -605,7 +664,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         sim: SimOptions { seed: a.seed, encoder_noise_counts: a.noise_counts, ..Default::default() },
     };
     let emu = hardware::start_emulator(&rig, scripts, &opts)?;
-    println!(
+    outln!(
         "spidar emulate: boards {} ({}) on {} (link {}), rig '{}', script {}, watchdog {}",
         a.boards,
         layout.firmware(),
@@ -615,7 +674,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         a.script,
         a.watchdog_ms.map_or("none (as the real boards)".to_string(), |w| format!("{w} ms (experiment)"))
     );
-    println!(
+    outln!(
         "run the stack against it: spidar run --device uart   (--port {} is the default)",
         emu.link().display()
     );
@@ -623,7 +682,7 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
         // The thread sets its policy as it starts; give it a moment before reporting.
         std::thread::sleep(Duration::from_millis(50));
     }
-    println!(
+    outln!(
         "serving thread: {}",
         if emu.control().fifo() {
             "SCHED_FIFO 70"
@@ -631,47 +690,153 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
             "normal priority (SCHED_FIFO not permitted or not asked)"
         }
     );
-    println!("{}", hardware::EMULATE_HELP);
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
-            .context("installing the Ctrl-C handler")?;
-    }
-    hardware::run_emulator(emu, stop, a.seconds)
+    outln!("{}", hardware::EMULATE_HELP);
+    hardware::run_emulator(emu, &stop, a.seconds)
 }
 
-fn run(a: RunArgs) -> anyhow::Result<()> {
-    if let Some(s) = a.seconds {
-        if !(s.is_finite() && s > 0.0) {
-            bail!("--seconds must be a positive number of seconds");
+/// The option `id` was given on the command line (not left at its default).
+fn given(m: &ArgMatches, id: &str) -> bool {
+    m.try_get_raw(id).is_ok_and(|v| v.is_some()) && m.value_source(id) == Some(ValueSource::CommandLine)
+}
+
+/// Refuses options that do not apply to this run, naming what they apply to.
+fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
+    let given = |id: &str| given(m, id);
+    if a.device == DeviceKind::Sim {
+        for (id, flag) in [
+            ("port", "--port"),
+            ("switch", "--switch"),
+            ("digits_per_volt", "--digits-per-volt"),
+            ("reply_timeout_us", "--reply-timeout-us"),
+        ] {
+            if given(id) {
+                bail!(
+                    "{flag} applies to real boards, not to the simulated rig: leave it out, or choose the board \
+                     with --device uart, usb-simple or usb-sh4"
+                );
+            }
+        }
+    } else {
+        for (id, flag) in [
+            ("script", "--script"),
+            ("seed", "--seed"),
+            ("noise_counts", "--noise-counts"),
+            ("slack", "--slack"),
+        ] {
+            if given(id) {
+                bail!(
+                    "{flag} applies to the simulated rig only (--device sim): on real boards the hands are a \
+                     person's; leave it out"
+                );
+            }
+        }
+        if a.device != DeviceKind::Uart && given("port") {
+            bail!("--port applies to --device uart only: USB boards are found by their USB id (pick one with --switch)");
+        }
+        if a.device == DeviceKind::Uart && given("switch") {
+            bail!(
+                "--switch picks one of several USB boards: it does not apply to --device uart (use --port)"
+            );
         }
     }
-    if !(a.noise_counts.is_finite() && a.noise_counts >= 0.0) {
-        bail!("--noise-counts must be >= 0");
+    if a.virtual_clock {
+        if a.seconds.is_none() {
+            bail!("--virtual needs --seconds: how much rig time to run");
+        }
+        for (id, flag) in [
+            ("priority", "--priority"),
+            ("no_rt", "--no-rt"),
+            ("cpu", "--cpu"),
+            ("spin_us", "--spin-us"),
+            ("world_priority", "--world-priority"),
+            ("world_restarts", "--world-restarts"),
+            ("world_timeout_s", "--world-timeout-s"),
+        ] {
+            if given(id) {
+                bail!(
+                    "{flag} does not apply to --virtual: the loop and the world run on the virtual clock in this \
+                     process, as fast as the machine computes; leave it out"
+                );
+            }
+        }
+        if !matches!(a.world.as_str(), "child" | "thread") {
+            bail!("--virtual runs the world in this process: leave out --world {}", a.world);
+        }
+    } else {
+        match a.world.as_str() {
+            "child" => {}
+            "thread" => {
+                for (id, flag) in
+                    [("world_restarts", "--world-restarts"), ("world_timeout_s", "--world-timeout-s")]
+                {
+                    if given(id) {
+                        bail!("{flag} applies to a world process; --world thread runs the world in this process");
+                    }
+                }
+            }
+            _ => {
+                if given("world_restarts") {
+                    bail!("--world-restarts applies to --world child only: a world already running is not restarted by this rig");
+                }
+                if given("world_priority") {
+                    bail!(
+                        "--world-priority applies to a world this rig starts: give a running world its priority with \
+                         `spidar world --priority`"
+                    );
+                }
+            }
+        }
     }
-    if !(a.world_timeout_s.is_finite() && a.world_timeout_s > 0.0) {
-        bail!("--world-timeout-s must be a positive number of seconds");
+    if a.rig.no_rt && given("priority") {
+        bail!("--priority is the loop's SCHED_FIFO priority, which --no-rt turns off: leave one of them out");
     }
-    let rig = load_rig(&a.rig)?;
-    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
-    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     if let Some(p) = a.world_priority {
         if !a.rig.no_rt && p >= a.rig.priority {
             bail!("--world-priority {p} must be below the loop's --priority {}", a.rig.priority);
         }
     }
+    Ok(())
+}
+
+/// An evaluation runs on the simulated rig and the virtual clock (no device, no file written
+/// until the end): a stop signal ends it after the trial in progress, saying how far it got,
+/// with the status a shell gives to an interrupted command (130).
+fn stopped_eval(stop: &Stop, done: usize, total: usize, what: &str) {
+    if stop.requested() {
+        term::progress_done();
+        errln!("stopped by a signal after {done} of {total} {what}: no report (nothing else to stop: no device was used)");
+        std::process::exit(130);
+    }
+}
+
+fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
+    check_run_options(&a, m)?;
+    let rig = load_rig(&a.rig)?;
+    // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
+    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
+    let choice = a.hw.choice(a.device, &rig)?;
+    // Real boards hold their last command if this process dies: a supervisor watches over it.
+    let supervised = supervisor::attached();
+    if let (Some(choice), None) = (&choice, supervised) {
+        let stop = Stop::install()?;
+        let choice = choice.clone();
+        return supervisor::supervise(&stop, &mut || hardware::open_hardware(&choice));
+    }
+    let stop = match supervised {
+        Some(page) => Stop::install()?.with_forwarded(&page.stops),
+        None => Stop::install()?,
+    };
     let scene_arg = a.scene.clone().unwrap_or_else(|| "boxing".into());
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
     let (mut world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
-        (true, "child" | "thread") | (false, "thread") => {
+        (true, _) | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
             // The live view runs on the real clock only.
             let view = if a.virtual_clock {
                 if a.view.view.is_some() {
-                    eprintln!("spidar: no live view with --virtual (it runs faster than real time)");
+                    errln!("spidar: no live view with --virtual (it runs faster than real time)");
                 }
                 None
             } else {
@@ -683,7 +848,6 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             }
             (WorldChoice::Thread(stepper), name)
         }
-        (true, other) => bail!("--virtual runs the world in this process: leave out --world {other}"),
         (false, "child") => {
             let mut spec = ChildWorldSpec::this_executable(&scene_arg, a.world_restarts)?;
             if let Some(p) = a.world_priority {
@@ -694,7 +858,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         }
         (false, addr) => {
             if a.view.view.is_some() || a.view.no_view {
-                eprintln!(
+                errln!(
                     "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
                 );
             }
@@ -705,13 +869,6 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         }
     };
     let script = a.script.clone().unwrap_or_else(|| session::default_script(&scene_arg).to_string());
-    let scripts = load_scripts(&script, &rig, a.seed)?;
-    let sim_opts = SimOptions {
-        seed: a.seed,
-        encoder_noise_counts: a.noise_counts,
-        slack: a.slack,
-        ..Default::default()
-    };
     // Created before the device opens: a path that cannot be written stops the run here.
     let mut recorder = match &a.record {
         Some(path) => {
@@ -756,126 +913,89 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                     spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
                 }
             }
-            WorldChoice::Connect { at, .. } => eprintln!(
+            WorldChoice::Connect { at, .. } => errln!(
                 "spidar: the world at {at} is not recorded here; record it where it runs (spidar world --record FILE.mcap)"
             ),
         }
     }
-    let dev: Box<dyn Device> = match a.hw.choice(a.device, &rig)? {
+    let (dev, script_name): (Box<dyn Device>, String) = match choice {
         None => {
-            eprintln!(
+            let scripts = load_scripts(&script, &rig, a.seed)?;
+            let sim_opts = SimOptions {
+                seed: a.seed,
+                encoder_noise_counts: a.noise_counts,
+                slack: a.slack,
+                ..Default::default()
+            };
+            errln!(
                 "spidar: rig '{}' on the simulated SPIDAR-H (seed {}), scene {}, script {}",
-                rig.name, a.seed, scene_name, script
+                rig.name,
+                a.seed,
+                scene_name,
+                script
             );
-            Box::new(sim_device(&rig, scripts, &sim_opts)?)
+            (Box::new(sim_device(&rig, scripts, &sim_opts)?), script.clone())
         }
         Some(choice) => {
             let dev = hardware::open_hardware(&choice)?;
-            eprintln!(
-                "spidar: rig '{}' on {} ({}), scene {}",
+            errln!(
+                "spidar: rig '{}' on {} ({}), scene {}{}",
                 rig.name,
                 dev.info().board,
                 dev.info().identity,
-                scene_name
+                scene_name,
+                if supervised.is_some() {
+                    format!(
+                        "; supervisor pid {} watches this rig process (pid {})",
+                        parent_pid(),
+                        std::process::id()
+                    )
+                } else {
+                    String::new()
+                }
             );
             hardware::check_rig_against(&rig, dev.info())?;
-            eprintln!("hold each grip at its home point: the rig homes as it starts");
-            dev
+            errln!("hold each grip at its home point: the rig homes as it starts");
+            (dev, "none (a person's hands on real boards)".to_string())
         }
     };
+    let device = format!("{} ({})", dev.info().board, dev.info().identity);
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
         let WorldChoice::Thread(stepper) = world else {
             unreachable!("--virtual runs the world in this process")
         };
-        let mut v = VirtualRun::new(dev, &rig, Some(stepper.into_scene()))?;
-        if let Some(o) = world_observer.take() {
-            v.observers.push(Box::new(o));
-        }
-        v.home_and_activate();
-        let ticks = (seconds / rig.period_s).round() as u64;
-        let t0 = std::time::Instant::now();
-        for _ in 0..ticks {
-            let r = v.tick();
-            if let Some(rec) = recorder.as_mut() {
-                rec.write_tick(&r);
-            }
-        }
-        v.rt.command(spidar_rt::Command::Stop);
-        loop {
-            let more = v.rt.tick();
-            if let Some(rec) = recorder.as_mut() {
-                rec.write_tick(v.rt.last_record());
-            }
-            if !more {
-                break;
-            }
-        }
-        let wall = t0.elapsed().as_secs_f64();
-        let c = *v.counters();
-        let recording = recorder.map(|r| {
-            r.finish(&spidar_record::writer::EndInfo {
-                ticks: c.ticks,
-                telemetry_dropped: 0,
-                final_state: v.rt.state().name().into(),
-                clean_stop: v.rt.is_finished(),
-                faults: c.faults,
-            })
-        });
+        let mut summary = session::run_virtual(
+            dev,
+            &rig,
+            stepper.into_scene(),
+            VirtualOptions {
+                seconds,
+                stop,
+                progress: !a.quiet,
+                device,
+                scene_name,
+                script_name,
+                supervisor: supervised,
+                recorder: recorder.take(),
+                observers: world_observer.take().into_iter().map(|o| Box::new(o) as _).collect(),
+            },
+        )?;
+        summary.rig_file = rig_src.describe();
         let world_rec = world_recording.take().map(|r| r.finish());
-        let status = v.scene.as_ref().map(|s| s.status()).unwrap_or_default();
         if a.json {
-            let j = report::virtual_json(&report::VirtualRunReport {
-                ticks: c.ticks,
-                rig_seconds: seconds,
-                wall_s: wall,
-                stats: &v.stats,
-                counters: &c,
-                scene_status: &status,
-                end: v.rt.state(),
-                recording: recording.as_ref(),
-                rig_file: &rig_src.describe(),
-            });
-            println!("{j:#}");
+            outln!("{:#}", report::virtual_json(&summary));
         } else {
-            println!(
-                "spidar run --virtual: {} ticks ({seconds} s of rig time) in {:.2} s wall ({:.0}x real time)",
-                c.ticks,
-                wall,
-                seconds / wall
-            );
-            println!("  rig file     {}", rig_src.describe());
-            println!("  compute      {}", v.stats.compute.percentiles());
-            if !status.is_empty() {
-                println!("  scene        {status}");
-            }
-            println!(
-                "  max force    left {:.2} N, right {:.2} N",
-                v.stats.max_force_n[0], v.stats.max_force_n[1]
-            );
-            println!(
-                "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}",
-                c.clamped[0],
-                c.clamped[1],
-                c.infeasible[0],
-                c.infeasible[1],
-                c.fallback[0],
-                c.fallback[1],
-                c.faults
-            );
-            if let Some(r) = &recording {
-                println!("  recording    {r}");
-            }
+            outln!("{summary}");
             if let Some(r) = &world_rec {
-                println!("  world rec.   {r}");
+                outln!("  world rec.   {r}");
             }
-            println!("  end          {}", v.rt.state().name());
         }
-        return report::check_outcome(v.rt.state(), &c, &[]);
+        report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+        return Ok(0);
     }
 
-    let stop = Stop::install()?;
     let summary = session::run_live(
         dev,
         &rig,
@@ -887,9 +1007,10 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
             status_every: (!a.quiet).then_some(Duration::from_millis(500)),
             stop,
             scene_name,
-            script_name: script.clone(),
+            script_name,
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
+            supervisor: supervised,
             recorder: match recorder {
                 Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
                 None => None,
@@ -902,19 +1023,19 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     // The scene thread has stopped: the world's recording ends with its last step.
     let world_rec = world_recording.take().map(|r| r.finish());
     if a.json {
-        println!("{:#}", report::run_json(&summary, recording.as_ref()));
+        outln!("{:#}", report::run_json(&summary, recording.as_ref()));
     } else {
-        println!("{summary}");
+        outln!("{summary}");
         if let Some(r) = &recording {
-            println!("  recording    {r}");
+            outln!("  recording    {r}");
         }
         if let Some(r) = &world_rec {
-            println!("  world rec.   {r}");
+            outln!("  world rec.   {r}");
         }
     }
     let lat = summary.stats.lateness.percentiles();
     if summary.counters.misses > 0 {
-        eprintln!(
+        errln!(
             "note: {} ticks woke more than 1 ms late (worst {}); see `spidar bench rt` for this machine's floor",
             summary.counters.misses,
             fmt_dur(lat.max_s)
@@ -923,5 +1044,11 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
     if !summary.clean_stop {
         bail!("the loop did not stop cleanly");
     }
-    report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)
+    report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
+    Ok(0)
+}
+
+fn parent_pid() -> u32 {
+    // SAFETY: getppid cannot fail.
+    unsafe { libc::getppid() as u32 }
 }

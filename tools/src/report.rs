@@ -5,25 +5,30 @@ use spidar_record::writer::RecordingReport;
 use spidar_rt::telemetry::{Percentiles, Stats};
 use spidar_rt::{Counters, Lifecycle};
 
-use crate::session::Summary;
+use crate::session::{FaultTally, Summary, VirtualSummary};
 
 /// Fails a run that ended faulted or whose rig never became active, so scripts and CI see it in
 /// the exit status (the summary says the same in words).
 pub fn check_outcome(
     final_state: Lifecycle,
     counters: &Counters,
-    faults_seen: &[String],
+    faults_seen: &FaultTally,
 ) -> anyhow::Result<()> {
     if final_state == Lifecycle::Faulted {
-        let why = faults_seen.last().map_or("see the summary".to_string(), |f| f.clone());
+        let why = faults_seen.last().unwrap_or("see the summary");
         anyhow::bail!("the session ended faulted ({why})");
     }
     if counters.active_ticks == 0 {
         anyhow::bail!(
-            "the rig never became active: it was not homed or a fault came first; see the summary's faults"
+            "the rig never became active: it was not homed, or a fault or a stop came first; see the summary's faults"
         );
     }
     Ok(())
+}
+
+/// The faults, counted per kind.
+fn faults(f: &FaultTally) -> Value {
+    f.iter().map(|(kind, count)| json!({ "fault": kind, "count": count })).collect()
 }
 
 fn pct(p: &Percentiles) -> Value {
@@ -41,6 +46,11 @@ fn safety(c: &Counters) -> Value {
         "faults": c.faults,
         "device_errors": c.device_errors,
         "reopens": c.reopens,
+        "held_ticks": c.held,
+        "late_replies": c.late_replies,
+        "count_jumps": c.count_jumps,
+        "residual_high": c.residual_high,
+        "rehomes": c.rehomes,
     })
 }
 
@@ -99,48 +109,50 @@ pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
         "device_io_s": pct(&s.stats.io.percentiles()),
         "forces": forces(&s.stats),
         "safety": safety(c),
-        "faults": s.faults_seen,
+        "faults": faults(&s.faults_seen),
         "scene_status": s.scene_status,
         "scene_steps": s.scene_steps,
         "scene_late_steps": s.scene_late,
         "models_received": c.models,
         "models_dropped": s.models_dropped,
         "dropped": { "telemetry": c.telemetry_dropped, "samples": c.samples_dropped, "events": c.events_dropped },
-        "end": { "state": s.final_state.name(), "clean_stop": s.clean_stop },
+        "end": {
+            "state": s.final_state.name(),
+            "clean_stop": s.clean_stop,
+            "halted": s.halted,
+            "stop_signals": s.signals,
+        },
         "recording": recording.map(recording_json),
     })
 }
 
-/// What a run on the virtual clock reports.
-pub struct VirtualRunReport<'a> {
-    pub ticks: u64,
-    pub rig_seconds: f64,
-    pub wall_s: f64,
-    pub stats: &'a Stats,
-    pub counters: &'a Counters,
-    pub scene_status: &'a str,
-    pub end: Lifecycle,
-    pub recording: Option<&'a RecordingReport>,
-    /// The rig file the run used (`RigSource::describe`).
-    pub rig_file: &'a str,
-}
-
 /// `spidar run --virtual --json`.
-pub fn virtual_json(r: &VirtualRunReport<'_>) -> Value {
+pub fn virtual_json(s: &VirtualSummary) -> Value {
+    let c = &s.counters;
     json!({
         "command": "run",
         "measured": "the virtual clock: device, rt-loop and scene interleaved on one thread",
-        "ticks": r.ticks,
-        "rig_seconds": r.rig_seconds,
-        "rig_file": r.rig_file,
-        "wall_s": r.wall_s,
-        "active_ticks": r.counters.active_ticks,
-        "compute_s": pct(&r.stats.compute.percentiles()),
-        "forces": forces(r.stats),
-        "safety": safety(r.counters),
-        "scene_status": r.scene_status,
-        "end": { "state": r.end.name() },
-        "recording": r.recording.map(recording_json),
+        "device": s.device,
+        "scene": s.scene,
+        "script": s.script,
+        "rig_file": s.rig_file,
+        "ticks": c.ticks,
+        "rig_seconds": c.ticks as f64 * s.period_s,
+        "seconds_asked": s.seconds,
+        "wall_s": s.wall_s,
+        "active_ticks": c.active_ticks,
+        "compute_s": pct(&s.stats.compute.percentiles()),
+        "forces": forces(&s.stats),
+        "safety": safety(c),
+        "faults": faults(&s.faults_seen),
+        "scene_status": s.scene_status,
+        "end": {
+            "state": s.final_state.name(),
+            "clean_stop": s.clean_stop,
+            "halted": s.halted,
+            "stop_signals": s.signals,
+        },
+        "recording": s.recording.as_ref().map(recording_json),
     })
 }
 
@@ -151,11 +163,15 @@ mod tests {
     #[test]
     fn a_faulted_or_never_active_session_fails_the_run() {
         let active = Counters { active_ticks: 10, ..Default::default() };
-        assert!(check_outcome(Lifecycle::Inactive, &active, &[]).is_ok());
-        let e = check_outcome(Lifecycle::Faulted, &active, &["device error (Timeout)".into()]).unwrap_err();
+        let none = FaultTally::default();
+        assert!(check_outcome(Lifecycle::Inactive, &active, &none).is_ok());
+        let mut seen = FaultTally::default();
+        seen.push("hand 0: pose could not be computed".into());
+        seen.push("device error (Timeout)".into());
+        let e = check_outcome(Lifecycle::Faulted, &active, &seen).unwrap_err();
         assert!(e.to_string().contains("ended faulted (device error (Timeout))"), "{e}");
         let never = Counters::default();
-        assert!(check_outcome(Lifecycle::Inactive, &never, &[])
+        assert!(check_outcome(Lifecycle::Inactive, &never, &none)
             .unwrap_err()
             .to_string()
             .contains("never became active"));

@@ -102,7 +102,7 @@ impl RigSource {
 /// built-in rig, with the command line's `--override` keys. Says which on stderr.
 pub fn load_rig(given: Option<&Path>, overrides: &[String]) -> anyhow::Result<Rig> {
     let src = RigSource::resolve(given);
-    eprintln!("rig file: {}", src.describe());
+    crate::errln!("rig file: {}", src.describe());
     Ok(src.load_with_overrides(overrides)?.0)
 }
 
@@ -162,7 +162,7 @@ pub fn calibration_target(given: Option<&Path>, create: bool) -> anyhow::Result<
         RigSource::User(_) => Ok(src),
         RigSource::BuiltIn { create: Some(p) } if create => {
             let new = create_user_rig(p)?;
-            eprintln!("created your rig file {} from the built-in template", p.display());
+            crate::errln!("created your rig file {} from the built-in template", p.display());
             Ok(new)
         }
         RigSource::BuiltIn { create: Some(_) } => Ok(src),

@@ -11,7 +11,6 @@
 //!   `spidar run --virtual` use it, with the scene in this process, or
 //!   ([`VirtualRun::with_world_process`]) in a world process stepping in lockstep.
 
-use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -31,7 +30,8 @@ use spidar_rt::rt_thread::{self, RtOptions, RtReport};
 use spidar_rt::status::rig_info;
 use spidar_rt::telemetry::{fmt_dur, Stats, TickRecord};
 use spidar_rt::{
-    Clock, Command, Counters, Endpoints, Event, FarEnds, Lifecycle, MonotonicClock, Rig, RtLoop, VirtualClock,
+    Clock, Command, Counters, Endpoints, Event, FarEnds, Lifecycle, Lifeline, MonotonicClock, Rig, RtLoop,
+    VirtualClock,
 };
 use spidar_world::host::Stepper;
 use spidar_world::{Observer, Scene, StepView};
@@ -39,6 +39,8 @@ use spidar_world::{Observer, Scene, StepView};
 use crate::child_world::{ChildWorld, ChildWorldSpec};
 use crate::scene_thread::{self, SceneCounters};
 use crate::signals::Stop;
+use crate::supervisor::Shared;
+use crate::term::StatusOut;
 
 /// How long the simulated user holds the grips still at their home points before a script
 /// starts, as an operator does while the rig homes (`spidar_rt::tick::HOMING_SETTLE_S` plus margin).
@@ -67,12 +69,14 @@ pub fn load_scripts(name_or_path: &str, rig: &Rig, seed: u64) -> anyhow::Result<
         crate::scripts::crowd_scripts(rig, seed)?
     } else if let Some(s) = builtin_script(name_or_path, home, seed) {
         s
-    } else if name_or_path.ends_with(".ron") {
+    } else if std::path::Path::new(name_or_path).is_file() {
+        // A script file of any name: it says it is one (`kind: "script"`).
         let path = std::path::Path::new(name_or_path);
         ScriptFile::load(path).with_context(|| format!("loading the script file {name_or_path}"))?.hands
     } else {
         bail!(
-            "unknown script '{name_or_path}': use box, crowd, one of {} or a script file (.ron)",
+            "unknown script '{name_or_path}' (and no such file): use box, crowd, one of {} or a script file \
+             (see configs/script-example.ron)",
             BUILTIN_SCRIPTS.join(", ")
         )
     };
@@ -352,6 +356,253 @@ impl<D: Device> VirtualRun<D> {
     }
 }
 
+/// What `spidar run --virtual` needs.
+pub struct VirtualOptions {
+    /// Rig time to run (s).
+    pub seconds: f64,
+    pub stop: Stop,
+    /// Show the status line (to stderr) while running.
+    pub progress: bool,
+    pub device: String,
+    pub scene_name: String,
+    pub script_name: String,
+    /// The page shared with a supervising process (real boards), if any.
+    pub supervisor: Option<&'static Shared>,
+    /// Records every tick, the ramp-out included (`spidar run --virtual --record`).
+    pub recorder: Option<spidar_record::writer::Recorder>,
+    /// Watch the world's steps (the world's recording, `FILE.world.mcap`).
+    pub observers: Vec<Box<dyn Observer>>,
+}
+
+/// What a virtual run reports at the end.
+#[derive(Debug)]
+pub struct VirtualSummary {
+    pub device: String,
+    pub scene: String,
+    pub script: String,
+    /// The rig file the run used (`RigSource::describe`; set by the caller).
+    pub rig_file: String,
+    /// Rig time asked for, and wall time taken (s).
+    pub seconds: f64,
+    pub wall_s: f64,
+    /// The rig's tick period (s).
+    pub period_s: f64,
+    pub stats: Stats,
+    pub counters: Counters,
+    pub scene_status: String,
+    pub final_state: Lifecycle,
+    pub faults_seen: FaultTally,
+    pub clean_stop: bool,
+    pub halted: bool,
+    pub signals: u32,
+    /// What `VirtualOptions::recorder` wrote.
+    pub recording: Option<spidar_record::writer::RecordingReport>,
+}
+
+impl std::fmt::Display for VirtualSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.counters;
+        let rig_s = c.ticks as f64 * self.period_s;
+        writeln!(
+            f,
+            "spidar run --virtual: {} ticks ({rig_s:.3} s of rig time, {} s asked) in {:.2} s wall ({:.0}x real time)",
+            c.ticks,
+            self.seconds,
+            self.wall_s,
+            rig_s / self.wall_s.max(1e-9)
+        )?;
+        writeln!(f, "  on           {}, scene {}, script {}", self.device, self.scene, self.script)?;
+        if !self.rig_file.is_empty() {
+            writeln!(f, "  rig file     {}", self.rig_file)?;
+        }
+        writeln!(f, "  ticks        {} active", c.active_ticks)?;
+        writeln!(f, "  compute      {}", self.stats.compute.percentiles())?;
+        if !self.scene_status.is_empty() {
+            writeln!(f, "  scene        {}", self.scene_status)?;
+        }
+        writeln!(
+            f,
+            "  max force    left {:.2} N, right {:.2} N",
+            self.stats.max_force_n[0], self.stats.max_force_n[1]
+        )?;
+        writeln!(
+            f,
+            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}, device errors {}",
+            c.clamped[0],
+            c.clamped[1],
+            c.infeasible[0],
+            c.infeasible[1],
+            c.fallback[0],
+            c.fallback[1],
+            c.faults,
+            c.device_errors
+        )?;
+        write_held(f, c)?;
+        write!(f, "{}", self.faults_seen)?;
+        if let Some(r) = &self.recording {
+            writeln!(f, "  recording    {r}")?;
+        }
+        let by = match self.signals {
+            0 => String::new(),
+            1 => ", on a stop signal".into(),
+            n => format!(", on {n} stop signals"),
+        };
+        write!(
+            f,
+            "  end          {} ({}{by})",
+            self.final_state.name(),
+            end_words(self.clean_stop, self.halted)
+        )
+    }
+}
+
+/// `spidar run --virtual`: the loop and the scene interleaved on the virtual clock for `seconds` of
+/// rig time, as fast as the machine computes; a stop signal ramps out early (a second one stops
+/// at once with the outputs zeroed). The device is switched off at the end either way.
+pub fn run_virtual<D: Device>(
+    dev: D,
+    rig: &Rig,
+    scene: Box<dyn Scene>,
+    mut opts: VirtualOptions,
+) -> anyhow::Result<VirtualSummary> {
+    let mut v = VirtualRun::new(dev, rig, Some(scene))?;
+    v.observers.append(&mut opts.observers);
+    let mut recorder = opts.recorder.take();
+    let lifeline: &'static Lifeline = match opts.supervisor {
+        Some(s) => &s.lifeline,
+        None => Box::leak(Box::default()),
+    };
+    v.rt.set_lifeline(lifeline);
+    if let Some(s) = opts.supervisor {
+        s.set_driving();
+    }
+    v.home_and_activate();
+    let ticks = (opts.seconds / rig.period_s).round() as u64;
+    // The ramp-out is a fraction of a second of rig time; this only guards against a loop that
+    // never quiets.
+    let stop_limit = (10.0 / rig.period_s) as u64;
+    let mut out = StatusOut::new(Duration::from_millis(500));
+    let mut faults = FaultTally::default();
+    let (mut n, mut stopping_at) = (0u64, None);
+    let mut was_faulted = false;
+    let mut states = StateLines::default();
+    let t0 = Instant::now();
+    loop {
+        if stopping_at.is_none() && (n >= ticks || opts.stop.requested()) {
+            let time_up = n >= ticks;
+            if !time_up {
+                out.say(stopping_words(false));
+            }
+            v.rt.command(Command::Stop);
+            stopping_at = Some(n);
+        }
+        let overdue = stopping_at.is_some_and(|at| n - at > stop_limit);
+        if (opts.stop.urgent() || overdue) && lifeline.halt.load(Ordering::Relaxed) == 0 {
+            out.say(HALT_WORDS);
+            lifeline.halt();
+        }
+        if !v.rt.tick() {
+            break;
+        }
+        let rec = *v.rt.last_record();
+        if let Some(w) = recorder.as_mut() {
+            w.write_tick(&rec);
+        }
+        v.stats.add(&rec);
+        v.after_tick();
+        states.see(&rec);
+        for line in states.lines.drain(..) {
+            out.say(&line);
+        }
+        let faulted = rec.state == Lifecycle::Faulted;
+        if faulted && !was_faulted {
+            if let Some(r) = rec.fault {
+                faults.push(r.to_string());
+            }
+        }
+        was_faulted = faulted;
+        n += 1;
+        if opts.progress && n % 64 == 0 && out.due() {
+            let line = status_line(&v.stats, faults.total() as usize, v.counters().models);
+            out.status(&line);
+            v.stats.reset_window();
+        }
+    }
+    out.finish();
+    let wall_s = t0.elapsed().as_secs_f64();
+    let c = *v.counters();
+    let recording = recorder.map(|w| {
+        w.finish(&spidar_record::writer::EndInfo {
+            ticks: c.ticks,
+            telemetry_dropped: 0,
+            final_state: v.rt.state().name().into(),
+            clean_stop: v.rt.is_finished(),
+            faults: c.faults,
+        })
+    });
+    Ok(VirtualSummary {
+        device: opts.device,
+        scene: opts.scene_name,
+        script: opts.script_name,
+        rig_file: String::new(),
+        seconds: opts.seconds,
+        wall_s,
+        period_s: rig.period_s,
+        counters: *v.counters(),
+        scene_status: v.scene.as_ref().map(|s| s.status()).unwrap_or_default(),
+        final_state: v.rt.state(),
+        faults_seen: faults,
+        clean_stop: v.rt.is_finished(),
+        halted: v.rt.halted(),
+        signals: opts.stop.count(),
+        stats: std::mem::replace(&mut v.stats, Stats::new()),
+        recording,
+    })
+}
+
+/// The ticks that held the last safe output (a late, missing or rejected reply) and why.
+fn write_held(f: &mut std::fmt::Formatter<'_>, c: &Counters) -> std::fmt::Result {
+    writeln!(
+        f,
+        "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
+        c.held[0],
+        c.held[1],
+        c.late_replies,
+        c.count_jumps[0],
+        c.count_jumps[1],
+        c.residual_high[0],
+        c.residual_high[1],
+        c.rehomes
+    )
+}
+
+/// A line for each change of the rig's state, so a log (and an operator) sees when the rig
+/// became active, faulted or inactive.
+#[derive(Default)]
+struct StateLines {
+    last: Option<Lifecycle>,
+    lines: Vec<String>,
+}
+
+impl StateLines {
+    fn see(&mut self, r: &TickRecord) {
+        if self.last == Some(r.state) {
+            return;
+        }
+        self.last = Some(r.state);
+        let line = match r.state {
+            Lifecycle::Unconfigured => return,
+            Lifecycle::Inactive => "rig: inactive (strings at minimum tension)".to_string(),
+            Lifecycle::Active => "rig: active (force ramps in)".to_string(),
+            Lifecycle::Faulted => format!(
+                "rig: FAULTED ({}): force fades out, strings at minimum tension",
+                r.fault.map_or("no reason kept".to_string(), |f| f.to_string())
+            ),
+        };
+        self.lines.push(line);
+    }
+}
+
 /// What a live run reports at the end.
 #[derive(Debug)]
 pub struct Summary {
@@ -375,14 +626,66 @@ pub struct Summary {
     /// The world process's own report.
     pub world_report: Option<String>,
     pub final_state: Lifecycle,
-    pub faults_seen: Vec<String>,
+    /// Faults and refused commands, counted per kind.
+    pub faults_seen: FaultTally,
     pub clean_stop: bool,
+    /// Stopped at once by a second stop signal: outputs zeroed without the ramp-out.
+    pub halted: bool,
+    /// Stop signals received (0: the run ended by its time limit or by itself).
+    pub signals: u32,
     /// What `LiveOptions::recorder` wrote.
     pub recording: Option<spidar_record::writer::RecordingReport>,
     /// Rig-file bounds overridden for this run (shown, never silent).
     pub overrides: Vec<String>,
     /// The rig file the run used (`RigSource::describe`; empty: not said).
     pub rig_file: String,
+}
+
+/// Faults and refused commands seen during a session, counted per kind in the order each kind
+/// first came (a flaky cable gives one line with its count, not a line per fault).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FaultTally {
+    kinds: Vec<(String, u64)>,
+    last: Option<usize>,
+}
+
+impl FaultTally {
+    pub fn push(&mut self, what: String) {
+        match self.kinds.iter().position(|(k, _)| *k == what) {
+            Some(i) => {
+                self.kinds[i].1 += 1;
+                self.last = Some(i);
+            }
+            None => {
+                self.kinds.push((what, 1));
+                self.last = Some(self.kinds.len() - 1);
+            }
+        }
+    }
+    /// Every kind with its count, first seen first.
+    pub fn iter(&self) -> impl Iterator<Item = (&str, u64)> {
+        self.kinds.iter().map(|(k, n)| (k.as_str(), *n))
+    }
+    /// The kind of the newest one.
+    pub fn last(&self) -> Option<&str> {
+        self.last.map(|i| self.kinds[i].0.as_str())
+    }
+    pub fn total(&self) -> u64 {
+        self.kinds.iter().map(|(_, n)| n).sum()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.kinds.is_empty()
+    }
+}
+
+impl std::fmt::Display for FaultTally {
+    /// One line per kind: `  fault        12 x device error (Timeout)`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (what, n) in self.iter() {
+            writeln!(f, "  fault        {n} x {what}")?;
+        }
+        Ok(())
+    }
 }
 
 impl std::fmt::Display for Summary {
@@ -441,21 +744,8 @@ impl std::fmt::Display for Summary {
             "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
         )?;
-        writeln!(
-            f,
-            "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
-            c.held[0],
-            c.held[1],
-            c.late_replies,
-            c.count_jumps[0],
-            c.count_jumps[1],
-            c.residual_high[0],
-            c.residual_high[1],
-            c.rehomes
-        )?;
-        for fault in &self.faults_seen {
-            writeln!(f, "  fault        {fault}")?;
-        }
+        write_held(f, c)?;
+        write!(f, "{}", self.faults_seen)?;
         let late = self.scene_late.map_or(String::new(), |n| format!(" ({n} late)"));
         writeln!(
             f,
@@ -477,16 +767,37 @@ impl std::fmt::Display for Summary {
             "  dropped      telemetry {}, samples {} (their impulses went with the next), impulses {}, events {}",
             c.telemetry_dropped, c.samples_dropped, c.impulses_lost, c.events_dropped
         )?;
+        let by = match self.signals {
+            0 => String::new(),
+            1 => ", on a stop signal".into(),
+            n => format!(", on {n} stop signals"),
+        };
         write!(
             f,
-            "  end          {} ({})",
+            "  end          {} ({}{by})",
             self.final_state.name(),
-            if self.clean_stop {
-                "forces ramped out, strings at minimum tension, device off"
-            } else {
-                "NOT a clean stop"
-            }
+            end_words(self.clean_stop, self.halted)
         )
+    }
+}
+
+/// What the operator is told when the clean stop begins.
+fn stopping_words(time_up: bool) -> &'static str {
+    if time_up {
+        "stopping (time up): force ramps out, then the device is switched off"
+    } else {
+        "stopping: force ramps out, then the device is switched off (a second Ctrl-C stops at once)"
+    }
+}
+
+const HALT_WORDS: &str = "stopping at once: zero on every channel, device off";
+
+/// How a loop ended, in words.
+fn end_words(clean_stop: bool, halted: bool) -> &'static str {
+    match (clean_stop, halted) {
+        (true, false) => "forces ramped out, strings at minimum tension, device off",
+        (true, true) => "stopped at once: outputs zeroed without the ramp-out, device off",
+        (false, _) => "NOT a clean stop",
     }
 }
 
@@ -516,6 +827,8 @@ pub struct LiveOptions {
     pub connect_timeout: Duration,
     /// SCHED_FIFO priority of a thread world (a child world gets its own `--priority`).
     pub world_priority: Option<u8>,
+    /// The page shared with a supervising process (`spidar run` on real boards), if any.
+    pub supervisor: Option<&'static Shared>,
     /// Records every tick (`spidar run --record`): `run_live` feeds it the telemetry.
     pub recorder: Option<spidar_record::writer::RecorderThread>,
 }
@@ -547,8 +860,9 @@ pub struct LiveSession<D: Device + 'static> {
     events: Receiver<Event>,
     telemetry: Receiver<TickRecord>,
     world: LiveWorld,
+    lifeline: &'static Lifeline,
     pub stats: Stats,
-    pub faults_seen: Vec<String>,
+    pub faults_seen: FaultTally,
     start: Instant,
     stop_deadline: Option<Instant>,
     stopped: bool,
@@ -671,8 +985,18 @@ impl<D: Device + 'static> LiveSession<D> {
                 }
             }
         };
+        // The heartbeat and halt flag: in the supervisor's page, or this process's own (one
+        // small leak per session, so the loop can hold a plain `&'static`).
+        let lifeline: &'static Lifeline = match opts.supervisor {
+            Some(s) => &s.lifeline,
+            None => Box::leak(Box::default()),
+        };
+        ep.lifeline = Some(lifeline);
         let mut rt = RtLoop::new(dev, clock.with_spin(opts.spin_ns), rig, ep)?;
         rt.configure().map_err(|e| anyhow::anyhow!("opening the device: {e}"))?;
+        if let Some(s) = opts.supervisor {
+            s.set_driving();
+        }
         let rt_opts = opts.rt.clone();
         let rt_handle = std::thread::Builder::new()
             .name("spidar-rt".into())
@@ -692,8 +1016,9 @@ impl<D: Device + 'static> LiveSession<D> {
             events,
             telemetry,
             world: live_world,
+            lifeline,
             stats: Stats::new(),
-            faults_seen: Vec::new(),
+            faults_seen: FaultTally::default(),
             start: Instant::now(),
             stop_deadline: None,
             stopped: false,
@@ -769,6 +1094,23 @@ impl<D: Device + 'static> LiveSession<D> {
         }
     }
 
+    /// Stops the loop at its next tick without the ramp-out: outputs zeroed, device off (a
+    /// second stop signal).
+    pub fn halt(&mut self) {
+        self.lifeline.halt();
+        self.stop_deadline.get_or_insert_with(|| Instant::now() + Duration::from_secs(5));
+    }
+
+    /// A stop was asked for.
+    pub fn stop_requested(&self) -> bool {
+        self.stop_deadline.is_some()
+    }
+
+    /// The halt was asked for.
+    pub fn halt_requested(&self) -> bool {
+        self.lifeline.halt.load(Ordering::Relaxed) != 0
+    }
+
     /// The stop was asked for more than 5 s ago and the loop still runs.
     pub fn stop_overdue(&self) -> bool {
         self.stop_deadline.is_some_and(|d| Instant::now() > d)
@@ -803,7 +1145,7 @@ impl<D: Device + 'static> LiveSession<D> {
 
     /// The status line: the loop's state, rate, lateness, forces, and the world's.
     pub fn status_line(&mut self) -> String {
-        let faults = self.faults_seen.len();
+        let faults = self.faults_seen.total() as usize;
         let (steps, world, scene) = match &self.world {
             LiveWorld::Thread { counters, .. } => (
                 counters.steps.load(Ordering::Relaxed),
@@ -831,8 +1173,9 @@ impl<D: Device + 'static> LiveSession<D> {
         line
     }
 
-    /// Waits for the loop to end (after a stop), ends the world, and reports.
-    pub fn finish(mut self, say: &mut dyn FnMut(String)) -> anyhow::Result<Summary> {
+    /// Waits for the loop to end (after a stop), ends the world, and reports. `signals`: the stop
+    /// signals that ended it, for the summary.
+    pub fn finish(mut self, signals: u32, say: &mut dyn FnMut(String)) -> anyhow::Result<Summary> {
         let handle = self.rt_handle.take().context("the loop was already finished")?;
         let (report, rt) = handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
         for r in self.telemetry.try_iter() {
@@ -901,6 +1244,8 @@ impl<D: Device + 'static> LiveSession<D> {
             final_state: rt.state(),
             faults_seen: std::mem::take(&mut self.faults_seen),
             clean_stop: rt.is_finished(),
+            halted: rt.halted(),
+            signals,
             recording: None,
             overrides: Vec::new(),
             rig_file: String::new(),
@@ -910,7 +1255,7 @@ impl<D: Device + 'static> LiveSession<D> {
 
 /// Runs a session on the real clock until `seconds` pass or a stop is requested (a signal), then
 /// stops cleanly: force ramps out, strings hold minimum tension, the device is switched off, the
-/// world ends.
+/// world ends. A second signal stops at once with the outputs zeroed.
 pub fn run_live<D: Device + 'static>(
     dev: D,
     rig: &Rig,
@@ -919,53 +1264,63 @@ pub fn run_live<D: Device + 'static>(
 ) -> anyhow::Result<Summary> {
     let mut s = LiveSession::start(dev, rig, world, &opts)?;
     let mut recorder = opts.recorder.take();
+    let mut out = StatusOut::new(opts.status_every.unwrap_or(Duration::from_millis(500)));
+    let said = std::cell::RefCell::new(Vec::new());
+    let mut say = |line: String| said.borrow_mut().push(line);
+    let states = std::cell::RefCell::new(StateLines::default());
     let mut each = |r: &TickRecord| {
+        states.borrow_mut().see(r);
         if let Some(rec) = recorder.as_mut() {
             rec.push(r);
         }
     };
-    let mut last_status = Instant::now();
-    let mut printed_status = false;
-    let mut say = |line: String| {
-        let mut err = std::io::stderr().lock();
-        let _ = writeln!(err, "\r\x1b[Kworld: {line}");
+    let tell = |out: &mut StatusOut| {
+        for line in states.borrow_mut().lines.drain(..) {
+            out.say(&line);
+        }
+        for line in said.borrow_mut().drain(..) {
+            out.say(&format!("world: {line}"));
+        }
     };
     loop {
-        if !s.poll(&mut each, &mut say) {
+        let running = s.poll(&mut each, &mut say);
+        tell(&mut out);
+        if !running {
             break;
         }
         let time_up = opts.seconds.is_some_and(|t| s.elapsed_s() >= t);
-        if time_up || opts.stop.requested() {
+        if (time_up || opts.stop.requested()) && !s.stop_requested() {
+            out.say(stopping_words(time_up));
             s.request_stop();
+        }
+        if opts.stop.urgent() && !s.halt_requested() {
+            out.say(HALT_WORDS);
+            s.halt();
         }
         if s.stop_overdue() {
             bail!("the real-time loop did not stop within 5 s of the stop command");
         }
-        if let Some(every) = opts.status_every {
-            if last_status.elapsed() >= every {
-                last_status = Instant::now();
-                let line = s.status_line();
-                let mut err = std::io::stderr().lock();
-                let _ = write!(err, "\r{line}\x1b[K");
-                let _ = err.flush();
-                printed_status = true;
-                s.stats.reset_window();
-            }
+        if opts.status_every.is_some() && out.due() {
+            let line = s.status_line();
+            out.status(&line);
+            s.stats.reset_window();
         }
         std::thread::sleep(Duration::from_millis(5));
     }
-    if printed_status {
-        eprintln!();
-    }
     // The loop's last records (sent before its `Stopped`) may still be queued.
     s.poll(&mut each, &mut say);
-    let mut summary = s.finish(&mut say)?;
+    tell(&mut out);
+    out.finish();
+    let summary = s.finish(opts.stop.count(), &mut say);
+    tell(&mut out);
+    let mut summary = summary?;
     summary.overrides = rig.overrides.clone();
     if let Some(r) = recorder {
         summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
     }
     Ok(summary)
 }
+
 /// The live status line: state, rate, lateness p99 over the window, forces, safety counts.
 pub fn status_line(stats: &Stats, faults: usize, scene_steps: u64) -> String {
     let w = &stats.window;

@@ -5,6 +5,11 @@
 //!
 //! The handler is process-wide (installed once; later calls share it) and only counts: the work
 //! is done by whoever polls, so nothing unsafe runs inside a signal handler.
+//!
+//! A rig process under a supervisor (`spidar run` on real boards, see `supervisor`) also counts
+//! the signals its supervisor received ([`Stop::with_forwarded`]): the larger of the two counts
+//! is taken, so a Ctrl-C that reaches both processes counts once, and a `kill -TERM` sent to the
+//! supervisor alone still stops the rig.
 
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, OnceLock};
@@ -17,6 +22,8 @@ static COUNT: OnceLock<Arc<AtomicU32>> = OnceLock::new();
 #[derive(Clone, Debug)]
 pub struct Stop {
     count: Arc<AtomicU32>,
+    /// The signals a supervising process received and passed on.
+    forwarded: Option<&'static AtomicU32>,
 }
 
 impl Stop {
@@ -24,7 +31,7 @@ impl Stop {
     /// shared counter.
     pub fn install() -> anyhow::Result<Stop> {
         if let Some(c) = COUNT.get() {
-            return Ok(Stop { count: c.clone() });
+            return Ok(Stop { count: c.clone(), forwarded: None });
         }
         let count = Arc::new(AtomicU32::new(0));
         let c = count.clone();
@@ -33,22 +40,28 @@ impl Stop {
         })
         .context("installing the handler for SIGINT, SIGTERM and SIGHUP")?;
         let _ = COUNT.set(count.clone());
-        Ok(Stop { count })
+        Ok(Stop { count, forwarded: None })
     }
 
     /// A counter no signal reaches (tests, library callers that stop by other means).
     pub fn detached() -> Stop {
-        Stop { count: Arc::new(AtomicU32::new(0)) }
+        Stop { count: Arc::new(AtomicU32::new(0)), forwarded: None }
+    }
+
+    /// Also counts the stop signals a supervisor writes into `forwarded` (the larger count wins).
+    pub fn with_forwarded(mut self, forwarded: &'static AtomicU32) -> Stop {
+        self.forwarded = Some(forwarded);
+        self
     }
 
     /// A clean stop was asked for (one signal or more, or [`Stop::request`]).
     pub fn requested(&self) -> bool {
-        self.count.load(Ordering::SeqCst) >= 1
+        self.count() >= 1
     }
 
     /// A second signal came: stop at once, outputs zeroed, no ramp.
     pub fn urgent(&self) -> bool {
-        self.count.load(Ordering::SeqCst) >= 2
+        self.count() >= 2
     }
 
     /// Asks for a stop as a signal would (a time limit, `quit` on a console).
@@ -56,7 +69,19 @@ impl Stop {
         self.count.fetch_add(1, Ordering::SeqCst);
     }
 
+    /// Stop requests so far: this process's own, or its supervisor's if that is more.
     pub fn count(&self) -> u32 {
+        let own = self.count.load(Ordering::SeqCst);
+        self.forwarded.map_or(own, |f| own.max(f.load(Ordering::SeqCst)))
+    }
+
+    /// The counter itself, for a library that polls it without knowing of signals (calib).
+    pub fn counter(&self) -> Arc<AtomicU32> {
+        self.count.clone()
+    }
+
+    /// This process's own requests only (what a supervisor passes on).
+    pub fn own_count(&self) -> u32 {
         self.count.load(Ordering::SeqCst)
     }
 }
@@ -74,5 +99,18 @@ mod tests {
         let t = s.clone();
         t.request();
         assert!(s.urgent());
+    }
+
+    #[test]
+    fn a_signal_seen_by_both_processes_counts_once_and_one_seen_by_the_supervisor_alone_counts_too() {
+        let forwarded: &'static AtomicU32 = Box::leak(Box::new(AtomicU32::new(0)));
+        let s = Stop::detached().with_forwarded(forwarded);
+        forwarded.store(1, Ordering::SeqCst); // the supervisor alone got SIGTERM
+        assert!(s.requested() && !s.urgent());
+        s.request(); // the same Ctrl-C reached this process too
+        assert!(!s.urgent(), "one Ctrl-C is one request");
+        forwarded.store(2, Ordering::SeqCst);
+        assert!(s.urgent());
+        assert_eq!(s.own_count(), 1);
     }
 }

@@ -111,7 +111,7 @@ pub fn start_view(
             View::start(scene.name(), &look, &any)
         })?,
     };
-    eprintln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
+    crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))
 }
 
@@ -192,7 +192,7 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         let offer =
             WorldOffer { scene: "echo".into(), step_s: 0.001, rig_lost_after: Duration::from_secs(3600) };
         let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
-        println!("spidar world: echo listening on {}", link.listening());
+        crate::outln!("spidar world: echo listening on {}", link.listening());
         let _ = std::io::stdout().flush();
         run_echo(&mut link, stop);
         return Ok(ServeReport { link: *link.stats(), ..Default::default() });
@@ -231,13 +231,13 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     if let Some(p) = a.priority {
         let rep = setup_world_thread(Some(p));
         for w in &rep.warnings {
-            eprintln!("spidar world: warning: {w}");
+            crate::errln!("spidar world: warning: {w}");
         }
     }
-    println!("spidar world: scene {scene_label} listening on {at}");
+    crate::outln!("spidar world: scene {scene_label} listening on {at}");
     let _ = std::io::stdout().flush();
     if !a.report_status {
-        eprintln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
+        crate::errln!("spidar world: connect a rig with `spidar run --world {at}`; waiting for a rig");
     }
     let view = start_view(&a.view, &*scene)?;
     let mut stepper = Stepper::new(scene);
@@ -253,19 +253,19 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     });
     let stop_fn = || stop.requested();
     let rep = serve(&mut stepper, &mut link, &ServeOptions { lockstep: a.lockstep }, &stop_fn, &mut |line| {
-        eprintln!("spidar world: {line}")
+        crate::errln!("spidar world: {line}")
     });
     if let Some(r) = recording {
-        eprintln!("spidar world: recording {}", r.finish());
+        crate::errln!("spidar world: recording {}", r.finish());
     }
     if a.report_status {
-        eprintln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
-        eprintln!("{REPORT_PREFIX}{rep}");
+        crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
+        crate::errln!("{REPORT_PREFIX}{rep}");
     } else {
-        eprintln!("spidar world: {rep}");
+        crate::errln!("spidar world: {rep}");
         let status = stepper.scene().status();
         if !status.is_empty() {
-            eprintln!("spidar world: {status}");
+            crate::errln!("spidar world: {status}");
         }
     }
     Ok(rep)

@@ -69,32 +69,40 @@ pub trait Observer: Send {
     fn after_step(&mut self, step: &StepView<'_>);
 }
 
-/// Builds a scene by name or RON file path.
+/// Builds a scene by name (`boxing`, `boxing-passive`, `crowd`, `walls`) or from a file of any
+/// name that says what it is (its `kind`): a boxer file (the boxing scene with those
+/// parameters), a crowd scene file or a walls scene file.
 pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
+    use spidar_config::FileKind;
+    const TAKES: &str =
+        "--scene takes boxing, boxing-passive, crowd, walls, or a boxer, crowd scene or walls \
+                         scene file (configs/boxer.ron, configs/scene-crowd.ron, configs/scene-walls.ron)";
     match name_or_path {
-        "walls" => Ok(Box::new(walls::WallsScene::builtin())),
-        "crowd" => Ok(Box::new(crowd::CrowdScene::builtin()?)),
-        "boxing" => Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
-        "boxing-passive" => Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
-            active: false,
-            ..Default::default()
-        })?)),
-        // A boxer file (configs/boxer.ron): the boxing scene with those parameters.
-        p if p.ends_with("boxer.ron") => {
-            let params = spidar_sim::boxer::load_boxer(std::path::Path::new(p))?;
-            Ok(Box::new(boxing::BoxingScene::new(params)?))
+        "walls" => return Ok(Box::new(walls::WallsScene::builtin())),
+        "crowd" => return Ok(Box::new(crowd::CrowdScene::builtin()?)),
+        "boxing" => return Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
+        "boxing-passive" => {
+            return Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
+                active: false,
+                ..Default::default()
+            })?))
         }
-        // A crowd scene file (configs/scene-crowd.ron and copies of it).
-        p if p.ends_with(".ron") && file_name(p).contains("crowd") => {
-            Ok(Box::new(crowd::CrowdScene::load(std::path::Path::new(p))?))
-        }
-        p if p.ends_with(".ron") => Ok(Box::new(walls::WallsScene::load(std::path::Path::new(p))?)),
-        other => anyhow::bail!(
-            "unknown scene '{other}': use 'boxing', 'boxing-passive', 'walls', 'crowd', a boxer file (*boxer.ron), a crowd scene file (*crowd*.ron) or a walls scene file (.ron) like configs/scene-walls.ron"
-        ),
+        _ => {}
     }
-}
-
-fn file_name(p: &str) -> String {
-    std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()
+    let path = std::path::Path::new(name_or_path);
+    if !path.is_file() {
+        anyhow::bail!("unknown scene '{name_or_path}' (and no such file): {TAKES}");
+    }
+    let (_, text) = spidar_config::load_file::<serde::de::IgnoredAny>(path)?;
+    let kind = spidar_config::peek_kind(&text, name_or_path)?;
+    Ok(match kind {
+        FileKind::Boxer => Box::new(boxing::BoxingScene::new(spidar_sim::boxer::load_boxer(path)?)?),
+        FileKind::CrowdScene => Box::new(crowd::CrowdScene::load(path)?),
+        FileKind::WallsScene => Box::new(walls::WallsScene::load(path)?),
+        other => anyhow::bail!(
+            "{name_or_path}: this is {} (kind \"{}\"), not a scene: {TAKES}",
+            other.what(),
+            other.tag()
+        ),
+    })
 }

@@ -78,12 +78,12 @@ impl WallsScene {
     }
 
     pub fn load(path: &Path) -> Result<WallsScene, ConfigError> {
-        let (file, text) = config::load_file::<SceneFile>(path)?;
+        let (file, text) = config::load_file_kind::<SceneFile>(path, config::FileKind::WallsScene)?;
         WallsScene::validate(file, &text, &path.display().to_string())
     }
 
     pub fn from_str(text: &str, origin: &str) -> Result<WallsScene, ConfigError> {
-        let file = config::parse::<SceneFile>(text, origin)?;
+        let file = config::parse_kind::<SceneFile>(text, origin, config::FileKind::WallsScene)?;
         WallsScene::validate(file, text, origin)
     }
 

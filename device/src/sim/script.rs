@@ -401,7 +401,8 @@ impl Script {
     }
 }
 
-/// Two-hand script file: `(version: 1, hands: ((segments: [...], repeat: true), (...)))`.
+/// Two-hand script file: `(kind: "script", version: 1, hands: ((segments: [...], repeat: true), (...)))`
+/// (a commented example: configs/script-example.ron).
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScriptFile {
@@ -426,6 +427,10 @@ impl ScriptFile {
     /// relative trajectory files are looked up in its folder.
     #[allow(clippy::should_implement_trait)] // needs the origin name, so not `FromStr`
     pub fn from_str(text: &str, origin_name: &str) -> Result<ScriptFile, SimError> {
+        let text =
+            &spidar_config::expect_kind(text, origin_name, spidar_config::FileKind::Script).map_err(|e| {
+                SimError::Parse { file: e.origin, line: e.line, column: e.column, message: e.message }
+            })?;
         let mut file: ScriptFile = ron::from_str(text).map_err(|e| {
             let mut message = e.code.to_string();
             if matches!(e.code, ron::Error::ExpectedStructLike) {

@@ -670,7 +670,7 @@ fn trajectory_errors_name_the_file_and_line() {
     let e = script.prepare(&dir, "test").unwrap_err().to_string();
     assert!(e.contains("missing.csv"), "{e}");
     // Script files resolve trajectories next to themselves.
-    let text = r#"(version: 1, hands: (
+    let text = r#"(kind: "script", version: 1, hands: (
         (segments: [Trajectory(file: "good.csv")]),
         (segments: [Hold(at_m: (0.0, 0.0, 0.0), for_s: 1.0)], repeat: true),
     ))"#;
@@ -683,7 +683,7 @@ fn trajectory_errors_name_the_file_and_line() {
 #[test]
 fn script_files_parse_and_report_positions() {
     let text = r#"(
-    version: 1,
+    kind: "script", version: 1,
     hands: (
         (segments: [
             Hold(at_m: (0.0, 0.1, 0.0), for_s: 0.5),
@@ -709,6 +709,12 @@ fn script_files_parse_and_report_positions() {
     assert!(e.to_string().contains("(x, y, z)") && matches!(e, SimError::Parse { line: 5, .. }), "{e}");
     let e = ScriptFile::from_str(&text.replace("version: 1", "version: 9"), "x.ron").unwrap_err().to_string();
     assert!(e.contains("version") && e.contains('9'), "{e}");
+    // A file of another kind is named as such, at its kind entry.
+    let e = ScriptFile::from_str(&text.replace("\"script\"", "\"rig\""), "x.ron").unwrap_err().to_string();
+    assert!(
+        e.starts_with("x.ron:2:5:") && e.contains("a rig file") && e.contains("not a script file"),
+        "{e}"
+    );
     let e = ScriptFile::from_str(&text.replace("radius_m: 0.1", "radius_m: -0.1"), "x.ron")
         .unwrap_err()
         .to_string();

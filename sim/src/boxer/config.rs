@@ -60,7 +60,7 @@ pub struct MindFile {
 
 /// Parses and validates boxer text; `origin` names it in errors.
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
-    let f: BoxerFile = config::parse(text, origin)?;
+    let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
     let err = |field: &str, msg: String| {
         let key = field.rsplit('.').next().unwrap_or(field);
         SimError::Config(config::invalid(text, origin, field, key, 0, msg))

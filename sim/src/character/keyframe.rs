@@ -276,7 +276,7 @@ impl KeyframeSet {
 
     /// Parses and validates a keyframe-set file; errors name the file, line, column and field.
     pub fn parse(text: &str, origin: &str) -> Result<KeyframeSet, SimError> {
-        let f: KeyframeFile = config::parse(text, origin)?;
+        let f: KeyframeFile = config::parse_kind(text, origin, config::FileKind::Keyframes)?;
         config::check_version(text, origin, f.version, 1)?;
         for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
             if !(v > 0.0 && v <= LENGTH_MAX_M) {

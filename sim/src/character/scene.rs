@@ -102,7 +102,7 @@ pub fn build_crowd(
     origin: &str,
     mut resolve: impl FnMut(&str) -> Result<(String, String), SimError>,
 ) -> Result<Crowd, SimError> {
-    let f: CrowdSceneFile = config::parse(text, origin)?;
+    let f: CrowdSceneFile = config::parse_kind(text, origin, config::FileKind::CrowdScene)?;
     config::check_version(text, origin, f.version, 2)?;
     if !(f.dt_s > 0.0 && f.dt_s <= 0.01) {
         return Err(err(text, origin, "dt_s", "dt_s", format!("must be in (0, 0.01] s, got {}", f.dt_s)));

@@ -444,6 +444,7 @@ fn live_options(scene: &str) -> LiveOptions {
         script_name: "press".into(),
         connect_timeout: WAIT,
         world_priority: None,
+        supervisor: None,
         recorder: None,
     }
 }
@@ -538,7 +539,7 @@ fn spidar_run_restarts_a_killed_child_world_and_force_returns_without_homing() {
     while s.poll(&mut |_| {}, &mut |l| said.push(l)) {
         std::thread::sleep(Duration::from_millis(5));
     }
-    let sum = s.finish(&mut |l| said.push(l)).unwrap();
+    let sum = s.finish(0, &mut |l| said.push(l)).unwrap();
     assert!(bad.is_empty(), "{} bad ticks, first: {:?}", bad.len(), bad.first());
     assert!(sum.clean_stop, "{sum}");
     assert_eq!(sum.counters.faults, 0, "{sum}");
@@ -579,7 +580,7 @@ fn spidar_run_feels_the_wall_of_a_world_over_udp_and_the_world_pauses_when_the_r
     while s.poll(&mut |_| {}, &mut |l| said.push(l)) {
         std::thread::sleep(Duration::from_millis(5));
     }
-    let sum = s.finish(&mut |l| said.push(l)).unwrap();
+    let sum = s.finish(0, &mut |l| said.push(l)).unwrap();
     assert!(forces.len() >= 4000, "{} ticks", forces.len());
     let mut last: Vec<f64> = forces[3000..4000].to_vec();
     last.sort_by(f64::total_cmp);

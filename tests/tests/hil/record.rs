@@ -134,6 +134,7 @@ fn child_records_a_live_session_until_killed() {
         script_name: "tour".into(),
         connect_timeout: std::time::Duration::from_secs(10),
         world_priority: None,
+        supervisor: None,
         recorder: Some(RecorderThread::spawn(rec).unwrap()),
     };
     let world = spidar_tools::session::WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(

@@ -715,6 +715,7 @@ impl RunPath {
             connect_timeout: Duration::from_secs(60),
             world_priority: None,
             recorder: None,
+            supervisor: None,
         };
         let spec = ChildWorldSpec {
             program: env!("CARGO_BIN_EXE_spidar-hil-world").into(),
@@ -744,7 +745,7 @@ impl RunPath {
                 }
                 std::thread::sleep(Duration::from_millis(5));
             }
-            s.finish(&mut say).unwrap()
+            s.finish(st.count(), &mut say).unwrap()
         });
         let url = url_rx.recv_timeout(Duration::from_secs(90)).unwrap_or_else(|_| {
             stop.request();
