@@ -503,16 +503,7 @@ const BOXER: usize = 3;
 const CROWD: usize = 4;
 const EVENT: usize = 5;
 
-fn describe(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut cause = e.source();
-    while let Some(c) = cause {
-        s.push_str(": ");
-        s.push_str(&c.to_string());
-        cause = c.source();
-    }
-    s
-}
+use crate::writer::describe;
 
 fn pose(pos: DVec3, q: DQuat) -> Pose {
     Pose {
@@ -595,11 +586,7 @@ impl WorldWriter {
             .compression_threads(0)
             .chunk_size(Some(CHUNK_BYTES));
         let mut w = opts.create(file).map_err(write)?;
-        let start_ns = info.start_unix_ns.unwrap_or_else(|| {
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_nanos() as u64)
-        });
+        let start_ns = info.start_unix_ns.unwrap_or_else(crate::writer::unix_now_ns);
         let mut meta = BTreeMap::new();
         for (k, v) in [
             ("format_version", FORMAT_VERSION.to_string()),

@@ -147,7 +147,7 @@ const MODEL: usize = 2;
 const EVENT: usize = 3;
 
 /// An error and its causes, e.g. `I/O error from writing ...: no space left on device`.
-fn describe(e: &dyn std::error::Error) -> String {
+pub(crate) fn describe(e: &dyn std::error::Error) -> String {
     let mut s = e.to_string();
     let mut cause = e.source();
     while let Some(c) = cause {
@@ -182,7 +182,7 @@ impl<W: Seek> Seek for Counted<W> {
     }
 }
 
-fn unix_now_ns() -> u64 {
+pub(crate) fn unix_now_ns() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
 }
 

@@ -554,6 +554,28 @@ fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) 
     })
 }
 
+/// Steps `scene` `n` times (3 ms apart, both hands resting at the origin, the test rig's
+/// geometry and a known status) and shows each step to `observe`, as the stepper shows its
+/// observers.
+fn step_observed<S: Scene>(scene: &mut S, n: usize, mut observe: impl FnMut(&StepView)) {
+    let info = rig_info(&rig());
+    let status = known_rig_status();
+    let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
+    for i in 0..n {
+        let t = i as f64 * 0.003;
+        sample.t_s = t;
+        let m = scene.step(t, std::slice::from_ref(&sample));
+        observe(&StepView {
+            t_s: t,
+            scene: &*scene,
+            samples: std::slice::from_ref(&sample),
+            model: &m,
+            rig_info: Some(&info),
+            rig_status: Some(&status),
+        });
+    }
+}
+
 /// A viewer that never reads does not hold the world back: with it connected (and never dropped:
 /// the write timeout is an hour), the world takes 4,000 steps whose frames (about 65 MB) are far
 /// more than its socket can buffer, every frame is published, and the viewer that reads gets its
@@ -582,24 +604,8 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     }
     const STEPS: usize = 4000;
     let (done_tx, done_rx) = crossbeam_channel::bounded(1);
-    let info = rig_info(&rig());
-    let status = known_rig_status();
     let stepping = std::thread::spawn(move || {
-        let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
-        for i in 0..STEPS {
-            let t = i as f64 * 0.003;
-            sample.t_s = t;
-            let m = scene.step(t, std::slice::from_ref(&sample));
-            let v = StepView {
-                t_s: t,
-                scene: &scene,
-                samples: std::slice::from_ref(&sample),
-                model: &m,
-                rig_info: Some(&info),
-                rig_status: Some(&status),
-            };
-            view.after_step(&v);
-        }
+        step_observed(&mut scene, STEPS, |v| view.after_step(v));
         let _ = done_tx.send(());
         view
     });
@@ -645,28 +651,14 @@ fn view_observer_allocates_nothing_per_step() {
     while handle.counters().viewers.load(Ordering::Relaxed) == 0 {
         std::thread::sleep(Duration::from_millis(10));
     }
-    let info = rig_info(&rig());
-    let status = known_rig_status();
-    let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
     let mut run = |n: usize, guarded: bool| {
-        for i in 0..n {
-            let t = i as f64 * 0.003;
-            sample.t_s = t;
-            let m = scene.step(t, std::slice::from_ref(&sample));
-            let v = StepView {
-                t_s: t,
-                scene: &scene,
-                samples: std::slice::from_ref(&sample),
-                model: &m,
-                rig_info: Some(&info),
-                rig_status: Some(&status),
-            };
+        step_observed(&mut scene, n, |v| {
             if guarded {
-                no_alloc(|| view.after_step(&v));
+                no_alloc(|| view.after_step(v));
             } else {
-                view.after_step(&v);
+                view.after_step(v);
             }
-        }
+        })
     };
     run(100, false);
     let (before, _) = forbidden_allocs();
