@@ -362,7 +362,7 @@ fn a_stop_settles_into_the_standing_pose() {
         .map(|(i, _)| i)
         .collect();
     for j in arms {
-        let err = c.poses[0].rot[j].angle_between(rest.rot[j]);
+        let err = c.pose_of(0).rot[j].angle_between(rest.rot[j]);
         assert!(
             err < 3f32.to_radians(),
             "{} is {} deg from standing",
