@@ -1,5 +1,6 @@
-//! The crowd stepper: thousands of single-rigid-body characters stepped and posed per 3 ms step on
-//! one core (the project's goal: more than 5,000).
+//! The crowd stepper: thousands of single-rigid-body characters stepped per 3 ms step (the
+//! project's goals: 5,000 on one core, 10,000 on two). Their drawn poses are computed only when
+//! someone draws them ([`Crowd::pose`]), at the drawer's rate: nothing in a step depends on them.
 //!
 //! Why not the general engine: `Model::build_pairs` lists every pair of shapes (O(n^2) for n
 //! characters) and the articulated-body machinery is general. Here every body is one free rigid
@@ -240,14 +241,15 @@ pub const PARALLEL_MIN: usize = 256;
 /// Characters per parallel task.
 const CHUNK: usize = 64;
 
-/// A crowd: bodies, characters and their poses, and the scratch of the step.
+/// A crowd: bodies, characters, and the scratch of the step.
 ///
-/// A step has four phases: every character's own part (AI, controller, scenery contacts, pose), in
-/// parallel over characters; the grid; the contacts between characters, in parallel over
-/// characters (each sums the forces of its own pairs, in a fixed order, computing each pair's
-/// contact the same way from both sides, so the two get exactly opposite forces); integration, in
-/// parallel. Nothing a character computes depends on the order characters are visited, so any
-/// number of threads gives the same bits (tested with 1, 2 and 4).
+/// A step has three phases: every character's own part (AI, controller, scenery contacts), in
+/// parallel over characters; the grid (on the calling thread); the contacts between characters
+/// and integration, in parallel over characters (each sums the forces of its own pairs, in a fixed
+/// order, computing each pair's contact the same way from both sides, so the two get exactly
+/// opposite forces, then moves its body: the pairs read only the caches of the step's start).
+/// Nothing a character computes depends on the order characters are visited, so any number of
+/// threads gives the same bits (tested with 1, 2 and 4).
 #[derive(Clone, Debug)]
 pub struct Crowd {
     pub body: CrowdBody,
