@@ -25,7 +25,9 @@ use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, WriteOptions, Writer};
 use spidar_sim::collide::Shape;
 use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
-use spidar_world::look::{Look, LookShape, SHAPE_FLOATS};
+use spidar_world::look::{
+    Look, LookShape, CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS, SHAPE_FLOATS,
+};
 use spidar_world::view::Layout;
 use spidar_world::{Observer, StepView};
 
@@ -744,7 +746,7 @@ impl WorldWriter {
                 translation: v3(c[0] as f64, c[1] as f64, c[2] as f64),
                 rotation: Quaternion { x: c[3] as f64, y: c[4] as f64, z: c[5] as f64, w: c[6] as f64 },
             });
-            states.push(c[10].max(0.0) as u8);
+            states.push(c[CHARACTER_STATE].max(0.0) as u8);
         }
         ok = ok && self.put(TF, s.t_s, &tf);
         // What the bodies look like: every entity now and then; labels when they change; the
@@ -897,29 +899,21 @@ impl WorldWriter {
     }
 }
 
-/// A character's skeleton as line segments in its body frame: each joint's position from its
-/// parent's, posed by the frame's joint rotations (root: rest offset plus the root's offset).
+/// A character's drawn figure as line segments in its body frame: the frame carries each joint's
+/// position in the scene frame, turned here into the body frame the character's transform gives.
 fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> LinePrimitive {
-    let n = crowd.joints.len();
-    let mut pos = vec![Vec3::ZERO; n];
-    let mut rot = vec![Quat::IDENTITY; n];
-    let root = Vec3::new(c[7], c[8], c[9]);
-    let mut points = Vec::with_capacity(2 * n);
-    for (j, joint) in crowd.joints.iter().enumerate() {
-        let o = 12 + 4 * j;
-        let local = c.get(o..o + 4).map_or(Quat::IDENTITY, |q| Quat::from_xyzw(q[0], q[1], q[2], q[3]));
-        let off = joint.offset_m.as_vec3();
-        match joint.parent.filter(|p| *p < j) {
-            None => {
-                pos[j] = off + root;
-                rot[j] = local;
-            }
-            Some(p) => {
-                pos[j] = pos[p] + rot[p] * off;
-                rot[j] = rot[p] * local;
-                for q in [pos[p], pos[j]] {
-                    points.push(Point { x: q.x as f64, y: q.y as f64, z: q.z as f64 });
-                }
+    let pos = Vec3::new(c[0], c[1], c[2]);
+    let to_body = Quat::from_xyzw(c[3], c[4], c[5], c[6]).normalize().conjugate();
+    let joint = |j: usize| {
+        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+        c.get(o..o + 3).map(|p| to_body * (Vec3::new(p[0], p[1], p[2]) - pos))
+    };
+    let mut points = Vec::with_capacity(2 * crowd.joints.len());
+    for (j, joint_desc) in crowd.joints.iter().enumerate() {
+        let Some(p) = joint_desc.parent.filter(|p| *p < j) else { continue };
+        if let (Some(a), Some(b)) = (joint(p), joint(j)) {
+            for q in [a, b] {
+                points.push(Point { x: q.x as f64, y: q.y as f64, z: q.z as f64 });
             }
         }
     }

@@ -151,11 +151,27 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
     assert_eq!(w.characters, n);
     assert!(w.events >= n as u64, "every character's first state is an event: {}", w.events);
     let mut crowd = 0;
+    let mut figures = 0;
+    let joints = spidar_world::load("crowd").unwrap().look().crowd.unwrap().joints.len();
     reader::read(&p, |_, m| {
         if let reader::Msg::Other { channel, data, .. } = m {
             if channel.topic == TOPIC_TF {
                 let tf: FrameTransforms = cdr::decode(data).unwrap();
                 assert_eq!(tf.transforms.len(), n + 1, "the link frame and one per character");
+            }
+            if channel.topic == TOPIC_SCENE {
+                // Each character's drawn figure, in its body frame (origin at the centre of mass,
+                // 0.75 m above the floor): every bone a segment, standing on the floor.
+                let u: SceneUpdate = cdr::decode(data).unwrap();
+                for e in u.entities.iter().filter(|e| e.frame_id.starts_with("character/")) {
+                    let pts = &e.lines[0].points;
+                    assert_eq!(pts.len(), 2 * (joints - 1), "{}: one segment per bone", e.id);
+                    let lo = pts.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+                    let hi = pts.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+                    assert!((-0.75..-0.6).contains(&lo), "{}: its ankles are {lo} m from its centre", e.id);
+                    assert!((0.55..0.8).contains(&hi), "{}: its head is {hi} m above its centre", e.id);
+                    figures += 1;
+                }
             }
             if let Some(Ok(WorldMsg::Crowd(c))) = decode(&channel.topic, &channel.schema, data) {
                 assert_eq!(c.states.len(), n);
@@ -166,6 +182,7 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
     })
     .unwrap();
     assert_eq!(crowd, 200);
+    assert!(figures >= 30 * n, "figures at display rate: {figures}");
 }
 
 #[test]

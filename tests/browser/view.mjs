@@ -85,30 +85,19 @@ async function boxing(browser) {
   await second.close();
 }
 
-// The world positions of a character's joints from a frame's numbers (body pose, root offset, the
-// joints' rotations relative to their parents): where the world says its skeleton is.
+// A character's numbers in a frame (world/src/look.rs): body position xyz, rotation xyzw, control
+// state, push force, then its drawn figure: each joint's position in the scene.
+const STATE = 7;
+const HEAD_FLOATS = 9;
 const rot = (q, v) => { // q * v * q^-1
   const [x, y, z, w] = q;
   const t = [2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])];
   return [v[0] + w * t[0] + y * t[2] - z * t[1], v[1] + w * t[1] + z * t[0] - x * t[2], v[2] + w * t[2] + x * t[1] - y * t[0]];
 };
 
-function skeleton(joints, c) {
-  const mul = (a, b) => [
-    a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
-    a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
-    a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
-    a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]];
-  const body = { p: c.slice(0, 3), q: c.slice(3, 7) };
-  const out = [];
-  joints.forEach((j, k) => {
-    const parent = j.parent === null ? body : out[j.parent];
-    const off = j.parent === null ? j.offset_m.map((x, i) => x + c[7 + i]) : j.offset_m;
-    const d = rot(parent.q, off);
-    out.push({ p: parent.p.map((x, i) => x + d[i]), q: mul(parent.q, c.slice(12 + 4 * k, 16 + 4 * k)) });
-  });
-  return out.map((o) => o.p);
-}
+// The joints of a character's drawn figure as the frame carries them (the world's, checked by the
+// Rust side against the world's own figure).
+const skeleton = (joints, c) => joints.map((_, k) => c.slice(HEAD_FLOATS + 3 * k, HEAD_FLOATS + 3 * k + 3));
 
 async function crowd(browser) {
   const desc = await describe();
@@ -122,10 +111,10 @@ async function crowd(browser) {
     const chars = await a.evaluate((n) => Array.from({ length: n }, (_, i) => ({
       f: spidarView.character(i), joints: spidarView.characterJoints(i).map((j) => j.pos) })), n);
     await ask({ ask: 'check_characters', t: p.t, characters: chars.map((c) => c.f) });
-    // Every drawn joint is where the frame's numbers put it.
+    // Every drawn joint is where the frame's numbers put it (and they are the world's figure).
     let worst = 0;
     chars.forEach((c) => skeleton(joints, c.f).forEach((p, j) => { worst = Math.max(worst, dist(p, c.joints[j])); }));
-    check(worst < 1e-3, `every character's joints are drawn where the world's pose puts them (worst ${(worst * 1000).toFixed(2)} mm)`);
+    check(worst < 1e-3, `every character's ${joints.length} joints are drawn where the world's drawn figure has them (worst ${(worst * 1000).toFixed(2)} mm)`);
     return { t: p.t, chars };
   };
   const s1 = await snap();
@@ -145,7 +134,7 @@ async function crowd(browser) {
     const [f1, f2] = [s1.chars[i].f, s2.chars[i].f];
     const d = Math.hypot(f2[0] - f1[0], f2[2] - f1[2]);
     const c = Math.max(...limbs.map((k) => dist(rel(s1, i, k), rel(s2, i, k))));
-    if (f2[10] === 0 && d > 0.15 && c > change) { w = i; wd = d; change = c; }
+    if (f2[STATE] === 0 && d > 0.15 && c > change) { w = i; wd = d; change = c; }
   }
   check(w >= 0, `a character walks (character ${w}: ${wd.toFixed(2)} m in ${(s2.t - s1.t).toFixed(2)} s)`);
   check(change > 0.03, `its drawn pose changes as it walks (knees and elbows move ${(change * 100).toFixed(1)} cm relative to the pelvis)`);
@@ -163,11 +152,16 @@ async function crowd(browser) {
     return snap();
   })();
   const f3 = s3.chars[w].f;
-  const st = states[f3[10]];
+  const st = states[f3[STATE]];
   check(st === 'down', `the frame says character ${w} is ${st}`);
   const neck = joints.findIndex((j) => j.name === 'neck');
   const neckY = s3.chars[w].joints[neck][1];
   check(neckY < 0.6, `its drawn neck is near the floor (${neckY.toFixed(2)} m; standing it was ${s2.chars[w].joints[neck][1].toFixed(2)} m)`);
+  // The whole figure lies on the floor: every drawn joint low (a body lying is 0.26 m thick), none
+  // through the floor.
+  const ys = s3.chars[w].joints.map((p) => p[1]);
+  const [low, high] = [Math.min(...ys), Math.max(...ys)];
+  check(high < 0.45 && low > -0.03, `all ${ys.length} of its drawn joints lie near the floor (from ${low.toFixed(2)} to ${high.toFixed(2)} m high)`);
   const labels = await a.evaluate(() => spidarView.labels());
   const lab = labels.find((l) => l.character === String(w));
   check(lab && lab.state === st, `its label says ${lab && lab.text}`);
@@ -179,6 +173,30 @@ async function crowd(browser) {
   const at3 = await a.evaluate((p) => spidarView.project(p), mid);
   const red = await pixels(a, RED, around(at3, 30));
   check(red.n > 300, `it is drawn lying there in the down colour (${red.n} red pixels around its chest)`);
+  // Its head and its feet are drawn where the world's figure has them, and nothing red lies a
+  // head's length beyond them (along the figure, away from its pelvis).
+  const named = (re) => joints.map((j, k) => [j.name, k]).filter(([name]) => re.test(name)).map(([, k]) => k);
+  const pelvis = sk[0];
+  for (const [what, ks] of [['head', named(/head/)], ['feet', named(/ankle/)]]) {
+    for (const k of ks) {
+      const at = await a.evaluate((p) => spidarView.project(p), sk[k]);
+      const px = await pixels(a, RED, around(at, 12));
+      const out = [sk[k][0] - pelvis[0], 0, sk[k][2] - pelvis[2]];
+      const len = Math.hypot(...out);
+      const past = sk[k].map((x, i) => x + (out[i] / len) * 0.35);
+      const beyond = await pixels(a, RED, around(await a.evaluate((p) => spidarView.project(p), past), 12));
+      check(px.n > 300 && beyond.n < px.n * 0.1, `its drawn ${what} (${joints[k].name}) is at the world's place (${px.n} red pixels there, ${beyond.n} 35 cm beyond)`);
+    }
+  }
+  // From the side at floor level: the red figure is all below 0.45 m.
+  const far = [mid[0] + 3, 0.25, mid[2] + 0.01];
+  await a.evaluate((p, t) => spidarView.orbitTo(p, t), far, [mid[0], 0.25, mid[2]]);
+  await a.evaluate(() => spidarView.rendered());
+  const [floor, top, above] = await a.evaluate((ps) => ps.map((p) => spidarView.project(p)),
+    [[mid[0], 0, mid[2]], [mid[0], 0.45, mid[2]], [mid[0], 1.2, mid[2]]]);
+  const band = (y0, y1) => ({ x: 0, y: y0, w: 800, h: y1 - y0 });
+  const [onFloor, over] = [await pixels(a, RED, band(top.y, floor.y + 10)), await pixels(a, RED, band(above.y, top.y - 2))];
+  check(onFloor.n > 200 && over.n < onFloor.n * 0.02, `seen from the side it lies on the floor: ${onFloor.n} red pixels below 0.45 m, ${over.n} above`);
   await a.evaluate(() => spidarView.resume());
   await statusAfter(a, t_down + 0.3);
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });

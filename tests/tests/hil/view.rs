@@ -22,11 +22,13 @@ use spidar_msg::{ContactModel, HandSample, HandState, RigState, RigStatus};
 use spidar_rt::status::rig_info;
 use spidar_rt::{Clock, MonotonicClock};
 use spidar_sim::character::controller::Policy;
-use spidar_sim::character::keyframe::Pose as SkeletonPose;
+use spidar_sim::character::drawn::world_joints;
+use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_tools::scene_thread::{self, SceneCounters};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;
+use spidar_world::look::{CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS};
 use spidar_world::view::{View, ViewHandle, ViewOptions};
 use spidar_world::{Observer, Scene, StepView};
 
@@ -52,8 +54,9 @@ struct Rec {
     t: f64,
     /// Boxing: every shape's pose. Crowd: every character's body pose.
     parts: Vec<(DVec3, DQuat)>,
-    /// Crowd: every character's skeleton pose and policy.
-    skeletons: Vec<(SkeletonPose, Policy)>,
+    /// Crowd: every character's drawn figure (its joints in the world, as
+    /// `spidar_sim::character::drawn::world_joints` gives them) and policy.
+    skeletons: Vec<(Vec<DVec3>, Policy)>,
     counters: Vec<f64>,
 }
 
@@ -111,7 +114,13 @@ fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
     Rec {
         t,
         parts: c.bodies.iter().map(|b| (b.pos_m, b.rot)).collect(),
-        skeletons: (0..c.len()).map(|i| (c.poses[i], c.chars[i].control.policy)).collect(),
+        skeletons: (0..c.len())
+            .map(|i| {
+                let mut j = [DVec3::ZERO; MAX_JOINTS];
+                let n = world_joints(c, i, &mut j);
+                (j[..n].to_vec(), c.chars[i].control.policy)
+            })
+            .collect(),
         counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
     }
 }
@@ -345,15 +354,22 @@ impl Hosting {
                     let what = format!("character {i}");
                     close(rec.parts[i].0, &c[0..3], &what);
                     same_rot(rec.parts[i].1, &c[3..7], &what);
-                    let (pose, policy) = &rec.skeletons[i];
-                    close(pose.root_m.as_dvec3(), &c[7..10], &what);
-                    assert_eq!(states[c[10].as_u64().unwrap() as usize], policy.name(), "{what}'s state");
-                    for j in 0..self.look.crowd.as_ref().unwrap().joints.len() {
-                        same_rot(
-                            pose.rot[j].as_dquat(),
-                            &c[12 + 4 * j..16 + 4 * j],
-                            &format!("{what} joint {j}"),
-                        );
+                    let (joints, policy) = &rec.skeletons[i];
+                    assert_eq!(
+                        states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
+                        policy.name(),
+                        "{what}'s state"
+                    );
+                    // The frame carries the world's drawn figure, joint by joint.
+                    assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
+                    assert_eq!(
+                        c.len(),
+                        CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(),
+                        "{what}'s numbers"
+                    );
+                    for (j, p) in joints.iter().enumerate() {
+                        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+                        close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
                     }
                 }
                 json!({"ok": true})
@@ -641,9 +657,14 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
 #[test]
 fn view_observer_allocates_nothing_per_step() {
     let _one = one_at_a_time();
-    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    observer_allocates_nothing(BoxingScene::new(Default::default()).unwrap(), "boxing");
+    // The crowd's frames carry its drawn figures, computed while the frame is written.
+    observer_allocates_nothing(CrowdScene::builtin().unwrap(), "crowd");
+}
+
+fn observer_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
     let look = scene.look();
-    let mut view = View::start("boxing", &look, &any_port()).unwrap();
+    let mut view = View::start(name, &look, &any_port()).unwrap();
     let handle = view.counters_handle();
     let stop = Arc::new(AtomicBool::new(false));
     let frames = Arc::new(AtomicU64::new(0));
@@ -664,8 +685,8 @@ fn view_observer_allocates_nothing_per_step() {
     let (before, _) = forbidden_allocs();
     run(1000, true);
     let (after, first) = forbidden_allocs();
-    assert_eq!(after - before, 0, "the observer allocated (first: {first} bytes)");
-    assert!(handle.counters().frames_published.load(Ordering::Relaxed) >= 150, "frames were written");
+    assert_eq!(after - before, 0, "the {name} observer allocated (first: {first} bytes)");
+    assert!(handle.counters().frames_published.load(Ordering::Relaxed) >= 150, "{name}: frames were written");
     stop.store(true, Ordering::Relaxed);
     drop(view);
     let _ = reader.join();

@@ -9,8 +9,8 @@
 //! then         shapes: position xyz, rotation quaternion xyzw, per moving shape         (f32)
 //!              contact force on each moving shape this frame (N)                        (f32)
 //!              label states, one per label                                              (f32)
-//!              characters: position xyz, rotation xyzw, skeleton root offset xyz,       (f32)
-//!                control state, push force (N), then per joint rotation xyzw
+//!              characters: body position xyz, body rotation xyzw, control state,       (f32)
+//!                push force (N), then per joint of the drawn figure its position xyz
 //!              proxies (16): kind (0 none, 1 plane, 2 sphere, 3 capsule), a xyz, b xyz, radius
 //!              contacts (up to 32, the count above): point xyz, force xyz               (f32)
 //! ```
@@ -21,7 +21,7 @@
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyShape, HANDS, MAX_PROXIES, STRINGS};
 
-use crate::look::{Look, Poses, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
+use crate::look::{Look, Poses, CHARACTER_PUSH, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
 
 /// "SPV1" read as a little-endian u32.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"SPV1");
@@ -167,7 +167,7 @@ pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
     // The scene's sections start clean: forces and pushes add up, contacts are counted.
     buf[layout.shape_force_at..layout.shape_force_at + layout.shapes].fill(0.0);
     for i in 0..layout.characters {
-        buf[layout.characters_at + i * layout.character_floats + 11] = 0.0;
+        buf[layout.characters_at + i * layout.character_floats + CHARACTER_PUSH] = 0.0;
     }
 }
 
