@@ -124,10 +124,14 @@ impl HardwareArgs {
     }
 }
 
-/// The UART driver's options for `rig`: its boards' command scales, and a reply deadline.
+/// The UART driver's options for `rig`: its boards' command scales, and a reply deadline. The
+/// enumeration at open waits as long for each board id as an exchange waits for its reply, and at
+/// least the driver's 20 ms: who allows slow replies (a board behind a slow link, an emulator on a
+/// busy machine) gets them at open too.
 pub fn uart_options(rig: &Rig, reply_timeout: Duration) -> UartOptions {
     UartOptions {
         reply_timeout,
+        enumerate_timeout: reply_timeout.max(UartOptions::default().enumerate_timeout),
         pwm_digits_per_volt: rig.boards.uart_pwm_digits_per_volt,
         current_digits_per_volt: rig.boards.uart_current_digits_per_volt,
         ..UartOptions::default()
