@@ -24,7 +24,7 @@ use crate::writer::{META_END, META_SESSION, RIG_ATTACHMENT};
 use crate::{RecordError, FORMAT_VERSION, PROFILE};
 
 /// No record of a spidar recording is near this long; a longer one is damage, not data.
-const RECORD_LIMIT: usize = 64 << 20;
+pub(crate) const RECORD_LIMIT: usize = 64 << 20;
 const READ_SIZE: usize = 1 << 20;
 
 /// How the readable part of a file ends.
