@@ -1,6 +1,7 @@
 // The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
-// ASK lines): `node view.mjs boxing|crowd|live URL`, and `node view.mjs screenshot URL CAMERA FILE`
-// for the README's pictures.
+// ASK lines): `node view.mjs boxing|crowd|live|flash URL`, and `node view.mjs screenshot URL CAMERA
+// FILE` for the README's pictures; `node view.mjs replay URL`, run by tests/tests/hil/replay.rs,
+// for a recording played into the view (`spidar replay`).
 import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
@@ -206,6 +207,102 @@ async function live(browser) {
   await ask({ ask: 'check_live', t: p.t, hud: await a.evaluate(() => spidarView.hud()), page_steps: st.status.steps });
 }
 
+// Pauses the page on the frame it shows, checks the virtual human's head is drawn there (mesh at
+// the frame's numbers, red pixels at its place on the screen) and asks the Rust test whether the
+// recording has it there at that time (`question`: check_pose, or check_seek with `extra`).
+async function headAsRecorded(page, question, extra = {}) {
+  const p = await pause(page);
+  const head = await page.evaluate(() => spidarView.shape('virtual human/head'));
+  check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');
+  const r = await ask({ ask: question, t: p.t, head: head.frame, ...extra });
+  const px = await pixels(page, RED, around(head.screen, 45));
+  check(px.n > 300, `the head is drawn at its place at t = ${p.t.toFixed(3)} s (${px.n} red pixels)`);
+  await page.evaluate(() => spidarView.resume());
+  return { t: p.t, r };
+}
+
+// The replay's frames against its own clock, at `speed`: from the playback messages the page got
+// while playing at that speed (after the `since`-th), each with the newest frame's time when it
+// came.
+const logLength = (page) => page.evaluate(() => spidarView.playbackLog().length);
+async function rate(page, speed, clockSpan, since) {
+  const log = await page.waitForFunction((speed, span, since) => {
+    const l = spidarView.playbackLog().slice(since).filter((e) => e.playing && e.speed === speed && e.frame_t !== null);
+    return l.length >= 2 && l[l.length - 1].clock_s - l[0].clock_s >= span ? l : null;
+  }, { timeout: 60000, polling: 100 }, speed, clockSpan, since).then((h) => h.jsonValue());
+  const [a, b] = [log[0], log[log.length - 1]];
+  return { r: (b.frame_t - a.frame_t) / (b.clock_s - a.clock_s), clock: b.clock_s - a.clock_s, frames: b.frame_t - a.frame_t };
+}
+
+async function replay(browser) {
+  const a = await open(browser, url, 'camera=orbit');
+  const pb = () => a.evaluate(() => spidarView.playback());
+  await a.waitForFunction(() => spidarView.playback() !== null, { timeout: 60000, polling: 50 });
+  let p = await pb();
+  const { first_s: first, last_s: last } = p;
+  const bar = await a.evaluate(() => getComputedStyle(document.getElementById('playback')).display);
+  check(bar !== 'none' && (await state(a)).replay, 'the page shows the playback bar');
+  check(!p.playing && p.button === 'play', `a replay opens paused (${p.shown}, ${p.file})`);
+  check(Math.abs((await state(a)).t - first) < 1e-3, `on its first frame (t = ${first} s)`);
+
+  // 1. Playing: frames arrive, the virtual human is drawn where the recording has it.
+  await a.click('[data-pb=play]');
+  await untilTime(a, first + 1.0);
+  const n1 = (await state(a)).framesReceived;
+  check(n1 > 20, `frames arrive while playing (${n1})`);
+  await headAsRecorded(a, 'check_pose');
+
+  // 2. Pause: the time stands still (no frame comes, the position does not move).
+  await a.click('[data-pb=play]');
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  await a.waitForFunction(() => Math.abs(spidarView.state().receivedT - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [s2, p2, log2] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  await sleep(1500);
+  const [s3, p3, log3] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  check(log3 > log2, `the paused replay still talks to the page (${log3 - log2} playback messages)`);
+  check(s3.framesReceived === s2.framesReceived && s3.receivedT === s2.receivedT && p3.t_s === p2.t_s && p3.clock_s === p2.clock_s,
+    `paused, the time does not advance (t = ${s3.receivedT.toFixed(3)} s, ${s3.framesReceived} frames before and after)`);
+
+  // 3. Seeks, forward and back, with the slider: the page shows the recording's frame at that time.
+  for (const frac of [0.7, 0.25]) {
+    const asked = await a.evaluate((T) => {
+      const s = document.querySelector('[data-pb=slider]');
+      s.value = String(T);
+      s.dispatchEvent(new Event('change'));
+      return Number(s.value);
+    }, first + frac * (last - first));
+    await a.waitForFunction((T) => { const t = spidarView.state().t; return t !== null && t <= T + 1e-4 && t > T - 0.1; },
+      { timeout: 60000, polling: 50 }, asked);
+    const { t } = await headAsRecorded(a, 'check_seek', { asked });
+    const shown = (await pb()).shown;
+    check(shown.startsWith(t.toFixed(2)), `after the seek to ${asked} s the bar shows ${shown}`);
+  }
+
+  // 4. Speed: at 2x the frames advance twice as fast as at 1x, by the replay's own clock.
+  const since1 = await logLength(a);
+  await a.click('[data-pb=play]');
+  const r1 = await rate(a, 1, 1.5, since1);
+  const since2 = await logLength(a);
+  await a.select('[data-pb=speed]', '2');
+  const r2 = await rate(a, 2, 1.5, since2);
+  log(`1x: ${r1.frames.toFixed(3)} s of frames in ${r1.clock.toFixed(3)} s of the replay's clock; 2x: ${r2.frames.toFixed(3)} s in ${r2.clock.toFixed(3)} s`);
+  check(Math.abs(r1.r - 1) < 0.15, `1x plays the recording at its own pace (${r1.r.toFixed(3)})`);
+  check(Math.abs(r2.r - 2) < 0.3, `2x plays it twice as fast (${r2.r.toFixed(3)})`);
+  await a.click('[data-pb=play]');
+
+  // 5. A second browser sees the same frame.
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  const second = await launch();
+  const b = await open(second.browser, url, 'camera=orbit');
+  await a.waitForFunction(() => Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5, { timeout: 60000, polling: 50 });
+  await b.waitForFunction(() => spidarView.playback() && Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [ta, tb] = [(await state(a)).t, (await state(b)).t];
+  check(ta === tb, `both browsers show the frame at t = ${ta.toFixed(3)} s`);
+  await second.close();
+}
+
 async function shot(browser) {
   const [camera, file, seconds] = rest;
   const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
@@ -214,4 +311,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, live, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, replay, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

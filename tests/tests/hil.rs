@@ -19,6 +19,8 @@ use spidar_world::Scene;
 mod crowd;
 #[path = "hil/view.rs"]
 mod view;
+#[path = "hil/replay.rs"]
+mod replay;
 
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.

@@ -13,6 +13,7 @@ pub mod eval_impacts;
 pub mod eval_poses;
 pub mod hardware;
 pub mod recording;
+pub mod replay_view;
 pub mod report;
 pub mod rigpath;
 pub mod scene_thread;

@@ -273,11 +273,11 @@ fn crowd_world(opts: &ViewOptions) -> Hosting {
 /// other view tests' worlds.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+pub(super) fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-fn any_port() -> ViewOptions {
+pub(super) fn any_port() -> ViewOptions {
     ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() }
 }
 
@@ -451,7 +451,7 @@ fn browser_missing() -> Option<String> {
 }
 
 /// True when the browser tests can run; false (after a loud message) when they are skipped.
-fn browser_here(test: &str) -> bool {
+pub(super) fn browser_here(test: &str) -> bool {
     let Some(why) = browser_missing() else { return true };
     if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
         panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
@@ -462,7 +462,7 @@ fn browser_here(test: &str) -> bool {
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
 /// unless it ends with `RESULT ok`.
-fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+pub(super) fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
     let mut child = Command::new("node")
         .arg("view.mjs")
         .args(args)

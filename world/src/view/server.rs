@@ -24,6 +24,8 @@ use super::{json, Shared, ViewError, ViewOptions, BUNDLE_JS, INDEX_HTML};
 #[derive(Default)]
 struct Latest {
     scene: String,
+    /// The newest frame: a viewer that connects sees it at once (a paused replay sends no other).
+    frame: Option<Bytes>,
     rig: Option<String>,
     status: Option<String>,
     playback: Option<String>,
@@ -241,17 +243,26 @@ fn serve_viewer(
 
 /// Sends the viewer its slot until it leaves, the view stops, or its socket stalls (returns true).
 fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, latest: &Mutex<Latest>) -> bool {
-    let first: Vec<String> = match latest.lock() {
-        Ok(l) => [Some(l.scene.clone()), l.rig.clone(), l.status.clone(), l.playback.clone()]
-            .into_iter()
-            .flatten()
-            .collect(),
+    let (first, frame): (Vec<String>, _) = match latest.lock() {
+        Ok(l) => (
+            [Some(l.scene.clone()), l.rig.clone(), l.status.clone(), l.playback.clone()]
+                .into_iter()
+                .flatten()
+                .collect(),
+            l.frame.clone(),
+        ),
         Err(_) => return false,
     };
     for t in first {
         if let Err(e) = ws.send(Message::text(t)) {
             return timed_out(&e);
         }
+    }
+    if let Some(f) = frame {
+        if let Err(e) = ws.send(Message::Binary(f)) {
+            return timed_out(&e);
+        }
+        shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
     }
     // Reads only drain the viewer's control messages: never wait on them.
     if ws.get_mut().set_read_timeout(Some(Duration::from_millis(1))).is_err() {
@@ -367,6 +378,9 @@ fn broadcast(
             }
             if let Some(p) = &playback {
                 l.playback = Some(p.clone());
+            }
+            if let Some(f) = &frame {
+                l.frame = Some(f.clone());
             }
         }
         let list: Vec<Arc<Viewer>> = viewers.lock().map(|l| l.clone()).unwrap_or_default();
