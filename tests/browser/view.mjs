@@ -2,7 +2,7 @@
 // ASK lines): `node view.mjs boxing|crowd|live|flash URL`, and `node view.mjs screenshot URL CAMERA
 // FILE` for the README's pictures; `node view.mjs replay URL`, run by tests/tests/hil/replay.rs,
 // for a recording played into the view (`spidar replay`).
-import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
+import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN, FLASH } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
 const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
@@ -185,6 +185,53 @@ async function crowd(browser) {
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
 }
 
+// A hit as a flash on the part hit: a jab that misses lights nothing, one that lands on the
+// passive virtual human lights the part it lands on (the page's state and its pixels).
+async function flash(browser) {
+  const desc = await describe();
+  const vh = desc.shapes.filter((s) => s.name.startsWith('virtual human/')).map((s) => s.name);
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+  const parts = () => a.evaluate((vh) => vh.map((n) => { const s = spidarView.shape(n); return { n, flash: s.flash, force: s.force }; }), vh);
+  const headAt = async () => (await a.evaluate(() => spidarView.shape('virtual human/head'))).screen;
+
+  // 1. A jab that misses: no part ever flashes, none takes a force; the head is drawn red.
+  const miss = await ask({ ask: 'jab', hit: false });
+  let worst = { flash: 0, force: 0 };
+  while ((await state(a)).t < miss.t_out + 0.5) {
+    for (const p of await parts()) worst = { flash: Math.max(worst.flash, p.flash), force: Math.max(worst.force, p.force) };
+    await sleep(30);
+  }
+  check(worst.flash === 0 && worst.force === 0, 'a jab that misses lights no part of the virtual human');
+  await pause(a);
+  const h1 = await headAt();
+  const [missFlash, missRed] = [await pixels(a, FLASH, around(h1, 30)), await pixels(a, RED, around(h1, 30))];
+  check(missFlash.n < 30 && missRed.n > 300, `the head is drawn red (${missRed.n} red, ${missFlash.n} flash pixels)`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
+
+  // 2. A jab at the head, held there: the part it lands on flashes (the page is paused on the first
+  // frame that lights a part fully).
+  const hit = await ask({ ask: 'jab', hit: true });
+  await a.waitForFunction((vh) => {
+    if (!vh.some((n) => spidarView.shape(n).flash === 1)) return false;
+    spidarView.pause();
+    return true;
+  }, { timeout: 60000, polling: 'raf' }, vh);
+  await a.evaluate(() => spidarView.rendered());
+  const fist = (await a.evaluate(() => spidarView.grips()))[1];
+  const lit = (await parts()).filter((p) => p.flash > 0);
+  const full = lit.filter((p) => p.flash === 1);
+  const shapes = await a.evaluate((names) => names.map((n) => spidarView.shape(n)), full.map((p) => p.n));
+  const near = shapes.map((s, i) => ({ n: full[i].n, force: full[i].force, d: dist(s.pos, fist.pos), screen: s.screen }))
+    .sort((x, y) => x.d - y.d)[0];
+  check(near.force > 1 && near.d < 0.2, `the part the fist is on flashes: ${near.n} (${near.force.toFixed(1)} N, its centre ${(near.d * 100).toFixed(0)} cm from the fist; lit: ${lit.map((p) => p.n).join(', ')})`);
+  const hitFlash = await pixels(a, FLASH, around(near.screen, 30));
+  check(hitFlash.n > 150 && hitFlash.n > 5 * (missFlash.n + 1), `it is drawn lit (${hitFlash.n} flash pixels; the missed jab: ${missFlash.n})`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
+}
+
 // The page as a user opens it from the address `spidar run`'s world process printed: frames flow,
 // the virtual human is drawn where they put it, the grips are shown, the HUD shows the rig and the
 // world's link (checked against the world's own /status.json by the Rust test).
@@ -311,4 +358,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, live, replay, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, flash, replay, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

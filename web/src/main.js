@@ -201,7 +201,8 @@ window.spidarView = {
     m.getWorldPosition(tmp);
     const pos = [tmp.x, tmp.y, tmp.z];
     const o = desc.layout.shapes_at + i * desc.layout.shape_floats;
-    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash };
+    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash,
+      force: applied.f[desc.layout.shape_force_at + i] };
   },
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
   character: (i) => {

@@ -44,6 +44,9 @@ struct Ctl {
     punch_at: AtomicU64,
     /// A character to push over at the next step.
     push: Mutex<Option<usize>>,
+    /// The right fist's jab: from its home point at loop-clock time `.0` to `.1` (link frame) in
+    /// 0.2 s, and held there until cleared.
+    jab: Mutex<Option<(f64, DVec3)>>,
 }
 
 /// What the world was after one step.
@@ -236,8 +239,11 @@ fn host<S: Scene + 'static>(
             while !stop.load(Ordering::Relaxed) {
                 let t = clock.now_ns() as f64 * 1e-9;
                 let punch_at = f64::from_bits(ctl.punch_at.load(Ordering::Relaxed));
-                let s =
+                let mut s =
                     HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
+                if let Some((at, to)) = *ctl.jab.lock().unwrap() {
+                    s.hands[1] = jab(s.hands[1].pos_m, t - at, to);
+                }
                 let _ = samples_tx.try_send(s);
                 tick += 1;
                 std::thread::sleep(Duration::from_millis(1));
@@ -256,6 +262,14 @@ fn host<S: Scene + 'static>(
         _status: status_tx,
         _models: models_rx,
     }
+}
+
+/// A hand from `home` to `to` in 0.2 s (minimum jerk), `s` seconds after it started, then held.
+fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
+    let tau = (s / 0.2).clamp(0.0, 1.0);
+    let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
+    let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
+    HandState { pos_m: home + (to - home) * p, vel_m_per_s: (to - home) * v, valid: true, ..Default::default() }
 }
 
 fn boxing_world(opts: &ViewOptions) -> Hosting {
@@ -390,6 +404,22 @@ impl Hosting {
                 }
             }
             "hold" => json!({"t_hold": self.hold()}),
+            "jab" => {
+                // The right fist jabs at the virtual human's head (hit) or out to the right, clear
+                // of every body (miss), and stays there.
+                let head = self.look.shapes.iter().position(|s| s.name == "virtual human/head").unwrap();
+                let head_m = self.latest().parts[head].0 - self.look.link_offset_m;
+                let r = rig();
+                let home = r.rig_to_world.point(r.hands[1].home_m);
+                let to = if q["hit"].as_bool().unwrap() { head_m } else { home + DVec3::new(0.35, 0.05, 0.0) };
+                let at = self.now();
+                *self.ctl.jab.lock().unwrap() = Some((at, to));
+                json!({"t_out": at + 0.2})
+            }
+            "release" => {
+                *self.ctl.jab.lock().unwrap() = None;
+                json!({"ok": true})
+            }
             "check_hud" => {
                 let hud = q["hud"].as_object().unwrap();
                 let text = |k: &str| {
@@ -515,6 +545,22 @@ fn view_boxing_in_a_browser() {
     let w = boxing_world(&any_port());
     node(&["boxing", w.view.url()], |q| w.answer(q));
     assert_eq!(w.view.counters().viewers_total.load(Ordering::Relaxed), 2);
+}
+
+/// A hit as a flash on the part hit: a scripted jab that lands on the virtual human (the avatar's
+/// glove, which follows the user's hand, on its head: the world's own contact) lights the part it
+/// lands on in the page; one that misses lights nothing.
+#[test]
+fn view_a_hit_flashes_the_part_hit_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_a_hit_flashes_the_part_hit_in_a_browser") {
+        return;
+    }
+    // A passive virtual human: it neither dodges nor blocks the jab.
+    let scene =
+        BoxingScene::new(spidar_sim::boxer::BoxerParams { active: false, ..Default::default() }).unwrap();
+    let w = host(scene, record_boxing, |_, _| {}, DVec3::ZERO, &any_port());
+    node(&["flash", w.view.url()], |q| w.answer(q));
 }
 
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
