@@ -32,9 +32,9 @@ pub mod world;
 pub mod writer;
 
 #[cfg(test)]
-mod tests;
-#[cfg(test)]
 mod play_tests;
+#[cfg(test)]
+mod tests;
 #[cfg(test)]
 mod world_tests;
 

@@ -10,17 +10,15 @@
 //! the file's length.
 
 use std::fs::File;
-use std::io::SeekFrom;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use mcap::records::{op, ChunkIndex};
 use mcap::sans_io::indexed_reader::{IndexedReadEvent, IndexedReader, IndexedReaderOptions, ReadOrder};
-use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 
 use crate::cdr::{self, Field};
-use crate::reader::{self, Ending, Flow, RECORD_LIMIT};
+use crate::reader::{self, read_summary, Ending, Flow, RECORD_LIMIT};
 use crate::world::{ViewFrameMsg, TOPIC_VIEW, VIEW_ATTACHMENT};
 use crate::RecordError;
 
@@ -80,16 +78,17 @@ impl ViewTrack {
                 found: format!("channel {TOPIC_VIEW} has schema '{}'", view.schema),
             });
         }
-        let description = head
-            .attachment_text(VIEW_ATTACHMENT)
-            .ok_or_else(|| replay(format!("it has no {VIEW_ATTACHMENT} attachment (the view's description)")))?;
+        let description = head.attachment_text(VIEW_ATTACHMENT).ok_or_else(|| {
+            replay(format!("it has no {VIEW_ATTACHMENT} attachment (the view's description)"))
+        })?;
         let start_ns = head
             .session
             .get("start_unix_ns")
             .and_then(|s| s.parse().ok())
             .ok_or_else(|| replay("its metadata has no start_unix_ns".into()))?;
         let file = File::open(path).map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?;
-        let len = file.metadata().map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?.len();
+        let len =
+            file.metadata().map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?.len();
         let (chunks, ending, indexed) = match read_summary(&file, len) {
             Some(s) if !s.chunk_indexes.is_empty() => (s.chunk_indexes, Ending::Complete, Indexed::Summary),
             _ => {
@@ -134,7 +133,13 @@ impl ViewTrack {
         let summary = mcap::Summary { chunk_indexes: self.chunks.clone(), ..Default::default() };
         let r = IndexedReader::new_with_options(&summary, opts.with_record_length_limit(RECORD_LIMIT))
             .map_err(|e| self.damaged(e.to_string()))?;
-        Ok(Cursor { r, file: self.file.clone(), buf: Vec::new(), channel: self.channel, path: self.path.clone() })
+        Ok(Cursor {
+            r,
+            file: self.file.clone(),
+            buf: Vec::new(),
+            channel: self.channel,
+            path: self.path.clone(),
+        })
     }
 
     fn damaged(&self, why: String) -> RecordError {
@@ -147,7 +152,8 @@ impl ViewTrack {
     }
 
     fn timed_at(&self, t_s: f64) -> Result<Timed, RecordError> {
-        let back = IndexedReaderOptions::new().with_order(ReadOrder::ReverseLogTime).ending_at(self.log_ns(t_s));
+        let back =
+            IndexedReaderOptions::new().with_order(ReadOrder::ReverseLogTime).ending_at(self.log_ns(t_s));
         if let Some(f) = self.cursor(back)?.next()? {
             return Ok(f);
         }
@@ -184,35 +190,12 @@ impl Cursor {
                 Some(Ok(IndexedReadEvent::ReadChunkRequest { offset, length })) => (offset, length),
             };
             self.buf.resize(length, 0);
-            self.file.read_exact_at(&mut self.buf, offset).map_err(|e| bad(format!("reading a chunk: {e}")))?;
+            self.file
+                .read_exact_at(&mut self.buf, offset)
+                .map_err(|e| bad(format!("reading a chunk: {e}")))?;
             self.r.insert_chunk_record_data(offset, &self.buf).map_err(|e| bad(e.to_string()))?;
         }
     }
-}
-
-/// The file's summary section, if it has one that reads.
-fn read_summary(file: &File, len: u64) -> Option<mcap::Summary> {
-    let opts = SummaryReaderOptions::default().with_file_size(len).with_record_length_limit(RECORD_LIMIT);
-    let mut r = SummaryReader::new_with_options(opts);
-    let mut pos = 0u64;
-    while let Some(ev) = r.next_event() {
-        match ev.ok()? {
-            SummaryReadEvent::ReadRequest(n) => {
-                let k = file.read_at(r.insert(n), pos).ok()?;
-                pos += k as u64;
-                r.notify_read(k);
-            }
-            SummaryReadEvent::SeekRequest(to) => {
-                pos = match to {
-                    SeekFrom::Start(p) => p,
-                    SeekFrom::End(e) => len.checked_add_signed(e)?,
-                    SeekFrom::Current(c) => pos.checked_add_signed(c)?,
-                };
-                r.notify_seeked(pos);
-            }
-        }
-    }
-    r.finish()
 }
 
 /// The chunk index of a file without a summary, from its chunk records' headers, and where the
@@ -248,7 +231,8 @@ fn scan_chunks(file: &File, len: u64) -> (Vec<ChunkIndex>, Ending) {
                 if clen > 64 || file.read_exact_at(&mut rest, pos + 9 + 32).is_err() {
                     return (chunks, damaged(pos, "a chunk's compression does not read"));
                 }
-                let compressed_size = u64::from_le_bytes(rest[clen as usize..].try_into().unwrap_or_default());
+                let compressed_size =
+                    u64::from_le_bytes(rest[clen as usize..].try_into().unwrap_or_default());
                 if 32 + clen + 8 + compressed_size != body {
                     return (chunks, damaged(pos, "a chunk's sizes do not add up"));
                 }

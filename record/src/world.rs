@@ -27,9 +27,9 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use glam::{DQuat, DVec3, Quat, Vec3};
 use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, WriteOptions, Writer};
+use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
 use spidar_sim::collide::Shape;
 use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
-use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
 use spidar_world::look::{Look, LookShape, MAX_COUNTERS, SHAPE_FLOATS};
 use spidar_world::view::{FrameMaker, Layout, StatusData};
 use spidar_world::{Observer, StepView};
@@ -560,6 +560,33 @@ impl std::fmt::Display for WorldRecordingReport {
         }
         Ok(())
     }
+}
+
+/// What a world recording holds by its own account, for a process that did not write it (the
+/// rig's, when the world runs as its child process): its end record (read through the summary's
+/// index), or, in a file without one (the world was killed), what reading it through finds.
+pub fn report_of(path: &Path) -> Result<WorldRecordingReport, RecordError> {
+    let bytes =
+        std::fs::metadata(path).map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?.len();
+    let mut r = WorldRecordingReport { path: path.to_path_buf(), bytes, ..Default::default() };
+    match crate::reader::metadata_of(path, META_END)? {
+        Some(m) => {
+            let n = |k: &str| m.get(k).and_then(|v| v.parse().ok()).unwrap_or(0);
+            (r.steps, r.dropped, r.write_failed) =
+                (n("steps_recorded"), n("steps_dropped"), n("steps_write_failed"));
+            (r.messages, r.events) = (n("messages"), n("events"));
+        }
+        None => {
+            let s = summarize(path)?;
+            (r.steps, r.dropped, r.events) = (s.steps, s.dropped, s.events);
+            r.messages = s.recording.channels.iter().map(|c| c.messages).sum();
+            r.error = Some(format!(
+                "the world did not finish its recording ({}): it holds the steps written before it stopped",
+                s.recording.ending.as_ref().map_or("not read to its end".into(), |e| e.to_string())
+            ));
+        }
+    }
+    Ok(r)
 }
 
 /// One step's numbers, copied on the stepping thread into a pooled buffer.
@@ -1139,6 +1166,8 @@ impl WorldWriter {
             meta.insert("steps_recorded".to_string(), self.report.steps.to_string());
             meta.insert("steps_dropped".to_string(), dropped.to_string());
             meta.insert("steps_write_failed".to_string(), self.report.write_failed.to_string());
+            meta.insert("messages".to_string(), self.report.messages.to_string());
+            meta.insert("events".to_string(), self.report.events.to_string());
             let r = w
                 .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
                 .and_then(|_| w.finish());

@@ -49,7 +49,12 @@ pub(crate) fn rig_status(k: u64) -> spidar_msg::RigStatus {
 pub(crate) fn record_scene(scene: &str, path: &Path, steps: u64) -> (usize, usize, WorldRecordingReport) {
     let scene = spidar_world::load(scene).unwrap();
     let look = scene.look();
-    let info = WorldInfo { scene: "test".into(), name: "boxing".into(), clock: "virtual".into(), ..Default::default() };
+    let info = WorldInfo {
+        scene: "test".into(),
+        name: "boxing".into(),
+        clock: "virtual".into(),
+        ..Default::default()
+    };
     let (rec, obs) = WorldRecording::start(path, &info, &look).unwrap();
     let mut st = Stepper::new(scene);
     st.add_observer(Box::new(obs));

@@ -17,10 +17,10 @@ use spidar_world::Scene;
 
 #[path = "hil/crowd.rs"]
 mod crowd;
-#[path = "hil/view.rs"]
-mod view;
 #[path = "hil/replay.rs"]
 mod replay;
+#[path = "hil/view.rs"]
+mod view;
 
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.

@@ -888,6 +888,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     // runs (this process or the child), on the rig recording's time line.
     let mut world_recording = None;
     let mut world_observer = None;
+    let mut child_world_file = None;
     if let Some(path) = &a.record {
         let wpath = spidar_record::world::world_path(path);
         let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
@@ -908,6 +909,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 }
             }
             WorldChoice::Child(spec) => {
+                child_world_file = Some(wpath.clone());
                 spec.extra.extend(["--record".into(), wpath.into_os_string()]);
                 if let Some(ns) = start_ns {
                     spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
@@ -985,7 +987,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         summary.rig_file = rig_src.describe();
         let world_rec = world_recording.take().map(|r| r.finish());
         if a.json {
-            outln!("{:#}", report::virtual_json(&summary));
+            outln!("{:#}", report::virtual_json(&summary, world_rec.as_ref()));
         } else {
             outln!("{summary}");
             if let Some(r) = &world_rec {
@@ -1020,10 +1022,21 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     let mut summary = summary;
     summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
-    // The scene thread has stopped: the world's recording ends with its last step.
-    let world_rec = world_recording.take().map(|r| r.finish());
+    // The scene thread has stopped: the world's recording ends with its last step. A child world
+    // process wrote its own: what it kept is read back from its file.
+    let world_rec = match (world_recording.take(), &child_world_file) {
+        (Some(r), _) => Some(r.finish()),
+        (None, Some(p)) => match spidar_record::world::report_of(p) {
+            Ok(r) => Some(r),
+            Err(e) => {
+                errln!("spidar: the world's recording {} does not read: {e}", p.display());
+                None
+            }
+        },
+        (None, None) => None,
+    };
     if a.json {
-        outln!("{:#}", report::run_json(&summary, recording.as_ref()));
+        outln!("{:#}", report::run_json(&summary, recording.as_ref(), world_rec.as_ref()));
     } else {
         outln!("{summary}");
         if let Some(r) = &recording {

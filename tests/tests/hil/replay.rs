@@ -83,7 +83,8 @@ impl Recorded {
                     TOPIC_STEP => t = spidar_record::cdr::decode::<WorldStep>(data).unwrap().t_s,
                     TOPIC_TF => {
                         let tf: FrameTransforms = spidar_record::cdr::decode(data).unwrap();
-                        let h = tf.transforms.iter().find(|x| x.child_frame_id == "virtual_human/head").unwrap();
+                        let h =
+                            tf.transforms.iter().find(|x| x.child_frame_id == "virtual_human/head").unwrap();
                         let (p, q) = (&h.translation, &h.rotation);
                         head.push((t, DVec3::new(p.x, p.y, p.z), DQuat::from_xyzw(q.x, q.y, q.z, q.w)));
                     }
@@ -101,11 +102,8 @@ impl Recorded {
     /// The page's head pose `v` (position, quaternion) at frame time `t` is the recording's.
     fn check_head(&self, t: f64, v: &[Value]) {
         let f = |i: usize| v[i].as_f64().unwrap();
-        let &(ts, p, q) = self
-            .head
-            .iter()
-            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
-            .unwrap();
+        let &(ts, p, q) =
+            self.head.iter().min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs())).unwrap();
         assert!((ts - t).abs() < 1e-5 * t.max(1.0), "no recorded step at t = {t} (nearest {ts})");
         let d = (p - DVec3::new(f(0), f(1), f(2))).length();
         assert!(d < 1e-4, "the head is drawn {d} m from where the recording has it at t = {t}");
@@ -124,7 +122,12 @@ impl Recorded {
                 // The frame shown is the recording's last frame at or before the time asked.
                 let asked = f("asked");
                 let want = self.frames.iter().rev().find(|t| **t <= asked).copied().unwrap_or(self.frames[0]);
-                assert_eq!(f("t") as f32, want as f32, "after a seek to {asked} s the page shows t = {}", f("t"));
+                assert_eq!(
+                    f("t") as f32,
+                    want as f32,
+                    "after a seek to {asked} s the page shows t = {}",
+                    f("t")
+                );
                 self.check_head(f("t"), q["head"].as_array().unwrap());
                 json!({"ok": true, "frame_t": want})
             }
@@ -214,7 +217,10 @@ impl RawViewer {
                     }
                     Ok(_) => {}
                     Err(tungstenite::Error::Io(e))
-                        if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        ) => {}
                     Err(_) => break,
                 }
             }

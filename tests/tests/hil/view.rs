@@ -269,7 +269,12 @@ fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
     let tau = (s / 0.2).clamp(0.0, 1.0);
     let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
     let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
-    HandState { pos_m: home + (to - home) * p, vel_m_per_s: (to - home) * v, valid: true, ..Default::default() }
+    HandState {
+        pos_m: home + (to - home) * p,
+        vel_m_per_s: (to - home) * v,
+        valid: true,
+        ..Default::default()
+    }
 }
 
 fn boxing_world(opts: &ViewOptions) -> Hosting {
@@ -411,7 +416,8 @@ impl Hosting {
                 let head_m = self.latest().parts[head].0 - self.look.link_offset_m;
                 let r = rig();
                 let home = r.rig_to_world.point(r.hands[1].home_m);
-                let to = if q["hit"].as_bool().unwrap() { head_m } else { home + DVec3::new(0.35, 0.05, 0.0) };
+                let to =
+                    if q["hit"].as_bool().unwrap() { head_m } else { home + DVec3::new(0.35, 0.05, 0.0) };
                 let at = self.now();
                 *self.ctl.jab.lock().unwrap() = Some((at, to));
                 json!({"t_out": at + 0.2})
