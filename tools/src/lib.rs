@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod bench_record;
+pub mod bench_replay;
 pub mod bench_view;
 pub mod calib;
 pub mod child_world;

@@ -114,7 +114,8 @@ enum Cmd {
         #[arg(long, global = true)]
         json: bool,
     },
-    /// Print what a recording (`run --record`) holds; with --verify, re-run the rt-loop from its
+    /// Play a recording (`run --record`) into the live view (the page gets a playback bar: play,
+    /// pause, seek, speed) and print what it holds; with --verify, re-run the rt-loop from its
     /// recorded inputs and check every output bit for bit.
     Replay(spidar_tools::recording::ReplayArgs),
     /// Write one CSV file per channel of a recording, each with a header line.
@@ -365,6 +366,21 @@ enum BenchCmd {
         #[arg(long, default_value = "box")]
         script: String,
     },
+    /// Playing a recording into the view (`spidar replay`): the time to open it and to seek to
+    /// random times, and the frame rate it serves to WebSocket viewers at 1x.
+    Replay {
+        /// The recording (FILE.mcap with FILE.world.mcap next to it, or FILE.world.mcap).
+        file: PathBuf,
+        /// Seeks to random times.
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        seeks: u64,
+        /// WebSocket viewers reading every frame (at most 64).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+        viewers: u64,
+        /// Seconds of playing to them (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
+        seconds: f64,
+    },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
     /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
     /// rig with the world as a process and as a thread, alternating in one run.
@@ -573,6 +589,16 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 },
             )?;
             outln!("{rep}");
+            Ok(0)
+        }
+        Cmd::Bench { what: BenchCmd::Replay { file, seeks, viewers, seconds } } => {
+            use spidar_tools::bench_replay::{bench_replay, ReplayBenchOptions};
+            errln!(
+                "opening {}, {seeks} seeks, then {seconds} s of playing to {viewers} viewer(s) ...",
+                file.display()
+            );
+            let o = ReplayBenchOptions { file, seeks: seeks as usize, viewers: viewers as usize, seconds };
+            outln!("{}", bench_replay(&o)?);
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {

@@ -149,8 +149,8 @@ impl Replay {
         self.last_playback = Instant::now();
     }
 
-    /// Applies one command from a page; false when it is not one.
-    fn command(&mut self, text: &str) -> anyhow::Result<bool> {
+    /// Applies one command (as a page sends it); false when it is not one.
+    pub fn command(&mut self, text: &str) -> anyhow::Result<bool> {
         let Ok(c) = serde_json::from_str::<Value>(text) else { return Ok(false) };
         match c["cmd"].as_str() {
             Some("play") => self.player.play(true)?,

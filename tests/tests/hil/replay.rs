@@ -147,7 +147,11 @@ struct Serving {
 
 impl Serving {
     fn start(world: &Path, view: ViewOptions) -> Serving {
-        let r = Replay::start(world, &ReplayOptions { view, from_s: None, speed: 1.0, play: false }).unwrap();
+        Serving::with(world, &ReplayOptions { view, from_s: None, speed: 1.0, play: false })
+    }
+
+    fn with(world: &Path, o: &ReplayOptions) -> Serving {
+        let r = Replay::start(world, o).unwrap();
         let (url, ws, handle) = (r.url().to_string(), r.ws_url().to_string(), r.handle());
         let stop = Arc::new(AtomicBool::new(false));
         let s = stop.clone();
@@ -287,4 +291,20 @@ fn replay_of_a_recording_cut_short_plays_to_its_end_to_every_viewer() {
     let p = viewers[2].playback().unwrap();
     assert_eq!((p["t_s"].as_f64(), p["frame_t_s"].as_f64()), (Some(last), Some(last)));
     assert_eq!(s.handle.counters().viewers.load(Ordering::Relaxed), 3);
+}
+
+/// The README's picture of a replay (`docs/img/replay.png`), taken by the same harness: the bout
+/// playing from 3 s, with the playback bar.
+/// `cargo test -p spidar-tests --test hil replay_screenshot_for_the_readme -- --ignored`
+#[test]
+#[ignore = "writes docs/img: run by hand"]
+fn replay_screenshot_for_the_readme() {
+    if !browser_here("replay_screenshot_for_the_readme") {
+        return;
+    }
+    let _one = one_at_a_time();
+    let img = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../docs/img/replay.png");
+    let o = ReplayOptions { view: any_port(), from_s: Some(3.0), speed: 1.0, play: true };
+    let s = Serving::with(&bout().world, &o);
+    node(&["screenshot", &s.url, "orbit", img.to_str().unwrap(), "2"], |_| json!({"error": "no questions"}));
 }
