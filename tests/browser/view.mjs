@@ -350,6 +350,29 @@ async function replay(browser) {
   await second.close();
 }
 
+// A measurement, not a test: the frames N browsers each receive per second from a replay playing
+// at 1x, over SECONDS of wall time (`node view.mjs rate URL N SECONDS`).
+async function rate1(browser) {
+  const [n, seconds] = [Number(rest[0] || 1), Number(rest[1] || 5)];
+  const others = [];
+  for (let i = 1; i < n; i++) others.push(await launch());
+  const pages = [];
+  for (const b of [browser, ...others.map((o) => o.browser)]) pages.push(await open(b, url, 'camera=orbit'));
+  await pages[0].waitForFunction(() => spidarView.playback() !== null, { timeout: 60000 });
+  await pages[0].click('[data-pb=play]');
+  await sleep(1000);
+  const before = await Promise.all(pages.map((p) => state(p)));
+  const t0 = Date.now();
+  await sleep(seconds * 1000);
+  const after = await Promise.all(pages.map((p) => state(p)));
+  const wall = (Date.now() - t0) / 1000;
+  after.forEach((a, i) => {
+    const frames = a.framesReceived - before[i].framesReceived;
+    log(`browser ${i + 1} of ${n}: ${(frames / wall).toFixed(1)} frames/s received (${frames} in ${wall.toFixed(2)} s; the recording advanced ${(a.receivedT - before[i].receivedT).toFixed(2)} s)`);
+  });
+  for (const o of others) await o.close();
+}
+
 async function shot(browser) {
   const [camera, file, seconds] = rest;
   const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
@@ -358,4 +381,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, live, flash, replay, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, flash, replay, rate: rate1, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

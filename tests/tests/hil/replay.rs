@@ -308,3 +308,19 @@ fn replay_screenshot_for_the_readme() {
     let s = Serving::with(&bout().world, &o);
     node(&["screenshot", &s.url, "orbit", img.to_str().unwrap(), "2"], |_| json!({"error": "no questions"}));
 }
+
+/// A measurement (docs/view.md): the frames one and three browsers each receive per second from a
+/// replay of the bout playing at 1x.
+/// `cargo test -p spidar-tests --test hil replay_frame_rate_to_browsers -- --ignored --nocapture`
+#[test]
+#[ignore = "a measurement: run by hand"]
+fn replay_frame_rate_to_browsers() {
+    if !browser_here("replay_frame_rate_to_browsers") {
+        return;
+    }
+    let _one = one_at_a_time();
+    for n in ["1", "3"] {
+        let s = Serving::start(&bout().world, any_port());
+        node(&["rate", &s.url, n, "6"], |_| json!({"error": "no questions"}));
+    }
+}
