@@ -342,7 +342,7 @@ impl Player {
     /// Moves the position by `wall_s` of wall time at the speed, while playing. Returns the newest
     /// frame the position passed (None: the same frame is still showing). Stops at the end.
     pub fn advance(&mut self, wall_s: f64) -> Result<Option<&ViewFrameMsg>, RecordError> {
-        if !self.playing || !(wall_s > 0.0) {
+        if !self.playing || wall_s.is_nan() || wall_s <= 0.0 {
             return Ok(None);
         }
         self.t_s = (self.t_s + wall_s * self.speed).min(self.track.last_t_s);

@@ -723,6 +723,25 @@ fn view_observer_allocates_nothing_per_step() {
     let _ = reader.join();
 }
 
+/// The world's recorder after a step allocates nothing either: it makes the live view's frame (for
+/// `spidar replay`) with the view's own code, into buffers taken from its pool.
+#[test]
+fn world_recorder_allocates_nothing_per_step() {
+    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    let look = scene.look();
+    let path = std::env::temp_dir().join(format!("spidar-hil-alloc-{}.world.mcap", std::process::id()));
+    let info = spidar_record::world::WorldInfo { name: "boxing".into(), ..Default::default() };
+    let (rec, mut obs) = spidar_record::world::WorldRecording::start(&path, &info, &look).unwrap();
+    step_observed(&mut scene, 100, |v| obs.after_step(v));
+    let (before, _) = forbidden_allocs();
+    step_observed(&mut scene, 300, |v| no_alloc(|| obs.after_step(v)));
+    let (after, first) = forbidden_allocs();
+    assert_eq!(after - before, 0, "the recorder allocated (first: {first} bytes)");
+    let r = rec.finish();
+    assert!(r.steps + r.dropped == 400 && r.error.is_none(), "{r}");
+    let _ = std::fs::remove_file(&path);
+}
+
 // ---------------------------------------------------------------------------------------------
 // `spidar run`'s path: the view served by its child world process.
 
