@@ -89,15 +89,15 @@ impl Replay {
     }
 
     pub fn url(&self) -> &str {
-        self.view.url()
+        self.view.handle().url()
     }
 
     pub fn ws_url(&self) -> &str {
-        self.view.ws_url()
+        self.view.handle().ws_url()
     }
 
     pub fn handle(&self) -> ViewHandle {
-        self.view.counters_handle()
+        self.view.handle().clone()
     }
 
     pub fn player(&self) -> &Player {

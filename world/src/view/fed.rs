@@ -10,13 +10,13 @@ use glam::DVec3;
 use serde_json::Value;
 use spidar_msg::RigInfo;
 
-use super::{server, Shared, StatusData, ViewCounters, ViewError, ViewHandle, ViewOptions};
+use super::{server, Shared, StatusData, ViewError, ViewHandle, ViewOptions};
 
 /// A view whose frames, status and rig geometry its host publishes.
 pub struct FedView {
     shared: Arc<Shared>,
     server: Option<server::Server>,
-    urls: (String, String),
+    handle: ViewHandle,
 }
 
 impl FedView {
@@ -44,7 +44,8 @@ impl FedView {
         let shared = Shared::new(0, Some(commands));
         let server = server::Server::start(opts, shared.clone(), description.to_string(), counters, offset)?;
         let urls = (format!("http://{}", server.http_addr), format!("ws://{}", server.ws_addr));
-        Ok(FedView { shared, server: Some(server), urls })
+        let handle = ViewHandle { shared: shared.clone(), urls };
+        Ok(FedView { shared, server: Some(server), handle })
     }
 
     /// Hands the viewers a frame (the live view's binary frame, as words), a status, the rig's
@@ -81,22 +82,9 @@ impl FedView {
         self.shared.fresh.store(true, Ordering::Release);
     }
 
-    /// The page's address (`http://HOST:PORT`).
-    pub fn url(&self) -> &str {
-        &self.urls.0
-    }
-
-    /// The frames' address (`ws://HOST:PORT`).
-    pub fn ws_url(&self) -> &str {
-        &self.urls.1
-    }
-
-    pub fn counters(&self) -> &ViewCounters {
-        &self.shared.counters
-    }
-
-    pub fn counters_handle(&self) -> ViewHandle {
-        ViewHandle { shared: self.shared.clone(), urls: self.urls.clone() }
+    /// Its addresses and counters.
+    pub fn handle(&self) -> &ViewHandle {
+        &self.handle
     }
 }
 
