@@ -846,7 +846,8 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     if let (Some(choice), None) = (&choice, supervised) {
         let stop = Stop::install()?;
         let choice = choice.clone();
-        return supervisor::supervise(&stop, &mut || hardware::open_hardware(&choice));
+        let fifo = rt_options(&a.rig)?.fifo_priority;
+        return supervisor::supervise(&stop, fifo, &mut |page| hardware::open_for_takeover(&choice, page));
     }
     let stop = match supervised {
         Some(page) => Stop::install()?.with_forwarded(&page.stops),
@@ -965,7 +966,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             (Box::new(sim_device(&rig, scripts, &sim_opts)?), script.clone())
         }
         Some(choice) => {
-            let dev = hardware::open_hardware(&choice)?;
+            let dev = hardware::open_hardware_for(&choice, supervised)?;
             errln!(
                 "spidar: rig '{}' on {} ({}), scene {}{}",
                 rig.name,
