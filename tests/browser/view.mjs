@@ -1,7 +1,8 @@
 // The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
-// ASK lines): `node view.mjs boxing|crowd|live URL`, and `node view.mjs screenshot URL CAMERA FILE`
-// for the README's pictures.
-import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
+// ASK lines): `node view.mjs boxing|crowd|live|flash URL`, and `node view.mjs screenshot URL CAMERA
+// FILE` for the README's pictures; `node view.mjs replay URL`, run by tests/tests/hil/replay.rs,
+// for a recording played into the view (`spidar replay`).
+import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN, FLASH } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
 const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
@@ -202,6 +203,53 @@ async function crowd(browser) {
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
 }
 
+// A hit as a flash on the part hit: a jab that misses lights nothing, one that lands on the
+// passive virtual human lights the part it lands on (the page's state and its pixels).
+async function flash(browser) {
+  const desc = await describe();
+  const vh = desc.shapes.filter((s) => s.name.startsWith('virtual human/')).map((s) => s.name);
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+  const parts = () => a.evaluate((vh) => vh.map((n) => { const s = spidarView.shape(n); return { n, flash: s.flash, force: s.force }; }), vh);
+  const headAt = async () => (await a.evaluate(() => spidarView.shape('virtual human/head'))).screen;
+
+  // 1. A jab that misses: no part ever flashes, none takes a force; the head is drawn red.
+  const miss = await ask({ ask: 'jab', hit: false });
+  let worst = { flash: 0, force: 0 };
+  while ((await state(a)).t < miss.t_out + 0.5) {
+    for (const p of await parts()) worst = { flash: Math.max(worst.flash, p.flash), force: Math.max(worst.force, p.force) };
+    await sleep(30);
+  }
+  check(worst.flash === 0 && worst.force === 0, 'a jab that misses lights no part of the virtual human');
+  await pause(a);
+  const h1 = await headAt();
+  const [missFlash, missRed] = [await pixels(a, FLASH, around(h1, 30)), await pixels(a, RED, around(h1, 30))];
+  check(missFlash.n < 30 && missRed.n > 300, `the head is drawn red (${missRed.n} red, ${missFlash.n} flash pixels)`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
+
+  // 2. A jab at the head, held there: the part it lands on flashes (the page is paused on the first
+  // frame that lights a part fully).
+  const hit = await ask({ ask: 'jab', hit: true });
+  await a.waitForFunction((vh) => {
+    if (!vh.some((n) => spidarView.shape(n).flash === 1)) return false;
+    spidarView.pause();
+    return true;
+  }, { timeout: 60000, polling: 'raf' }, vh);
+  await a.evaluate(() => spidarView.rendered());
+  const fist = (await a.evaluate(() => spidarView.grips()))[1];
+  const lit = (await parts()).filter((p) => p.flash > 0);
+  const full = lit.filter((p) => p.flash === 1);
+  const shapes = await a.evaluate((names) => names.map((n) => spidarView.shape(n)), full.map((p) => p.n));
+  const near = shapes.map((s, i) => ({ n: full[i].n, force: full[i].force, d: dist(s.pos, fist.pos), screen: s.screen }))
+    .sort((x, y) => x.d - y.d)[0];
+  check(near.force > 1 && near.d < 0.2, `the part the fist is on flashes: ${near.n} (${near.force.toFixed(1)} N, its centre ${(near.d * 100).toFixed(0)} cm from the fist; lit: ${lit.map((p) => p.n).join(', ')})`);
+  const hitFlash = await pixels(a, FLASH, around(near.screen, 30));
+  check(hitFlash.n > 150 && hitFlash.n > 5 * (missFlash.n + 1), `it is drawn lit (${hitFlash.n} flash pixels; the missed jab: ${missFlash.n})`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
+}
+
 // The page as a user opens it from the address `spidar run`'s world process printed: frames flow,
 // the virtual human is drawn where they put it, the grips are shown, the HUD shows the rig and the
 // world's link (checked against the world's own /status.json by the Rust test).
@@ -224,6 +272,125 @@ async function live(browser) {
   await ask({ ask: 'check_live', t: p.t, hud: await a.evaluate(() => spidarView.hud()), page_steps: st.status.steps });
 }
 
+// Pauses the page on the frame it shows, checks the virtual human's head is drawn there (mesh at
+// the frame's numbers, red pixels at its place on the screen) and asks the Rust test whether the
+// recording has it there at that time (`question`: check_pose, or check_seek with `extra`).
+async function headAsRecorded(page, question, extra = {}) {
+  const p = await pause(page);
+  const head = await page.evaluate(() => spidarView.shape('virtual human/head'));
+  check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');
+  const r = await ask({ ask: question, t: p.t, head: head.frame, ...extra });
+  const px = await pixels(page, RED, around(head.screen, 45));
+  check(px.n > 300, `the head is drawn at its place at t = ${p.t.toFixed(3)} s (${px.n} red pixels)`);
+  await page.evaluate(() => spidarView.resume());
+  return { t: p.t, r };
+}
+
+// The replay's frames against its own clock, at `speed`: from the playback messages the page got
+// while playing at that speed (after the `since`-th), each with the newest frame's time when it
+// came.
+const logLength = (page) => page.evaluate(() => spidarView.playbackLog().length);
+async function rate(page, speed, clockSpan, since) {
+  const log = await page.waitForFunction((speed, span, since) => {
+    const l = spidarView.playbackLog().slice(since).filter((e) => e.playing && e.speed === speed && e.frame_t !== null);
+    return l.length >= 2 && l[l.length - 1].clock_s - l[0].clock_s >= span ? l : null;
+  }, { timeout: 60000, polling: 100 }, speed, clockSpan, since).then((h) => h.jsonValue());
+  const [a, b] = [log[0], log[log.length - 1]];
+  return { r: (b.frame_t - a.frame_t) / (b.clock_s - a.clock_s), clock: b.clock_s - a.clock_s, frames: b.frame_t - a.frame_t };
+}
+
+async function replay(browser) {
+  const a = await open(browser, url, 'camera=orbit');
+  const pb = () => a.evaluate(() => spidarView.playback());
+  await a.waitForFunction(() => spidarView.playback() !== null, { timeout: 60000, polling: 50 });
+  let p = await pb();
+  const { first_s: first, last_s: last } = p;
+  const bar = await a.evaluate(() => getComputedStyle(document.getElementById('playback')).display);
+  check(bar !== 'none' && (await state(a)).replay, 'the page shows the playback bar');
+  check(!p.playing && p.button === 'play', `a replay opens paused (${p.shown}, ${p.file})`);
+  check(Math.abs((await state(a)).t - first) < 1e-3, `on its first frame (t = ${first} s)`);
+
+  // 1. Playing: frames arrive, the virtual human is drawn where the recording has it.
+  await a.click('[data-pb=play]');
+  await untilTime(a, first + 1.0);
+  const n1 = (await state(a)).framesReceived;
+  check(n1 > 20, `frames arrive while playing (${n1})`);
+  await headAsRecorded(a, 'check_pose');
+
+  // 2. Pause: the time stands still (no frame comes, the position does not move).
+  await a.click('[data-pb=play]');
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  await a.waitForFunction(() => Math.abs(spidarView.state().receivedT - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [s2, p2, log2] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  await sleep(1500);
+  const [s3, p3, log3] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  check(log3 > log2, `the paused replay still talks to the page (${log3 - log2} playback messages)`);
+  check(s3.framesReceived === s2.framesReceived && s3.receivedT === s2.receivedT && p3.t_s === p2.t_s && p3.clock_s === p2.clock_s,
+    `paused, the time does not advance (t = ${s3.receivedT.toFixed(3)} s, ${s3.framesReceived} frames before and after)`);
+
+  // 3. Seeks, forward and back, with the slider: the page shows the recording's frame at that time.
+  for (const frac of [0.7, 0.25]) {
+    const asked = await a.evaluate((T) => {
+      const s = document.querySelector('[data-pb=slider]');
+      s.value = String(T);
+      s.dispatchEvent(new Event('change'));
+      return Number(s.value);
+    }, first + frac * (last - first));
+    await a.waitForFunction((T) => { const t = spidarView.state().t; return t !== null && t <= T + 1e-4 && t > T - 0.1; },
+      { timeout: 60000, polling: 50 }, asked);
+    const { t } = await headAsRecorded(a, 'check_seek', { asked });
+    const shown = (await pb()).shown;
+    check(shown.startsWith(t.toFixed(2)), `after the seek to ${asked} s the bar shows ${shown}`);
+  }
+
+  // 4. Speed: at 2x the frames advance twice as fast as at 1x, by the replay's own clock.
+  const since1 = await logLength(a);
+  await a.click('[data-pb=play]');
+  const r1 = await rate(a, 1, 1.5, since1);
+  const since2 = await logLength(a);
+  await a.select('[data-pb=speed]', '2');
+  const r2 = await rate(a, 2, 1.5, since2);
+  log(`1x: ${r1.frames.toFixed(3)} s of frames in ${r1.clock.toFixed(3)} s of the replay's clock; 2x: ${r2.frames.toFixed(3)} s in ${r2.clock.toFixed(3)} s`);
+  check(Math.abs(r1.r - 1) < 0.15, `1x plays the recording at its own pace (${r1.r.toFixed(3)})`);
+  check(Math.abs(r2.r - 2) < 0.3, `2x plays it twice as fast (${r2.r.toFixed(3)})`);
+  await a.click('[data-pb=play]');
+
+  // 5. A second browser sees the same frame.
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  const second = await launch();
+  const b = await open(second.browser, url, 'camera=orbit');
+  await a.waitForFunction(() => Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5, { timeout: 60000, polling: 50 });
+  await b.waitForFunction(() => spidarView.playback() && Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [ta, tb] = [(await state(a)).t, (await state(b)).t];
+  check(ta === tb, `both browsers show the frame at t = ${ta.toFixed(3)} s`);
+  await second.close();
+}
+
+// A measurement, not a test: the frames N browsers each receive per second from a replay playing
+// at 1x, over SECONDS of wall time (`node view.mjs rate URL N SECONDS`).
+async function rate1(browser) {
+  const [n, seconds] = [Number(rest[0] || 1), Number(rest[1] || 5)];
+  const others = [];
+  for (let i = 1; i < n; i++) others.push(await launch());
+  const pages = [];
+  for (const b of [browser, ...others.map((o) => o.browser)]) pages.push(await open(b, url, 'camera=orbit'));
+  await pages[0].waitForFunction(() => spidarView.playback() !== null, { timeout: 60000 });
+  await pages[0].click('[data-pb=play]');
+  await sleep(1000);
+  const before = await Promise.all(pages.map((p) => state(p)));
+  const t0 = Date.now();
+  await sleep(seconds * 1000);
+  const after = await Promise.all(pages.map((p) => state(p)));
+  const wall = (Date.now() - t0) / 1000;
+  after.forEach((a, i) => {
+    const frames = a.framesReceived - before[i].framesReceived;
+    log(`browser ${i + 1} of ${n}: ${(frames / wall).toFixed(1)} frames/s received (${frames} in ${wall.toFixed(2)} s; the recording advanced ${(a.receivedT - before[i].receivedT).toFixed(2)} s)`);
+  });
+  for (const o of others) await o.close();
+}
+
 async function shot(browser) {
   const [camera, file, seconds] = rest;
   const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
@@ -232,4 +399,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, live, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, flash, replay, rate: rate1, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

@@ -50,6 +50,31 @@ pub struct Layout {
 }
 
 impl Layout {
+    /// The layout of `look`'s frames, with an id that changes with the look (FNV-1a over its
+    /// sizes and names): a page that described another look ignores the frames.
+    pub fn for_look(look: &Look) -> Layout {
+        let mut h: u32 = 0x811c_9dc5;
+        let mut eat = |b: &[u8]| {
+            for x in b {
+                h ^= *x as u32;
+                h = h.wrapping_mul(0x0100_0193);
+            }
+        };
+        for s in &look.shapes {
+            eat(s.name.as_bytes());
+        }
+        for l in &look.labels {
+            eat(l.name.as_bytes());
+        }
+        if let Some(c) = &look.crowd {
+            eat(&(c.characters as u64).to_le_bytes());
+            for j in &c.joints {
+                eat(j.name.as_bytes());
+            }
+        }
+        Layout::of(look, h)
+    }
+
     pub fn of(look: &Look, id: u32) -> Layout {
         let shapes = look.shapes.len();
         let labels = look.labels.len();
