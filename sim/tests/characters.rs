@@ -325,6 +325,92 @@ fn the_drawn_figure_stays_on_the_body() {
     assert!(walk.max_slide_m < 0.01, "walking, a planted foot slid {:.3} m", walk.max_slide_m);
 }
 
+/// A character's [`drawn::FigureState`], copied after a step and turned into its figure a few steps
+/// later (as a viewer's thread does while the crowd steps on), gives the joints `world_joints` gave
+/// at the step copied, bit for bit: over a wandering crowd pushed over and over, through every
+/// control state, behaviour blends, swinging feet, the legs handing over to the keyframes and
+/// leans past the polar poses' start (each of which is checked to have been met).
+#[test]
+fn a_copied_figure_state_draws_the_figure_of_its_step() {
+    use spidar_sim::character::drawn::{world_joints, FigureState, Figures};
+    use spidar_sim::character::keyframe::MAX_JOINTS;
+    let mut c = crowd();
+    c.seed(4);
+    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
+    let mut rng = Pcg64::seed_from_u64(4);
+    for i in 0..30 {
+        c.add(
+            (i % 6) as f64 * 1.1 - 3.0,
+            (i / 6) as f64 * 1.1 - 3.0,
+            rng.random_range(-3.0..3.0),
+            Goal::Stand,
+        );
+    }
+    let figures = Figures::of(&c);
+    let n = figures.joints();
+    let mut seen_policies = Vec::new();
+    let (mut blends, mut swings, mut handovers, mut polar, mut moved) = (0, 0, 0, 0, 0);
+    // Copies made 4 steps ago: (states, the joints world_joints gave then).
+    type Copy = (Vec<FigureState>, Vec<[glam::DVec3; MAX_JOINTS]>);
+    let mut pending: std::collections::VecDeque<Copy> = Default::default();
+    for k in 0..(14.0 / DT) as usize {
+        if k % 60 == 30 {
+            let i = rng.random_range(0..c.len());
+            let b = c.body_space(i);
+            let d = DVec3::new(rng.random_range(-1.0..1.0), 0.0, rng.random_range(-1.0..1.0)).normalize();
+            c.add_impulse_at(i, b.r_m + DVec3::Y * rng.random_range(0.0..0.6), d * 110.0);
+        }
+        c.step();
+        if k % 5 != 0 {
+            continue;
+        }
+        if pending.len() == 4 {
+            let (states, then) = pending.pop_front().unwrap();
+            for (i, (s, want)) in states.iter().zip(&then).enumerate() {
+                let mut got = [DVec3::ZERO; MAX_JOINTS];
+                assert_eq!(figures.world_joints(s, &mut got), n);
+                for j in 0..n {
+                    assert_eq!(
+                        [got[j].x.to_bits(), got[j].y.to_bits(), got[j].z.to_bits()],
+                        [want[j].x.to_bits(), want[j].y.to_bits(), want[j].z.to_bits()],
+                        "character {i} joint {j}, copied 20 steps before step {k}"
+                    );
+                }
+                let mut now = [DVec3::ZERO; MAX_JOINTS];
+                world_joints(&c, i, &mut now);
+                moved += usize::from(now[..n] != want[..n]);
+            }
+        }
+        let mut states = Vec::new();
+        let mut then = Vec::new();
+        for i in 0..c.len() {
+            states.push(FigureState::of(&c, i));
+            let mut j = [DVec3::ZERO; MAX_JOINTS];
+            assert_eq!(world_joints(&c, i, &mut j), n);
+            then.push(j);
+            let ch = &c.chars[i];
+            if !seen_policies.contains(&ch.control.policy) {
+                seen_policies.push(ch.control.policy);
+            }
+            blends += usize::from(ch.anim.blend < 1.0 && ch.anim.from_behaviour != ch.anim.behaviour);
+            swings += usize::from(ch.control.feet.foot.iter().any(|f| !f.planted()));
+            handovers += usize::from(ch.control.feet.grip > 0.0 && ch.control.feet.grip < 1.0);
+            polar += usize::from(c.spaces[i].e_yr.y < 0.52f64.cos());
+        }
+        pending.push_back((states, then));
+    }
+    assert_eq!(seen_policies.len(), 4, "control states met: {seen_policies:?}");
+    for (what, count) in [
+        ("behaviour blends", blends),
+        ("swinging feet", swings),
+        ("leg handovers", handovers),
+        ("polar leans", polar),
+    ] {
+        assert!(count > 0, "no {what} met");
+    }
+    assert!(moved > 0, "the figures never moved between a copy and its drawing");
+}
+
 /// Walking to a point and stopping: it arrives without overshooting, stands still with its feet
 /// side by side under it, and shows the standing pose (not a frozen stride).
 #[test]

@@ -3,13 +3,23 @@
 //! floor, how far it jumps in one step, and how far a drawn foot slides while its foot is planted.
 //! The character tests and `spidar eval poses` use these; the live view draws the same joints.
 //!
+//! A figure takes some 0.3 us a character to compute, too long for the world's stepping thread in
+//! a big crowd. So a viewer or a recorder copies each character's [`FigureState`] there (the few
+//! numbers a figure depends on that change from step to step, a copy of a few hundred bytes) and
+//! computes the figures on its own thread with [`Figures`] (what never changes), while the crowd
+//! steps on: the same joints, bit for bit, as [`world_joints`] gives at the step copied.
+//!
 //! Must never: change a character; these only read.
 
-use glam::{DMat3, DVec3, Vec3};
+use glam::{DMat3, DQuat, DVec3, Vec3};
 
+use super::controller::{ControllerParams, ControllerState, Ground};
 use super::crowd::{Crowd, CrowdBody, PARALLEL_MIN};
-use super::keyframe::{Pose, MAX_JOINTS};
+use super::feet::{Feet, Foot};
+use super::keyframe::{Joint, KeyframeSet, Pose, MAX_JOINTS};
 use super::legs::joint_positions;
+use super::space::{BodySpace, Heading};
+use super::{Character, Correspondence};
 use crate::collide::Shape;
 
 /// World positions of the joints of character `i` as drawn: its pose ([`Crowd::pose`], in `S_r`)
@@ -22,16 +32,154 @@ pub fn world_joints(c: &Crowd, i: usize, out: &mut [DVec3; MAX_JOINTS]) -> usize
 
 /// [`world_joints`] of a pose already computed.
 pub fn world_joints_of(c: &Crowd, i: usize, pose: &Pose, out: &mut [DVec3; MAX_JOINTS]) -> usize {
-    let n = c.set.joints.len().min(MAX_JOINTS);
-    let mut local = [Vec3::ZERO; MAX_JOINTS];
-    joint_positions(&c.set.joints, pose, &mut local);
     let s = &c.bodies[i];
-    let r = DMat3::from_quat(s.rot);
-    let com = s.pos_m + r * c.body.com_m;
+    place(&c.set.joints, pose, s.pos_m, s.rot, c.body.com_m, out)
+}
+
+/// The joints of `pose` (in `S_r`) placed on a body at `pos_m`, `rot` whose centre of mass is at
+/// `com_m` in its own frame. Returns how many joints the skeleton has.
+fn place(
+    joints: &[Joint],
+    pose: &Pose,
+    pos_m: DVec3,
+    rot: DQuat,
+    com_m: DVec3,
+    out: &mut [DVec3; MAX_JOINTS],
+) -> usize {
+    let n = joints.len().min(MAX_JOINTS);
+    let mut local = [Vec3::ZERO; MAX_JOINTS];
+    joint_positions(joints, pose, &mut local);
+    let r = DMat3::from_quat(rot);
+    let com = pos_m + r * com_m;
     for k in 0..n {
         out[k] = com + r * local[k].as_dvec3();
     }
     n
+}
+
+/// What character `i`'s drawn figure depends on that changes from step to step, copied after a
+/// step ([`FigureState::of`]): the body's pose, and the parts of the rigid-body space at the
+/// step's start, of the correspondence, the feet and the floor that [`Character::pose`] reads.
+/// [`Figures::world_joints`] turns it into the figure [`world_joints`] gives at that step.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FigureState {
+    /// The body's pose after the step (where the figure is placed).
+    pub pos_m: DVec3,
+    pub rot: DQuat,
+    /// The rigid-body space at the step's start: centre of mass, leans, the body's axes, and the
+    /// heading's front axis (x and z; its side axis follows from them, [`Heading::of`]).
+    pub r_m: DVec3,
+    pub theta_x: f64,
+    pub theta_z: f64,
+    pub e_xr: DVec3,
+    pub e_yr: DVec3,
+    pub e_zr: DVec3,
+    pub heading_zc: [f64; 2],
+    pub anim: Correspondence,
+    /// Each foot's place on the floor and its swing (time into it, length; 0: planted).
+    pub foot_m: [DVec3; 2],
+    pub swing_s: [[f64; 2]; 2],
+    /// How much the drawn legs stand on the feet.
+    pub grip: f32,
+    /// The floor under it as the step's contacts saw it: normal force (N) and height (m).
+    pub ground_n: f64,
+    pub ground_y_m: f64,
+}
+
+impl FigureState {
+    /// Character `i`'s state as it is drawn now.
+    #[inline]
+    pub fn of(c: &Crowd, i: usize) -> FigureState {
+        let (b, s, ch) = (&c.bodies[i], &c.spaces[i], &c.chars[i]);
+        let feet = &ch.control.feet;
+        let foot = |k: usize| &feet.foot[k];
+        FigureState {
+            pos_m: b.pos_m,
+            rot: b.rot,
+            r_m: s.r_m,
+            theta_x: s.theta_x,
+            theta_z: s.theta_z,
+            e_xr: s.e_xr,
+            e_yr: s.e_yr,
+            e_zr: s.e_zr,
+            heading_zc: [s.heading.e_zc.x, s.heading.e_zc.z],
+            anim: ch.anim,
+            foot_m: [foot(0).pos_m, foot(1).pos_m],
+            swing_s: [[foot(0).swing_s, foot(0).swing_s_total], [foot(1).swing_s, foot(1).swing_s_total]],
+            grip: feet.grip,
+            ground_n: ch.ground.normal_n,
+            ground_y_m: ch.ground.point_m.y,
+        }
+    }
+
+    /// A character and its rigid-body space as far as the drawn pose reads them (the rest left
+    /// at its default).
+    fn character(&self) -> (Character, BodySpace) {
+        let [sin, cos] = self.heading_zc;
+        let space = BodySpace {
+            r_m: self.r_m,
+            theta_x: self.theta_x,
+            theta_z: self.theta_z,
+            e_xr: self.e_xr,
+            e_yr: self.e_yr,
+            e_zr: self.e_zr,
+            heading: Heading { e_xc: DVec3::new(cos, 0.0, -sin), e_zc: DVec3::new(sin, 0.0, cos) },
+            ..BodySpace::default()
+        };
+        let foot = |k: usize| Foot {
+            pos_m: self.foot_m[k],
+            swing_s: self.swing_s[k][0],
+            swing_s_total: self.swing_s[k][1],
+            ..Foot::default()
+        };
+        let ch = Character {
+            anim: self.anim,
+            control: ControllerState {
+                feet: Feet { foot: [foot(0), foot(1)], grip: self.grip, ..Feet::default() },
+                ..ControllerState::default()
+            },
+            ground: Ground { normal_n: self.ground_n, point_m: DVec3::new(0.0, self.ground_y_m, 0.0) },
+            ..Character::default()
+        };
+        (ch, space)
+    }
+}
+
+/// Every character's [`FigureState`] (as many as `out` holds), in `out`.
+pub fn figure_states(c: &Crowd, out: &mut [FigureState]) {
+    for (i, s) in out.iter_mut().take(c.len()).enumerate() {
+        *s = FigureState::of(c, i);
+    }
+}
+
+/// What every drawn figure of a crowd depends on that never changes: the keyframe set (skeleton,
+/// keys, legs), the controller's step height, the body's centre of mass. Made once
+/// ([`Figures::of`]) for the thread that turns [`FigureState`]s into figures.
+#[derive(Clone, Debug)]
+pub struct Figures {
+    set: KeyframeSet,
+    controller: ControllerParams,
+    com_m: DVec3,
+}
+
+impl Figures {
+    pub fn of(c: &Crowd) -> Figures {
+        Figures { set: c.set.clone(), controller: c.params.controller, com_m: c.body.com_m }
+    }
+
+    /// Joints of the skeleton.
+    pub fn joints(&self) -> usize {
+        self.set.joints.len().min(MAX_JOINTS)
+    }
+
+    /// The world positions of the joints of the figure of `s` (as [`world_joints`] gives them at
+    /// the step `s` was copied after). Returns how many joints the skeleton has.
+    pub fn world_joints(&self, s: &FigureState, out: &mut [DVec3; MAX_JOINTS]) -> usize {
+        let (ch, space) = s.character();
+        let mut pose = Pose::default();
+        ch.pose(&space, &self.set, &self.controller, &mut pose);
+        place(&self.set.joints, &pose, s.pos_m, s.rot, self.com_m, out)
+    }
 }
 
 /// Every character's drawn figure in the world ([`world_joints`]), handed to `f(i, joints, slot)`
