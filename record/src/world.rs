@@ -7,7 +7,9 @@
 //! The stepping thread never waits for the disk: the observer copies one step's numbers into a
 //! buffer taken from a fixed pool and hands it over with `try_send`; when every buffer is still
 //! queued (the writer or the disk lags) the step is dropped and counted. It allocates nothing
-//! after the first step.
+//! after the first step. A crowd's drawn figures (for its skeletons and the view's frames) are
+//! not computed there: on the steps that need them the observer copies the characters' figure
+//! states into a buffer of a second, smaller pool, and the writer computes the figures.
 //!
 //! It also keeps what the live view drew, for `spidar replay` to draw it again exactly: the
 //! view's frames at display rate with the heads-up display's numbers (`/world/view`), and the
@@ -28,12 +30,13 @@ use glam::{DQuat, DVec3, Quat, Vec3};
 use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, WriteOptions, Writer};
 use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
+use spidar_sim::character::drawn::FigureState;
 use spidar_sim::collide::Shape;
 use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
 use spidar_world::look::{
     Look, LookShape, CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS, MAX_COUNTERS, SHAPE_FLOATS,
 };
-use spidar_world::view::{FrameMaker, Layout, StatusData};
+use spidar_world::view::{FrameFinisher, FrameMaker, Layout, StatusData};
 use spidar_world::{Observer, StepView};
 
 use crate::cdr::{self, Field};
@@ -62,6 +65,9 @@ pub const SCENE_EVERY_S: f64 = 1.0;
 pub const SKELETON_EVERY_S: f64 = 1.0 / 60.0;
 /// Steps the queue to the writer holds (a second of boxing steps).
 pub const QUEUE_STEPS: usize = 384;
+/// Buffers of a crowd's figure states (one per step that draws the figures, a fifth of the steps
+/// or fewer: a sixth of the queue).
+pub const FIGURE_BUFFERS: usize = QUEUE_STEPS / 6;
 /// Uncompressed bytes of messages per chunk.
 pub const CHUNK_BYTES: u64 = 1 << 20;
 
@@ -598,13 +604,23 @@ pub(crate) struct Snap {
     samples: u32,
     proxies: u8,
     /// The live view's frame of this step ([`Layout`]): the scene's poses every step, the rest
-    /// when `view` (a frame the view would have sent).
+    /// when `view` (a frame the view would have sent); a crowd's figures only with `figures`.
     frame: Vec<f32>,
     words: usize,
     view: bool,
+    /// Every entity is written again; the crowd's skeletons are.
+    full: bool,
+    skeletons: bool,
+    /// The crowd's figure states, on the steps that draw the figures (`view` or `skeletons`).
+    figures: Option<Vec<FigureState>>,
     status: StatusData,
     rig_info: Option<RigInfo>,
     decisions: Option<Decisions>,
+}
+
+/// Character `i`'s control state in a frame.
+fn state_of(frame: &[f32], l: &Layout, i: usize) -> u8 {
+    frame[l.characters_at + i * l.character_floats + CHARACTER_STATE].max(0.0) as u8
 }
 
 enum ToWriter {
@@ -616,16 +632,33 @@ enum ToWriter {
 pub struct WorldRecorder {
     maker: FrameMaker,
     next_view_t_s: f64,
+    next_scene_t_s: f64,
+    next_skeleton_t_s: f64,
+    /// The crowd's states at the last step queued, and at this one.
+    prev_states: Vec<u8>,
+    states: Vec<u8>,
     full: Sender<ToWriter>,
     pub(crate) free: Receiver<Box<Snap>>,
+    /// A buffer taken for a step that was dropped, for the next step.
+    spare: Option<Box<Snap>>,
+    figures_free: Receiver<Vec<FigureState>>,
+    /// Figure states a step that draws the figures copies (0: the scene has none).
+    figure_states: usize,
     dropped: Arc<AtomicU64>,
     steps: u64,
+}
+
+impl WorldRecorder {
+    fn drop_step(&mut self, snap: Box<Snap>) {
+        self.spare = Some(snap);
+        self.dropped.fetch_add(1, Ordering::Relaxed);
+    }
 }
 
 impl Observer for WorldRecorder {
     fn after_step(&mut self, s: &StepView<'_>) {
         self.steps += 1;
-        let Ok(mut snap) = self.free.try_recv() else {
+        let Some(mut snap) = self.spare.take().or_else(|| self.free.try_recv().ok()) else {
             self.dropped.fetch_add(1, Ordering::Relaxed);
             return;
         };
@@ -633,19 +666,41 @@ impl Observer for WorldRecorder {
         snap.t_s = s.t_s;
         snap.samples = s.samples.len() as u32;
         snap.proxies = s.model.proxy_count;
-        // What the live view would draw, as it makes it.
+        // What the live view would draw, as it makes it (the figures, when drawn, by the writer).
         self.maker.observe(s, true);
         snap.view = s.t_s >= self.next_view_t_s;
-        if snap.view {
-            self.next_view_t_s = s.t_s + VIEW_EVERY_S;
+        snap.words = self.maker.write(&mut snap.frame, s, snap.view, false);
+        // Which steps draw the skeletons: at display rate, with every entity, and when a
+        // character's state (its colour) changes.
+        let l = *self.maker.layout();
+        self.states.clear();
+        self.states.extend((0..l.characters).map(|i| state_of(&snap.frame, &l, i)));
+        snap.full = s.t_s >= self.next_scene_t_s;
+        snap.skeletons = l.characters > 0
+            && (snap.full || s.t_s >= self.next_skeleton_t_s || self.states != self.prev_states);
+        if self.figure_states > 0 && (snap.view || snap.skeletons) {
+            let Ok(mut figures) = self.figures_free.try_recv() else { return self.drop_step(snap) };
+            s.scene.figure_states(&mut figures);
+            snap.figures = Some(figures);
         }
-        snap.words = self.maker.write(&mut snap.frame, s, snap.view);
         snap.status = *self.maker.status();
         snap.rig_info = s.rig_info.copied();
         snap.decisions = s.scene.decisions();
+        let (t, view, full, skeletons) = (s.t_s, snap.view, snap.full, snap.skeletons);
         if self.full.try_send(ToWriter::Step(snap)).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
         }
+        if view {
+            self.next_view_t_s = t + VIEW_EVERY_S;
+        }
+        if full {
+            self.next_scene_t_s = t + SCENE_EVERY_S;
+        }
+        if skeletons {
+            self.next_skeleton_t_s = t + SKELETON_EVERY_S;
+        }
+        std::mem::swap(&mut self.states, &mut self.prev_states);
     }
 }
 
@@ -677,17 +732,25 @@ impl WorldRecording {
                 frame: vec![0.0; layout.max_words],
                 words: 0,
                 view: false,
+                full: false,
+                skeletons: false,
+                figures: None,
                 status: StatusData::default(),
                 rig_info: None,
                 decisions: None,
             };
             let _ = free_tx.try_send(Box::new(snap));
         }
+        let figure_states = w.finisher.states();
+        let (figures_tx, figures_rx) = bounded::<Vec<FigureState>>(FIGURE_BUFFERS);
+        for _ in 0..if figure_states > 0 { FIGURE_BUFFERS } else { 0 } {
+            let _ = figures_tx.try_send(vec![FigureState::default(); figure_states]);
+        }
         let dropped = Arc::new(AtomicU64::new(0));
         let d = dropped.clone();
         let handle = std::thread::Builder::new()
             .name("spidar-world-recorder".into())
-            .spawn(move || w.run(full_rx, free_tx, d))
+            .spawn(move || w.run(full_rx, free_tx, figures_tx, d))
             .map_err(|e| RecordError::Write {
                 path: path.to_path_buf(),
                 why: format!("starting the recorder thread: {e}"),
@@ -695,8 +758,15 @@ impl WorldRecording {
         let rec = WorldRecorder {
             maker: FrameMaker::new(look),
             next_view_t_s: f64::NEG_INFINITY,
+            next_scene_t_s: f64::NEG_INFINITY,
+            next_skeleton_t_s: f64::NEG_INFINITY,
+            prev_states: Vec::with_capacity(layout.characters),
+            states: Vec::with_capacity(layout.characters),
             full: full_tx.clone(),
             free: free_rx,
+            spare: None,
+            figures_free: figures_rx,
+            figure_states,
             dropped: dropped.clone(),
             steps: 0,
         };
@@ -752,10 +822,9 @@ struct WorldWriter {
     buf: Vec<u8>,
     look: Look,
     layout: Layout,
+    finisher: FrameFinisher,
     shapes: Vec<Drawn>,
     statics: Vec<SceneEntity>,
-    next_scene_t_s: f64,
-    next_skeleton_t_s: f64,
     prev: Option<Decisions>,
     prev_labels: Vec<u8>,
     prev_states: Vec<u8>,
@@ -922,11 +991,10 @@ impl WorldWriter {
             start_ns,
             buf: Vec::with_capacity(1 << 16),
             layout,
+            finisher: FrameFinisher::new(look),
             look: look.clone(),
             shapes,
             statics,
-            next_scene_t_s: f64::NEG_INFINITY,
-            next_skeleton_t_s: f64::NEG_INFINITY,
             prev: None,
             prev_labels: Vec::new(),
             prev_states: Vec::new(),
@@ -938,11 +1006,17 @@ impl WorldWriter {
         mut self,
         rx: Receiver<ToWriter>,
         free: Sender<Box<Snap>>,
+        figures_free: Sender<Vec<FigureState>>,
         dropped: Arc<AtomicU64>,
     ) -> WorldRecordingReport {
         for m in rx {
             match m {
-                ToWriter::Step(snap) => {
+                ToWriter::Step(mut snap) => {
+                    // The crowd's figures, drawn here from the states the step copied.
+                    if let Some(figures) = snap.figures.take() {
+                        self.finisher.finish(&mut snap.frame[..snap.words], &figures);
+                        let _ = figures_free.try_send(figures);
+                    }
                     self.write_step(&snap, dropped.load(Ordering::Relaxed));
                     let _ = free.try_send(snap);
                 }
@@ -1022,16 +1096,16 @@ impl WorldWriter {
                 translation: v3(c[0] as f64, c[1] as f64, c[2] as f64),
                 rotation: Quaternion { x: c[3] as f64, y: c[4] as f64, z: c[5] as f64, w: c[6] as f64 },
             });
-            states.push(c[CHARACTER_STATE].max(0.0) as u8);
+            states.push(state_of(&s.frame, &l, i));
         }
         ok = ok && self.put(TF, s.t_s, &tf);
         // What the bodies look like: every entity now and then; labels when they change; the
-        // crowd's skeletons every step (they move within their frames).
+        // crowd's skeletons (they move within their frames) at display rate, with every entity and
+        // when a character's state changes (as the observer decided).
         let labels: Vec<u8> = (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
-        let full = s.t_s >= self.next_scene_t_s;
+        let full = s.full;
         let mut update = SceneUpdate::default();
         if full {
-            self.next_scene_t_s = s.t_s + SCENE_EVERY_S;
             for d in &self.shapes {
                 update.entities.push(SceneEntity { timestamp: stamp, ..d.entity.clone() });
             }
@@ -1061,9 +1135,7 @@ impl WorldWriter {
                 });
             }
         }
-        let skeletons = full || s.t_s >= self.next_skeleton_t_s || states != self.prev_states;
-        if let Some(crowd) = self.look.crowd.as_ref().filter(|_| skeletons) {
-            self.next_skeleton_t_s = s.t_s + SKELETON_EVERY_S;
+        if let Some(crowd) = self.look.crowd.as_ref().filter(|_| s.skeletons) {
             for (i, state) in states.iter().enumerate() {
                 let c = &s.frame[l.characters_at + i * l.character_floats
                     ..(i + 1) * l.character_floats + l.characters_at];

@@ -283,4 +283,8 @@ impl Scene for CrowdScene {
     fn pose(&self, out: &mut crate::look::Poses<'_>) {
         crate::looks::crowd::pose(self, out)
     }
+
+    fn figure_states(&self, out: &mut [spidar_sim::character::drawn::FigureState]) {
+        spidar_sim::character::drawn::figure_states(&self.crowd, out)
+    }
 }

@@ -38,8 +38,13 @@ pub trait Scene: Send {
         look::Look::default()
     }
     /// Writes the poses of what [`Scene::look`] described, after a step, at display rate. Runs on
-    /// the stepping thread: it only copies numbers (no allocation, no locks).
+    /// the stepping thread: it only copies numbers (no allocation, no locks). A crowd's drawn
+    /// figures take longer: they are written only when [`look::Poses::figures_now`] says so.
     fn pose(&self, _out: &mut look::Poses<'_>) {}
+    /// Copies what its characters' drawn figures depend on after a step (as many as `out` holds),
+    /// for another thread to compute them with the look's [`look::LookCrowd::figures`]. Runs on
+    /// the stepping thread: a copy. Scenes without a crowd copy nothing.
+    fn figure_states(&self, _out: &mut [spidar_sim::character::drawn::FigureState]) {}
     /// What the scene's virtual human decided (recorded after every step); `None` for scenes
     /// without one. Runs on the stepping thread: it only copies numbers.
     fn decisions(&self) -> Option<decisions::Decisions> {

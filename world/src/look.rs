@@ -8,8 +8,11 @@
 //!
 //! Must never: allocate or block in [`Poses`] (it runs on the world's stepping thread).
 
+use std::sync::Arc;
+
 use glam::{DQuat, DVec3};
 use spidar_msg::ProxyId;
+use spidar_sim::character::drawn::Figures;
 use spidar_sim::collide::Shape;
 
 /// Numbers per moving shape in a frame: position (3), rotation quaternion x, y, z, w (4).
@@ -63,7 +66,7 @@ pub struct LookJoint {
 }
 
 /// A crowd of keyframe characters, each drawn as its skeleton posed by the keyframe set.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct LookCrowd {
     pub characters: usize,
     pub joints: Vec<LookJoint>,
@@ -73,10 +76,13 @@ pub struct LookCrowd {
     pub colours: Vec<[u8; 3]>,
     /// A proxy's `ProxyId::body` is the index of the character it stands for.
     pub proxy_body_is_character: bool,
+    /// What the figures are computed with off the stepping thread, from the states
+    /// [`crate::Scene::figure_states`] copies (`None`: the scene always writes them itself).
+    pub figures: Option<Arc<Figures>>,
 }
 
 /// The description of a scene for the view, built once.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct Look {
     /// Shapes moved every frame.
     pub shapes: Vec<LookShape>,
@@ -133,6 +139,7 @@ pub struct Poses<'a> {
     pub(crate) character_floats: usize,
     pub(crate) contacts: &'a mut [f32],
     pub(crate) contact_count: &'a mut usize,
+    pub(crate) figures_now: bool,
 }
 
 impl Poses<'_> {
@@ -191,6 +198,13 @@ impl Poses<'_> {
         (&mut *self.characters, self.character_floats)
     }
 
+    /// Whether the characters' drawn figures are written now. When not, a scene writes each
+    /// character without its joints (`put_character` with none): they are filled in later, off
+    /// the stepping thread, from the states [`crate::Scene::figure_states`] copies.
+    pub fn figures_now(&self) -> bool {
+        self.figures_now
+    }
+
     /// Adds the push force on character `i` (magnitude, N).
     #[inline]
     pub fn character_push(&mut self, i: usize, push_n: f64) {
@@ -222,6 +236,13 @@ pub fn put_character(c: &mut [f32], pos_m: DVec3, rot: DQuat, joints_m: &[DVec3]
     put_quat(&mut c[3..7], rot);
     c[CHARACTER_STATE] = state as f32;
     c[CHARACTER_PUSH] = push_n as f32;
+    put_joints(c, joints_m);
+}
+
+/// Writes the joints of one character's drawn figure into its numbers (`c`, as for
+/// [`put_character`]), as many as `c` holds.
+#[inline]
+pub fn put_joints(c: &mut [f32], joints_m: &[DVec3]) {
     for (s, j) in c[CHARACTER_HEAD_FLOATS..].chunks_exact_mut(JOINT_FLOATS).zip(joints_m) {
         put3(s, *j);
     }

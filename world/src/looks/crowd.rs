@@ -3,9 +3,11 @@
 //! the body, `spidar_sim::character::drawn`), tinted by its control state (balance, fall, down,
 //! stand up).
 
+use std::sync::Arc;
+
 use glam::DVec3;
 use spidar_sim::character::controller::Policy;
-use spidar_sim::character::drawn::for_each_figure;
+use spidar_sim::character::drawn::{for_each_figure, Figures};
 
 use super::quat;
 use crate::crowd::CrowdScene;
@@ -50,6 +52,7 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
             states: POLICIES.iter().map(|p| p.name().to_string()).collect(),
             colours: STATE_COLOURS.to_vec(),
             proxy_body_is_character: true,
+            figures: Some(Arc::new(Figures::of(c))),
         }),
         link_offset_m: DVec3::ZERO,
         focus_m: DVec3::new(0.0, 1.0, -2.0),
@@ -59,14 +62,23 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
 pub(crate) fn pose(scene: &CrowdScene, out: &mut Poses<'_>) {
     let c = &scene.crowd;
     let not_balancing = c.chars.iter().filter(|ch| ch.control.policy != Policy::Balance).count();
-    // The figures are computed here, at the view's (or recorder's) rate: a step computes none.
-    let (slots, per) = out.characters_mut();
-    for_each_figure(c, slots, per, |i, joints, slot| {
+    let character = |i: usize, joints: &[DVec3], slot: &mut [f32]| {
         let policy = c.chars[i].control.policy;
         let state = POLICIES.iter().position(|p| *p == policy).unwrap_or(0);
         let b = &c.bodies[i];
         put_character(slot, b.pos_m, b.rot, joints, state, 0.0);
-    });
+    };
+    let now = out.figures_now();
+    let (slots, per) = out.characters_mut();
+    if now {
+        // The figures are computed here, at the view's (or recorder's) rate: a step computes none.
+        for_each_figure(c, slots, per, character);
+    } else if per > 0 {
+        // Bodies only: the view's (or recorder's) thread adds the figures (`Scene::figure_states`).
+        for (i, slot) in slots.chunks_exact_mut(per).take(c.len()).enumerate() {
+            character(i, &[], slot);
+        }
+    }
     out.counter(0, c.len() as f64);
     out.counter(1, not_balancing as f64);
     out.counter(2, scene.impulse_total_n_s.length());

@@ -5,18 +5,21 @@
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::SyncSender;
 use std::sync::Arc;
+use std::time::Duration;
 
 use glam::DVec3;
 use serde_json::Value;
 use spidar_msg::RigInfo;
 
-use super::{server, Shared, StatusData, ViewError, ViewHandle, ViewOptions};
+use super::{frame_buffers, server, FrameFinisher, FrameWriterEnds, Shared, StatusData, ViewError};
+use super::{ViewHandle, ViewOptions};
 
 /// A view whose frames, status and rig geometry its host publishes.
 pub struct FedView {
     shared: Arc<Shared>,
     server: Option<server::Server>,
     handle: ViewHandle,
+    frames: FrameWriterEnds,
 }
 
 impl FedView {
@@ -41,11 +44,21 @@ impl FedView {
         let o = &d["link_offset_m"];
         let f = |i: usize| o[i].as_f64().ok_or_else(|| bad("it has no link_offset_m"));
         let offset = DVec3::new(f(0)?, f(1)?, f(2)?);
-        let shared = Shared::new(0, Some(commands));
-        let server = server::Server::start(opts, shared.clone(), description.to_string(), counters, offset)?;
+        let shared = Shared::new(Some(commands));
+        // Recorded frames are whole: nothing to finish.
+        let (frames, sender) = frame_buffers(0, 0);
+        let finisher = FrameFinisher::new(&crate::look::Look::default());
+        let scene = server::Scene {
+            description: description.to_string(),
+            counter_names: counters,
+            offset,
+            frames: sender,
+            finisher,
+        };
+        let server = server::Server::start(opts, shared.clone(), scene)?;
         let urls = (format!("http://{}", server.http_addr), format!("ws://{}", server.ws_addr));
         let handle = ViewHandle { shared: shared.clone(), urls };
-        Ok(FedView { shared, server: Some(server), handle })
+        Ok(FedView { shared, server: Some(server), handle, frames })
     }
 
     /// Hands the viewers a frame (the live view's binary frame, as words), a status, the rig's
@@ -57,14 +70,25 @@ impl FedView {
         rig: Option<&RigInfo>,
         playback: Option<String>,
     ) {
-        let Ok(mut mb) = self.shared.mailbox.lock() else { return };
         if let Some(f) = frame {
-            mb.frame.clear();
-            mb.frame.extend_from_slice(f);
-            mb.frame_words = f.len();
-            mb.frame_fresh = true;
-            self.shared.counters.frames_published.fetch_add(1, Ordering::Relaxed);
+            // The broadcaster hands buffers back as soon as it has sent them; a replay may wait.
+            let b = self.frames.take(&self.shared.counters);
+            match b.or_else(|| self.frames.free.recv_timeout(Duration::from_secs(1)).ok()) {
+                Some(mut b) => {
+                    b.words.clear();
+                    b.words.extend_from_slice(f);
+                    b.len = f.len();
+                    b.figures_pending = false;
+                    if self.frames.full.try_send(b).is_ok() {
+                        self.shared.counters.frames_published.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                None => {
+                    self.shared.counters.frames_skipped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
         }
+        let Ok(mut mb) = self.shared.mailbox.lock() else { return };
         if let Some(s) = status {
             mb.status = *s;
             mb.status_fresh = true;

@@ -102,12 +102,14 @@ impl Layout {
         }
     }
 
-    /// The sections a scene writes, over a frame buffer of `max_words`, with the contact count.
+    /// The sections a scene writes, over a frame buffer of `max_words`, with the contact count;
+    /// the drawn figures too with `figures_now` ([`Poses::figures_now`]).
     pub fn poses<'a>(
         &self,
         buf: &'a mut [f32],
         counters: &'a mut [f64],
         contacts: &'a mut usize,
+        figures_now: bool,
     ) -> Poses<'a> {
         let (head, rest) = buf.split_at_mut(self.shape_force_at);
         let shapes = &mut head[self.shapes_at..];
@@ -124,6 +126,7 @@ impl Layout {
             character_floats: self.character_floats,
             contacts: contacts_buf,
             contact_count: contacts,
+            figures_now,
         }
     }
 }

@@ -2,15 +2,26 @@
 //! makes its frames with a [`FrameMaker`], and so does a world recording (`spidar-record`), which
 //! keeps them for `spidar replay` to send the page exactly what it drew live.
 //!
-//! Must never: allocate, block or format (it runs on the world's stepping thread).
+//! A frame is made in two parts. On the stepping thread, [`FrameMaker::write`] writes everything
+//! but a crowd's drawn figures, and the scene copies the figures' states
+//! ([`crate::Scene::figure_states`]); on a thread of the view's (or the recorder's), a
+//! [`FrameFinisher`] computes the figures from those states and writes their joints: the frame
+//! the scene would have written at that step with its figures (`figures_now`), bit for bit.
+//!
+//! Must never: allocate, block or format in [`FrameMaker`] (it runs on the world's stepping
+//! thread).
+
+use std::sync::Arc;
 
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyId, HANDS, MAX_PROXIES};
+use spidar_sim::character::drawn::{FigureState, Figures};
+use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_sim::impulse::{nearest_on_surface, touching_hand};
 
 use super::frame::{self, Layout};
 use super::json::StatusData;
-use crate::look::{DrawnContact, Look};
+use crate::look::{put_joints, DrawnContact, Look};
 use crate::StepView;
 
 /// A rendered contact gathered between two frames.
@@ -133,10 +144,11 @@ impl FrameMaker {
     }
 
     /// Writes this step into `buf` (at least the layout's `max_words` long): the header, hands,
-    /// tensions, proxies and the scene's poses (which also refresh the status's counters). With
+    /// tensions, proxies and the scene's poses (which also refresh the status's counters); a
+    /// crowd's drawn figures only with `figures_now` (else a [`FrameFinisher`] adds them). With
     /// `frame` it is a frame to send: a new sequence number, and the rendered contacts gathered
     /// since the last frame (then forgotten). Returns the frame's length in words.
-    pub fn write(&mut self, buf: &mut [f32], step: &StepView<'_>, frame: bool) -> usize {
+    pub fn write(&mut self, buf: &mut [f32], step: &StepView<'_>, frame: bool, figures_now: bool) -> usize {
         let l = self.layout;
         if frame {
             self.seq = self.seq.wrapping_add(1);
@@ -152,7 +164,7 @@ impl FrameMaker {
         frame::write_common(buf, &l, &common);
         let mut contacts = 0usize;
         {
-            let mut poses = l.poses(buf, &mut self.status.counters, &mut contacts);
+            let mut poses = l.poses(buf, &mut self.status.counters, &mut contacts, figures_now);
             step.scene.pose(&mut poses);
             if frame {
                 for r in &self.rendered[..self.rendered_count] {
@@ -176,5 +188,47 @@ impl FrameMaker {
             self.rendered_count = 0;
         }
         frame::words(&l, contacts)
+    }
+}
+
+/// Adds to a frame what [`FrameMaker::write`] left for later: each character's drawn figure,
+/// computed from the states the scene copied at the frame's step. Runs off the stepping thread
+/// (one character's figure takes some 0.3 us).
+#[derive(Clone, Debug)]
+pub struct FrameFinisher {
+    layout: Layout,
+    figures: Option<Arc<Figures>>,
+}
+
+impl FrameFinisher {
+    pub fn new(look: &Look) -> FrameFinisher {
+        FrameFinisher {
+            layout: Layout::for_look(look),
+            figures: look.crowd.as_ref().and_then(|c| c.figures.clone()),
+        }
+    }
+
+    /// How many figure states a frame of this look needs (0: it has no figures to add).
+    pub fn states(&self) -> usize {
+        if self.figures.is_some() {
+            self.layout.characters
+        } else {
+            0
+        }
+    }
+
+    /// Writes the joints of each character's figure (as many as `states` holds) into `frame`.
+    pub fn finish(&self, frame: &mut [f32], states: &[FigureState]) {
+        let Some(figures) = &self.figures else { return };
+        let l = &self.layout;
+        let per = l.character_floats;
+        let Some(section) = frame.get_mut(l.characters_at..l.characters_at + l.characters * per) else {
+            return;
+        };
+        let mut joints = [DVec3::ZERO; MAX_JOINTS];
+        for (slot, s) in section.chunks_exact_mut(per).zip(states) {
+            let n = figures.world_joints(s, &mut joints);
+            put_joints(slot, &joints[..n]);
+        }
     }
 }

@@ -1,15 +1,18 @@
 //! The live view: a web page that draws the world in 3D (three.js), served by the world.
 //!
-//! [`View`] is an [`Observer`]: after a step it copies what a frame needs into a preallocated
-//! mailbox, at display rate and only while someone watches, and flags it for the view's threads.
-//! Those threads do everything else: an HTTP server (`tiny_http`) serves the page and the
-//! descriptions; a WebSocket listener (`tungstenite`, on the next port) accepts viewers, one
-//! thread each; a broadcaster polls the mailbox (every 2 ms), turns it into binary frames (60 Hz)
-//! and status messages (4 Hz) and leaves the newest of each in every viewer's slot. A viewer that
-//! cannot take its frames for a while is dropped, never waited for.
+//! [`View`] is an [`Observer`]: after a step, at display rate and only while someone watches, it
+//! writes what a frame needs into a preallocated frame buffer taken from a small pool (a crowd's
+//! drawn figures only as the states they are computed from) and queues it for the view's threads;
+//! the status goes into a mailbox. Those threads do everything else: an HTTP server (`tiny_http`)
+//! serves the page and the descriptions; a WebSocket listener (`tungstenite`, on the next port)
+//! accepts viewers, one thread each; one broadcaster, shared by all viewers, polls the queue and
+//! the mailbox (every 2 ms), computes the figures and turns the newest frame into a binary message
+//! (60 Hz), the status into a text message (4 Hz), and leaves the newest of each in every
+//! viewer's slot. A viewer that cannot take its frames for a while is dropped, never waited for.
 //!
-//! Must never: block, allocate or format on the stepping thread (the observer `try_lock`s the
-//! mailbox and skips a frame when the broadcaster is copying it).
+//! Must never: block, allocate or format on the stepping thread (the observer skips a frame, and
+//! counts it, when every frame buffer is still with the broadcaster, and `try_lock`s the
+//! mailbox).
 
 mod fed;
 mod frame;
@@ -19,16 +22,18 @@ mod server;
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::mpsc::SyncSender;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use crossbeam_channel::{bounded, Receiver, Sender};
 use spidar_msg::RigInfo;
-use std::sync::mpsc::SyncSender;
+use spidar_sim::character::drawn::FigureState;
 
 pub use fed::FedView;
 pub use frame::{Layout, MAGIC};
 pub use json::StatusData;
-pub use maker::FrameMaker;
+pub use maker::{FrameFinisher, FrameMaker};
 
 use crate::look::Look;
 use crate::{Observer, StepView};
@@ -92,9 +97,10 @@ impl Default for ViewOptions {
 /// Counters of a view, readable from any thread.
 #[derive(Debug, Default)]
 pub struct ViewCounters {
-    /// Frames the observer wrote into the mailbox.
+    /// Frames the observer queued for the broadcaster.
     pub frames_published: AtomicU64,
-    /// Frames the observer skipped because the broadcaster held the mailbox.
+    /// Frames skipped: due while every frame buffer was still with the broadcaster (the observer
+    /// never waits for it), or queued behind a newer one (the broadcaster sends the newest).
     pub frames_skipped: AtomicU64,
     /// Frames the broadcaster handed to viewers (one per viewer), and frames a viewer's slot
     /// replaced before it was sent (the viewer was slower than the frame rate).
@@ -110,11 +116,66 @@ pub struct ViewCounters {
     pub viewers_refused: AtomicU64,
 }
 
+/// Frame buffers between the stepping thread (or a replay) and the broadcaster: one being written,
+/// one queued, one being finished and sent.
+const FRAME_BUFFERS: usize = 3;
+
+/// A frame on its way to the viewers: its words and, for a crowd, the states its figures are
+/// computed from (the broadcaster writes their joints, [`FrameFinisher`]).
+struct FrameBuf {
+    words: Vec<f32>,
+    len: usize,
+    states: Vec<FigureState>,
+    /// Whether `states` are this frame's (to be drawn into it).
+    figures_pending: bool,
+}
+
+/// The two queues of the frame buffers (lock-free, allocation-free): the writer's ends (the
+/// observer, or a replay's host) and the broadcaster's. The writer may take back a frame still
+/// queued (`queued`): the newest frame replaces one the broadcaster has not taken yet.
+struct FrameWriterEnds {
+    free: Receiver<FrameBuf>,
+    full: Sender<FrameBuf>,
+    queued: Receiver<FrameBuf>,
+}
+
+struct FrameSenderEnds {
+    full: Receiver<FrameBuf>,
+    free: Sender<FrameBuf>,
+}
+
+impl FrameWriterEnds {
+    /// A buffer to write a frame into: a free one, or else the oldest frame still queued (it is
+    /// skipped, counted); `None` while the broadcaster holds every buffer.
+    fn take(&self, counters: &ViewCounters) -> Option<FrameBuf> {
+        self.free.try_recv().ok().or_else(|| {
+            let b = self.queued.try_recv().ok()?;
+            counters.frames_skipped.fetch_add(1, Ordering::Relaxed);
+            Some(b)
+        })
+    }
+}
+
+/// [`FRAME_BUFFERS`] buffers of `words` words (they grow as needed for a replay's frames) and
+/// `states` figure states each, all free.
+fn frame_buffers(words: usize, states: usize) -> (FrameWriterEnds, FrameSenderEnds) {
+    let (free_tx, free_rx) = bounded(FRAME_BUFFERS);
+    let (full_tx, full_rx) = bounded(FRAME_BUFFERS);
+    for _ in 0..FRAME_BUFFERS {
+        let b = FrameBuf {
+            words: vec![0.0; words],
+            len: 0,
+            states: vec![FigureState::default(); states],
+            figures_pending: false,
+        };
+        let _ = free_tx.try_send(b);
+    }
+    let writer = FrameWriterEnds { free: free_rx, full: full_tx, queued: full_rx.clone() };
+    (writer, FrameSenderEnds { full: full_rx, free: free_tx })
+}
+
 /// The mailbox between the stepping thread (or a replay) and the broadcaster.
 struct Mailbox {
-    frame: Vec<f32>,
-    frame_words: usize,
-    frame_fresh: bool,
     status: StatusData,
     status_fresh: bool,
     rig: Option<RigInfo>,
@@ -124,11 +185,8 @@ struct Mailbox {
 }
 
 impl Mailbox {
-    fn new(words: usize) -> Mailbox {
+    fn new() -> Mailbox {
         Mailbox {
-            frame: vec![0.0; words],
-            frame_words: 0,
-            frame_fresh: false,
             status: StatusData { sample_t_s: f64::NAN, ..Default::default() },
             status_fresh: false,
             rig: None,
@@ -140,8 +198,9 @@ impl Mailbox {
 
 struct Shared {
     mailbox: Mutex<Mailbox>,
-    /// Set after the observer wrote the mailbox; the broadcaster polls it (a wake-up from the
-    /// stepping thread would be a system call, and the woken thread could preempt the step).
+    /// Set after the observer queued a frame or wrote the mailbox; the broadcaster polls it (a
+    /// wake-up from the stepping thread would be a system call, and the woken thread could
+    /// preempt the step).
     fresh: AtomicBool,
     counters: ViewCounters,
     /// Set when the view stops; `done` once the broadcaster has handed out the last status.
@@ -152,9 +211,9 @@ struct Shared {
 }
 
 impl Shared {
-    fn new(words: usize, commands: Option<SyncSender<String>>) -> Arc<Shared> {
+    fn new(commands: Option<SyncSender<String>>) -> Arc<Shared> {
         Arc::new(Shared {
-            mailbox: Mutex::new(Mailbox::new(words)),
+            mailbox: Mutex::new(Mailbox::new()),
             fresh: AtomicBool::new(false),
             counters: ViewCounters::default(),
             stop: AtomicBool::new(false),
@@ -182,6 +241,9 @@ pub struct View {
     shared: Arc<Shared>,
     server: Option<server::Server>,
     maker: FrameMaker,
+    frames: FrameWriterEnds,
+    /// Where the scene poses when only its counters are wanted (no one watches).
+    scratch: Vec<f32>,
     frame_every_s: f64,
     status_every_s: f64,
     next_frame_t_s: f64,
@@ -195,20 +257,28 @@ impl View {
     pub fn start(scene_name: &str, look: &Look, opts: &ViewOptions) -> Result<View, ViewError> {
         let maker = FrameMaker::new(look);
         let layout = *maker.layout();
-        let shared = Shared::new(layout.max_words, None);
+        let finisher = FrameFinisher::new(look);
+        let (frames, sender) = frame_buffers(layout.max_words, finisher.states());
+        let shared = Shared::new(None);
         let description = json::scene(scene_name, look, &layout, opts.frame_hz);
         let server = server::Server::start(
             opts,
             shared.clone(),
-            description,
-            look.counters.clone(),
-            look.link_offset_m,
+            server::Scene {
+                description,
+                counter_names: look.counters.clone(),
+                offset: look.link_offset_m,
+                frames: sender,
+                finisher,
+            },
         )?;
         let urls = (format!("http://{}", server.http_addr), format!("ws://{}", server.ws_addr));
         Ok(View {
             shared,
             server: Some(server),
             maker,
+            frames,
+            scratch: vec![0.0; layout.max_words],
             frame_every_s: 1.0 / opts.frame_hz.max(1.0),
             status_every_s: 1.0 / opts.status_hz.max(0.1),
             next_frame_t_s: f64::NEG_INFINITY,
@@ -237,27 +307,38 @@ impl View {
         ViewHandle { shared: self.shared.clone(), urls: self.urls.clone() }
     }
 
-    /// Writes the frame (when one is due) and the status into the mailbox, if the broadcaster is
-    /// not copying it right now. The scene poses every time: its counters feed the status.
+    /// Queues the frame, when one is due and a frame buffer is free (the scene poses into it and
+    /// copies its figures' states), and writes the status into the mailbox, if the broadcaster is
+    /// not copying it right now. The scene's pose refreshes the counters the status shows.
     fn publish(&mut self, step: &StepView<'_>, frame_due: bool) {
-        let Ok(mut guard) = self.shared.mailbox.try_lock() else {
-            self.shared.counters.frames_skipped.fetch_add(1, Ordering::Relaxed);
+        let c = &self.shared.counters;
+        if frame_due {
+            match self.frames.take(c) {
+                Some(mut b) => {
+                    self.next_counters_t_s = step.t_s + 1.0;
+                    b.len = self.maker.write(&mut b.words, step, true, false);
+                    step.scene.figure_states(&mut b.states);
+                    b.figures_pending = !b.states.is_empty();
+                    // Never full: it has room for every buffer.
+                    if self.frames.full.try_send(b).is_ok() {
+                        c.frames_published.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                // Every buffer is with the broadcaster: this frame is skipped.
+                None => {
+                    c.frames_skipped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        } else if step.t_s >= self.next_counters_t_s {
+            // Unwatched, the scene poses (for the status's counters) once a second, without its
+            // figures.
+            self.next_counters_t_s = step.t_s + 1.0;
+            self.maker.write(&mut self.scratch, step, false, false);
+        }
+        let Ok(mut mb) = self.shared.mailbox.try_lock() else {
+            self.shared.fresh.store(true, Ordering::Release);
             return;
         };
-        let mb = &mut *guard;
-        // Unwatched, the scene poses (for the status's counters) once a second: posing a big
-        // crowd costs tens of microseconds.
-        let counters_due = step.t_s >= self.next_counters_t_s;
-        if frame_due || (!mb.frame_fresh && counters_due) {
-            // (A frame that waits to be sent is kept whole.)
-            self.next_counters_t_s = step.t_s + 1.0;
-            let words = self.maker.write(&mut mb.frame, step, frame_due);
-            if frame_due {
-                mb.frame_words = words;
-                mb.frame_fresh = true;
-                self.shared.counters.frames_published.fetch_add(1, Ordering::Relaxed);
-            }
-        }
         mb.status = *self.maker.status();
         mb.status_fresh = true;
         if let Some(info) = step.rig_info {
@@ -266,7 +347,7 @@ impl View {
                 mb.rig_fresh = true;
             }
         }
-        drop(guard);
+        drop(mb);
         self.shared.fresh.store(true, Ordering::Release);
     }
 }
@@ -353,7 +434,7 @@ mod tests {
         frame::write_common(&mut buf, &l, &common);
         let mut counters = [0.0; crate::look::MAX_COUNTERS];
         let mut contacts = 0;
-        crate::Scene::pose(&scene, &mut l.poses(&mut buf, &mut counters, &mut contacts));
+        crate::Scene::pose(&scene, &mut l.poses(&mut buf, &mut counters, &mut contacts, true));
         assert_eq!((buf[0].to_bits(), buf[1].to_bits(), buf[2].to_bits()), (MAGIC, 7, 3));
         assert_eq!(buf[frame::GLOBALS_AT], 1.5);
         // Hands are moved into the scene frame.

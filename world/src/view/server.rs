@@ -1,11 +1,14 @@
 //! The view's threads: the page over HTTP (`tiny_http`), viewers over WebSocket (`tungstenite`,
-//! one thread each, on the port after the page's), and the broadcaster between the observer's
-//! mailbox and the viewers.
+//! one thread each, on the port after the page's), and the broadcaster between the observer (its
+//! queued frames and its mailbox) and the viewers.
 //!
-//! Every viewer has a slot holding the newest frame and the newest text of each kind; the
-//! broadcaster overwrites it (a slow viewer gets fewer frames, never a queue), the viewer's thread
-//! sends it. A viewer's socket has a write timeout: a viewer that takes no data for that long is
-//! dropped and counted. Nothing here ever holds the mailbox for longer than a copy.
+//! The broadcaster is the one thread that finishes frames: it takes the newest queued frame,
+//! computes its drawn figures (a crowd's, from the states copied with it), turns it into bytes
+//! once for all viewers and hands the buffer back. Every viewer has a slot holding the newest
+//! frame and the newest text of each kind; the broadcaster overwrites it (a slow viewer gets fewer
+//! frames, never a queue), the viewer's thread sends it. A viewer's socket has a write timeout: a
+//! viewer that takes no data for that long is dropped and counted. Nothing here ever holds the
+//! mailbox for longer than a copy.
 
 use std::io::ErrorKind;
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -18,7 +21,18 @@ use glam::DVec3;
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Bytes, Message, WebSocket};
 
-use super::{json, Shared, ViewError, ViewOptions, BUNDLE_JS, INDEX_HTML};
+use super::{json, FrameFinisher, FrameSenderEnds, Shared, ViewError, ViewOptions, BUNDLE_JS, INDEX_HTML};
+
+/// What the threads serve of a scene: its description (the `scene` message), the names of its
+/// counters, the link's offset in its frame, and the frames queued for the viewers with what
+/// finishes them.
+pub(super) struct Scene {
+    pub description: String,
+    pub counter_names: Vec<String>,
+    pub offset: DVec3,
+    pub frames: FrameSenderEnds,
+    pub finisher: FrameFinisher,
+}
 
 /// The newest text messages, for viewers that connect later and for `/status.json`.
 #[derive(Default)]
@@ -61,13 +75,7 @@ fn bind(addr: SocketAddr) -> Result<TcpListener, ViewError> {
 }
 
 impl Server {
-    pub fn start(
-        opts: &ViewOptions,
-        shared: Arc<Shared>,
-        description: String,
-        counter_names: Vec<String>,
-        offset: DVec3,
-    ) -> Result<Server, ViewError> {
+    pub fn start(opts: &ViewOptions, shared: Arc<Shared>, scene: Scene) -> Result<Server, ViewError> {
         let http_listener = bind(opts.addr)?;
         let http_addr = http_listener.local_addr().map_err(ViewError::Thread)?;
         let ws_want = match http_addr.port() {
@@ -84,6 +92,7 @@ impl Server {
         let http = tiny_http::Server::from_listener(http_listener, None)
             .map_err(|e| ViewError::Thread(std::io::Error::other(e.to_string())))?;
         let index = INDEX_HTML.replace("{{WS_PORT}}", &ws_addr.port().to_string());
+        let Scene { description, counter_names, offset, frames, finisher } = scene;
         let latest = Arc::new(Mutex::new(Latest { scene: description, ..Default::default() }));
         let viewers: Viewers = Arc::new(Mutex::new(Vec::new()));
         let spawn = |name: &str, f: Box<dyn FnOnce() + Send>| {
@@ -105,9 +114,10 @@ impl Server {
         }
         {
             let status_every = Duration::from_secs_f64(1.0 / opts.status_hz.max(0.1));
+            let texts = Texts { counter_names, offset, status_every };
             threads.push(spawn(
                 "spidar-view-frames",
-                Box::new(move || broadcast(shared, latest, viewers, counter_names, offset, status_every)),
+                Box::new(move || broadcast(shared, latest, viewers, frames, finisher, texts)),
             )?);
         }
         Ok(Server { http_addr, ws_addr, threads })
@@ -319,42 +329,66 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
     }
 }
 
+/// How the broadcaster writes the text messages.
+struct Texts {
+    counter_names: Vec<String>,
+    offset: DVec3,
+    status_every: Duration,
+}
+
+/// The newest queued frame, finished (its figures drawn) and as bytes; every buffer goes back to
+/// the free ones (older frames queued behind it are skipped and counted).
+fn newest_frame(frames: &FrameSenderEnds, finisher: &FrameFinisher, shared: &Shared) -> Option<Bytes> {
+    let mut newest = None;
+    while let Ok(b) = frames.full.try_recv() {
+        if let Some(old) = newest.replace(b) {
+            shared.counters.frames_skipped.fetch_add(1, Ordering::Relaxed);
+            let _ = frames.free.try_send(old);
+        }
+    }
+    let mut b = newest?;
+    if b.figures_pending {
+        finisher.finish(&mut b.words[..b.len], &b.states);
+        b.figures_pending = false;
+    }
+    let mut bytes = Vec::with_capacity(4 * b.len);
+    for w in &b.words[..b.len] {
+        bytes.extend_from_slice(&w.to_le_bytes());
+    }
+    let _ = frames.free.try_send(b);
+    Some(Bytes::from(bytes))
+}
+
 fn broadcast(
     shared: Arc<Shared>,
     latest: Arc<Mutex<Latest>>,
     viewers: Viewers,
-    counter_names: Vec<String>,
-    offset: DVec3,
-    status_every: Duration,
+    frames: FrameSenderEnds,
+    finisher: FrameFinisher,
+    texts: Texts,
 ) {
     let c = &shared.counters;
-    let mut bytes: Vec<u8> = Vec::new();
+    let Texts { counter_names, offset, status_every } = texts;
     let mut last_status = Instant::now() - status_every;
     loop {
-        let (frame, status, rig, playback, stopping) = {
-            // Poll: the stepping thread never wakes anyone.
-            let until = Instant::now() + Duration::from_millis(250);
-            while !shared.fresh.load(Ordering::Acquire)
-                && !shared.stop.load(Ordering::Relaxed)
-                && Instant::now() < until
-            {
-                std::thread::sleep(POLL);
-            }
-            shared.fresh.store(false, Ordering::Relaxed);
+        // Poll: the stepping thread never wakes anyone.
+        let until = Instant::now() + Duration::from_millis(250);
+        while !shared.fresh.load(Ordering::Acquire)
+            && !shared.stop.load(Ordering::Relaxed)
+            && Instant::now() < until
+        {
+            std::thread::sleep(POLL);
+        }
+        shared.fresh.store(false, Ordering::Relaxed);
+        // Outside the mailbox's lock: computing a crowd's figures takes a while.
+        let frame = newest_frame(&frames, &finisher, &shared);
+        let (status, rig, playback, stopping) = {
             let Ok(mut mb) = shared.mailbox.lock() else { return };
-            let frame = mb.frame_fresh.then(|| {
-                bytes.clear();
-                for w in &mb.frame[..mb.frame_words] {
-                    bytes.extend_from_slice(&w.to_le_bytes());
-                }
-                Bytes::copy_from_slice(&bytes)
-            });
-            mb.frame_fresh = false;
             let status = mb.status_fresh.then_some(mb.status);
             mb.status_fresh = false;
             let rig = if mb.rig_fresh { mb.rig } else { None };
             mb.rig_fresh = false;
-            (frame, status, rig, mb.playback.take(), shared.stop.load(Ordering::Relaxed))
+            (status, rig, mb.playback.take(), shared.stop.load(Ordering::Relaxed))
         };
         let viewer_count = c.viewers.load(Ordering::Relaxed);
         let rig_json = rig.map(|r| json::rig(&r, offset));
