@@ -395,7 +395,7 @@ fn a_copied_figure_state_draws_the_figure_of_its_step() {
             blends += usize::from(ch.anim.blend < 1.0 && ch.anim.from_behaviour != ch.anim.behaviour);
             swings += usize::from(ch.control.feet.foot.iter().any(|f| !f.planted()));
             handovers += usize::from(ch.control.feet.grip > 0.0 && ch.control.feet.grip < 1.0);
-            polar += usize::from(c.spaces[i].e_yr.y < 0.52f64.cos());
+            polar += usize::from(c.starts[i].space().e_yr.y < 0.52f64.cos());
         }
         pending.push_back((states, then));
     }
@@ -409,6 +409,54 @@ fn a_copied_figure_state_draws_the_figure_of_its_step() {
         assert!(count > 0, "no {what} met");
     }
     assert!(moved > 0, "the figures never moved between a copy and its drawing");
+}
+
+/// The drawn figures of a wandering crowd pushed over and over (every joint of every character,
+/// every tenth step) are pinned: a change to anything a figure is computed from changes this.
+#[test]
+fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
+    use spidar_sim::character::drawn::world_joints;
+    use spidar_sim::character::keyframe::MAX_JOINTS;
+    let mut c = crowd();
+    c.seed(7);
+    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
+    let mut rng = Pcg64::seed_from_u64(7);
+    for i in 0..30 {
+        c.add(
+            (i % 6) as f64 * 1.1 - 3.0,
+            (i / 6) as f64 * 1.1 - 3.0,
+            rng.random_range(-3.0..3.0),
+            Goal::Stand,
+        );
+    }
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut falls = 0;
+    for k in 0..(10.0 / DT) as usize {
+        if k % 60 == 30 {
+            let i = rng.random_range(0..c.len());
+            let b = c.body_space(i);
+            let d = DVec3::new(rng.random_range(-1.0..1.0), 0.0, rng.random_range(-1.0..1.0)).normalize();
+            c.add_impulse_at(i, b.r_m + DVec3::Y * rng.random_range(0.0..0.6), d * 110.0);
+        }
+        c.step();
+        falls += c.chars.iter().filter(|ch| ch.control.policy == Policy::Fall).count();
+        if k % 10 == 0 {
+            for i in 0..c.len() {
+                let mut j = [DVec3::ZERO; MAX_JOINTS];
+                let n = world_joints(&c, i, &mut j);
+                for p in &j[..n] {
+                    for x in [p.x, p.y, p.z] {
+                        for b in x.to_bits().to_le_bytes() {
+                            h ^= b as u64;
+                            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(falls > 0, "the pushes should topple someone");
+    assert_eq!(h, 0x2247_5b35_6b54_6e2b, "figure digest changed: {h:#018x}");
 }
 
 /// Walking to a point and stopping: it arrives without overshooting, stands still with its feet

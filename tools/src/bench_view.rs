@@ -72,6 +72,8 @@ pub struct ViewBenchOptions {
 #[derive(Default)]
 pub struct Phase {
     pub step: DurationHist,
+    /// The scene's step alone (without the observers' calls), and the observers' calls.
+    pub scene: DurationHist,
     pub observer: DurationHist,
     /// Steps that started more than one step late.
     pub late: u64,
@@ -213,6 +215,7 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
                 let t2 = Instant::now();
                 let _ = v.far.models.try_send(m);
                 phase.step.record((t2 - t0).as_secs_f64());
+                phase.scene.record((t1 - t0).as_secs_f64());
                 phase.observer.record((t2 - t1).as_secs_f64());
                 deadline += step_ns;
                 if clock.now_ns() > deadline + 10 * step_ns {
@@ -265,7 +268,7 @@ impl std::fmt::Display for ViewBenchReport {
         writeln!(f, "  world thread: {}", self.rt)?;
         writeln!(
             f,
-            "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   observer p99   frames/s per viewer",
+            "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   scene p99   observer p99   frames/s per viewer",
             "", "steps", "p50", "p99", "p99.9", "max", "late"
         )?;
         for (name, p) in &self.phases {
@@ -281,10 +284,11 @@ impl std::fmt::Display for ViewBenchReport {
             };
             writeln!(
                 f,
-                "  {name:<18} {:>7} {} {:>6}   {:>12}   {rate}",
+                "  {name:<18} {:>7} {} {:>6}   {:>9}   {:>12}   {rate}",
                 p.step.len(),
                 row(&p.step.percentiles()),
                 p.late,
+                spidar_rt::telemetry::fmt_dur(p.scene.percentiles().p99_s),
                 spidar_rt::telemetry::fmt_dur(p.observer.percentiles().p99_s),
             )?;
         }

@@ -68,6 +68,24 @@ pub struct BodyState {
     pub vel_m_per_s: DVec3,
 }
 
+/// Where a character's body was at the start of a step, as far as its drawn pose needs it: its
+/// rigid-body space there ([`StartPose::space`]) without the velocities, which no pose reads.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StartPose {
+    /// Body -> world rotation.
+    pub rot: DQuat,
+    /// Centre of mass in the world (m).
+    pub r_m: DVec3,
+}
+
+impl StartPose {
+    /// The rigid-body space at the start of the step, its velocities zero.
+    #[inline]
+    pub fn space(&self) -> BodySpace {
+        BodySpace::new(self.rot, self.r_m, DVec3::ZERO, DVec3::ZERO)
+    }
+}
+
 /// The shared description of every crowd character's body.
 #[derive(Clone, Debug)]
 pub struct CrowdBody {
@@ -259,9 +277,9 @@ pub struct Crowd {
     pub statics: Vec<(Shape, ShapePose)>,
     pub bodies: Vec<BodyState>,
     pub chars: Vec<Character>,
-    /// Rigid-body space of each character at the start of the last step (what its drawn pose,
-    /// [`Crowd::pose`], is computed from).
-    pub spaces: Vec<BodySpace>,
+    /// Each character's body at the start of the last step (what its drawn pose, [`Crowd::pose`],
+    /// is computed from).
+    pub starts: Vec<StartPose>,
     pub time_s: f64,
     pub steps: u64,
     pub stats: CrowdStats,
@@ -319,7 +337,7 @@ impl Crowd {
             statics: Vec::new(),
             bodies: Vec::new(),
             chars: Vec::new(),
-            spaces: Vec::new(),
+            starts: Vec::new(),
             time_s: 0.0,
             steps: 0,
             stats: CrowdStats::default(),
@@ -369,7 +387,7 @@ impl Crowd {
         });
         self.chars.push(Character { goal, ..Character::default() });
         let b = self.body_space(self.bodies.len() - 1);
-        self.spaces.push(b);
+        self.starts.push(StartPose { rot, r_m: b.r_m });
         self.kin.push(Kin::default());
         self.acc.push(Acc::default());
         self.pos.push(DVec3::ZERO);
@@ -431,7 +449,7 @@ impl Crowd {
     #[inline]
     pub fn pose(&self, i: usize, out: &mut Pose) {
         *out = Pose::default();
-        self.chars[i].pose(&self.spaces[i], &self.set, &self.params.controller, out);
+        self.chars[i].pose(&self.starts[i].space(), &self.set, &self.params.controller, out);
     }
 
     /// [`Crowd::pose`], returned.
@@ -488,14 +506,14 @@ impl Crowd {
         let join = |a: (DVec3, DVec3), b: (DVec3, DVec3)| (a.0.min(b.0), a.1.max(b.1));
         let run = |base: usize,
                    chars: &mut [Character],
-                   spaces: &mut [BodySpace],
+                   starts: &mut [StartPose],
                    kin: &mut [Kin],
                    acc: &mut [Acc],
                    pos: &mut [DVec3]| {
             let mut bx = EMPTY;
             for k in 0..chars.len() {
                 let s = &bodies[base + k];
-                one_character(&sh, base + k, s, &mut chars[k], &mut spaces[k], &mut kin[k], &mut acc[k]);
+                one_character(&sh, base + k, s, &mut chars[k], &mut starts[k], &mut kin[k], &mut acc[k]);
                 pos[k] = s.pos_m;
                 // A body with a non-finite position (a broken state) goes to cell 0 and does not
                 // size the grid.
@@ -509,7 +527,7 @@ impl Crowd {
             use rayon::prelude::*;
             self.chars
                 .par_chunks_mut(CHUNK)
-                .zip(self.spaces.par_chunks_mut(CHUNK))
+                .zip(self.starts.par_chunks_mut(CHUNK))
                 .zip(self.kin.par_chunks_mut(CHUNK))
                 .zip(self.acc.par_chunks_mut(CHUNK))
                 .zip(self.pos.par_chunks_mut(CHUNK))
@@ -517,7 +535,7 @@ impl Crowd {
                 .map(|(c, ((((ch, sp), ki), ac), po))| run(c * CHUNK, ch, sp, ki, ac, po))
                 .reduce(|| EMPTY, join)
         } else {
-            run(0, &mut self.chars, &mut self.spaces, &mut self.kin, &mut self.acc, &mut self.pos)
+            run(0, &mut self.chars, &mut self.starts, &mut self.kin, &mut self.acc, &mut self.pos)
         }
     }
 
@@ -712,14 +730,14 @@ fn one_character(
     i: usize,
     s: &BodyState,
     ch: &mut Character,
-    space: &mut BodySpace,
+    start: &mut StartPose,
     kin: &mut Kin,
     acc: &mut Acc,
 ) {
     let h = sh.world.dt_s;
     let g = -sh.world.gravity_m_per_s2.y;
     let b = body_space_of(sh.body, s);
-    *space = b;
+    *start = StartPose { rot: s.rot, r_m: b.r_m };
     if let Some(area) = sh.wander {
         let pick = match ch.goal {
             Goal::WalkTo { point_m, .. } => {

@@ -14,11 +14,10 @@
 use glam::{DMat3, DQuat, DVec3, Vec3};
 
 use super::controller::{ControllerParams, ControllerState, Ground};
-use super::crowd::{Crowd, CrowdBody, PARALLEL_MIN};
+use super::crowd::{Crowd, CrowdBody, StartPose, PARALLEL_MIN};
 use super::feet::{Feet, Foot};
 use super::keyframe::{Joint, KeyframeSet, Pose, MAX_JOINTS};
 use super::legs::joint_positions;
-use super::space::{BodySpace, Heading};
 use super::{Character, Correspondence};
 use crate::collide::Shape;
 
@@ -58,23 +57,16 @@ fn place(
 }
 
 /// What character `i`'s drawn figure depends on that changes from step to step, copied after a
-/// step ([`FigureState::of`]): the body's pose, and the parts of the rigid-body space at the
-/// step's start, of the correspondence, the feet and the floor that [`Character::pose`] reads.
+/// step ([`FigureState::of`], under 256 bytes): the body's pose after the step and at its start, and the
+/// parts of the correspondence, the feet and the floor that [`Character::pose`] reads.
 /// [`Figures::world_joints`] turns it into the figure [`world_joints`] gives at that step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FigureState {
     /// The body's pose after the step (where the figure is placed).
     pub pos_m: DVec3,
     pub rot: DQuat,
-    /// The rigid-body space at the step's start: centre of mass, leans, the body's axes, and the
-    /// heading's front axis (x and z; its side axis follows from them, [`Heading::of`]).
-    pub r_m: DVec3,
-    pub theta_x: f64,
-    pub theta_z: f64,
-    pub e_xr: DVec3,
-    pub e_yr: DVec3,
-    pub e_zr: DVec3,
-    pub heading_zc: [f64; 2],
+    /// The body at the step's start (where the pose is computed from).
+    pub start: StartPose,
     pub anim: Correspondence,
     /// Each foot's place on the floor and its swing (time into it, length; 0: planted).
     pub foot_m: [DVec3; 2],
@@ -86,23 +78,20 @@ pub struct FigureState {
     pub ground_y_m: f64,
 }
 
+// What a viewer copies per character on the stepping thread: kept small.
+const _: () = assert!(std::mem::size_of::<FigureState>() <= 256);
+
 impl FigureState {
     /// Character `i`'s state as it is drawn now.
     #[inline]
     pub fn of(c: &Crowd, i: usize) -> FigureState {
-        let (b, s, ch) = (&c.bodies[i], &c.spaces[i], &c.chars[i]);
+        let (b, ch) = (&c.bodies[i], &c.chars[i]);
         let feet = &ch.control.feet;
         let foot = |k: usize| &feet.foot[k];
         FigureState {
             pos_m: b.pos_m,
             rot: b.rot,
-            r_m: s.r_m,
-            theta_x: s.theta_x,
-            theta_z: s.theta_z,
-            e_xr: s.e_xr,
-            e_yr: s.e_yr,
-            e_zr: s.e_zr,
-            heading_zc: [s.heading.e_zc.x, s.heading.e_zc.z],
+            start: c.starts[i],
             anim: ch.anim,
             foot_m: [foot(0).pos_m, foot(1).pos_m],
             swing_s: [[foot(0).swing_s, foot(0).swing_s_total], [foot(1).swing_s, foot(1).swing_s_total]],
@@ -112,27 +101,15 @@ impl FigureState {
         }
     }
 
-    /// A character and its rigid-body space as far as the drawn pose reads them (the rest left
-    /// at its default).
-    fn character(&self) -> (Character, BodySpace) {
-        let [sin, cos] = self.heading_zc;
-        let space = BodySpace {
-            r_m: self.r_m,
-            theta_x: self.theta_x,
-            theta_z: self.theta_z,
-            e_xr: self.e_xr,
-            e_yr: self.e_yr,
-            e_zr: self.e_zr,
-            heading: Heading { e_xc: DVec3::new(cos, 0.0, -sin), e_zc: DVec3::new(sin, 0.0, cos) },
-            ..BodySpace::default()
-        };
+    /// The character as far as the drawn pose reads it (the rest left at its default).
+    fn character(&self) -> Character {
         let foot = |k: usize| Foot {
             pos_m: self.foot_m[k],
             swing_s: self.swing_s[k][0],
             swing_s_total: self.swing_s[k][1],
             ..Foot::default()
         };
-        let ch = Character {
+        Character {
             anim: self.anim,
             control: ControllerState {
                 feet: Feet { foot: [foot(0), foot(1)], grip: self.grip, ..Feet::default() },
@@ -140,8 +117,7 @@ impl FigureState {
             },
             ground: Ground { normal_n: self.ground_n, point_m: DVec3::new(0.0, self.ground_y_m, 0.0) },
             ..Character::default()
-        };
-        (ch, space)
+        }
     }
 }
 
@@ -175,9 +151,8 @@ impl Figures {
     /// The world positions of the joints of the figure of `s` (as [`world_joints`] gives them at
     /// the step `s` was copied after). Returns how many joints the skeleton has.
     pub fn world_joints(&self, s: &FigureState, out: &mut [DVec3; MAX_JOINTS]) -> usize {
-        let (ch, space) = s.character();
         let mut pose = Pose::default();
-        ch.pose(&space, &self.set, &self.controller, &mut pose);
+        s.character().pose(&s.start.space(), &self.set, &self.controller, &mut pose);
         place(&self.set.joints, &pose, s.pos_m, s.rot, self.com_m, out)
     }
 }

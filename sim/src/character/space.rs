@@ -23,7 +23,7 @@ use glam::{DQuat, DVec3};
 /// Kept as its two axes; the angle is computed only where asked for ([`Heading::theta_y`]): the
 /// controller works with the axes, and an `atan2` per character per step was a tenth of a crowd
 /// step.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Heading {
     pub e_xc: DVec3,
     pub e_zc: DVec3,
@@ -69,7 +69,7 @@ impl Heading {
 }
 
 /// A point of the rigid-body space.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodySpace {
     /// Centre of mass in the world (m).
     pub r_m: DVec3,

@@ -219,16 +219,50 @@ impl FrameFinisher {
 
     /// Writes the joints of each character's figure (as many as `states` holds) into `frame`.
     pub fn finish(&self, frame: &mut [f32], states: &[FigureState]) {
-        let Some(figures) = &self.figures else { return };
-        let l = &self.layout;
-        let per = l.character_floats;
-        let Some(section) = frame.get_mut(l.characters_at..l.characters_at + l.characters * per) else {
-            return;
-        };
-        let mut joints = [DVec3::ZERO; MAX_JOINTS];
-        for (slot, s) in section.chunks_exact_mut(per).zip(states) {
-            let n = figures.world_joints(s, &mut joints);
-            put_joints(slot, &joints[..n]);
+        let Some((at, end)) = self.section(frame, states) else { return };
+        for (slot, s) in frame[at..end].chunks_exact_mut(self.layout.character_floats).zip(states) {
+            self.draw(slot, s);
         }
+    }
+
+    /// `frame` finished with `states` ([`FrameFinisher::finish`]) as the bytes a viewer gets
+    /// (little-endian words), in `out`. `frame` is only read: the stepping thread that writes it
+    /// finds it in its cache, not taken away by this thread's writes.
+    pub fn to_bytes(&self, frame: &[f32], states: &[FigureState], out: &mut Vec<u8>) {
+        out.clear();
+        out.reserve(4 * frame.len());
+        let put = |out: &mut Vec<u8>, words: &[f32]| {
+            for w in words {
+                out.extend_from_slice(&w.to_le_bytes());
+            }
+        };
+        let (at, end) = self.section(frame, states).unwrap_or((frame.len(), frame.len()));
+        put(out, &frame[..at]);
+        let per = self.layout.character_floats;
+        let mut slot = vec![0.0; per];
+        for (i, c) in frame[at..end].chunks_exact(per).enumerate() {
+            slot.copy_from_slice(c);
+            if let Some(s) = states.get(i) {
+                self.draw(&mut slot, s);
+            }
+            put(out, &slot);
+        }
+        put(out, &frame[end..]);
+    }
+
+    /// Where the characters' section of `frame` is, when there are figures to draw into it.
+    fn section(&self, frame: &[f32], states: &[FigureState]) -> Option<(usize, usize)> {
+        let l = &self.layout;
+        let end = l.characters_at + l.characters * l.character_floats;
+        (self.figures.is_some() && !states.is_empty() && l.character_floats > 0 && end <= frame.len())
+            .then_some((l.characters_at, end))
+    }
+
+    /// One character's figure into its numbers.
+    fn draw(&self, slot: &mut [f32], s: &FigureState) {
+        let Some(figures) = &self.figures else { return };
+        let mut joints = [DVec3::ZERO; MAX_JOINTS];
+        let n = figures.world_joints(s, &mut joints);
+        put_joints(slot, &joints[..n]);
     }
 }

@@ -18,6 +18,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
+use spidar_sim::character::drawn::FigureState;
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Bytes, Message, WebSocket};
 
@@ -346,15 +347,10 @@ fn newest_frame(frames: &FrameSenderEnds, finisher: &FrameFinisher, shared: &Sha
             let _ = frames.free.try_send(old);
         }
     }
-    let mut b = newest?;
-    if b.figures_pending {
-        finisher.finish(&mut b.words[..b.len], &b.states);
-        b.figures_pending = false;
-    }
-    let mut bytes = Vec::with_capacity(4 * b.len);
-    for w in &b.words[..b.len] {
-        bytes.extend_from_slice(&w.to_le_bytes());
-    }
+    let b = newest?;
+    let mut bytes = Vec::new();
+    let states: &[FigureState] = if b.figures_pending { &b.states } else { &[] };
+    finisher.to_bytes(&b.words[..b.len], states, &mut bytes);
     let _ = frames.free.try_send(b);
     Some(Bytes::from(bytes))
 }
