@@ -65,9 +65,9 @@ pub const SCENE_EVERY_S: f64 = 1.0;
 pub const SKELETON_EVERY_S: f64 = 1.0 / 60.0;
 /// Steps the queue to the writer holds (a second of boxing steps).
 pub const QUEUE_STEPS: usize = 384;
-/// Buffers of a crowd's figure states (one per step that draws the figures, a fifth of the steps
-/// or fewer: a sixth of the queue).
-pub const FIGURE_BUFFERS: usize = QUEUE_STEPS / 6;
+/// Buffers of a crowd's figure states, one per queued step that draws the figures: those at
+/// display rate (a fifth of the steps), and those where a character's state changes.
+pub const FIGURE_BUFFERS: usize = QUEUE_STEPS / 4;
 /// Uncompressed bytes of messages per chunk.
 pub const CHUNK_BYTES: u64 = 1 << 20;
 
@@ -641,7 +641,7 @@ pub struct WorldRecorder {
     pub(crate) free: Receiver<Box<Snap>>,
     /// A buffer taken for a step that was dropped, for the next step.
     spare: Option<Box<Snap>>,
-    figures_free: Receiver<Vec<FigureState>>,
+    pub(crate) figures_free: Receiver<Vec<FigureState>>,
     /// Figure states a step that draws the figures copies (0: the scene has none).
     figure_states: usize,
     dropped: Arc<AtomicU64>,
@@ -1256,7 +1256,7 @@ impl WorldWriter {
 
 /// A character's drawn figure as line segments in its body frame: the frame carries each joint's
 /// position in the scene frame, turned here into the body frame the character's transform gives.
-fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> LinePrimitive {
+pub(crate) fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> LinePrimitive {
     let pos = Vec3::new(c[0], c[1], c[2]);
     let to_body = Quat::from_xyzw(c[3], c[4], c[5], c[6]).normalize().conjugate();
     let joint = |j: usize| {

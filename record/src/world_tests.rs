@@ -230,6 +230,121 @@ fn the_stepping_thread_drops_and_counts_a_step_when_every_buffer_is_queued() {
     assert_eq!(meta["steps_dropped"], "5");
 }
 
+/// A crowd's recording, whose figures the writer draws from the states the stepping thread copied,
+/// keeps what the stepping thread used to draw itself: every `/world/view` frame is the frame
+/// written with its figures at that step (bit for bit), and every skeleton drawn (at display rate
+/// and when a character's state changes) is that step's figure. Over pushes that topple
+/// characters (their state changes are events).
+#[test]
+fn a_crowd_recording_keeps_the_figures_of_each_step() {
+    use spidar_world::view::FrameMaker;
+    use spidar_world::{Observer, Scene, StepView};
+    let p = temp("crowd-figures.world.mcap");
+    let mut scene = spidar_world::crowd::CrowdScene::builtin().unwrap();
+    let look = scene.look();
+    let info = WorldInfo { start_unix_ns: Some(0), ..Default::default() };
+    let (rec, mut obs) = WorldRecording::start(&p, &info, &look).unwrap();
+    let mut reference = FrameMaker::new(&look);
+    let l = *reference.layout();
+    // Each step's frame written with its figures, by its log time; and whether it was a view frame.
+    let mut want = std::collections::HashMap::<u64, (Vec<f32>, bool)>::new();
+    let mut next_view = f64::NEG_INFINITY;
+    let n = scene.crowd.len();
+    for k in 0..1500u64 {
+        if k % 150 == 40 {
+            let i = (k / 150) as usize % n;
+            let b = scene.crowd.body_space(i);
+            scene.crowd.add_impulse_at(i, b.r_m + DVec3::Y * 0.5, DVec3::X * 150.0);
+        }
+        let t = 0.003 * (k + 1) as f64;
+        let s = sample(k, t);
+        let m = scene.step(t, std::slice::from_ref(&s));
+        let v = StepView {
+            t_s: t,
+            scene: &scene,
+            samples: std::slice::from_ref(&s),
+            model: &m,
+            rig_info: None,
+            rig_status: None,
+        };
+        obs.after_step(&v);
+        reference.observe(&v, true);
+        let view = t >= next_view;
+        if view {
+            next_view = t + VIEW_EVERY_S;
+        }
+        let mut f = vec![0.0; l.max_words];
+        let words = reference.write(&mut f, &v, view, true);
+        f.truncate(words);
+        want.insert((t * 1e9).round() as u64, (f, view));
+        // The writer keeps up (fewer steps queued than figure buffers): no step is dropped here.
+        while rec.queued() > 32 {
+            std::thread::yield_now();
+        }
+    }
+    let rep = rec.finish();
+    assert_eq!((rep.steps, rep.dropped), (1500, 0), "{rep}");
+    let crowd_look = look.crowd.as_ref().unwrap();
+    let bytes = std::fs::read(&p).unwrap();
+    let (mut views, mut skeletons, mut changes) = (0, 0, 0);
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let Some((frame, view)) = want.get(&m.log_time) else { continue };
+        match m.channel.topic.as_str() {
+            TOPIC_VIEW => {
+                let v: ViewFrameMsg = cdr::decode(&m.data).unwrap();
+                assert!(view, "a view frame at a step that had none");
+                let bits = |f: &[f32]| f.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&v.frame), bits(frame), "the view frame at {} ns", m.log_time);
+                views += 1;
+            }
+            TOPIC_SCENE => {
+                let u: SceneUpdate = cdr::decode(&m.data).unwrap();
+                for e in u.entities.iter().filter(|e| e.id.starts_with("character/")) {
+                    let i: usize = e.id["character/".len()..].parse().unwrap();
+                    let c = &frame[l.characters_at + i * l.character_floats..][..l.character_floats];
+                    let drawn = skeleton(crowd_look, c, e.lines[0].color);
+                    assert_eq!(e.lines[0].points, drawn.points, "{} at {} ns", e.id, m.log_time);
+                    skeletons += 1;
+                }
+            }
+            TOPIC_WORLD_EVENT => {
+                let ev: WorldEventMsg = cdr::decode(&m.data).unwrap();
+                changes += usize::from(ev.kind == EVENT_CHARACTER);
+            }
+            _ => {}
+        }
+    }
+    assert!(views >= 250, "{views} view frames compared");
+    assert!(skeletons >= 250 * n, "{skeletons} skeletons compared");
+    assert!(changes > 2 * n, "{changes} character state changes: the pushes toppled no one");
+}
+
+/// Steps that draw a crowd's figures when every buffer of figure states is still with the writer
+/// are dropped and counted, never waited for.
+#[test]
+fn a_crowd_step_without_a_free_figure_buffer_is_dropped_and_counted() {
+    let p = temp("no-figures.world.mcap");
+    let scene = spidar_world::load("crowd").unwrap();
+    let look = scene.look();
+    let (rec, obs) = WorldRecording::start(&p, &WorldInfo::default(), &look).unwrap();
+    let mut held = Vec::new();
+    while let Ok(b) = obs.figures_free.try_recv() {
+        held.push(b);
+    }
+    assert_eq!(held.len(), FIGURE_BUFFERS);
+    let mut st = Stepper::new(scene);
+    st.add_observer(Box::new(obs));
+    for k in 0..5u64 {
+        let t = 0.003 * (k + 1) as f64;
+        st.step(t, &[sample(k, t)], None, None);
+    }
+    // The first step draws the skeletons; no step was kept, so each next one does too.
+    assert_eq!(rec.dropped(), 5);
+    let r = rec.finish();
+    assert_eq!((r.steps, r.dropped), (0, 5), "{r}");
+}
+
 /// Run by `a_killed_world_leaves_a_recording_read_up_to_its_last_chunk` as its own child
 /// process (skipped otherwise): a boxing world recording until killed.
 #[test]

@@ -705,12 +705,110 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let _ = (reader.join(), stalled.join());
 }
 
+/// The frames a viewer gets of a crowd, whose figures the view's broadcaster draws from the states
+/// the stepping thread copied while the crowd steps on, are the frames the view used to write on
+/// the stepping thread, figures and all (`FrameMaker::write` with `figures_now`, on all of rayon's
+/// threads for these 300 characters), at the same step: every received frame equals that frame,
+/// bit for bit, over pushes that topple characters. Each frame is drawn three steps or more after
+/// its step; the test waits for it (by counts) before the next one is due.
+#[test]
+fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
+    use spidar_world::view::FrameMaker;
+    let _one = one_at_a_time();
+    let mut scene = spidar_tools::bench_view::crowd_of(300).unwrap();
+    let look = scene.look();
+    let mut view = View::start("crowd", &look, &any_port()).unwrap();
+    let handle = view.counters_handle();
+    let (got_tx, got_rx) = crossbeam_channel::unbounded::<Vec<u8>>();
+    let stop = Arc::new(AtomicBool::new(false));
+    let reader = {
+        let (url, stop) = (view.ws_url().to_string(), stop.clone());
+        std::thread::spawn(move || {
+            let stream = std::net::TcpStream::connect(url.trim_start_matches("ws://")).unwrap();
+            let (mut ws, _) = tungstenite::client(format!("{url}/"), stream).unwrap();
+            let _ = ws.get_mut().set_read_timeout(Some(Duration::from_millis(100)));
+            while !stop.load(Ordering::Relaxed) {
+                match ws.read() {
+                    Ok(tungstenite::Message::Binary(b)) => {
+                        let _ = got_tx.send(b.to_vec());
+                    }
+                    Ok(_) | Err(tungstenite::Error::Io(_)) => {}
+                    Err(_) => break,
+                }
+            }
+        })
+    };
+    let c = handle.counters();
+    let mut waited = 0;
+    while c.viewers.load(Ordering::Relaxed) == 0 {
+        std::thread::sleep(Duration::from_millis(10));
+        waited += 1;
+        assert!(waited < 6000, "the viewer never connected");
+    }
+    let mut reference = FrameMaker::new(&look);
+    let l = *reference.layout();
+    let mut buf = vec![0.0f32; l.max_words];
+    // The frame published last: its sequence number, bytes, characters not balancing, and the
+    // step it is checked at.
+    let mut last: Option<(u32, Vec<u8>, usize, usize)> = None;
+    let (mut published, mut compared, mut most_down) = (0, 0, 0);
+    let info = rig_info(&rig());
+    let status = known_rig_status();
+    let mut sample = HandSample { hands: hands_at(0.0, 0.0, DVec3::ZERO), ..Default::default() };
+    for k in 0..900 {
+        if k % 100 == 20 {
+            // A push that topples one of the characters.
+            let i = (k / 100) * 31 % scene.crowd.len();
+            let b = scene.crowd.body_space(i);
+            scene.crowd.add_impulse_at(i, b.r_m + DVec3::Y * 0.5, DVec3::X * 150.0);
+        }
+        let t = k as f64 * 0.003;
+        sample.t_s = t;
+        let m = scene.step(t, std::slice::from_ref(&sample));
+        let v = StepView {
+            t_s: t,
+            scene: &scene,
+            samples: std::slice::from_ref(&sample),
+            model: &m,
+            rig_info: Some(&info),
+            rig_status: Some(&status),
+        };
+        view.after_step(&v);
+        reference.observe(&v, true);
+        let p = c.frames_published.load(Ordering::Relaxed);
+        if p > published {
+            published = p;
+            let words = reference.write(&mut buf, &v, true, true);
+            let bytes: Vec<u8> = buf[..words].iter().flat_map(|w| w.to_le_bytes()).collect();
+            let seq = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+            let down = (0..l.characters)
+                .filter(|i| buf[l.characters_at + i * l.character_floats + CHARACTER_STATE] != 0.0)
+                .count();
+            last = Some((seq, bytes, down, k + 3));
+        }
+        if let Some((seq, want, down, at)) = last.take_if(|x| x.3 == k) {
+            // The viewer gets it before the next frame is due (the test waits, by counts).
+            let got = got_rx.recv_timeout(Duration::from_secs(60)).expect("the frame reached the viewer");
+            assert_eq!(u32::from_le_bytes(got[8..12].try_into().unwrap()), seq, "the frame published last");
+            assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);
+            compared += 1;
+            most_down = most_down.max(down);
+        }
+    }
+    assert!(compared >= 140, "{compared} frames compared");
+    assert!(most_down > 0, "no frame compared had a character off balance");
+    assert_eq!(c.frames_skipped.load(Ordering::Relaxed), 0);
+    stop.store(true, Ordering::Relaxed);
+    drop(view);
+    let _ = reader.join();
+}
+
 /// The observer's call after a step allocates nothing, with viewers connected and frames flowing.
 #[test]
 fn view_observer_allocates_nothing_per_step() {
     let _one = one_at_a_time();
     observer_allocates_nothing(BoxingScene::new(Default::default()).unwrap(), "boxing");
-    // The crowd's frames carry its drawn figures, computed while the frame is written.
+    // The crowd's frames carry its figures' states, copied while the frame is written.
     observer_allocates_nothing(CrowdScene::builtin().unwrap(), "crowd");
 }
 
@@ -745,21 +843,28 @@ fn observer_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
 }
 
 /// The world's recorder after a step allocates nothing either: it makes the live view's frame (for
-/// `spidar replay`) with the view's own code, into buffers taken from its pool.
+/// `spidar replay`) with the view's own code, into buffers taken from its pool, and a crowd's
+/// figure states into buffers of its second pool.
 #[test]
 fn world_recorder_allocates_nothing_per_step() {
-    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    recorder_allocates_nothing(BoxingScene::new(Default::default()).unwrap(), "boxing");
+    recorder_allocates_nothing(CrowdScene::builtin().unwrap(), "crowd");
+}
+
+fn recorder_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
     let look = scene.look();
-    let path = std::env::temp_dir().join(format!("spidar-hil-alloc-{}.world.mcap", std::process::id()));
-    let info = spidar_record::world::WorldInfo { name: "boxing".into(), ..Default::default() };
+    let path =
+        std::env::temp_dir().join(format!("spidar-hil-alloc-{}-{name}.world.mcap", std::process::id()));
+    let info = spidar_record::world::WorldInfo { name: name.into(), ..Default::default() };
     let (rec, mut obs) = spidar_record::world::WorldRecording::start(&path, &info, &look).unwrap();
     step_observed(&mut scene, 100, |v| obs.after_step(v));
     let (before, _) = forbidden_allocs();
     step_observed(&mut scene, 300, |v| no_alloc(|| obs.after_step(v)));
     let (after, first) = forbidden_allocs();
-    assert_eq!(after - before, 0, "the recorder allocated (first: {first} bytes)");
+    assert_eq!(after - before, 0, "the {name} recorder allocated (first: {first} bytes)");
     let r = rec.finish();
-    assert!(r.steps + r.dropped == 400 && r.error.is_none(), "{r}");
+    assert!(r.steps + r.dropped == 400 && r.error.is_none(), "{name}: {r}");
+    assert!(r.steps > 0, "{name}: {r}");
     let _ = std::fs::remove_file(&path);
 }
 

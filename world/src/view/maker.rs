@@ -236,18 +236,16 @@ impl FrameFinisher {
                 out.extend_from_slice(&w.to_le_bytes());
             }
         };
-        let (at, end) = self.section(frame, states).unwrap_or((frame.len(), frame.len()));
+        let Some((at, end)) = self.section(frame, states) else { return put(out, frame) };
         put(out, &frame[..at]);
-        let per = self.layout.character_floats;
-        let mut slot = vec![0.0; per];
-        for (i, c) in frame[at..end].chunks_exact(per).enumerate() {
+        let mut slot = vec![0.0; self.layout.character_floats];
+        for (c, s) in frame[at..end].chunks_exact(slot.len()).zip(states) {
             slot.copy_from_slice(c);
-            if let Some(s) = states.get(i) {
-                self.draw(&mut slot, s);
-            }
+            self.draw(&mut slot, s);
             put(out, &slot);
         }
-        put(out, &frame[end..]);
+        // Characters without a state (none in a frame the view made) are sent as written.
+        put(out, &frame[at + states.len().min(self.layout.characters) * slot.len()..]);
     }
 
     /// Where the characters' section of `frame` is, when there are figures to draw into it.

@@ -451,5 +451,87 @@ mod tests {
         // Nothing written past the scene's sections but the proxies (all empty here).
         assert!(buf[l.proxies_at..l.contacts_at].iter().all(|x| *x == 0.0));
         assert!(buf[l.contacts_at..].iter().all(|x| x.is_nan()));
+        // Nothing to finish: a viewer gets the words as written.
+        let mut bytes = Vec::new();
+        FrameFinisher::new(&look).to_bytes(&buf, &[], &mut bytes);
+        assert_eq!(bytes, buf.iter().flat_map(|w| w.to_le_bytes()).collect::<Vec<u8>>());
+    }
+
+    /// A crowd's frame written on the stepping thread without its figures, with the figures'
+    /// states copied, and finished a few steps later (as the broadcaster and the recorder's writer
+    /// do, while the crowd steps on) is the frame written with its figures at that step, bit for
+    /// bit: in place (the recorder) and as the bytes a viewer gets (the broadcaster). Over pushes
+    /// that topple characters, so fallen and standing-up figures are among those compared.
+    #[test]
+    fn a_crowd_frame_finished_later_is_the_frame_written_with_its_figures() {
+        use crate::Scene;
+        use spidar_msg::HandSample;
+        use spidar_sim::character::controller::Policy;
+        use spidar_sim::character::drawn::FigureState;
+        let mut scene = crate::crowd::CrowdScene::builtin().unwrap();
+        let look = scene.look();
+        let (mut now, mut later) = (FrameMaker::new(&look), FrameMaker::new(&look));
+        let finisher = FrameFinisher::new(&look);
+        let l = *now.layout();
+        let n = scene.crowd.len();
+        assert_eq!(finisher.states(), n);
+        let sample = HandSample {
+            hands: [HandState { valid: true, ..Default::default() }; HANDS],
+            ..Default::default()
+        };
+        // (step, frame without its figures, its figures' states, frame with its figures)
+        type Made = (usize, Vec<f32>, Vec<FigureState>, Vec<f32>);
+        let mut pending: Vec<Made> = Vec::new();
+        let (mut compared, mut fallen, mut moved) = (0, 0, 0);
+        for k in 0..4000usize {
+            if k % 400 == 10 {
+                let i = (k / 400) % n;
+                let b = scene.crowd.body_space(i);
+                scene.crowd.add_impulse_at(i, b.r_m + DVec3::Y * 0.5, DVec3::X * 150.0);
+            }
+            let t = k as f64 * 0.003;
+            let m = scene.step(t, std::slice::from_ref(&sample));
+            let step = StepView {
+                t_s: t,
+                scene: &scene,
+                samples: std::slice::from_ref(&sample),
+                model: &m,
+                rig_info: None,
+                rig_status: None,
+            };
+            now.observe(&step, true);
+            later.observe(&step, true);
+            // Frames made three steps ago, finished now.
+            for (made, mut frame, states, want) in pending.extract_if(.., |p| p.0 + 3 == k) {
+                let mut bytes = Vec::new();
+                finisher.to_bytes(&frame, &states, &mut bytes);
+                let want_bytes: Vec<u8> = want.iter().flat_map(|w| w.to_le_bytes()).collect();
+                assert!(
+                    bytes == want_bytes,
+                    "step {made}: the bytes sent differ from the frame with its figures"
+                );
+                let unfinished = frame.clone();
+                finisher.finish(&mut frame, &states);
+                let bits = |f: &[f32]| f.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&frame), bits(&want), "step {made}: the frame finished in place differs");
+                moved += usize::from(bits(&unfinished) != bits(&want));
+                compared += 1;
+            }
+            if k % 6 == 0 {
+                let mut a = vec![0.0; l.max_words];
+                let words = now.write(&mut a, &step, true, true);
+                let mut b = vec![0.0; l.max_words];
+                assert_eq!(later.write(&mut b, &step, true, false), words);
+                let mut states = vec![FigureState::default(); n];
+                scene.figure_states(&mut states);
+                fallen += scene.crowd.chars.iter().filter(|c| c.control.policy != Policy::Balance).count();
+                a.truncate(words);
+                b.truncate(words);
+                pending.push((k, b, states, a));
+            }
+        }
+        assert!(compared > 600, "{compared} frames compared");
+        assert!(fallen > 0, "no character was down or falling in a frame compared");
+        assert_eq!(moved, compared, "a frame without its figures must differ from one with them");
     }
 }

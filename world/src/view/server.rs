@@ -363,6 +363,14 @@ fn broadcast(
     finisher: FrameFinisher,
     texts: Texts,
 ) {
+    // However this thread ends, the viewers' threads are told to close and leave.
+    struct Done<'a>(&'a Shared);
+    impl Drop for Done<'_> {
+        fn drop(&mut self) {
+            self.0.done.store(true, Ordering::Relaxed);
+        }
+    }
+    let _done = Done(&shared);
     let c = &shared.counters;
     let Texts { counter_names, offset, status_every } = texts;
     let mut last_status = Instant::now() - status_every;
