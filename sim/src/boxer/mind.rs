@@ -26,6 +26,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use super::reach::Reach;
+use super::stance::Stance;
 use super::{coupling_force, BoxerParams, HandTarget, Parts, StepReport, AVATAR, BOXER};
 use crate::model::{Model, Part};
 use crate::state::{State, Workspace};
@@ -228,6 +229,11 @@ pub struct Mind {
     /// extrapolation.
     prev_vel: [Option<DVec3>; 2],
     pub hand_acc_m_per_s2: [DVec3; 2],
+    /// Where its legs hold its waist ([`Stance`]): it follows the waist while a fist comes or a
+    /// defence is under way, and steps back to its place once none does.
+    pub stance: Stance,
+    /// The legs brace ([`STANCE_BRACE`]): while a fist comes or a defence is under way.
+    pub braced: bool,
     vh: Parts,
     av: Parts,
     rng: Pcg64Mcg,
@@ -235,6 +241,12 @@ pub struct Mind {
 
 /// Time constant of the smoothing of the user's hand acceleration (s).
 const ACC_SMOOTH_S: f64 = 0.006;
+/// The stance steps back to its place at this speed once no fist comes (m/s).
+pub const STANCE_RETURN_M_PER_S: f64 = 0.2;
+/// The stance is at most this far from its place (m).
+pub const STANCE_STEP_MAX_M: f64 = 0.15;
+/// While it guards, the legs brace: a spring toward the stance and a damper (N/m, N s/m).
+pub const STANCE_BRACE: (f64, f64) = (20_000.0, 1_000.0);
 
 impl Mind {
     pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
@@ -261,6 +273,8 @@ impl Mind {
             next_predict_s: 0.0,
             prev_vel: [None; 2],
             hand_acc_m_per_s2: [DVec3::ZERO; 2],
+            stance: Stance::new(model, vh.waist),
+            braced: false,
             vh: *vh,
             av: *av,
             rng: Pcg64Mcg::seed_from_u64(p.seed),
@@ -301,10 +315,11 @@ impl Mind {
         bp: &BoxerParams,
     ) -> Option<Decision> {
         let reaches = self.reaches;
-        self.predict_with(model, state, targets, bp, &reaches)
+        self.predict_with(model, state, targets, bp, &reaches, false)
     }
 
-    /// [`Mind::predict`] with `reaches` instead of the current ones.
+    /// [`Mind::predict`] with `reaches` instead of the current ones, and the stance stepping
+    /// back to its place from the start (`stance_returning`) instead of staying where it is.
     pub fn predict_with(
         &mut self,
         model: &Model,
@@ -312,6 +327,7 @@ impl Mind {
         targets: &[Option<HandTarget>; 2],
         bp: &BoxerParams,
         reaches: &[Option<Reach>; 3],
+        stance_returning: bool,
     ) -> Option<Decision> {
         let started = Instant::now();
         let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
@@ -329,6 +345,8 @@ impl Mind {
         let mut present = [(usize::MAX, usize::MAX); 16];
         let mut n_present = 0;
         let decel = self.params.decel_m_per_s2;
+        let stance = self.stance;
+        let brace = (self.braced && !stance_returning).then_some(STANCE_BRACE);
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -393,6 +411,12 @@ impl Mind {
             for r in reaches.iter().flatten() {
                 r.apply(m, ws, s.t_s);
             }
+            let home = if stance_returning {
+                stance.returning(dt_ahead, STANCE_RETURN_M_PER_S)
+            } else {
+                stance.home_m
+            };
+            stance.apply(ws, home, brace);
             n += 1;
             true
         });
@@ -653,7 +677,7 @@ impl Mind {
                 }
                 reaches[2] = None;
             }
-            let d = self.predict_with(model, state, targets, bp, &reaches);
+            let d = self.predict_with(model, state, targets, bp, &reaches, self.defence.is_some());
             match d {
                 Some(d) if d.class == ContactClass::AvatarAttack => self.decide(model, ws, now, &d, bp),
                 other => {
@@ -696,6 +720,7 @@ impl Mind {
                 });
             }
         }
+        self.place_stance(model, ws, approaching);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
         let idle =
@@ -731,11 +756,33 @@ impl Mind {
         }
     }
 
-    /// Applies the current reaches for this step.
+    /// Moves the stance ([`Stance`]): while a fist comes at it or a defence is under way it
+    /// follows the waist wherever staying would pull the body toward one of the avatar's fists
+    /// (seen from the head and from the chest); otherwise it steps back to its place.
+    fn place_stance(&mut self, model: &Model, ws: &Workspace, approaching: bool) {
+        self.braced = approaching || self.defence.is_some();
+        if self.braced {
+            let mut toward = [DVec3::ZERO; 4];
+            for (k, (part, fist)) in [self.vh.head, self.vh.chest]
+                .into_iter()
+                .flat_map(|p| self.av.hand.map(|h| (p, h)))
+                .enumerate()
+            {
+                toward[k] = (ws.com_world(model, fist) - ws.com_world(model, part)).normalize_or_zero();
+            }
+            let waist = self.stance.waist_m(ws);
+            self.stance.follow(waist, &toward, STANCE_STEP_MAX_M);
+        } else {
+            self.stance.step_back(model.dt_s, STANCE_RETURN_M_PER_S);
+        }
+    }
+
+    /// Applies the current reaches and the stance for this step.
     pub fn act(&self, model: &Model, ws: &mut Workspace, now_s: f64) {
         for r in self.reaches.iter().flatten() {
             r.apply(model, ws, now_s);
         }
+        self.stance.apply(ws, self.stance.home_m, self.braced.then_some(STANCE_BRACE));
     }
 
     /// Counts hits after the world step at `t_s`: a hit is a contact of the kind that begins at
