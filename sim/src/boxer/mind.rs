@@ -510,7 +510,12 @@ impl Mind {
                     let away = DVec3::new(b.x - a.x, 0.0, b.z - a.z).normalize_or(DVec3::NEG_Z);
                     // Mostly back (the virtual human faces +z).
                     let dir = DVec3::new(away.x * 0.5, 0.0, -1.0).normalize();
-                    home + dir * self.params.lean_m
+                    // From where the head is now (a punch may have lifted the body, or a dodge
+                    // taken it aside) it goes neither toward the avatar nor toward the fist.
+                    let mut r = home + dir * self.params.lean_m;
+                    r.z = r.z.min(b.z);
+                    let to_fist = (a - b).normalize_or_zero();
+                    r - to_fist * (r - b).dot(to_fist).max(0.0)
                 } else {
                     avoid_target(a, p, b, &self.params)
                 };
@@ -617,7 +622,7 @@ impl Mind {
             bp.reach_body_d_n_s_per_m,
         );
         back.home_m = r.home_m;
-        back
+        back.tracking()
     }
 
     /// Called before the world step: trigger, predict, decide, start attacks, end finished reaches.
