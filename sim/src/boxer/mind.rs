@@ -245,6 +245,9 @@ const ACC_SMOOTH_S: f64 = 0.006;
 pub const STANCE_RETURN_M_PER_S: f64 = 0.2;
 /// The stance is at most this far from its place (m).
 pub const STANCE_STEP_MAX_M: f64 = 0.15;
+/// An avatar fist this close to the head's or the chest's centre is out at it (m); at its guard
+/// it is about 0.5 m from both.
+pub const FIST_NEAR_M: f64 = 0.4;
 /// While it guards, the legs brace: a spring toward the stance and a damper (N/m, N s/m).
 pub const STANCE_BRACE: (f64, f64) = (20_000.0, 1_000.0);
 
@@ -301,6 +304,14 @@ impl Mind {
                 let closing = (v - ws.point_velocity(b, model.bodies[b].com_m)).dot(to / d);
                 d > 1e-6 && closing > speed_m_per_s
             })
+        })
+    }
+
+    /// Is an avatar fist within `m` of the virtual human's head or chest (their centres)?
+    pub fn fist_within(&self, model: &Model, ws: &Workspace, m: f64) -> bool {
+        self.av.hand.iter().any(|&h| {
+            let p = ws.com_world(model, h);
+            [self.vh.head, self.vh.chest].iter().any(|&b| (ws.com_world(model, b) - p).length() < m)
         })
     }
 
@@ -670,6 +681,8 @@ impl Mind {
         // A fist coming at it, even slowly: the body does not go back toward it, nor does an
         // attack start.
         let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
+        // A fist out near its head or chest, coming or not: the body does not go back toward it.
+        let guarding = approaching || self.fist_within(model, ws, FIST_NEAR_M);
         if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
@@ -696,13 +709,13 @@ impl Mind {
                 }
             }
         }
-        // While a fist comes at it and it is not avoiding, the body holds still where it is: it
-        // neither goes back to its guard after a defence (that would be toward the fist) nor
-        // sways there on its joints; the head, its most mobile part, is held if nothing else
-        // is. Once no fist comes, it goes back to its guard.
+        // While a fist comes at it or is out near it and it is not avoiding, the body holds still
+        // where it is: it neither goes back to its guard after a defence (that would be toward
+        // the fist) nor sways there on its joints; the head, its most mobile part, is held if
+        // nothing else is. Once no fist comes and none is near, it goes back to its guard.
         if self.body == BodyBehaviour::Standby {
             let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
-            if approaching && !held {
+            if guarding && !held {
                 let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
                 let here = ws.com_world(model, body);
                 let mut hold = Reach::start(
@@ -718,14 +731,14 @@ impl Mind {
                 hold.home_m = home.unwrap_or(here);
                 hold.duration_s = f64::INFINITY;
                 self.reaches[2] = Some(hold);
-            } else if !approaching && held && self.defence.is_none() {
+            } else if !guarding && held && self.defence.is_none() {
                 self.reaches[2] = self.reaches[2].and_then(|r| {
                     ((r.home_m - r.target_m).length() > 0.01)
                         .then(|| self.return_reach(model, ws, &r, now, bp))
                 });
             }
         }
-        self.place_stance(model, ws, approaching);
+        self.place_stance(model, ws, guarding);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
         let idle =
@@ -764,8 +777,8 @@ impl Mind {
     /// Moves the stance ([`Stance`]): while a fist comes at it or a defence is under way it
     /// follows the waist wherever staying would pull the body toward one of the avatar's fists
     /// (seen from the head and from the chest); otherwise it steps back to its place.
-    fn place_stance(&mut self, model: &Model, ws: &Workspace, approaching: bool) {
-        self.braced = approaching || self.defence.is_some();
+    fn place_stance(&mut self, model: &Model, ws: &Workspace, guarding: bool) {
+        self.braced = guarding || self.defence.is_some();
         if self.braced {
             let mut toward = [DVec3::ZERO; 4];
             for (k, (part, fist)) in [self.vh.head, self.vh.chest]
