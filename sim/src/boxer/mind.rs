@@ -204,9 +204,6 @@ pub struct Mind {
     pub body: BodyBehaviour,
     /// Current reaches: hands [left, right], then the body (head or chest).
     pub reaches: [Option<Reach>; 3],
-    /// While the body is held still (the body's reach holds the head where it is), the chest is
-    /// held where it is too, so the trunk does not swing about the held head.
-    pub chest_hold: Option<Reach>,
     pub defence: Option<Defence>,
     pub predictor: Predictor,
     /// The contact that decided the newest prediction (None: it found none).
@@ -262,7 +259,6 @@ impl Mind {
             hands: [Behaviour::Standby; 2],
             body: BodyBehaviour::Standby,
             reaches: [None; 3],
-            chest_hold: None,
             defence: None,
             predictor: Predictor::new(model),
             last_decision: None,
@@ -361,7 +357,6 @@ impl Mind {
         let mut n_present = 0;
         let decel = self.params.decel_m_per_s2;
         let stance = self.stance;
-        let chest_hold = self.chest_hold.filter(|_| reaches[2].is_some_and(|r| is_hold(&r)));
         let brace = (self.braced && !stance_returning).then_some(STANCE_BRACE);
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
@@ -424,7 +419,7 @@ impl Mind {
                     ws.add_force_at(av.hand[h], c, f);
                 }
             }
-            for r in reaches.iter().chain([&chest_hold]).flatten() {
+            for r in reaches.iter().flatten() {
                 r.apply(m, ws, s.t_s);
             }
             let home = if stance_returning {
@@ -719,36 +714,29 @@ impl Mind {
         // the fist) nor sways there on its joints; the head, its most mobile part, is held if
         // nothing else is. Once no fist comes and none is near, it goes back to its guard.
         if self.body == BodyBehaviour::Standby {
-            let held = self.reaches[2].is_some_and(|r| is_hold(&r));
+            let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
             if guarding && !held {
-                let hold = |body: usize| {
-                    let here = ws.com_world(model, body);
-                    let mut hold = Reach::start(
-                        model,
-                        ws,
-                        body,
-                        here,
-                        now,
-                        0.05,
-                        bp.reach_body_k_n_per_m,
-                        bp.reach_body_d_n_s_per_m,
-                    );
-                    hold.duration_s = f64::INFINITY;
-                    hold
-                };
-                let mut head = hold(self.vh.head);
-                head.home_m = self.reaches[2].map_or(head.target_m, |r| r.home_m);
-                self.reaches[2] = Some(head);
-                self.chest_hold = Some(hold(self.vh.chest));
+                let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
+                let here = ws.com_world(model, body);
+                let mut hold = Reach::start(
+                    model,
+                    ws,
+                    body,
+                    here,
+                    now,
+                    0.05,
+                    bp.reach_body_k_n_per_m,
+                    bp.reach_body_d_n_s_per_m,
+                );
+                hold.home_m = home.unwrap_or(here);
+                hold.duration_s = f64::INFINITY;
+                self.reaches[2] = Some(hold);
             } else if !guarding && held && self.defence.is_none() {
                 self.reaches[2] = self.reaches[2].and_then(|r| {
                     ((r.home_m - r.target_m).length() > 0.01)
                         .then(|| self.return_reach(model, ws, &r, now, bp))
                 });
             }
-        }
-        if !self.reaches[2].is_some_and(|r| is_hold(&r)) {
-            self.chest_hold = None;
         }
         self.place_stance(model, ws, guarding);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
@@ -809,7 +797,7 @@ impl Mind {
 
     /// Applies the current reaches and the stance for this step.
     pub fn act(&self, model: &Model, ws: &mut Workspace, now_s: f64) {
-        for r in self.reaches.iter().chain([&self.chest_hold]).flatten() {
+        for r in self.reaches.iter().flatten() {
             r.apply(model, ws, now_s);
         }
         self.stance.apply(ws, self.stance.home_m, self.braced.then_some(STANCE_BRACE));
@@ -837,11 +825,6 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
-}
-
-/// A reach that holds its part where it was (the body held still while a fist is about).
-fn is_hold(r: &Reach) -> bool {
-    r.duration_s.is_infinite()
 }
 
 /// A hand speeding up is expected to reach at most this many times its present speed (the peak
