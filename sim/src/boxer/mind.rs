@@ -187,6 +187,16 @@ pub struct MindParams {
     pub hold_s: f64,
     /// After a defence the body goes back to its guard in a reach this long (s).
     pub return_s: f64,
+    /// An avatar fist closer than this to the head's or the chest's centre is out at it: the
+    /// body holds and braces as while a fist comes (m).
+    pub fist_near_m: f64,
+    /// The stance ([`Stance`]) follows the waist at most this far from its place (m), and steps
+    /// back to it at this speed once no fist comes or is near (m/s).
+    pub stance_step_max_m: f64,
+    pub stance_return_m_per_s: f64,
+    /// While it guards, the legs brace: a spring toward the stance (N/m) and a damper (N s/m).
+    pub brace_k_n_per_m: f64,
+    pub brace_d_n_s_per_m: f64,
 }
 
 impl Default for MindParams {
@@ -232,7 +242,8 @@ pub struct Mind {
     /// Where its legs hold its waist ([`Stance`]): it follows the waist while a fist comes or a
     /// defence is under way, and steps back to its place once none does.
     pub stance: Stance,
-    /// The legs brace ([`STANCE_BRACE`]): while a fist comes or a defence is under way.
+    /// The legs brace (`brace_k_n_per_m`, `brace_d_n_s_per_m`): while a fist comes or is near,
+    /// or a defence is under way.
     pub braced: bool,
     vh: Parts,
     av: Parts,
@@ -241,15 +252,6 @@ pub struct Mind {
 
 /// Time constant of the smoothing of the user's hand acceleration (s).
 const ACC_SMOOTH_S: f64 = 0.006;
-/// The stance steps back to its place at this speed once no fist comes (m/s).
-pub const STANCE_RETURN_M_PER_S: f64 = 0.2;
-/// The stance is at most this far from its place (m).
-pub const STANCE_STEP_MAX_M: f64 = 0.15;
-/// An avatar fist this close to the head's or the chest's centre is out at it (m); at its guard
-/// it is about 0.5 m from both.
-pub const FIST_NEAR_M: f64 = 0.4;
-/// While it guards, the legs brace: a spring toward the stance and a damper (N/m, N s/m).
-pub const STANCE_BRACE: (f64, f64) = (20_000.0, 1_000.0);
 
 impl Mind {
     pub fn new(model: &Model, p: &BoxerParams, vh: &Parts, av: &Parts) -> Mind {
@@ -357,7 +359,8 @@ impl Mind {
         let mut n_present = 0;
         let decel = self.params.decel_m_per_s2;
         let stance = self.stance;
-        let brace = (self.braced && !stance_returning).then_some(STANCE_BRACE);
+        let brace = (self.braced && !stance_returning).then_some(self.brace());
+        let stance_speed = self.params.stance_return_m_per_s;
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -423,7 +426,7 @@ impl Mind {
                 r.apply(m, ws, s.t_s);
             }
             let home = if stance_returning {
-                stance.returning(dt_ahead, STANCE_RETURN_M_PER_S)
+                stance.returning(dt_ahead, stance_speed)
             } else {
                 stance.home_m
             };
@@ -682,7 +685,7 @@ impl Mind {
         // attack start.
         let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
         // A fist out near its head or chest, coming or not: the body does not go back toward it.
-        let guarding = approaching || self.fist_within(model, ws, FIST_NEAR_M);
+        let guarding = approaching || self.fist_within(model, ws, self.params.fist_near_m);
         if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
@@ -789,10 +792,15 @@ impl Mind {
                 toward[k] = (ws.com_world(model, fist) - ws.com_world(model, part)).normalize_or_zero();
             }
             let waist = self.stance.waist_m(ws);
-            self.stance.follow(waist, &toward, STANCE_STEP_MAX_M);
+            self.stance.follow(waist, &toward, self.params.stance_step_max_m);
         } else {
-            self.stance.step_back(model.dt_s, STANCE_RETURN_M_PER_S);
+            self.stance.step_back(model.dt_s, self.params.stance_return_m_per_s);
         }
+    }
+
+    /// The legs' bracing spring and damper (N/m, N s/m).
+    fn brace(&self) -> (f64, f64) {
+        (self.params.brace_k_n_per_m, self.params.brace_d_n_s_per_m)
     }
 
     /// Applies the current reaches and the stance for this step.
@@ -800,7 +808,7 @@ impl Mind {
         for r in self.reaches.iter().flatten() {
             r.apply(model, ws, now_s);
         }
-        self.stance.apply(ws, self.stance.home_m, self.braced.then_some(STANCE_BRACE));
+        self.stance.apply(ws, self.stance.home_m, self.braced.then_some(self.brace()));
     }
 
     /// Counts hits after the world step at `t_s`: a hit is a contact of the kind that begins at
