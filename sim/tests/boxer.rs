@@ -729,3 +729,52 @@ fn at_the_scenes_distance_both_reach_the_others_head_and_chest() {
         w.mind.attacks
     );
 }
+
+/// Issue 15, no part moves toward the fist by more than 2 cm: a body that was lifted and pushed
+/// back (as an uppercut or a fist pressing on a block does) while an avatar fist is out in front
+/// of it does not spring back toward that fist. Its legs (the stance) follow it away from the fist
+/// and brace; without them the base spring alone brings the head and chest back toward the fist
+/// by several centimetres.
+#[test]
+fn a_body_pushed_back_does_not_spring_back_toward_a_fist_that_is_out() {
+    let run = |stance: bool| {
+        let mut p = BoxerParams::default();
+        if !stance {
+            p.mind.stance_step_max_m = 0.0;
+            p.mind.brace_k_n_per_m = 0.0;
+            p.mind.brace_d_n_s_per_m = 0.0;
+        }
+        let mut w = settled(p);
+        // The left fist held out 25 cm in front of the chest and 5 cm below its centre.
+        let fist = w.com(w.vh.chest) + DVec3::new(0.0, -0.05, 0.25);
+        let mut targets = guard_targets(&w, 0, HandTarget { pos_m: fist, vel_m_per_s: DVec3::ZERO });
+        for _ in 0..((0.5 / w.dt_s()) as usize) {
+            w.step(&targets);
+        }
+        // A push: the whole body 6 cm back (away from the avatar, -z) and 4 cm up. The waist's
+        // position is in its actor's frame.
+        let root = &w.model.bodies[w.vh.waist];
+        let (qa, push) = (root.q_at, root.x_tree.e * DVec3::new(0.0, 0.04, -0.06));
+        for k in 0..3 {
+            w.state.q[qa + k] += push[k];
+        }
+        w.state.v.fill(0.0);
+        w.begin_step();
+        targets[0] = Some(HandTarget { pos_m: fist, vel_m_per_s: DVec3::ZERO });
+        let from = [w.com(w.vh.head), w.com(w.vh.chest)];
+        let mut toward: f64 = 0.0;
+        for _ in 0..((1.0 / w.dt_s()) as usize) {
+            w.step(&targets);
+            let f = w.com(w.avatar.hand[0]);
+            for (i, b) in [w.vh.head, w.vh.chest].into_iter().enumerate() {
+                let p = w.com(b);
+                toward = toward.max((p - from[i]).dot((f - p).normalize()));
+            }
+        }
+        toward
+    };
+    let (with, without) = (run(true), run(false));
+    eprintln!("toward the fist: {with:.4} m with the stance, {without:.4} m without");
+    assert!(without > 0.03, "without the stance the body came only {without:.3} m toward the fist");
+    assert!(with <= 0.02, "the head or chest moved {with:.3} m toward the fist");
+}

@@ -26,7 +26,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use super::reach::Reach;
-use super::stance::Stance;
+use super::stance::{not_toward, Stance};
 use super::{coupling_force, BoxerParams, HandTarget, Parts, StepReport, AVATAR, BOXER};
 use crate::model::{Model, Part};
 use crate::state::{State, Workspace};
@@ -717,7 +717,7 @@ impl Mind {
         // the fist) nor sways there on its joints; the head, its most mobile part, is held if
         // nothing else is. Once no fist comes and none is near, it goes back to its guard.
         if self.body == BodyBehaviour::Standby {
-            let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
+            let held = self.reaches[2].is_some_and(|r| is_hold(&r));
             if guarding && !held {
                 let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
                 let here = ws.com_world(model, body);
@@ -777,9 +777,12 @@ impl Mind {
         }
     }
 
-    /// Moves the stance ([`Stance`]): while a fist comes at it or a defence is under way it
-    /// follows the waist wherever staying would pull the body toward one of the avatar's fists
-    /// (seen from the head and from the chest); otherwise it steps back to its place.
+    /// Moves the stance ([`Stance`]) and lets a hold go of what pulls toward a fist. While a
+    /// fist comes at it or is near, or a defence is under way, the stance follows the waist
+    /// wherever staying would pull the body toward one of the avatar's fists (seen from the head
+    /// and from the chest), and a hold ([`is_hold`]) follows the head the same way: both resist
+    /// being moved toward a fist and yield to being moved away. Otherwise the stance steps back
+    /// to its place.
     fn place_stance(&mut self, model: &Model, ws: &Workspace, guarding: bool) {
         self.braced = guarding || self.defence.is_some();
         if self.braced {
@@ -793,6 +796,13 @@ impl Mind {
             }
             let waist = self.stance.waist_m(ws);
             self.stance.follow(waist, &toward, self.params.stance_step_max_m);
+            if let Some(r) = self.reaches[2].as_mut().filter(|r| is_hold(r)) {
+                let at = ws.point_world(r.body, r.point_body_m);
+                let target = at + not_toward(r.target_m - at, &toward);
+                if target.is_finite() {
+                    r.target_m = target;
+                }
+            }
         } else {
             self.stance.step_back(model.dt_s, self.params.stance_return_m_per_s);
         }
@@ -833,6 +843,11 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A reach that holds its part where it is while a fist is about (it never ends).
+fn is_hold(r: &Reach) -> bool {
+    r.duration_s.is_infinite()
 }
 
 /// A hand speeding up is expected to reach at most this many times its present speed (the peak

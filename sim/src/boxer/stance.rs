@@ -66,20 +66,7 @@ impl Stance {
     /// to the avatar's fists; the spring's pull (home minus waist) keeps no component along any
     /// of them. At most `max_m` from the place (a step).
     pub fn follow(&mut self, waist_m: DVec3, toward_fists: &[DVec3], max_m: f64) {
-        let mut pull = self.home_m - waist_m;
-        // Alternating projections onto the half-spaces "not toward this fist"; a few passes
-        // settle two or four directions, and whatever is left after them is let go of.
-        for _ in 0..4 {
-            for u in toward_fists {
-                let along = pull.dot(*u);
-                if along > 0.0 {
-                    pull -= *u * along;
-                }
-            }
-        }
-        if toward_fists.iter().any(|u| pull.dot(*u) > 1e-9) {
-            pull = DVec3::ZERO;
-        }
+        let pull = not_toward(self.home_m - waist_m, toward_fists);
         let home = self.place_m + (waist_m + pull - self.place_m).clamp_length_max(max_m);
         if home.is_finite() {
             self.home_m = home;
@@ -95,5 +82,25 @@ impl Stance {
     /// Steps back toward the place for `dt_s` at `speed`.
     pub fn step_back(&mut self, dt_s: f64, speed_m_per_s: f64) {
         self.home_m = self.returning(dt_s, speed_m_per_s);
+    }
+}
+
+/// What is left of a spring's pull `pull` once nothing of it points along any of `toward` (unit
+/// directions to the fists): its largest part in every half-space "not toward this fist", by
+/// alternating projections (a few passes settle two to four directions; whatever they leave
+/// pointing toward one is let go of).
+pub fn not_toward(mut pull: DVec3, toward: &[DVec3]) -> DVec3 {
+    for _ in 0..4 {
+        for u in toward {
+            let along = pull.dot(*u);
+            if along > 0.0 {
+                pull -= *u * along;
+            }
+        }
+    }
+    if toward.iter().any(|u| pull.dot(*u) > 1e-9) {
+        DVec3::ZERO
+    } else {
+        pull
     }
 }
