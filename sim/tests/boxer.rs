@@ -745,8 +745,8 @@ fn a_body_pushed_back_does_not_spring_back_toward_a_fist_that_is_out() {
             p.mind.brace_d_n_s_per_m = 0.0;
         }
         let mut w = settled(p);
-        // The left fist held out 25 cm in front of the chest and 5 cm below its centre.
-        let fist = w.com(w.vh.chest) + DVec3::new(0.0, -0.05, 0.25);
+        // The left fist held out 15 cm in front of the chest and 5 cm below its centre.
+        let fist = w.com(w.vh.chest) + DVec3::new(0.0, -0.05, 0.15);
         let mut targets = guard_targets(&w, 0, HandTarget { pos_m: fist, vel_m_per_s: DVec3::ZERO });
         for _ in 0..((0.5 / w.dt_s()) as usize) {
             w.step(&targets);

@@ -187,8 +187,8 @@ pub struct MindParams {
     pub hold_s: f64,
     /// After a defence the body goes back to its guard in a reach this long (s).
     pub return_s: f64,
-    /// An avatar fist closer than this to the head's or the chest's centre is out at it: the
-    /// body holds and braces as while a fist comes (m).
+    /// An avatar fist closer than this to the head's or the chest's centre, or touching the
+    /// virtual human, is out at it: the body holds and braces as while a fist comes (m).
     pub fist_near_m: f64,
     /// The stance ([`Stance`]) follows the waist at most this far from its place (m), and steps
     /// back to it at this speed once no fist comes or is near (m/s).
@@ -309,12 +309,22 @@ impl Mind {
         })
     }
 
-    /// Is an avatar fist within `m` of the virtual human's head or chest (their centres)?
-    pub fn fist_within(&self, model: &Model, ws: &Workspace, m: f64) -> bool {
-        self.av.hand.iter().any(|&h| {
+    /// Is an avatar fist out at the virtual human: within `m` of its head's or chest's centre,
+    /// where they are or where going back to its guard would take them (the waist back at its
+    /// place, the head at the guard its reach left from), or touching any part of it (pressing
+    /// on a block, say)? `ws` holds the state's contacts.
+    pub fn fist_at(&self, model: &Model, ws: &Workspace, m: f64) -> bool {
+        let (head, chest) = (ws.com_world(model, self.vh.head), ws.com_world(model, self.vh.chest));
+        let back = self.stance.place_m - self.stance.waist_m(ws);
+        let head_guard = self.reaches[2].map_or(head + back, |r| r.home_m);
+        let parts = [head, chest, head_guard, chest + back];
+        let near = self.av.hand.iter().any(|&h| {
             let p = ws.com_world(model, h);
-            [self.vh.head, self.vh.chest].iter().any(|&b| (ws.com_world(model, b) - p).length() < m)
-        })
+            parts.iter().any(|&b| (b - p).length() < m)
+        });
+        let fist = |b: Option<u16>| b.is_some_and(|b| self.av.hand.contains(&(b as usize)));
+        let boxer = |b: Option<u16>| b.is_some_and(|b| model.bodies[b as usize].articulation == BOXER);
+        near || ws.contacts.iter().any(|c| (fist(c.body_a) && boxer(c.body_b)) || (fist(c.body_b) && boxer(c.body_a)))
     }
 
     /// Runs a prediction from `state` with the user's hands at `targets` extrapolated and the
@@ -684,8 +694,9 @@ impl Mind {
         // A fist coming at it, even slowly: the body does not go back toward it, nor does an
         // attack start.
         let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
-        // A fist out near its head or chest, coming or not: the body does not go back toward it.
-        let guarding = approaching || self.fist_within(model, ws, self.params.fist_near_m);
+        // A fist out at its head or chest, or touching it, coming or not: the body does not go
+        // back toward it.
+        let guarding = approaching || self.fist_at(model, ws, self.params.fist_near_m);
         if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
