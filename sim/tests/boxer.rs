@@ -730,6 +730,23 @@ fn at_the_scenes_distance_both_reach_the_others_head_and_chest() {
     );
 }
 
+/// The stance moves the base spring's anchor: with the stance 3 cm up and 5 cm back from its place
+/// (and nothing else acting), the waist settles there, in the world's axes (the virtual human's
+/// actor frame faces the other way).
+#[test]
+fn a_stance_away_from_its_place_holds_the_waist_there() {
+    let mut w = settled(BoxerParams { active: false, ..Default::default() });
+    let place = w.mind.stance.place_m;
+    assert!((w.mind.stance.waist_m(&w.ws) - place).length() < 0.005, "a settled waist is at its place");
+    let home = place + DVec3::new(0.0, 0.03, -0.05);
+    w.mind.stance.home_m = home;
+    for _ in 0..((2.0 / w.dt_s()) as usize) {
+        w.step(&[None, None]);
+    }
+    let off = (w.mind.stance.waist_m(&w.ws) - home).length();
+    assert!(off < 0.003, "the waist settled {off:.4} m from the stance");
+}
+
 /// Issue 15, no part moves toward the fist by more than 2 cm: a body that was lifted and pushed
 /// back (as an uppercut or a fist pressing on a block does) while an avatar fist is out in front
 /// of it does not spring back toward that fist. Its legs (the stance) follow it away from the fist

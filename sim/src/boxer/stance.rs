@@ -104,3 +104,63 @@ pub fn not_toward(mut pull: DVec3, toward: &[DVec3]) -> DVec3 {
         pull
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic spread of unit directions.
+    fn dirs(n: usize, seed: f64) -> Vec<DVec3> {
+        (0..n)
+            .map(|k| {
+                let a = seed + k as f64 * 2.399;
+                DVec3::new(a.cos() * (0.7 * a).sin(), (1.3 * a).cos(), a.sin() * (0.7 * a).cos()).normalize()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn what_is_left_of_a_pull_points_toward_no_fist() {
+        for case in 0..200 {
+            let toward = dirs(1 + case % 4, case as f64 * 0.37);
+            let pull = dirs(1, case as f64 * 1.91 + 5.0)[0] * 0.05;
+            let left = not_toward(pull, &toward);
+            for u in &toward {
+                assert!(left.dot(*u) <= 1e-9, "case {case}: {left} points toward {u}");
+            }
+            assert!(left.length() <= pull.length() + 1e-12, "case {case}: the pull grew");
+            if toward.iter().all(|u| pull.dot(*u) <= 0.0) {
+                assert_eq!(left, pull, "case {case}: a pull away from every fist is kept whole");
+            }
+        }
+        // A single fist straight ahead (+z): a pull forward and up keeps only its upward part.
+        let left = not_toward(DVec3::new(0.0, 0.02, 0.05), &[DVec3::Z]);
+        assert!((left - DVec3::new(0.0, 0.02, 0.0)).length() < 1e-12, "{left}");
+    }
+
+    #[test]
+    fn the_stance_follows_the_waist_only_where_staying_would_pull_toward_a_fist() {
+        let mut s = Stance { place_m: DVec3::ZERO, home_m: DVec3::ZERO, k: DMat3::IDENTITY, root: 0 };
+        // The fist ahead (+z) and below: the waist pushed back (-z) and up.
+        let toward = [DVec3::new(0.0, -0.5, 1.0).normalize()];
+        let waist = DVec3::new(0.0, 0.04, -0.06);
+        s.follow(waist, &toward, 0.15);
+        assert!((s.home_m - waist).dot(toward[0]) <= 1e-12, "the stance still pulls toward the fist");
+        assert!(s.home_m.z < -0.05 && s.home_m.y > 0.0, "it followed the waist back: {}", s.home_m);
+        // Pushed toward the fist: the stance stays where it was and pulls the waist back.
+        let before = s.home_m;
+        s.follow(before + toward[0] * 0.03, &toward, 0.15);
+        assert_eq!(s.home_m, before);
+        // Never further than a step from its place.
+        s.follow(DVec3::new(0.0, 0.0, -0.5), &toward, 0.15);
+        assert!((s.home_m - s.place_m).length() <= 0.15 + 1e-12, "{}", s.home_m);
+        // Back to its place at the given speed.
+        let from = s.home_m;
+        s.step_back(0.1, 0.2);
+        assert!(((from - s.home_m).length() - 0.02).abs() < 1e-12);
+        for _ in 0..100 {
+            s.step_back(0.1, 0.2);
+        }
+        assert_eq!(s.home_m, s.place_m);
+    }
+}
