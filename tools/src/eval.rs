@@ -701,9 +701,10 @@ impl fmt::Display for PunchReport {
         )?;
         let ((aw, ao), (pw, po)) = (a.toward_fist_max_m(), p.toward_fist_max_m());
         let over = |b: &BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
+        let bound = if over(a) == 0 { "the issue's 2 cm bound holds" } else { "the issue's 2 cm bound is NOT met" };
         writeln!(
             f,
-            "  head or chest toward the fist while it came out: at most {ao:.3} m, over 2 cm in {} of {} punches (active); \
+            "  head or chest toward the fist while it came out: at most {ao:.3} m, over 2 cm in {} of {} punches (active: {bound}); \
              at most {po:.3} m, over 2 cm in {} (passive); over the whole punch at most {aw:.3} / {pw:.3} m",
             over(a),
             a.punches.len(),
