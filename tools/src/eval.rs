@@ -300,7 +300,11 @@ impl PunchOutcome {
             if p.feint { "feint" } else { "punch" },
             p.aim.name(),
             p.start_s,
-            if p.in_combo > 0 { format!(", number {} of a combination", p.in_combo + 1) } else { String::new() },
+            if p.in_combo > 0 {
+                format!(", number {} of a combination", p.in_combo + 1)
+            } else {
+                String::new()
+            },
             format_args!(" ({:.1} m/s)", self.peak_m_per_s),
             self.toward_fist_out_m
         );
@@ -701,7 +705,8 @@ impl fmt::Display for PunchReport {
         )?;
         let ((aw, ao), (pw, po)) = (a.toward_fist_max_m(), p.toward_fist_max_m());
         let over = |b: &BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
-        let bound = if over(a) == 0 { "the issue's 2 cm bound holds" } else { "the issue's 2 cm bound is NOT met" };
+        let bound =
+            if over(a) == 0 { "the issue's 2 cm bound holds" } else { "the issue's 2 cm bound is NOT met" };
         writeln!(
             f,
             "  head or chest toward the fist while it came out: at most {ao:.3} m, over 2 cm in {} of {} punches (active: {bound}); \

@@ -324,7 +324,10 @@ impl Mind {
         });
         let fist = |b: Option<u16>| b.is_some_and(|b| self.av.hand.contains(&(b as usize)));
         let boxer = |b: Option<u16>| b.is_some_and(|b| model.bodies[b as usize].articulation == BOXER);
-        near || ws.contacts.iter().any(|c| (fist(c.body_a) && boxer(c.body_b)) || (fist(c.body_b) && boxer(c.body_a)))
+        near || ws
+            .contacts
+            .iter()
+            .any(|c| (fist(c.body_a) && boxer(c.body_b)) || (fist(c.body_b) && boxer(c.body_a)))
     }
 
     /// Runs a prediction from `state` with the user's hands at `targets` extrapolated and the
@@ -435,11 +438,8 @@ impl Mind {
             for r in reaches.iter().flatten() {
                 r.apply(m, ws, s.t_s);
             }
-            let home = if stance_returning {
-                stance.returning(dt_ahead, stance_speed)
-            } else {
-                stance.home_m
-            };
+            let home =
+                if stance_returning { stance.returning(dt_ahead, stance_speed) } else { stance.home_m };
             stance.apply(ws, home, brace);
             n += 1;
             true
