@@ -67,6 +67,10 @@ impl<'a> Writer<'a> {
         self.align(8);
         self.buf.extend_from_slice(&x.to_le_bytes());
     }
+    pub fn f32(&mut self, x: f32) {
+        self.align(4);
+        self.buf.extend_from_slice(&x.to_le_bytes());
+    }
     pub fn str(&mut self, s: &str) {
         self.u32(s.len() as u32 + 1);
         self.buf.extend_from_slice(s.as_bytes());
@@ -130,6 +134,9 @@ impl<'a> Reader<'a> {
     }
     pub fn f64(&mut self) -> Result<f64, DecodeError> {
         Ok(f64::from_le_bytes(self.array()?))
+    }
+    pub fn f32(&mut self) -> Result<f32, DecodeError> {
+        Ok(f32::from_le_bytes(self.array()?))
     }
     pub fn str(&mut self) -> Result<String, DecodeError> {
         let n = self.u32()? as usize;
@@ -242,6 +249,16 @@ fn csv_f64(x: f64, out: &mut String) {
     }
 }
 
+fn csv_f32(x: f32, out: &mut String) {
+    if x.is_finite() {
+        out.push(',');
+        let mut b = ryu::Buffer::new();
+        out.push_str(b.format_finite(x));
+    } else {
+        csv_f64(x as f64, out);
+    }
+}
+
 fn csv_int(x: impl itoa_like::Int, out: &mut String) {
     out.push(',');
     x.push_to(out);
@@ -310,6 +327,7 @@ primitive!(i32, "int32", i32, csv_int);
 primitive!(u64, "uint64", u64, csv_int);
 primitive!(i64, "int64", i64, csv_int);
 primitive!(f64, "float64", f64, csv_f64);
+primitive!(f32, "float32", f32, csv_f32);
 
 impl Field for bool {
     fn ros_type() -> String {

@@ -6,6 +6,7 @@
 //! - [`reader`]: reads a recording back, also one cut short, checking it is spidar's own.
 //! - [`verify`]: re-runs the rt-loop's tick core from the recorded inputs and checks every output.
 //! - [`export`]: one CSV file per channel. [`plot`]: SVG plots of a session.
+//! - [`play`]: the live view's frames of a world recording, found by time, for `spidar replay`.
 //!
 //! The channels, schemas and metadata are described in the repository's `docs/recording.md`.
 
@@ -23,12 +24,15 @@ pub const PROFILE: &str = "spidar";
 /// spidar's version, as written into recordings.
 pub const SPIDAR_VERSION: &str = env!("CARGO_PKG_VERSION");
 
+pub mod play;
 pub mod reader;
 pub mod summary;
 pub mod verify;
 pub mod world;
 pub mod writer;
 
+#[cfg(test)]
+mod play_tests;
 #[cfg(test)]
 mod tests;
 #[cfg(test)]

@@ -466,11 +466,22 @@ pub fn plot(path: &Path, out: &Path) -> Result<PlotReport, RecordError> {
         title
             .draw_text(
                 &format!(
-                    "{}: scene {}, script {}, {} ticks",
+                    "{}: scene {}, script {}, {} ticks{}",
                     path.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned()),
                     rec.meta("scene"),
                     rec.meta("script"),
-                    rec.ticks
+                    rec.ticks,
+                    match &rec.ending {
+                        Some(crate::reader::Ending::Complete) => String::new(),
+                        _ => format!(
+                            " (NOT COMPLETE: {}; plotted up to t = {:.3} s)",
+                            match &rec.ending {
+                                Some(crate::reader::Ending::Damaged { .. }) => "damaged",
+                                _ => "cut short",
+                            },
+                            rec.last_t_s
+                        ),
+                    }
                 ),
                 &("sans-serif", 20).into_text_style(&title),
                 (12, 10),

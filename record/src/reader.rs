@@ -24,7 +24,7 @@ use crate::writer::{META_END, META_SESSION, RIG_ATTACHMENT};
 use crate::{RecordError, FORMAT_VERSION, PROFILE};
 
 /// No record of a spidar recording is near this long; a longer one is damage, not data.
-const RECORD_LIMIT: usize = 64 << 20;
+pub(crate) const RECORD_LIMIT: usize = 64 << 20;
 const READ_SIZE: usize = 1 << 20;
 
 /// How the readable part of a file ends.
@@ -152,6 +152,56 @@ fn known(topic: &str) -> Option<(Known, String, String)> {
         TOPIC_EVENT => (Known::Event, EventMsg::ros_type(), cdr::schema_text::<EventMsg>()),
         _ => return None,
     })
+}
+
+/// The summary section of an MCAP file (its chunk, attachment and metadata indexes), read from the
+/// end of the file; None when it has none that reads (a file cut short).
+pub(crate) fn read_summary(file: &File, len: u64) -> Option<mcap::Summary> {
+    use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
+    use std::io::SeekFrom;
+    use std::os::unix::fs::FileExt;
+    let opts = SummaryReaderOptions::default().with_file_size(len).with_record_length_limit(RECORD_LIMIT);
+    let mut r = SummaryReader::new_with_options(opts);
+    let mut pos = 0u64;
+    while let Some(ev) = r.next_event() {
+        match ev.ok()? {
+            SummaryReadEvent::ReadRequest(n) => {
+                let k = file.read_at(r.insert(n), pos).ok()?;
+                pos += k as u64;
+                r.notify_read(k);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                pos = match to {
+                    SeekFrom::Start(p) => p,
+                    SeekFrom::End(e) => len.checked_add_signed(e)?,
+                    SeekFrom::Current(c) => pos.checked_add_signed(c)?,
+                };
+                r.notify_seeked(pos);
+            }
+        }
+    }
+    r.finish()
+}
+
+/// A metadata record of a complete file, found through its summary's metadata index (without
+/// reading the data). None when the file has no summary or no such record.
+pub fn metadata_of(path: &Path, name: &str) -> Result<Option<BTreeMap<String, String>>, RecordError> {
+    use std::os::unix::fs::FileExt;
+    let open = |e| RecordError::Open { path: path.to_path_buf(), cause: e };
+    let file = File::open(path).map_err(open)?;
+    let len = file.metadata().map_err(open)?.len();
+    let Some(summary) = read_summary(&file, len) else { return Ok(None) };
+    let Some(ix) = summary.metadata_indexes.iter().find(|m| m.name == name) else { return Ok(None) };
+    let bad = |what: String| RecordError::Corrupt { path: path.to_path_buf(), what };
+    if ix.length > RECORD_LIMIT as u64 || ix.length < 9 {
+        return Err(bad(format!("its metadata index gives {name} a length of {} bytes", ix.length)));
+    }
+    let mut buf = vec![0u8; ix.length as usize];
+    file.read_exact_at(&mut buf, ix.offset).map_err(open)?;
+    match mcap::parse_record(buf[0], &buf[9..]) {
+        Ok(mcap::records::Record::Metadata(m)) => Ok(Some(m.metadata)),
+        _ => Err(bad(format!("the metadata record {name} does not read where its index says"))),
+    }
 }
 
 /// Only the file's first bytes, for saying what a foreign file is.

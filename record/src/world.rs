@@ -9,8 +9,12 @@
 //! queued (the writer or the disk lags) the step is dropped and counted. It allocates nothing
 //! after the first step.
 //!
+//! It also keeps what the live view drew, for `spidar replay` to draw it again exactly: the
+//! view's frames at display rate with the heads-up display's numbers (`/world/view`), and the
+//! view's scene description (attachment `view.json`).
+//!
 //! Channels (see docs/recording.md): `/world/tf`, `/world/scene`, `/world/step`,
-//! `/world/boxer`, `/world/crowd`, `/world/event`.
+//! `/world/boxer`, `/world/crowd`, `/world/event`, `/world/view`.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -23,10 +27,13 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use glam::{DQuat, DVec3, Quat, Vec3};
 use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, WriteOptions, Writer};
+use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
 use spidar_sim::collide::Shape;
 use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
-use spidar_world::look::{Look, LookShape, SHAPE_FLOATS};
-use spidar_world::view::Layout;
+use spidar_world::look::{
+    Look, LookShape, CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS, MAX_COUNTERS, SHAPE_FLOATS,
+};
+use spidar_world::view::{FrameMaker, Layout, StatusData};
 use spidar_world::{Observer, StepView};
 
 use crate::cdr::{self, Field};
@@ -40,6 +47,11 @@ pub const TOPIC_STEP: &str = "/world/step";
 pub const TOPIC_BOXER: &str = "/world/boxer";
 pub const TOPIC_CROWD: &str = "/world/crowd";
 pub const TOPIC_WORLD_EVENT: &str = "/world/event";
+pub const TOPIC_VIEW: &str = "/world/view";
+/// The attachment holding the live view's scene description (its `scene` message).
+pub const VIEW_ATTACHMENT: &str = "view.json";
+/// The view's frames are kept this often (scene time): the live view's display rate.
+pub const VIEW_EVERY_S: f64 = 1.0 / 60.0;
 /// The fixed frame every world frame hangs from.
 pub const WORLD_FRAME: &str = "world";
 /// The scene's whole look (every entity) is written again this often (scene time), so a player
@@ -210,6 +222,219 @@ message!(CrowdMsg = "spidar/Crowd" {
     not_balancing: u32,
 });
 
+/// The rig's status as the world last had it (the heads-up display's numbers), in `/world/view`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RigStatusMsg {
+    pub known: bool,
+    pub tick: u64,
+    pub t_s: f64,
+    pub state: u8,
+    pub rate_hz: f64,
+    pub lateness_p99_s: f64,
+    pub force_n: [DVec3; HANDS],
+    pub tensions_n: [f64; HANDS * STRINGS],
+    pub faults: u64,
+    pub device_errors: u64,
+    pub stale_ticks: u64,
+    pub clamped_ticks: u64,
+    pub misses: u64,
+    pub seen_t_s: f64,
+}
+message!(RigStatusMsg = "spidar/RigStatus" {
+    /// false: the world had no status from a rig yet (the rest is zero)
+    known: bool,
+    /// the newest tick it summarises, and its loop-clock time
+    tick: u64,
+    t_s: f64,
+    /// 0 unconfigured, 1 inactive, 2 active, 3 faulted, 4 stopping
+    state: u8,
+    rate_hz: f64,
+    lateness_p99_s: f64,
+    /// force applied to each hand (world frame)
+    force_n: [DVec3; HANDS],
+    /// commanded tension, hand 0 strings 0..3 then hand 1
+    tensions_n: [f64; HANDS * STRINGS],
+    /// running counts since the rig started
+    faults: u64,
+    device_errors: u64,
+    stale_ticks: u64,
+    clamped_ticks: u64,
+    misses: u64,
+    /// scene time the world first saw this tick's status
+    seen_t_s: f64,
+});
+
+/// The rig's geometry as the world had it (anchors, home points, eye), in `/world/view`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RigGeometryMsg {
+    pub known: bool,
+    pub period_s: f64,
+    pub anchors_m: [DVec3; HANDS * STRINGS],
+    pub home_m: [DVec3; HANDS],
+    pub tension_min_n: [f64; HANDS],
+    pub tension_max_n: [f64; HANDS],
+    pub force_limit_n: [f64; HANDS],
+    pub grip_radius_m: [f64; HANDS],
+    pub eye_m: DVec3,
+}
+message!(RigGeometryMsg = "spidar/RigGeometry" {
+    /// false: no rig had said its geometry yet (the rest is zero)
+    known: bool,
+    period_s: f64,
+    /// where each string leaves the frame, hand 0 strings 0..3 then hand 1 (world frame)
+    anchors_m: [DVec3; HANDS * STRINGS],
+    home_m: [DVec3; HANDS],
+    tension_min_n: [f64; HANDS],
+    tension_max_n: [f64; HANDS],
+    force_limit_n: [f64; HANDS],
+    grip_radius_m: [f64; HANDS],
+    /// the user's eye point (world frame)
+    eye_m: DVec3,
+});
+
+/// What the live view showed at one frame, as `/world/view`: the frame itself and the numbers of
+/// the heads-up display. `spidar replay` sends them to the page again.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ViewFrameMsg {
+    pub t_s: f64,
+    pub steps: u64,
+    pub step_rate_hz: f64,
+    pub sample_t_s: f64,
+    pub counters: [f64; MAX_COUNTERS],
+    pub rig: RigStatusMsg,
+    pub geometry: RigGeometryMsg,
+    pub frame: Vec<f32>,
+}
+message!(ViewFrameMsg = "spidar/ViewFrame" {
+    /// scene time of the step drawn
+    t_s: f64,
+    /// steps taken so far, and the step rate over the last half second
+    steps: u64,
+    step_rate_hz: f64,
+    /// scene time of the newest hand sample (NaN: none yet)
+    sample_t_s: f64,
+    /// the scene's counters, in the order of the view description's `counters`
+    counters: [f64; MAX_COUNTERS],
+    rig: RigStatusMsg,
+    geometry: RigGeometryMsg,
+    /// the live view's binary frame (docs/view.md), as the page got it
+    frame: Vec<f32>,
+});
+
+impl ViewFrameMsg {
+    /// The heads-up display's numbers, as the live view's status message had them.
+    pub fn status(&self) -> StatusData {
+        let r = &self.rig;
+        let state = match r.state {
+            0 => RigState::Unconfigured,
+            1 => RigState::Inactive,
+            2 => RigState::Active,
+            3 => RigState::Faulted,
+            _ => RigState::Stopping,
+        };
+        let mut tensions_n = [[0.0; STRINGS]; HANDS];
+        for (h, t) in tensions_n.iter_mut().enumerate() {
+            t.copy_from_slice(&r.tensions_n[h * STRINGS..(h + 1) * STRINGS]);
+        }
+        StatusData {
+            t_s: self.t_s,
+            steps: self.steps,
+            step_rate_hz: self.step_rate_hz,
+            rig: r.known.then_some(RigStatus {
+                tick: r.tick,
+                t_s: r.t_s,
+                state,
+                rate_hz: r.rate_hz,
+                lateness_p99_s: r.lateness_p99_s,
+                force_n: r.force_n,
+                tensions_n,
+                faults: r.faults,
+                device_errors: r.device_errors,
+                stale_ticks: r.stale_ticks,
+                clamped_ticks: r.clamped_ticks,
+                misses: r.misses,
+            }),
+            rig_seen_t_s: r.seen_t_s,
+            sample_t_s: self.sample_t_s,
+            counters: self.counters,
+            ended: false,
+        }
+    }
+
+    /// The rig's geometry, if the world had it.
+    pub fn rig_info(&self) -> Option<RigInfo> {
+        let g = &self.geometry;
+        g.known.then(|| {
+            let mut anchors_m = [[DVec3::ZERO; STRINGS]; HANDS];
+            for (h, a) in anchors_m.iter_mut().enumerate() {
+                a.copy_from_slice(&g.anchors_m[h * STRINGS..(h + 1) * STRINGS]);
+            }
+            RigInfo {
+                period_s: g.period_s,
+                anchors_m,
+                home_m: g.home_m,
+                tension_min_n: g.tension_min_n,
+                tension_max_n: g.tension_max_n,
+                force_limit_n: g.force_limit_n,
+                grip_radius_m: g.grip_radius_m,
+                eye_m: g.eye_m,
+            }
+        })
+    }
+
+    fn new(s: &StatusData, info: Option<&RigInfo>, frame: Vec<f32>) -> ViewFrameMsg {
+        let rig = s.rig.map_or(RigStatusMsg::default(), |r| {
+            let mut tensions_n = [0.0; HANDS * STRINGS];
+            for h in 0..HANDS {
+                tensions_n[h * STRINGS..(h + 1) * STRINGS].copy_from_slice(&r.tensions_n[h]);
+            }
+            RigStatusMsg {
+                known: true,
+                tick: r.tick,
+                t_s: r.t_s,
+                state: r.state as u8,
+                rate_hz: r.rate_hz,
+                lateness_p99_s: r.lateness_p99_s,
+                force_n: r.force_n,
+                tensions_n,
+                faults: r.faults,
+                device_errors: r.device_errors,
+                stale_ticks: r.stale_ticks,
+                clamped_ticks: r.clamped_ticks,
+                misses: r.misses,
+                seen_t_s: s.rig_seen_t_s,
+            }
+        });
+        let geometry = info.map_or(RigGeometryMsg::default(), |i| {
+            let mut anchors_m = [DVec3::ZERO; HANDS * STRINGS];
+            for h in 0..HANDS {
+                anchors_m[h * STRINGS..(h + 1) * STRINGS].copy_from_slice(&i.anchors_m[h]);
+            }
+            RigGeometryMsg {
+                known: true,
+                period_s: i.period_s,
+                anchors_m,
+                home_m: i.home_m,
+                tension_min_n: i.tension_min_n,
+                tension_max_n: i.tension_max_n,
+                force_limit_n: i.force_limit_n,
+                grip_radius_m: i.grip_radius_m,
+                eye_m: i.eye_m,
+            }
+        });
+        ViewFrameMsg {
+            t_s: s.t_s,
+            steps: s.steps,
+            step_rate_hz: s.step_rate_hz,
+            sample_t_s: s.sample_t_s,
+            counters: s.counters,
+            rig,
+            geometry,
+            frame,
+        }
+    }
+}
+
 /// Names of the crowd's control states, by code.
 pub const CROWD_STATES: [&str; 4] = ["balance", "fall", "down", "stand-up"];
 
@@ -251,6 +476,7 @@ pub fn channels() -> Vec<(&'static str, String, String)> {
         c::<BoxerMsg>(TOPIC_BOXER),
         c::<CrowdMsg>(TOPIC_CROWD),
         c::<WorldEventMsg>(TOPIC_WORLD_EVENT),
+        c::<ViewFrameMsg>(TOPIC_VIEW),
     ]
 }
 
@@ -261,7 +487,8 @@ pub enum WorldMsg {
     Boxer(Box<BoxerMsg>),
     Crowd(CrowdMsg),
     Event(WorldEventMsg),
-    /// `/world/tf` and `/world/scene` are left encoded (for Foxglove); their sizes are counted.
+    /// `/world/tf`, `/world/scene` (for Foxglove) and `/world/view` (for `spidar replay`) are
+    /// left encoded; they are counted.
     Drawing,
 }
 
@@ -279,7 +506,7 @@ pub fn decode(topic: &str, schema: &str, data: &[u8]) -> Option<Result<WorldMsg,
         TOPIC_BOXER => one(schema, data, |b| WorldMsg::Boxer(Box::new(b))),
         TOPIC_CROWD => one(schema, data, WorldMsg::Crowd),
         TOPIC_WORLD_EVENT => one(schema, data, WorldMsg::Event),
-        TOPIC_TF | TOPIC_SCENE => Ok(WorldMsg::Drawing),
+        TOPIC_TF | TOPIC_SCENE | TOPIC_VIEW => Ok(WorldMsg::Drawing),
         _ => return None,
     })
 }
@@ -289,6 +516,8 @@ pub fn decode(topic: &str, schema: &str, data: &[u8]) -> Option<Result<WorldMsg,
 pub struct WorldInfo {
     /// The scene as asked (`boxing`, a file) and the scene's own name.
     pub scene: String,
+    /// The scene's own name (`boxing`), as the live view shows it.
+    pub name: String,
     pub command_line: String,
     /// `real` or `virtual`.
     pub clock: String,
@@ -335,16 +564,46 @@ impl std::fmt::Display for WorldRecordingReport {
     }
 }
 
+/// What a world recording holds by its own account, for a process that did not write it (the
+/// rig's, when the world runs as its child process): its end record (read through the summary's
+/// index), or, in a file without one (the world was killed), what reading it through finds.
+pub fn report_of(path: &Path) -> Result<WorldRecordingReport, RecordError> {
+    let bytes =
+        std::fs::metadata(path).map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?.len();
+    let mut r = WorldRecordingReport { path: path.to_path_buf(), bytes, ..Default::default() };
+    match crate::reader::metadata_of(path, META_END)? {
+        Some(m) => {
+            let n = |k: &str| m.get(k).and_then(|v| v.parse().ok()).unwrap_or(0);
+            (r.steps, r.dropped, r.write_failed) =
+                (n("steps_recorded"), n("steps_dropped"), n("steps_write_failed"));
+            (r.messages, r.events) = (n("messages"), n("events"));
+        }
+        None => {
+            let s = summarize(path)?;
+            (r.steps, r.dropped, r.events) = (s.steps, s.dropped, s.events);
+            r.messages = s.recording.channels.iter().map(|c| c.messages).sum();
+            r.error = Some(format!(
+                "the world did not finish its recording ({}): it holds the steps written before it stopped",
+                s.recording.ending.as_ref().map_or("not read to its end".into(), |e| e.to_string())
+            ));
+        }
+    }
+    Ok(r)
+}
+
 /// One step's numbers, copied on the stepping thread into a pooled buffer.
 pub(crate) struct Snap {
     step: u64,
     t_s: f64,
     samples: u32,
     proxies: u8,
-    /// The scene's poses, in the live view's frame layout ([`Layout`]).
+    /// The live view's frame of this step ([`Layout`]): the scene's poses every step, the rest
+    /// when `view` (a frame the view would have sent).
     frame: Vec<f32>,
-    counters: Vec<f64>,
-    contacts: usize,
+    words: usize,
+    view: bool,
+    status: StatusData,
+    rig_info: Option<RigInfo>,
     decisions: Option<Decisions>,
 }
 
@@ -355,7 +614,8 @@ enum ToWriter {
 
 /// The observer half: copies each step into a pooled buffer and queues it (never waits).
 pub struct WorldRecorder {
-    layout: Layout,
+    maker: FrameMaker,
+    next_view_t_s: f64,
     full: Sender<ToWriter>,
     pub(crate) free: Receiver<Box<Snap>>,
     dropped: Arc<AtomicU64>,
@@ -373,12 +633,15 @@ impl Observer for WorldRecorder {
         snap.t_s = s.t_s;
         snap.samples = s.samples.len() as u32;
         snap.proxies = s.model.proxy_count;
-        snap.contacts = 0;
-        {
-            let Snap { frame, counters, contacts, .. } = &mut *snap;
-            let mut poses = self.layout.poses(frame, counters, contacts);
-            s.scene.pose(&mut poses);
+        // What the live view would draw, as it makes it.
+        self.maker.observe(s, true);
+        snap.view = s.t_s >= self.next_view_t_s;
+        if snap.view {
+            self.next_view_t_s = s.t_s + VIEW_EVERY_S;
         }
+        snap.words = self.maker.write(&mut snap.frame, s, snap.view);
+        snap.status = *self.maker.status();
+        snap.rig_info = s.rig_info.copied();
         snap.decisions = s.scene.decisions();
         if self.full.try_send(ToWriter::Step(snap)).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
@@ -402,7 +665,7 @@ impl WorldRecording {
         look: &Look,
     ) -> Result<(WorldRecording, WorldRecorder), RecordError> {
         let w = WorldWriter::create(path, info, look)?;
-        let layout = Layout::of(look, 0);
+        let layout = Layout::for_look(look);
         let (full_tx, full_rx) = bounded::<ToWriter>(QUEUE_STEPS + 1);
         let (free_tx, free_rx) = bounded::<Box<Snap>>(QUEUE_STEPS);
         for _ in 0..QUEUE_STEPS {
@@ -412,8 +675,10 @@ impl WorldRecording {
                 samples: 0,
                 proxies: 0,
                 frame: vec![0.0; layout.max_words],
-                counters: vec![0.0; look.counters.len()],
-                contacts: 0,
+                words: 0,
+                view: false,
+                status: StatusData::default(),
+                rig_info: None,
                 decisions: None,
             };
             let _ = free_tx.try_send(Box::new(snap));
@@ -428,7 +693,8 @@ impl WorldRecording {
                 why: format!("starting the recorder thread: {e}"),
             })?;
         let rec = WorldRecorder {
-            layout,
+            maker: FrameMaker::new(look),
+            next_view_t_s: f64::NEG_INFINITY,
             full: full_tx.clone(),
             free: free_rx,
             dropped: dropped.clone(),
@@ -480,8 +746,8 @@ struct Drawn {
 struct WorldWriter {
     w: Option<Writer<File>>,
     path: PathBuf,
-    channels: [u16; 6],
-    seq: [u32; 6],
+    channels: [u16; 7],
+    seq: [u32; 7],
     start_ns: u64,
     buf: Vec<u8>,
     look: Look,
@@ -502,6 +768,7 @@ const STEP: usize = 2;
 const BOXER: usize = 3;
 const CROWD: usize = 4;
 const EVENT: usize = 5;
+const VIEW: usize = 6;
 
 use crate::writer::describe;
 
@@ -610,7 +877,18 @@ impl WorldWriter {
             })
             .map_err(write)?;
         }
-        let mut channels = [0u16; 6];
+        // What the live view's page is told the scene looks like, for `spidar replay`.
+        let layout = Layout::for_look(look);
+        let view = spidar_world::view::json::scene(&info.name, look, &layout, 1.0 / VIEW_EVERY_S);
+        w.attach(&Attachment {
+            log_time: start_ns,
+            create_time: start_ns,
+            name: VIEW_ATTACHMENT.into(),
+            media_type: "application/json".into(),
+            data: view.as_bytes().into(),
+        })
+        .map_err(write)?;
+        let mut channels = [0u16; 7];
         for (i, (topic, name, schema)) in self::channels().into_iter().enumerate() {
             let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
             channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
@@ -640,10 +918,10 @@ impl WorldWriter {
             w: Some(w),
             path: path.to_path_buf(),
             channels,
-            seq: [0; 6],
+            seq: [0; 7],
             start_ns,
             buf: Vec::with_capacity(1 << 16),
-            layout: Layout::of(look, 0),
+            layout,
             look: look.clone(),
             shapes,
             statics,
@@ -744,7 +1022,7 @@ impl WorldWriter {
                 translation: v3(c[0] as f64, c[1] as f64, c[2] as f64),
                 rotation: Quaternion { x: c[3] as f64, y: c[4] as f64, z: c[5] as f64, w: c[6] as f64 },
             });
-            states.push(c[10].max(0.0) as u8);
+            states.push(c[CHARACTER_STATE].max(0.0) as u8);
         }
         ok = ok && self.put(TF, s.t_s, &tf);
         // What the bodies look like: every entity now and then; labels when they change; the
@@ -802,6 +1080,11 @@ impl WorldWriter {
         }
         if !update.entities.is_empty() {
             ok = ok && self.put(SCENE, s.t_s, &update);
+        }
+        // What the live view drew (at its display rate), for `spidar replay`.
+        if s.view {
+            let v = ViewFrameMsg::new(&s.status, s.rig_info.as_ref(), s.frame[..s.words].to_vec());
+            ok = ok && self.put(VIEW, s.t_s, &v);
         }
         // The virtual human's decisions, the crowd's states, and what changed.
         if let Some(d) = s.decisions {
@@ -885,6 +1168,8 @@ impl WorldWriter {
             meta.insert("steps_recorded".to_string(), self.report.steps.to_string());
             meta.insert("steps_dropped".to_string(), dropped.to_string());
             meta.insert("steps_write_failed".to_string(), self.report.write_failed.to_string());
+            meta.insert("messages".to_string(), self.report.messages.to_string());
+            meta.insert("events".to_string(), self.report.events.to_string());
             let r = w
                 .write_metadata(&Metadata { name: META_END.into(), metadata: meta })
                 .and_then(|_| w.finish());
@@ -897,29 +1182,21 @@ impl WorldWriter {
     }
 }
 
-/// A character's skeleton as line segments in its body frame: each joint's position from its
-/// parent's, posed by the frame's joint rotations (root: rest offset plus the root's offset).
+/// A character's drawn figure as line segments in its body frame: the frame carries each joint's
+/// position in the scene frame, turned here into the body frame the character's transform gives.
 fn skeleton(crowd: &spidar_world::look::LookCrowd, c: &[f32], colour: Color) -> LinePrimitive {
-    let n = crowd.joints.len();
-    let mut pos = vec![Vec3::ZERO; n];
-    let mut rot = vec![Quat::IDENTITY; n];
-    let root = Vec3::new(c[7], c[8], c[9]);
-    let mut points = Vec::with_capacity(2 * n);
-    for (j, joint) in crowd.joints.iter().enumerate() {
-        let o = 12 + 4 * j;
-        let local = c.get(o..o + 4).map_or(Quat::IDENTITY, |q| Quat::from_xyzw(q[0], q[1], q[2], q[3]));
-        let off = joint.offset_m.as_vec3();
-        match joint.parent.filter(|p| *p < j) {
-            None => {
-                pos[j] = off + root;
-                rot[j] = local;
-            }
-            Some(p) => {
-                pos[j] = pos[p] + rot[p] * off;
-                rot[j] = rot[p] * local;
-                for q in [pos[p], pos[j]] {
-                    points.push(Point { x: q.x as f64, y: q.y as f64, z: q.z as f64 });
-                }
+    let pos = Vec3::new(c[0], c[1], c[2]);
+    let to_body = Quat::from_xyzw(c[3], c[4], c[5], c[6]).normalize().conjugate();
+    let joint = |j: usize| {
+        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+        c.get(o..o + 3).map(|p| to_body * (Vec3::new(p[0], p[1], p[2]) - pos))
+    };
+    let mut points = Vec::with_capacity(2 * crowd.joints.len());
+    for (j, joint_desc) in crowd.joints.iter().enumerate() {
+        let Some(p) = joint_desc.parent.filter(|p| *p < j) else { continue };
+        if let (Some(a), Some(b)) = (joint(p), joint(j)) {
+            for q in [a, b] {
+                points.push(Point { x: q.x as f64, y: q.y as f64, z: q.z as f64 });
             }
         }
     }

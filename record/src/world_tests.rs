@@ -13,14 +13,14 @@ use crate::foxglove::{FrameTransforms, SceneUpdate};
 use crate::reader::{self, Ending};
 use crate::world::*;
 
-fn temp(name: &str) -> PathBuf {
+pub(crate) fn temp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("spidar-world-record-tests-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)
 }
 
 /// The user's hands in front of the virtual human, the left one jabbing now and then.
-fn sample(k: u64, t_s: f64) -> HandSample {
+pub(crate) fn sample(k: u64, t_s: f64) -> HandSample {
     let mut s = HandSample { tick: k, t_s, ..Default::default() };
     let jab = ((k % 300) as f64 / 300.0 * std::f64::consts::TAU).sin().max(0.0);
     s.hands[0].pos_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
@@ -31,19 +31,38 @@ fn sample(k: u64, t_s: f64) -> HandSample {
     s
 }
 
-/// Steps `scene` `steps` times with a recorder on `path`; returns the look's shape and label
-/// counts and the report.
-fn record_scene(scene: &str, path: &Path, steps: u64) -> (usize, usize, WorldRecordingReport) {
+/// The rig's status the tests' world gets: a known tick count.
+pub(crate) fn rig_status(k: u64) -> spidar_msg::RigStatus {
+    spidar_msg::RigStatus {
+        tick: 3 * k,
+        state: spidar_msg::RigState::Active,
+        rate_hz: 1000.0,
+        lateness_p99_s: 5e-5,
+        faults: k / 100,
+        tensions_n: [[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]],
+        ..Default::default()
+    }
+}
+
+/// Steps `scene` `steps` times with a recorder on `path` (the default rig's geometry and a known
+/// status); returns the look's shape and label counts and the report.
+pub(crate) fn record_scene(scene: &str, path: &Path, steps: u64) -> (usize, usize, WorldRecordingReport) {
     let scene = spidar_world::load(scene).unwrap();
     let look = scene.look();
-    let info = WorldInfo { scene: "test".into(), clock: "virtual".into(), ..Default::default() };
+    let info = WorldInfo {
+        scene: "test".into(),
+        name: "boxing".into(),
+        clock: "virtual".into(),
+        ..Default::default()
+    };
     let (rec, obs) = WorldRecording::start(path, &info, &look).unwrap();
     let mut st = Stepper::new(scene);
     st.add_observer(Box::new(obs));
     let dt = st.step_s();
+    let geometry = spidar_rt::status::rig_info(&spidar_rt::rig::Rig::default_rig());
     for k in 0..steps {
         let t = dt * (k + 1) as f64;
-        st.step(t, &[sample(k, t)], None, None);
+        st.step(t, &[sample(k, t)], Some(&geometry), Some(&rig_status(k)));
         if k % 64 == 63 {
             // The writer thread keeps up (the queue holds QUEUE_STEPS): no step is dropped here.
             while rec.dropped() == 0 && !queue_has_room(&rec) {
@@ -84,6 +103,7 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
             want(TOPIC_SCENE, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_STEP, "spidar/WorldStep"),
             want(TOPIC_TF, "foxglove_msgs/msg/FrameTransforms"),
+            want(TOPIC_VIEW, "spidar/ViewFrame"),
         ]
     );
     assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"));
@@ -151,11 +171,27 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
     assert_eq!(w.characters, n);
     assert!(w.events >= n as u64, "every character's first state is an event: {}", w.events);
     let mut crowd = 0;
+    let mut figures = 0;
+    let joints = spidar_world::load("crowd").unwrap().look().crowd.unwrap().joints.len();
     reader::read(&p, |_, m| {
         if let reader::Msg::Other { channel, data, .. } = m {
             if channel.topic == TOPIC_TF {
                 let tf: FrameTransforms = cdr::decode(data).unwrap();
                 assert_eq!(tf.transforms.len(), n + 1, "the link frame and one per character");
+            }
+            if channel.topic == TOPIC_SCENE {
+                // Each character's drawn figure, in its body frame (origin at the centre of mass,
+                // 0.75 m above the floor): every bone a segment, standing on the floor.
+                let u: SceneUpdate = cdr::decode(data).unwrap();
+                for e in u.entities.iter().filter(|e| e.frame_id.starts_with("character/")) {
+                    let pts = &e.lines[0].points;
+                    assert_eq!(pts.len(), 2 * (joints - 1), "{}: one segment per bone", e.id);
+                    let lo = pts.iter().map(|p| p.y).fold(f64::INFINITY, f64::min);
+                    let hi = pts.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max);
+                    assert!((-0.75..-0.6).contains(&lo), "{}: its ankles are {lo} m from its centre", e.id);
+                    assert!((0.55..0.8).contains(&hi), "{}: its head is {hi} m above its centre", e.id);
+                    figures += 1;
+                }
             }
             if let Some(Ok(WorldMsg::Crowd(c))) = decode(&channel.topic, &channel.schema, data) {
                 assert_eq!(c.states.len(), n);
@@ -166,6 +202,7 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
     })
     .unwrap();
     assert_eq!(crowd, 200);
+    assert!(figures >= 30 * n, "figures at display rate: {figures}");
 }
 
 #[test]
@@ -267,6 +304,7 @@ fn docs_list_every_world_schema_as_implemented() {
         ("spidar/Boxer", cdr::schema_text::<BoxerMsg>()),
         ("spidar/Crowd", cdr::schema_text::<CrowdMsg>()),
         ("spidar/WorldEvent", cdr::schema_text::<WorldEventMsg>()),
+        ("spidar/ViewFrame", cdr::schema_text::<ViewFrameMsg>()),
     ] {
         if std::env::var("SPIDAR_PRINT_SCHEMAS").is_ok() {
             println!("### `{name}`\n\n```\n{text}```\n");

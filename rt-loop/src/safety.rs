@@ -178,6 +178,10 @@ mod tests {
         }
         assert_eq!(n, 500);
         assert_eq!(r.step(0.3, true), 0.3, "after the ramp, the fade alone again");
+        // The return is over once at full: a model missing while the rig is not active (no
+        // loss, as at start-up) then comes back at once, not over another ramp.
+        assert_eq!(r.step(0.0, false), 0.0);
+        assert_eq!(r.step(1.0, true), 1.0, "the return ended when it reached full force");
     }
 
     #[test]

@@ -1,7 +1,8 @@
 // The view's browser tests, run by tests/tests/hil/view.rs (which hosts the world and answers
-// ASK lines): `node view.mjs boxing|crowd|live URL`, and `node view.mjs screenshot URL CAMERA FILE`
-// for the README's pictures.
-import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN } from './harness.mjs';
+// ASK lines): `node view.mjs boxing|crowd|live|flash URL`, and `node view.mjs screenshot URL CAMERA
+// FILE` for the README's pictures; `node view.mjs replay URL`, run by tests/tests/hil/replay.rs,
+// for a recording played into the view (`spidar replay`).
+import { ask, check, log, launch, open, state, untilTime, pause, pixels, around, screenshot, run, RED, GREEN, FLASH } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
 const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
@@ -85,30 +86,19 @@ async function boxing(browser) {
   await second.close();
 }
 
-// The world positions of a character's joints from a frame's numbers (body pose, root offset, the
-// joints' rotations relative to their parents): where the world says its skeleton is.
+// A character's numbers in a frame (world/src/look.rs): body position xyz, rotation xyzw, control
+// state, push force, then its drawn figure: each joint's position in the scene.
+const STATE = 7;
+const HEAD_FLOATS = 9;
 const rot = (q, v) => { // q * v * q^-1
   const [x, y, z, w] = q;
   const t = [2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])];
   return [v[0] + w * t[0] + y * t[2] - z * t[1], v[1] + w * t[1] + z * t[0] - x * t[2], v[2] + w * t[2] + x * t[1] - y * t[0]];
 };
 
-function skeleton(joints, c) {
-  const mul = (a, b) => [
-    a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
-    a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
-    a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
-    a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]];
-  const body = { p: c.slice(0, 3), q: c.slice(3, 7) };
-  const out = [];
-  joints.forEach((j, k) => {
-    const parent = j.parent === null ? body : out[j.parent];
-    const off = j.parent === null ? j.offset_m.map((x, i) => x + c[7 + i]) : j.offset_m;
-    const d = rot(parent.q, off);
-    out.push({ p: parent.p.map((x, i) => x + d[i]), q: mul(parent.q, c.slice(12 + 4 * k, 16 + 4 * k)) });
-  });
-  return out.map((o) => o.p);
-}
+// The joints of a character's drawn figure as the frame carries them (the world's, checked by the
+// Rust side against the world's own figure).
+const skeleton = (joints, c) => joints.map((_, k) => c.slice(HEAD_FLOATS + 3 * k, HEAD_FLOATS + 3 * k + 3));
 
 async function crowd(browser) {
   const desc = await describe();
@@ -122,10 +112,10 @@ async function crowd(browser) {
     const chars = await a.evaluate((n) => Array.from({ length: n }, (_, i) => ({
       f: spidarView.character(i), joints: spidarView.characterJoints(i).map((j) => j.pos) })), n);
     await ask({ ask: 'check_characters', t: p.t, characters: chars.map((c) => c.f) });
-    // Every drawn joint is where the frame's numbers put it.
+    // Every drawn joint is where the frame's numbers put it (and they are the world's figure).
     let worst = 0;
     chars.forEach((c) => skeleton(joints, c.f).forEach((p, j) => { worst = Math.max(worst, dist(p, c.joints[j])); }));
-    check(worst < 1e-3, `every character's joints are drawn where the world's pose puts them (worst ${(worst * 1000).toFixed(2)} mm)`);
+    check(worst < 1e-3, `every character's ${joints.length} joints are drawn where the world's drawn figure has them (worst ${(worst * 1000).toFixed(2)} mm)`);
     return { t: p.t, chars };
   };
   const s1 = await snap();
@@ -145,7 +135,7 @@ async function crowd(browser) {
     const [f1, f2] = [s1.chars[i].f, s2.chars[i].f];
     const d = Math.hypot(f2[0] - f1[0], f2[2] - f1[2]);
     const c = Math.max(...limbs.map((k) => dist(rel(s1, i, k), rel(s2, i, k))));
-    if (f2[10] === 0 && d > 0.15 && c > change) { w = i; wd = d; change = c; }
+    if (f2[STATE] === 0 && d > 0.15 && c > change) { w = i; wd = d; change = c; }
   }
   check(w >= 0, `a character walks (character ${w}: ${wd.toFixed(2)} m in ${(s2.t - s1.t).toFixed(2)} s)`);
   check(change > 0.03, `its drawn pose changes as it walks (knees and elbows move ${(change * 100).toFixed(1)} cm relative to the pelvis)`);
@@ -163,11 +153,16 @@ async function crowd(browser) {
     return snap();
   })();
   const f3 = s3.chars[w].f;
-  const st = states[f3[10]];
+  const st = states[f3[STATE]];
   check(st === 'down', `the frame says character ${w} is ${st}`);
   const neck = joints.findIndex((j) => j.name === 'neck');
   const neckY = s3.chars[w].joints[neck][1];
   check(neckY < 0.6, `its drawn neck is near the floor (${neckY.toFixed(2)} m; standing it was ${s2.chars[w].joints[neck][1].toFixed(2)} m)`);
+  // The whole figure lies on the floor: every drawn joint low (a body lying is 0.26 m thick), none
+  // through the floor.
+  const ys = s3.chars[w].joints.map((p) => p[1]);
+  const [low, high] = [Math.min(...ys), Math.max(...ys)];
+  check(high < 0.45 && low > -0.03, `all ${ys.length} of its drawn joints lie near the floor (from ${low.toFixed(2)} to ${high.toFixed(2)} m high)`);
   const labels = await a.evaluate(() => spidarView.labels());
   const lab = labels.find((l) => l.character === String(w));
   check(lab && lab.state === st, `its label says ${lab && lab.text}`);
@@ -179,9 +174,80 @@ async function crowd(browser) {
   const at3 = await a.evaluate((p) => spidarView.project(p), mid);
   const red = await pixels(a, RED, around(at3, 30));
   check(red.n > 300, `it is drawn lying there in the down colour (${red.n} red pixels around its chest)`);
+  // Its head and its feet are drawn where the world's figure has them, and nothing red lies a
+  // head's length beyond them (along the figure, away from its pelvis).
+  const named = (re) => joints.map((j, k) => [j.name, k]).filter(([name]) => re.test(name)).map(([, k]) => k);
+  const pelvis = sk[0];
+  for (const [what, ks] of [['head', named(/head/)], ['feet', named(/ankle/)]]) {
+    for (const k of ks) {
+      const at = await a.evaluate((p) => spidarView.project(p), sk[k]);
+      const px = await pixels(a, RED, around(at, 12));
+      const out = [sk[k][0] - pelvis[0], 0, sk[k][2] - pelvis[2]];
+      const len = Math.hypot(...out);
+      const past = sk[k].map((x, i) => x + (out[i] / len) * 0.35);
+      const beyond = await pixels(a, RED, around(await a.evaluate((p) => spidarView.project(p), past), 12));
+      check(px.n > 300 && beyond.n < px.n * 0.1, `its drawn ${what} (${joints[k].name}) is at the world's place (${px.n} red pixels there, ${beyond.n} 35 cm beyond)`);
+    }
+  }
+  // From the side at floor level: the red figure is all below 0.45 m.
+  const far = [mid[0] + 3, 0.25, mid[2] + 0.01];
+  await a.evaluate((p, t) => spidarView.orbitTo(p, t), far, [mid[0], 0.25, mid[2]]);
+  await a.evaluate(() => spidarView.rendered());
+  const [floor, top, above] = await a.evaluate((ps) => ps.map((p) => spidarView.project(p)),
+    [[mid[0], 0, mid[2]], [mid[0], 0.45, mid[2]], [mid[0], 1.2, mid[2]]]);
+  const band = (y0, y1) => ({ x: 0, y: y0, w: 800, h: y1 - y0 });
+  const [onFloor, over] = [await pixels(a, RED, band(top.y, floor.y + 10)), await pixels(a, RED, band(above.y, top.y - 2))];
+  check(onFloor.n > 200 && over.n < onFloor.n * 0.02, `seen from the side it lies on the floor: ${onFloor.n} red pixels below 0.45 m, ${over.n} above`);
   await a.evaluate(() => spidarView.resume());
   await statusAfter(a, t_down + 0.3);
   await ask({ ask: 'check_hud', browser: 'crowd', hud: await a.evaluate(() => spidarView.hud()) });
+}
+
+// A hit as a flash on the part hit: a jab that misses lights nothing, one that lands on the
+// passive virtual human lights the part it lands on (the page's state and its pixels).
+async function flash(browser) {
+  const desc = await describe();
+  const vh = desc.shapes.filter((s) => s.name.startsWith('virtual human/')).map((s) => s.name);
+  const a = await open(browser, url, 'camera=orbit');
+  await untilTime(a, (await state(a)).t + 0.3);
+  const parts = () => a.evaluate((vh) => vh.map((n) => { const s = spidarView.shape(n); return { n, flash: s.flash, force: s.force }; }), vh);
+  const headAt = async () => (await a.evaluate(() => spidarView.shape('virtual human/head'))).screen;
+
+  // 1. A jab that misses: no part ever flashes, none takes a force; the head is drawn red.
+  const miss = await ask({ ask: 'jab', hit: false });
+  let worst = { flash: 0, force: 0 };
+  while ((await state(a)).t < miss.t_out + 0.5) {
+    for (const p of await parts()) worst = { flash: Math.max(worst.flash, p.flash), force: Math.max(worst.force, p.force) };
+    await sleep(30);
+  }
+  check(worst.flash === 0 && worst.force === 0, 'a jab that misses lights no part of the virtual human');
+  await pause(a);
+  const h1 = await headAt();
+  const [missFlash, missRed] = [await pixels(a, FLASH, around(h1, 30)), await pixels(a, RED, around(h1, 30))];
+  check(missFlash.n < 30 && missRed.n > 300, `the head is drawn red (${missRed.n} red, ${missFlash.n} flash pixels)`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
+
+  // 2. A jab at the head, held there: the part it lands on flashes (the page is paused on the first
+  // frame that lights a part fully).
+  const hit = await ask({ ask: 'jab', hit: true });
+  await a.waitForFunction((vh) => {
+    if (!vh.some((n) => spidarView.shape(n).flash === 1)) return false;
+    spidarView.pause();
+    return true;
+  }, { timeout: 60000, polling: 'raf' }, vh);
+  await a.evaluate(() => spidarView.rendered());
+  const fist = (await a.evaluate(() => spidarView.grips()))[1];
+  const lit = (await parts()).filter((p) => p.flash > 0);
+  const full = lit.filter((p) => p.flash === 1);
+  const shapes = await a.evaluate((names) => names.map((n) => spidarView.shape(n)), full.map((p) => p.n));
+  const near = shapes.map((s, i) => ({ n: full[i].n, force: full[i].force, d: dist(s.pos, fist.pos), screen: s.screen }))
+    .sort((x, y) => x.d - y.d)[0];
+  check(near.force > 1 && near.d < 0.2, `the part the fist is on flashes: ${near.n} (${near.force.toFixed(1)} N, its centre ${(near.d * 100).toFixed(0)} cm from the fist; lit: ${lit.map((p) => p.n).join(', ')})`);
+  const hitFlash = await pixels(a, FLASH, around(near.screen, 30));
+  check(hitFlash.n > 150 && hitFlash.n > 5 * (missFlash.n + 1), `it is drawn lit (${hitFlash.n} flash pixels; the missed jab: ${missFlash.n})`);
+  await a.evaluate(() => spidarView.resume());
+  await ask({ ask: 'release' });
 }
 
 // The page as a user opens it from the address `spidar run`'s world process printed: frames flow,
@@ -206,6 +272,125 @@ async function live(browser) {
   await ask({ ask: 'check_live', t: p.t, hud: await a.evaluate(() => spidarView.hud()), page_steps: st.status.steps });
 }
 
+// Pauses the page on the frame it shows, checks the virtual human's head is drawn there (mesh at
+// the frame's numbers, red pixels at its place on the screen) and asks the Rust test whether the
+// recording has it there at that time (`question`: check_pose, or check_seek with `extra`).
+async function headAsRecorded(page, question, extra = {}) {
+  const p = await pause(page);
+  const head = await page.evaluate(() => spidarView.shape('virtual human/head'));
+  check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');
+  const r = await ask({ ask: question, t: p.t, head: head.frame, ...extra });
+  const px = await pixels(page, RED, around(head.screen, 45));
+  check(px.n > 300, `the head is drawn at its place at t = ${p.t.toFixed(3)} s (${px.n} red pixels)`);
+  await page.evaluate(() => spidarView.resume());
+  return { t: p.t, r };
+}
+
+// The replay's frames against its own clock, at `speed`: from the playback messages the page got
+// while playing at that speed (after the `since`-th), each with the newest frame's time when it
+// came.
+const logLength = (page) => page.evaluate(() => spidarView.playbackLog().length);
+async function rate(page, speed, clockSpan, since) {
+  const log = await page.waitForFunction((speed, span, since) => {
+    const l = spidarView.playbackLog().slice(since).filter((e) => e.playing && e.speed === speed && e.frame_t !== null);
+    return l.length >= 2 && l[l.length - 1].clock_s - l[0].clock_s >= span ? l : null;
+  }, { timeout: 60000, polling: 100 }, speed, clockSpan, since).then((h) => h.jsonValue());
+  const [a, b] = [log[0], log[log.length - 1]];
+  return { r: (b.frame_t - a.frame_t) / (b.clock_s - a.clock_s), clock: b.clock_s - a.clock_s, frames: b.frame_t - a.frame_t };
+}
+
+async function replay(browser) {
+  const a = await open(browser, url, 'camera=orbit');
+  const pb = () => a.evaluate(() => spidarView.playback());
+  await a.waitForFunction(() => spidarView.playback() !== null, { timeout: 60000, polling: 50 });
+  let p = await pb();
+  const { first_s: first, last_s: last } = p;
+  const bar = await a.evaluate(() => getComputedStyle(document.getElementById('playback')).display);
+  check(bar !== 'none' && (await state(a)).replay, 'the page shows the playback bar');
+  check(!p.playing && p.button === 'play', `a replay opens paused (${p.shown}, ${p.file})`);
+  check(Math.abs((await state(a)).t - first) < 1e-3, `on its first frame (t = ${first} s)`);
+
+  // 1. Playing: frames arrive, the virtual human is drawn where the recording has it.
+  await a.click('[data-pb=play]');
+  await untilTime(a, first + 1.0);
+  const n1 = (await state(a)).framesReceived;
+  check(n1 > 20, `frames arrive while playing (${n1})`);
+  await headAsRecorded(a, 'check_pose');
+
+  // 2. Pause: the time stands still (no frame comes, the position does not move).
+  await a.click('[data-pb=play]');
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  await a.waitForFunction(() => Math.abs(spidarView.state().receivedT - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [s2, p2, log2] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  await sleep(1500);
+  const [s3, p3, log3] = [await state(a), await pb(), (await a.evaluate(() => spidarView.playbackLog())).length];
+  check(log3 > log2, `the paused replay still talks to the page (${log3 - log2} playback messages)`);
+  check(s3.framesReceived === s2.framesReceived && s3.receivedT === s2.receivedT && p3.t_s === p2.t_s && p3.clock_s === p2.clock_s,
+    `paused, the time does not advance (t = ${s3.receivedT.toFixed(3)} s, ${s3.framesReceived} frames before and after)`);
+
+  // 3. Seeks, forward and back, with the slider: the page shows the recording's frame at that time.
+  for (const frac of [0.7, 0.25]) {
+    const asked = await a.evaluate((T) => {
+      const s = document.querySelector('[data-pb=slider]');
+      s.value = String(T);
+      s.dispatchEvent(new Event('change'));
+      return Number(s.value);
+    }, first + frac * (last - first));
+    await a.waitForFunction((T) => { const t = spidarView.state().t; return t !== null && t <= T + 1e-4 && t > T - 0.1; },
+      { timeout: 60000, polling: 50 }, asked);
+    const { t } = await headAsRecorded(a, 'check_seek', { asked });
+    const shown = (await pb()).shown;
+    check(shown.startsWith(t.toFixed(2)), `after the seek to ${asked} s the bar shows ${shown}`);
+  }
+
+  // 4. Speed: at 2x the frames advance twice as fast as at 1x, by the replay's own clock.
+  const since1 = await logLength(a);
+  await a.click('[data-pb=play]');
+  const r1 = await rate(a, 1, 1.5, since1);
+  const since2 = await logLength(a);
+  await a.select('[data-pb=speed]', '2');
+  const r2 = await rate(a, 2, 1.5, since2);
+  log(`1x: ${r1.frames.toFixed(3)} s of frames in ${r1.clock.toFixed(3)} s of the replay's clock; 2x: ${r2.frames.toFixed(3)} s in ${r2.clock.toFixed(3)} s`);
+  check(Math.abs(r1.r - 1) < 0.15, `1x plays the recording at its own pace (${r1.r.toFixed(3)})`);
+  check(Math.abs(r2.r - 2) < 0.3, `2x plays it twice as fast (${r2.r.toFixed(3)})`);
+  await a.click('[data-pb=play]');
+
+  // 5. A second browser sees the same frame.
+  await a.waitForFunction(() => { const p = spidarView.playback(); return p && !p.playing; }, { timeout: 60000, polling: 50 });
+  const second = await launch();
+  const b = await open(second.browser, url, 'camera=orbit');
+  await a.waitForFunction(() => Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5, { timeout: 60000, polling: 50 });
+  await b.waitForFunction(() => spidarView.playback() && Math.abs(spidarView.state().t - spidarView.playback().frame_t_s) < 1e-5,
+    { timeout: 60000, polling: 50 });
+  const [ta, tb] = [(await state(a)).t, (await state(b)).t];
+  check(ta === tb, `both browsers show the frame at t = ${ta.toFixed(3)} s`);
+  await second.close();
+}
+
+// A measurement, not a test: the frames N browsers each receive per second from a replay playing
+// at 1x, over SECONDS of wall time (`node view.mjs rate URL N SECONDS`).
+async function rate1(browser) {
+  const [n, seconds] = [Number(rest[0] || 1), Number(rest[1] || 5)];
+  const others = [];
+  for (let i = 1; i < n; i++) others.push(await launch());
+  const pages = [];
+  for (const b of [browser, ...others.map((o) => o.browser)]) pages.push(await open(b, url, 'camera=orbit'));
+  await pages[0].waitForFunction(() => spidarView.playback() !== null, { timeout: 60000 });
+  await pages[0].click('[data-pb=play]');
+  await sleep(1000);
+  const before = await Promise.all(pages.map((p) => state(p)));
+  const t0 = Date.now();
+  await sleep(seconds * 1000);
+  const after = await Promise.all(pages.map((p) => state(p)));
+  const wall = (Date.now() - t0) / 1000;
+  after.forEach((a, i) => {
+    const frames = a.framesReceived - before[i].framesReceived;
+    log(`browser ${i + 1} of ${n}: ${(frames / wall).toFixed(1)} frames/s received (${frames} in ${wall.toFixed(2)} s; the recording advanced ${(a.receivedT - before[i].receivedT).toFixed(2)} s)`);
+  });
+  for (const o of others) await o.close();
+}
+
 async function shot(browser) {
   const [camera, file, seconds] = rest;
   const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
@@ -214,4 +399,4 @@ async function shot(browser) {
   await screenshot(p, file);
 }
 
-run({ boxing, crowd, live, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));
+run({ boxing, crowd, live, flash, replay, rate: rate1, screenshot: shot }[mode] ?? (() => { throw new Error(`unknown mode ${mode}`); }));

@@ -17,6 +17,8 @@ use spidar_world::Scene;
 
 #[path = "hil/crowd.rs"]
 mod crowd;
+#[path = "hil/replay.rs"]
+mod replay;
 #[path = "hil/view.rs"]
 mod view;
 

@@ -185,7 +185,7 @@ impl Watcher {
             fell: false,
             peak_speed: 0.0,
             pose_travel: 0.0,
-            prev_pose: c.poses[0],
+            prev_pose: c.pose_of(0),
             turn_early: 0.0,
             disp_1s: (0.0, 0.0),
             pos_prev: c.bodies[0].pos_m,
@@ -232,8 +232,9 @@ impl Watcher {
         if (t - 1.0).abs() < 0.016 {
             self.disp_1s = self.local(s.pos_m - self.r0);
         }
-        self.pose_travel += c.poses[0].max_angle_to(&self.prev_pose, c.set.joints.len());
-        self.prev_pose = c.poses[0];
+        let pose = c.pose_of(0);
+        self.pose_travel += pose.max_angle_to(&self.prev_pose, c.set.joints.len());
+        self.prev_pose = pose;
     }
 
     fn features(&self, c: &Crowd) -> Features {

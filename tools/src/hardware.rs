@@ -25,6 +25,7 @@ use spidar_rt::telemetry::{DurationHist, Percentiles};
 use spidar_rt::{Command, Endpoints, MonotonicClock, Rig, RtLoop};
 
 use crate::session::{sim_device, SimOptions};
+use crate::supervisor::Shared;
 
 /// The default link of `spidar emulate` (a symlink to its pty in a directory private to the
 /// user: `$XDG_RUNTIME_DIR/spidar/uart`, or `/tmp/spidar-<uid>/uart`).
@@ -123,10 +124,14 @@ impl HardwareArgs {
     }
 }
 
-/// The UART driver's options for `rig`: its boards' command scales, and a reply deadline.
+/// The UART driver's options for `rig`: its boards' command scales, and a reply deadline. The
+/// enumeration at open waits as long for each board id as an exchange waits for its reply, and at
+/// least the driver's 20 ms: who allows slow replies (a board behind a slow link, an emulator on a
+/// busy machine) gets them at open too.
 pub fn uart_options(rig: &Rig, reply_timeout: Duration) -> UartOptions {
     UartOptions {
         reply_timeout,
+        enumerate_timeout: reply_timeout.max(UartOptions::default().enumerate_timeout),
         pwm_digits_per_volt: rig.boards.uart_pwm_digits_per_volt,
         current_digits_per_volt: rig.boards.uart_current_digits_per_volt,
         ..UartOptions::default()
@@ -155,12 +160,21 @@ pub fn emulator_options(
 /// Opens the chosen board (identify, reset) with a message that says what was found; boxed so
 /// the session code takes any device.
 pub fn open_hardware(choice: &HardwareChoice) -> anyhow::Result<Box<dyn Device>> {
+    open_hardware_for(choice, None)
+}
+
+/// [`open_hardware`] in a rig process under a supervisor (`page`): the UART boards found are
+/// published on the page, so a takeover need not enumerate them again.
+pub fn open_hardware_for(choice: &HardwareChoice, page: Option<&Shared>) -> anyhow::Result<Box<dyn Device>> {
     Ok(match choice {
         HardwareChoice::Uart { port, opts } => {
             let mut d = UartDevice::on_port(port, opts.clone())?;
             d.open_detailed().with_context(|| format!("opening the UART boards on {port}"))?;
             for w in d.warnings() {
                 crate::errln!("warning: {w}");
+            }
+            if let Some(page) = page {
+                page.publish_uart(d.boards(), d.layouts());
             }
             Box::new(d)
         }
@@ -170,6 +184,20 @@ pub fn open_hardware(choice: &HardwareChoice) -> anyhow::Result<Box<dyn Device>>
             Box::new(d)
         }
     })
+}
+
+/// The supervisor's open, to write zero after the rig process died or hung: UART boards the rig
+/// process published on `page` are opened without enumerating them (milliseconds instead of a
+/// 20 ms wait for each absent board id); anything else, or a failure of that fast open, is a full
+/// open. (The USB boards' open has no such wait.)
+pub fn open_for_takeover(choice: &HardwareChoice, page: &Shared) -> anyhow::Result<Box<dyn Device>> {
+    if let (HardwareChoice::Uart { port, opts }, Some((boards, layouts))) = (choice, page.known_uart()) {
+        let mut d = UartDevice::on_port(port, opts.clone())?;
+        if d.open_known(&boards, &layouts).is_ok() {
+            return Ok(Box::new(d));
+        }
+    }
+    open_hardware(choice)
 }
 
 /// Refuses a board that cannot give what the rig file asks: channels it lacks, or tensions whose

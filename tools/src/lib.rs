@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod bench_record;
+pub mod bench_replay;
 pub mod bench_view;
 pub mod calib;
 pub mod child_world;
@@ -13,6 +14,7 @@ pub mod eval_impacts;
 pub mod eval_poses;
 pub mod hardware;
 pub mod recording;
+pub mod replay_view;
 pub mod report;
 pub mod rigpath;
 pub mod scene_thread;

@@ -114,7 +114,8 @@ enum Cmd {
         #[arg(long, global = true)]
         json: bool,
     },
-    /// Print what a recording (`run --record`) holds; with --verify, re-run the rt-loop from its
+    /// Play a recording (`run --record`) into the live view (the page gets a playback bar: play,
+    /// pause, seek, speed) and print what it holds; with --verify, re-run the rt-loop from its
     /// recorded inputs and check every output bit for bit.
     Replay(spidar_tools::recording::ReplayArgs),
     /// Write one CSV file per channel of a recording, each with a header line.
@@ -365,6 +366,21 @@ enum BenchCmd {
         #[arg(long, default_value = "box")]
         script: String,
     },
+    /// Playing a recording into the view (`spidar replay`): the time to open it and to seek to
+    /// random times, and the frame rate it serves to WebSocket viewers at 1x.
+    Replay {
+        /// The recording (FILE.mcap with FILE.world.mcap next to it, or FILE.world.mcap).
+        file: PathBuf,
+        /// Seeks to random times.
+        #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=100_000))]
+        seeks: u64,
+        /// WebSocket viewers reading every frame (at most 64).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+        viewers: u64,
+        /// Seconds of playing to them (at most 3600).
+        #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
+        seconds: f64,
+    },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
     /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
     /// rig with the world as a process and as a thread, alternating in one run.
@@ -573,6 +589,16 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                 },
             )?;
             outln!("{rep}");
+            Ok(0)
+        }
+        Cmd::Bench { what: BenchCmd::Replay { file, seeks, viewers, seconds } } => {
+            use spidar_tools::bench_replay::{bench_replay, ReplayBenchOptions};
+            errln!(
+                "opening {}, {seeks} seeks, then {seconds} s of playing to {viewers} viewer(s) ...",
+                file.display()
+            );
+            let o = ReplayBenchOptions { file, seeks: seeks as usize, viewers: viewers as usize, seconds };
+            outln!("{}", bench_replay(&o)?);
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } } => {
@@ -820,7 +846,8 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     if let (Some(choice), None) = (&choice, supervised) {
         let stop = Stop::install()?;
         let choice = choice.clone();
-        return supervisor::supervise(&stop, &mut || hardware::open_hardware(&choice));
+        let fifo = rt_options(&a.rig)?.fifo_priority;
+        return supervisor::supervise(&stop, fifo, &mut |page| hardware::open_for_takeover(&choice, page));
     }
     let stop = match supervised {
         Some(page) => Stop::install()?.with_forwarded(&page.stops),
@@ -888,6 +915,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     // runs (this process or the child), on the rig recording's time line.
     let mut world_recording = None;
     let mut world_observer = None;
+    let mut child_world_file = None;
     if let Some(path) = &a.record {
         let wpath = spidar_record::world::world_path(path);
         let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
@@ -908,6 +936,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 }
             }
             WorldChoice::Child(spec) => {
+                child_world_file = Some(wpath.clone());
                 spec.extra.extend(["--record".into(), wpath.into_os_string()]);
                 if let Some(ns) = start_ns {
                     spec.extra.extend(["--record-start-unix-ns".into(), ns.to_string().into()]);
@@ -937,7 +966,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             (Box::new(sim_device(&rig, scripts, &sim_opts)?), script.clone())
         }
         Some(choice) => {
-            let dev = hardware::open_hardware(&choice)?;
+            let dev = hardware::open_hardware_for(&choice, supervised)?;
             errln!(
                 "spidar: rig '{}' on {} ({}), scene {}{}",
                 rig.name,
@@ -985,7 +1014,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         summary.rig_file = rig_src.describe();
         let world_rec = world_recording.take().map(|r| r.finish());
         if a.json {
-            outln!("{:#}", report::virtual_json(&summary));
+            outln!("{:#}", report::virtual_json(&summary, world_rec.as_ref()));
         } else {
             outln!("{summary}");
             if let Some(r) = &world_rec {
@@ -1020,10 +1049,21 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     let mut summary = summary;
     summary.rig_file = rig_src.describe();
     let recording = summary.recording.clone();
-    // The scene thread has stopped: the world's recording ends with its last step.
-    let world_rec = world_recording.take().map(|r| r.finish());
+    // The scene thread has stopped: the world's recording ends with its last step. A child world
+    // process wrote its own: what it kept is read back from its file.
+    let world_rec = match (world_recording.take(), &child_world_file) {
+        (Some(r), _) => Some(r.finish()),
+        (None, Some(p)) => match spidar_record::world::report_of(p) {
+            Ok(r) => Some(r),
+            Err(e) => {
+                errln!("spidar: the world's recording {} does not read: {e}", p.display());
+                None
+            }
+        },
+        (None, None) => None,
+    };
     if a.json {
-        outln!("{:#}", report::run_json(&summary, recording.as_ref()));
+        outln!("{:#}", report::run_json(&summary, recording.as_ref(), world_rec.as_ref()));
     } else {
         outln!("{summary}");
         if let Some(r) = &recording {

@@ -73,6 +73,7 @@ pub fn start_world_recording(
     }
     let info = WorldInfo {
         scene: format!("{scene_arg} ({})", scene.name()),
+        name: scene.name().into(),
         command_line: std::env::args().collect::<Vec<_>>().join(" "),
         clock: if virtual_clock { "virtual" } else { "real" }.into(),
         start_unix_ns,
@@ -95,8 +96,21 @@ pub fn end_info(s: &Summary) -> EndInfo {
 /// `spidar replay`.
 #[derive(clap::Args)]
 pub struct ReplayArgs {
-    /// The recording (`spidar run --record FILE.mcap`).
+    /// The recording (`spidar run --record FILE.mcap`): the rig's file or the world's
+    /// (FILE.world.mcap); the other one is found next to it.
     pub file: std::path::PathBuf,
+    /// Where the replay is served (the live view's page with a playback bar) and --no-view.
+    #[command(flatten)]
+    pub view: crate::world_process::ViewArgs,
+    /// Playback speed to start with (0.0625 to 16; the page offers 0.25x to 4x).
+    #[arg(long, default_value_t = 1.0, value_parser = playback_speed)]
+    pub speed: f64,
+    /// Start at this scene time, in seconds (default: the first frame).
+    #[arg(long, value_name = "SECONDS")]
+    pub from: Option<f64>,
+    /// Start playing at once (default: paused on the first frame until the page says play).
+    #[arg(long)]
+    pub play: bool,
     /// Re-run the rt-loop's tick core from the recorded device inputs, commands and contact
     /// models, and check every output (volts, forces, tensions, lifecycle, events, hand samples)
     /// bit for bit; fails naming the first tick that differs.
@@ -105,9 +119,33 @@ pub struct ReplayArgs {
     /// With --verify: build the tick core from this rig file instead of the one recorded.
     #[arg(long, requires = "verify")]
     pub rig: Option<std::path::PathBuf>,
-    /// Print the summary as JSON.
+    /// Print the summary as JSON (and serve no view).
     #[arg(long)]
     pub json: bool,
+}
+
+fn playback_speed(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if spidar_record::play::SPEEDS.contains(&v) {
+        Ok(v)
+    } else {
+        Err("must be between 0.0625 and 16".into())
+    }
+}
+
+/// The rig's and the world's file of a recording, from either (each if it is there).
+fn partners(file: &std::path::Path) -> (Option<std::path::PathBuf>, Option<std::path::PathBuf>) {
+    let name = file.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned());
+    match name.strip_suffix(".world.mcap") {
+        Some(stem) => {
+            let rig = file.with_file_name(format!("{stem}.mcap"));
+            (rig.exists().then_some(rig), Some(file.to_path_buf()))
+        }
+        None => {
+            let world = spidar_record::world::world_path(file);
+            (Some(file.to_path_buf()), world.exists().then_some(world))
+        }
+    }
 }
 
 pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
@@ -150,53 +188,108 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    // A world recording given alone, or the world's file next to the rig's.
-    let world_file = spidar_record::world::world_path(&a.file);
-    let is_world = a.file.to_string_lossy().ends_with(".world.mcap");
-    if is_world {
-        let w = spidar_record::world::summarize(&a.file)?;
-        if a.json {
-            println!("{:#}", world_json(&w));
-        } else {
-            println!("{w}");
+    // Either file of a session, and the other one next to it.
+    let (rig_file, world_file) = partners(&a.file);
+    let serve = !(a.view.no_view || a.json);
+    // The view first (opening a recording for it is quick): the summaries of an hour-long
+    // recording take a while to read.
+    let replay = match (&world_file, serve) {
+        (Some(w), true) => Some(start_replay(w, a)?),
+        (None, true) => {
+            crate::errln!(
+                "spidar replay: no world recording next to {} ({}): nothing to draw, the summary only",
+                a.file.display(),
+                spidar_record::world::world_path(&a.file).display()
+            );
+            None
         }
-        return Ok(());
-    }
-    let world = if world_file.exists() { Some(spidar_record::world::summarize(&world_file)?) } else { None };
-    let s = spidar_record::summary::summarize(&a.file)?;
+        _ => None,
+    };
+    let stop = crate::signals::Stop::install()?;
+    let player = replay.map(|r| {
+        let stop = stop.clone();
+        std::thread::spawn(move || r.run(&|| stop.requested()))
+    });
+    let world = match &world_file {
+        Some(w) => Some(spidar_record::world::summarize(w)?),
+        None => None,
+    };
+    let rig = match &rig_file {
+        Some(r) => Some(spidar_record::summary::summarize(r)?),
+        None => None,
+    };
     if a.json {
-        let r = &s.recording;
-        let lat = s.stats.lateness.percentiles();
-        let j = serde_json::json!({
-            "command": "replay",
-            "file": r.path.display().to_string(),
-            "session": r.session,
-            "end": r.end_meta,
-            "attachments": r.attachments.iter().map(|(n, _)| n).collect::<Vec<_>>(),
-            "channels": r.channels.iter().map(|c| serde_json::json!({
-                "topic": c.topic, "schema": c.schema, "schema_encoding": c.schema_encoding,
-                "message_encoding": c.message_encoding, "messages": c.messages,
-            })).collect::<Vec<_>>(),
-            "ticks": r.ticks,
-            "missing_ticks": r.missing_ticks,
-            "active_ticks": s.active_ticks,
-            "lateness_s": { "p50": lat.p50_s, "p99": lat.p99_s, "p999": lat.p999_s, "max": lat.max_s },
-            "max_force_n": s.stats.max_force_n,
-            "hits": s.hits,
-            "events": s.event_count,
-            "faults": s.faults,
-            "ends": r.ends(),
-            "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
-            "world": world.as_ref().map(world_json),
-        });
+        let j = match &rig {
+            Some(s) => {
+                let mut j = rig_json(s);
+                j["world"] = world.as_ref().map_or(serde_json::Value::Null, world_json);
+                j
+            }
+            None => world.as_ref().map_or(serde_json::Value::Null, world_json),
+        };
         println!("{j:#}");
     } else {
-        println!("{s}");
+        if let Some(s) = &rig {
+            println!("{s}");
+        }
         if let Some(w) = &world {
             println!("{w}");
         }
     }
+    if let Some(p) = player {
+        crate::errln!("spidar replay: serving until Ctrl-C");
+        p.join().map_err(|_| anyhow::anyhow!("the replay thread panicked"))??;
+    }
     Ok(())
+}
+
+/// Starts serving a world recording into the view as `--view`, `--speed`, `--from`, `--play`
+/// say, and says where on stderr.
+fn start_replay(world: &std::path::Path, a: &ReplayArgs) -> anyhow::Result<crate::replay_view::Replay> {
+    use spidar_world::view::{parse_addr, ViewOptions};
+    let o = |view| crate::replay_view::ReplayOptions { view, from_s: a.from, speed: a.speed, play: a.play };
+    let r = match &a.view.view {
+        Some(addr) => crate::replay_view::Replay::start(
+            world,
+            &o(ViewOptions { addr: parse_addr(addr)?, ..Default::default() }),
+        )?,
+        // The default port may be taken (a world running): then any free one.
+        None => crate::replay_view::Replay::start(world, &o(ViewOptions::default())).or_else(|_| {
+            crate::replay_view::Replay::start(
+                world,
+                &o(ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() }),
+            )
+        })?,
+    };
+    crate::errln!("spidar replay: {}", r.describe());
+    crate::errln!("spidar replay: live view at {} (frames on {})", r.url(), r.ws_url());
+    Ok(r)
+}
+
+fn rig_json(s: &spidar_record::summary::Summary) -> serde_json::Value {
+    let r = &s.recording;
+    let lat = s.stats.lateness.percentiles();
+    serde_json::json!({
+        "command": "replay",
+        "file": r.path.display().to_string(),
+        "session": r.session,
+        "end": r.end_meta,
+        "attachments": r.attachments.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+        "channels": r.channels.iter().map(|c| serde_json::json!({
+            "topic": c.topic, "schema": c.schema, "schema_encoding": c.schema_encoding,
+            "message_encoding": c.message_encoding, "messages": c.messages,
+        })).collect::<Vec<_>>(),
+        "ticks": r.ticks,
+        "missing_ticks": r.missing_ticks,
+        "active_ticks": s.active_ticks,
+        "lateness_s": { "p50": lat.p50_s, "p99": lat.p99_s, "p999": lat.p999_s, "max": lat.max_s },
+        "max_force_n": s.stats.max_force_n,
+        "hits": s.hits,
+        "events": s.event_count,
+        "faults": s.faults,
+        "ends": r.ends(),
+        "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
+    })
 }
 
 fn world_json(w: &spidar_record::world::WorldSummary) -> serde_json::Value {

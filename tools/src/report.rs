@@ -1,6 +1,7 @@
 //! What a run reports to scripts (`--json`) and to the shell (its exit status).
 
 use serde_json::{json, Value};
+use spidar_record::world::WorldRecordingReport;
 use spidar_record::writer::RecordingReport;
 use spidar_rt::telemetry::{Percentiles, Stats};
 use spidar_rt::{Counters, Lifecycle};
@@ -82,8 +83,29 @@ pub fn recording_json(r: &RecordingReport) -> Value {
     })
 }
 
+/// The world's recording (`FILE.world.mcap`): what it kept and what it could not.
+pub fn world_recording_json(r: &WorldRecordingReport) -> Value {
+    json!({
+        "path": r.path.display().to_string(),
+        "steps": r.steps,
+        "messages": r.messages,
+        "events": r.events,
+        "bytes": r.bytes,
+        "not_kept": {
+            "total": r.dropped + r.write_failed,
+            "queue_dropped": r.dropped,
+            "write_failed": r.write_failed,
+        },
+        "error": r.error,
+    })
+}
+
 /// `spidar run --json`: the summary's figures, in SI units (seconds, newtons).
-pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
+pub fn run_json(
+    s: &Summary,
+    recording: Option<&RecordingReport>,
+    world_recording: Option<&WorldRecordingReport>,
+) -> Value {
     let c = &s.counters;
     json!({
         "command": "run",
@@ -123,11 +145,12 @@ pub fn run_json(s: &Summary, recording: Option<&RecordingReport>) -> Value {
             "stop_signals": s.signals,
         },
         "recording": recording.map(recording_json),
+        "world_recording": world_recording.map(world_recording_json),
     })
 }
 
 /// `spidar run --virtual --json`.
-pub fn virtual_json(s: &VirtualSummary) -> Value {
+pub fn virtual_json(s: &VirtualSummary, world_recording: Option<&WorldRecordingReport>) -> Value {
     let c = &s.counters;
     json!({
         "command": "run",
@@ -153,6 +176,7 @@ pub fn virtual_json(s: &VirtualSummary) -> Value {
             "stop_signals": s.signals,
         },
         "recording": s.recording.as_ref().map(recording_json),
+        "world_recording": world_recording.map(world_recording_json),
     })
 }
 

@@ -18,11 +18,15 @@
 //!   no lock, no allocation: the tick stays real-time), and the halt flag;
 //! - the stop signals the supervisor received, which the rig counts as its own (the larger count
 //!   wins, so a Ctrl-C that reaches both processes counts once);
-//! - whether the rig is driving the boards (set once its loop has configured them).
+//! - whether the rig is driving the boards (set once its loop has configured them);
+//! - the UART boards the rig process found at its open, so the takeover writes zero at once
+//!   instead of enumerating them again (an enumeration waits out every absent board id).
 //!
-//! The supervisor polls the page every 10 ms. No new beat for [`STALL`] (100 ms) while the loop
-//! runs, or an exit while driving without the loop's `DONE`, is a takeover. The rig child dies
-//! with the supervisor (`PR_SET_PDEATHSIG`: SIGTERM, its clean stop).
+//! The supervisor polls the page every [`POLL`] (5 ms). No new beat for [`STALL`] (60 ms) while
+//! the loop runs, or an exit while driving without the loop's `DONE`, is a takeover: zero is on
+//! the boards within 100 ms of the loop's last tick. The supervisor runs one SCHED_FIFO priority
+//! above the loop (see [`supervise`]). The rig child dies with the supervisor
+//! (`PR_SET_PDEATHSIG`: SIGTERM, its clean stop).
 //!
 //! What the safe output is: zero on every channel. Nothing regulates the strings any more, so
 //! they go slack (no minimum tension: keeping that would need a running loop).
@@ -30,11 +34,12 @@
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::process::{Child, Command, ExitStatus};
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use spidar_device::uart::protocol::{BoardInfo, ReplyLayout, MAX_BOARDS};
 use spidar_device::{Device, Input, Output};
 use spidar_rt::Lifeline;
 
@@ -43,10 +48,12 @@ use crate::signals::Stop;
 
 /// The environment variable that gives the rig process the shared page's descriptor.
 pub const ENV_FD: &str = "SPIDAR_SUPERVISOR_FD";
-/// No beat for this long while the loop runs: the rig process is hung (or stopped).
-pub const STALL: Duration = Duration::from_millis(100);
+/// No beat for this long while the loop runs: the rig process is hung (or stopped). With
+/// [`POLL`] and the takeover's few milliseconds, zero is on the boards within 100 ms of the last
+/// tick. A loop at its SCHED_FIFO priority that misses 60 ticks in a row is broken, not slow.
+pub const STALL: Duration = Duration::from_millis(60);
 /// How often the supervisor looks.
-pub const POLL: Duration = Duration::from_millis(10);
+pub const POLL: Duration = Duration::from_millis(5);
 /// After the second stop signal the rig process has this long to end before it is killed.
 pub const URGENT_GRACE: Duration = Duration::from_secs(2);
 /// Exit status of a supervisor that took the boards over and wrote zero to them.
@@ -65,6 +72,11 @@ pub struct Shared {
     /// Non-zero once the rig's loop has configured the boards: from then on an end without the
     /// loop's `DONE` is a takeover.
     pub driving: AtomicU32,
+    /// How many UART boards the rig process found at its open (0: none published).
+    uart_count: AtomicU32,
+    /// Each of those boards, packed by [`pack_board`]: what the takeover needs to write zero
+    /// without enumerating them again.
+    uart_boards: [AtomicU64; MAX_BOARDS],
 }
 
 impl Shared {
@@ -76,6 +88,55 @@ impl Shared {
     fn driving(&self) -> bool {
         self.driving.load(Ordering::SeqCst) != 0
     }
+
+    /// The rig process publishes the UART boards it found (at its open, before it drives them),
+    /// so a takeover can write zero at once instead of enumerating: an enumeration waits out
+    /// every absent board id, far longer than the takeover may take.
+    pub fn publish_uart(&self, boards: &[BoardInfo], layouts: &[ReplyLayout]) {
+        let n = boards.len().min(MAX_BOARDS).min(layouts.len());
+        for (slot, (b, l)) in self.uart_boards.iter().zip(boards.iter().zip(layouts)).take(n) {
+            slot.store(pack_board(b, *l), Ordering::Relaxed);
+        }
+        self.uart_count.store(n as u32, Ordering::Release);
+    }
+
+    /// The UART boards the rig process published, if any and if every entry is a board spidar
+    /// knows (the page of a dying process is not trusted further: anything else means a full
+    /// open).
+    pub fn known_uart(&self) -> Option<(Vec<BoardInfo>, Vec<ReplyLayout>)> {
+        let n = self.uart_count.load(Ordering::Acquire) as usize;
+        if n == 0 || n > MAX_BOARDS {
+            return None;
+        }
+        let (mut boards, mut layouts) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for slot in &self.uart_boards[..n] {
+            let (b, l) = unpack_board(slot.load(Ordering::Relaxed))?;
+            boards.push(b);
+            layouts.push(l);
+        }
+        // The enumeration found them in id order, each once.
+        if boards.windows(2).any(|w| w[0].id >= w[1].id) {
+            return None;
+        }
+        Some((boards, layouts))
+    }
+}
+
+/// One UART board in a word: its board-info reply's fields, and its reply layout.
+fn pack_board(b: &BoardInfo, l: ReplyLayout) -> u64 {
+    let layout = ReplyLayout::ALL.iter().position(|x| *x == l).unwrap_or(0) as u8;
+    u64::from_le_bytes([b.id, b.model, b.n_target, b.n_motor, b.n_current, b.n_force, b.n_touch, layout])
+}
+
+/// The board [`pack_board`] packed, if it is a board the driver accepts (the protocol's presence
+/// rule) at a valid id.
+fn unpack_board(w: u64) -> Option<(BoardInfo, ReplyLayout)> {
+    let [id, model, n_target, n_motor, n_current, n_force, n_touch, layout] = w.to_le_bytes();
+    let b = BoardInfo { id, model, n_target, n_motor, n_current, n_force, n_touch };
+    if usize::from(id) >= MAX_BOARDS || !b.is_present() {
+        return None;
+    }
+    Some((b, *ReplyLayout::ALL.get(usize::from(layout))?))
 }
 
 /// The shared page and its descriptor. The mapping is never unmapped (it lives as long as the
@@ -328,20 +389,42 @@ pub fn take_over(open: &mut dyn FnMut() -> anyhow::Result<Box<dyn Device>>) -> a
 /// watches it, and takes the boards over (`open`) if it dies or hangs while driving them. Returns
 /// this process's exit status: the rig's own when it ended cleanly, else `EXIT_TOOK_OVER` or
 /// `EXIT_TAKEOVER_FAILED`.
+///
+/// `fifo_priority`: the rig loop's SCHED_FIFO priority, if it asks for one. The supervisor then
+/// runs one above it (after starting the rig, which must not inherit it): a loop that hangs in a
+/// busy loop at its real-time priority would otherwise starve the very process that is to stop
+/// it. Its cost to the loop is a few microseconds every [`POLL`].
 pub fn supervise(
     stop: &Stop,
-    open: &mut dyn FnMut() -> anyhow::Result<Box<dyn Device>>,
+    fifo_priority: Option<u8>,
+    open: &mut dyn FnMut(&Shared) -> anyhow::Result<Box<dyn Device>>,
 ) -> anyhow::Result<u8> {
     let page = Page::create()?;
     let exe = std::env::current_exe().context("finding this executable to start the rig process")?;
     let args: Vec<std::ffi::OsString> = std::env::args_os().skip(1).collect();
     let mut child = spawn_rig(&page, &exe, &args)?;
-    let ended = watch(&mut child, page.shared(), stop, stall_limit())?;
-    Ok(finish(&ended, open, &mut |line| eprintln!("{line}")))
+    if let Some(p) = fifo_priority {
+        if let Err(e) = raise_priority(p.saturating_add(1).min(99)) {
+            eprintln!("spidar supervisor: warning: {e}: a loop hung at its real-time priority may delay the takeover");
+        }
+    }
+    let shared = page.shared();
+    let ended = watch(&mut child, shared, stop, stall_limit())?;
+    Ok(finish(&ended, &mut || open(shared), &mut |line| eprintln!("{line}")))
+}
+
+/// SCHED_FIFO at `priority` for this thread.
+fn raise_priority(priority: u8) -> std::io::Result<()> {
+    let param = libc::sched_param { sched_priority: i32::from(priority) };
+    // SAFETY: a plain struct for this thread (pid 0); the result is checked.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
 }
 
 /// The stall limit: [`STALL`], or `SPIDAR_SUPERVISOR_STALL_MS` (10 ms to 60 s) for a loop that
-/// runs without SCHED_FIFO on a busy machine (tests), where a scheduling stall of 100 ms is not a
+/// runs without SCHED_FIFO on a busy machine (tests), where a scheduling stall of 60 ms is not a
 /// hang. Never below 10 ms.
 pub fn stall_limit() -> Duration {
     std::env::var("SPIDAR_SUPERVISOR_STALL_MS")
@@ -564,6 +647,34 @@ mod tests {
             finish(&Ended::Hung { stalled: STALL }, &mut || anyhow::bail!("no board"), &mut |l| said.push(l));
         assert_eq!(code, EXIT_TAKEOVER_FAILED);
         assert!(said[0].contains("emergency stop"), "{said:?}");
+    }
+
+    #[test]
+    fn the_uart_boards_published_by_the_rig_come_back_whole_and_a_scribbled_page_is_not_trusted() {
+        let page = Page::create().unwrap();
+        let shared = page.shared();
+        assert_eq!(shared.known_uart(), None, "nothing published");
+        let b0 = BoardInfo::of_model(0, 1).unwrap();
+        let b2 = BoardInfo { n_touch: 3, ..BoardInfo::of_model(2, 6).unwrap() };
+        shared.publish_uart(&[b0, b2], &[ReplyLayout::Forces, ReplyLayout::Currents]);
+        assert_eq!(
+            shared.known_uart(),
+            Some((vec![b0, b2], vec![ReplyLayout::Forces, ReplyLayout::Currents]))
+        );
+        // A dying process may have written anything: a board no driver accepts, an unknown
+        // layout, ids out of order or a count beyond the table all mean a full open.
+        let bad = |w: u64| {
+            shared.uart_boards[1].store(w, Ordering::Relaxed);
+            shared.known_uart()
+        };
+        let good = shared.uart_boards[1].load(Ordering::Relaxed);
+        assert_eq!(bad(good & !0xFF00), None, "model 0");
+        assert_eq!(bad(good | (9 << 56)), None, "layout 9");
+        assert_eq!(bad(good & !0xFF), None, "id 0 twice");
+        assert_eq!(bad((good & !0xFF) | 8), None, "id 8");
+        assert!(bad(good).is_some());
+        shared.uart_count.store(MAX_BOARDS as u32 + 1, Ordering::Release);
+        assert_eq!(shared.known_uart(), None);
     }
 
     #[test]

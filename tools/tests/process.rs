@@ -294,9 +294,10 @@ fn run_on_boards_with(dir: &Path, stall_ms: u64, more: &[&str]) -> (Proc, i32) {
         port.to_str().unwrap(),
         "--no-rt",
         // The emulator runs in this test process without SCHED_FIFO: on a busy machine its
-        // replies can be late by milliseconds, which is not what these tests are about.
+        // replies can be late by tens of milliseconds (also at the enumeration, which waits as
+        // long), which is not what these tests are about.
         "--reply-timeout-us",
-        "20000",
+        "100000",
         "--seconds",
         "600",
         "--quiet",
@@ -372,12 +373,14 @@ fn kill_9_of_the_rig_process_leaves_zero_on_the_boards() {
     let emu = emulator(&dir);
     let (p, rig) = run_on_boards(&dir, 10_000);
     assert_ne!(motors(&emu), [0; 16], "the rig holds the strings");
+    let lengths = emu.control().stats().length_tables;
     signal(rig, libc::SIGKILL);
     let (status, out, err) = p.end();
     assert_eq!(status.code(), Some(3), "{out}\n{err}");
     assert!(err.contains("killed (signal 9, SIGKILL) while its loop drove the boards"), "{err}");
     assert!(err.contains("wrote zero to every channel of UART B1M#0+B1M#1"), "{err}");
     assert_eq!(motors(&emu), [0; 16], "the supervisor zeroed the boards (they have no watchdog)");
+    assert_eq!(emu.control().stats().length_tables, lengths, "zeroed without enumerating the boards again");
     emu.stop();
 }
 
@@ -386,19 +389,28 @@ fn a_stopped_rig_process_is_noticed_killed_and_its_boards_zeroed() {
     let _s = serial();
     let dir = temp_dir("boards-stop");
     let emu = emulator(&dir);
-    // The default stall limit, 100 ms.
-    let (mut p, rig) = run_on_boards(&dir, 100);
+    // The stall limit from the environment when given (to measure the default), else one a
+    // busy machine's scheduling of this unprivileged loop never reaches.
+    let stall: u64 = std::env::var("SPIDAR_TEST_STALL_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(1_000);
+    let (mut p, rig) = run_on_boards(&dir, stall);
     assert_ne!(motors(&emu), [0; 16]);
+    let lengths = emu.control().stats().length_tables;
     let t0 = Instant::now();
     signal(rig, libc::SIGSTOP);
+    // The boards' side: the moment every motor command reads zero.
+    while motors(&emu) != [0; 16] && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_micros(500));
+    }
+    let zeroed = t0.elapsed();
     let l = p.wait_for("stopped ticking");
-    let noticed = t0.elapsed();
     let (status, _, err) = p.end();
     assert_eq!(status.code(), Some(3), "{err}");
     assert_eq!(motors(&emu), [0; 16]);
-    // Loose bound only (the figure is reported, not asserted): noticed and zeroed within seconds.
-    assert!(noticed < Duration::from_secs(30), "{noticed:?}");
-    eprintln!("SIGSTOP -> supervisor's message after {} ms: {l}", noticed.as_millis());
+    // The takeover wrote zero to the boards the rig process had found: no enumeration (which
+    // would wait out every absent board id) and no new command-length tables.
+    assert_eq!(emu.control().stats().length_tables, lengths, "the takeover enumerated the boards again");
+    assert!(err.contains("of UART B1M#0+B1M#1"), "{err}");
+    eprintln!("stall limit {stall} ms: SIGSTOP -> zero on the boards after {} ms; {l}", zeroed.as_millis());
     // The stopped process was killed (SIGKILL ends a stopped process): nothing is left of it.
     // SAFETY: signal 0 only asks whether the process exists.
     assert_ne!(unsafe { libc::kill(rig, 0) }, 0, "the rig process is gone");

@@ -1,17 +1,19 @@
 // The connection to the world: one WebSocket to the frames port the page was served with, the
 // scene description first, then binary frames and JSON status messages. Reconnects after the
-// world restarts; says so through onState.
+// world restarts; says so through onState. A replay (`spidar replay`) also sends its playback
+// state (onPlayback) and takes the page's commands (`send`).
 
 const MAGIC = 0x31565053; // "SPV1" little-endian
 
-export function connect({ onScene, onRig, onStatus, onFrame, onState }) {
+export function connect({ onScene, onRig, onStatus, onFrame, onState, onPlayback }) {
   const meta = document.querySelector('meta[name="spidar-ws-port"]');
   const port = meta ? meta.content : '';
   const host = location.hostname || '127.0.0.1';
   const url = `ws://${host.includes(':') ? `[${host}]` : host}:${port}/`;
   let retry = 250;
+  let ws = null;
   const open = () => {
-    const ws = new WebSocket(url);
+    ws = new WebSocket(url);
     ws.binaryType = 'arraybuffer';
     ws.onopen = () => { retry = 250; onState('connected'); };
     ws.onmessage = (ev) => {
@@ -20,6 +22,7 @@ export function connect({ onScene, onRig, onStatus, onFrame, onState }) {
         if (m.type === 'scene') onScene(m);
         else if (m.type === 'rig') onRig(m);
         else if (m.type === 'status') onStatus(m);
+        else if (m.type === 'playback' && onPlayback) onPlayback(m);
         return;
       }
       const words = new Uint32Array(ev.data, 0, 4);
@@ -34,4 +37,10 @@ export function connect({ onScene, onRig, onStatus, onFrame, onState }) {
     ws.onerror = () => ws.close();
   };
   open();
+  // A command to the replay (JSON); dropped while not connected.
+  return {
+    send: (cmd) => {
+      if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(cmd));
+    },
+  };
 }

@@ -1,11 +1,36 @@
-// The crowd: every character as the humanoid skeleton of its keyframe set, posed each frame from
-// the joint rotations the world interpolated, placed by its rigid body, tinted by its control
-// state. One instanced mesh per bone, so a thousand characters are a dozen draw calls.
+// The crowd: every character as its drawn figure, the 16-joint humanoid of its keyframe set posed
+// as the world computes it (interpolated from the keyframes, legs stood on the feet, placed on its
+// rigid body): the frame carries each joint's position in the scene, so the page draws the world's
+// figure as it is, a bone from each joint to its parent, tinted by the character's control state.
+// One instanced mesh per bone, so a thousand characters are a score of draw calls.
 import * as THREE from 'three';
 import { CSS2DObject } from 'three/addons/renderers/CSS2DRenderer.js';
 
 const LABELLED_MAX = 24; // characters get a state label when the crowd is no bigger than this
 const PUSH_FLASH_N = 2.0;
+// A character's numbers in a frame (world/src/look.rs): body position xyz, rotation xyzw, control
+// state, push force, then per joint its position xyz.
+const STATE = 7;
+const PUSH = 8;
+const HEAD_FLOATS = 9;
+const JOINT_FLOATS = 3;
+
+// How thick each bone is drawn (m), by the name of the joint it ends at.
+function boneRadius(name) {
+  if (/spine|neck/.test(name)) return 0.1;
+  if (/hip/.test(name)) return 0.07;
+  if (/knee|ankle/.test(name)) return 0.055;
+  if (/shoulder/.test(name)) return 0.05;
+  return 0.04;
+}
+
+// What is drawn at a joint itself (m; none: 0): the head, and the hands and feet.
+function endRadius(name) {
+  if (/head/.test(name)) return 0.11;
+  if (/hand/.test(name)) return 0.045;
+  if (/ankle/.test(name)) return 0.06;
+  return 0;
+}
 
 export class Crowd {
   constructor(desc, root) {
@@ -16,53 +41,40 @@ export class Crowd {
     this.states = c.states;
     this.colours = c.colours.map((h) => new THREE.Color(h));
     this.flashColour = new THREE.Color(0xffffff);
-    const J = this.joints.length;
-    const children = this.joints.map(() => 0);
-    this.joints.forEach((j) => { if (j.parent !== null) children[j.parent]++; });
-    // Bones: [frame joint, geometry], the geometry already placed in that joint's frame.
-    const bones = [];
-    const up = new THREE.Vector3(0, 1, 0);
-    const segment = (from, to, r) => {
-      const a = new THREE.Vector3().fromArray(from);
-      const b = new THREE.Vector3().fromArray(to);
-      const d = b.clone().sub(a);
-      const len = d.length();
-      const g = new THREE.CapsuleGeometry(r, Math.max(len - 2 * r, 0.001), 4, 10);
-      g.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(up, d.normalize()));
-      g.translate((a.x + b.x) / 2, (a.y + b.y) / 2, (a.z + b.z) / 2);
-      return g;
+    this.head = this.joints.findIndex((j) => /head/.test(j.name));
+    const mesh = (g) => {
+      const m = new THREE.InstancedMesh(g, new THREE.MeshStandardMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
+      m.count = this.n;
+      m.frustumCulled = false;
+      m.instanceMatrix.setUsage(THREE.DynamicDrawUsage);
+      for (let i = 0; i < this.n; i++) m.setColorAt(i, this.colours[0]);
+      root.add(m);
+      return m;
     };
+    // Bones: a capsule from the parent joint (its origin) up its y axis to the joint, turned each
+    // frame onto the segment between the two joints the frame carries. A bone's length is fixed
+    // (the skeleton is rigid: every pose only turns joints), so its geometry is built once.
+    this.bones = [];
+    this.ends = [];
     this.joints.forEach((j, k) => {
       if (j.parent !== null) {
-        const trunk = j.parent === 0 || /spine|neck/.test(j.name);
-        bones.push([j.parent, segment([0, 0, 0], j.offset_m, trunk && !/shoulder|hip/.test(j.name) ? 0.09 : 0.045)]);
+        const len = Math.hypot(...j.offset_m);
+        const r = Math.min(boneRadius(j.name), len / 2);
+        const g = new THREE.CapsuleGeometry(r, Math.max(len - 2 * r, 0.001), 4, 10);
+        g.translate(0, len / 2, 0);
+        this.bones.push({ joint: k, parent: j.parent, len, mesh: mesh(g) });
       }
-      if (children[k] === 0) {
-        if (/neck|head/.test(j.name)) {
-          const g = new THREE.SphereGeometry(0.11, 16, 12);
-          g.translate(0, 0.12, 0);
-          bones.push([k, g]);
-        } else {
-          const len = /knee|leg|shin/.test(j.name) ? 0.31 : 0.26;
-          bones.push([k, segment([0, 0, 0], [0, -len, 0], 0.04)]);
-        }
-      }
+      const e = endRadius(j.name);
+      if (e > 0) this.ends.push({ joint: k, mesh: mesh(new THREE.SphereGeometry(e, 16, 12)) });
     });
-    this.bones = bones.map(([frame, g]) => {
-      const mesh = new THREE.InstancedMesh(g, new THREE.MeshStandardMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
-      mesh.count = this.n;
-      mesh.frustumCulled = false;
-      mesh.instanceMatrix.setUsage(THREE.DynamicDrawUsage);
-      for (let i = 0; i < this.n; i++) mesh.setColorAt(i, this.colours[0]);
-      root.add(mesh);
-      return { frame, mesh };
-    });
-    this.world = Array.from({ length: J }, () => new THREE.Matrix4());
-    this.body = new THREE.Matrix4();
-    this.local = new THREE.Matrix4();
-    this.p = new THREE.Vector3();
+    this.meshes = [...this.bones.map((b) => b.mesh), ...this.ends.map((e) => e.mesh)];
+    this.m = new THREE.Matrix4();
+    this.a = new THREE.Vector3();
+    this.b = new THREE.Vector3();
+    this.d = new THREE.Vector3();
     this.q = new THREE.Quaternion();
     this.one = new THREE.Vector3(1, 1, 1);
+    this.up = new THREE.Vector3(0, 1, 0);
     this.colour = new THREE.Color();
     this.shown = new Float32Array(this.n).fill(-1); // state (+ 0.5 while pushed) last coloured
     this.labels = [];
@@ -80,35 +92,39 @@ export class Crowd {
 
   apply(f) {
     const L = this.L;
-    const J = this.joints.length;
     const CF = L.character_floats;
     for (let i = 0; i < this.n; i++) {
       const o = L.characters_at + i * CF;
-      this.p.set(f[o], f[o + 1], f[o + 2]);
-      this.q.set(f[o + 3], f[o + 4], f[o + 5], f[o + 6]);
-      this.body.compose(this.p, this.q, this.one);
-      for (let j = 0; j < J; j++) {
-        const jt = this.joints[j];
-        const q = o + 12 + 4 * j;
-        this.p.fromArray(jt.offset_m);
-        if (jt.parent === null) this.p.x += f[o + 7], this.p.y += f[o + 8], this.p.z += f[o + 9];
-        this.q.set(f[q], f[q + 1], f[q + 2], f[q + 3]);
-        this.local.compose(this.p, this.q, this.one);
-        this.world[j].multiplyMatrices(jt.parent === null ? this.body : this.world[jt.parent], this.local);
+      const at = (j, v) => v.set(f[o + HEAD_FLOATS + JOINT_FLOATS * j], f[o + HEAD_FLOATS + JOINT_FLOATS * j + 1],
+        f[o + HEAD_FLOATS + JOINT_FLOATS * j + 2]);
+      for (const bone of this.bones) {
+        at(bone.parent, this.a);
+        at(bone.joint, this.b);
+        const len = this.d.subVectors(this.b, this.a).length();
+        if (len > 1e-9) this.q.setFromUnitVectors(this.up, this.d.divideScalar(len));
+        else this.q.identity();
+        this.m.compose(this.a, this.q, this.one);
+        bone.mesh.setMatrixAt(i, this.m);
       }
-      for (const b of this.bones) b.mesh.setMatrixAt(i, this.world[b.frame]);
-      const state = f[o + 10] | 0;
-      const shown = state + (f[o + 11] > PUSH_FLASH_N ? 0.5 : 0);
+      this.q.identity();
+      for (const e of this.ends) {
+        this.m.compose(at(e.joint, this.a), this.q, this.one);
+        e.mesh.setMatrixAt(i, this.m);
+      }
+      const state = f[o + STATE] | 0;
+      const shown = state + (f[o + PUSH] > PUSH_FLASH_N ? 0.5 : 0);
       if (shown !== this.shown[i]) {
         this.shown[i] = shown;
         this.colour.copy(this.colours[state] ?? this.colours[0]);
         if (shown !== state) this.colour.lerp(this.flashColour, 0.6);
-        for (const b of this.bones) b.mesh.setColorAt(i, this.colour);
+        for (const m of this.meshes) m.setColorAt(i, this.colour);
         this.coloursChanged = true;
       }
       const lab = this.labels[i];
       if (lab) {
-        lab.obj.position.set(f[o], f[o + 1] + 0.95, f[o + 2]);
+        // Above the drawn head, wherever the figure lies.
+        if (this.head >= 0) at(this.head, lab.obj.position).y += 0.3;
+        else lab.obj.position.set(f[o], f[o + 1] + 0.95, f[o + 2]);
         if (state !== lab.state) {
           lab.state = state;
           lab.div.textContent = this.states[state] ?? '?';
@@ -117,25 +133,28 @@ export class Crowd {
         }
       }
     }
-    for (const b of this.bones) {
-      b.mesh.instanceMatrix.needsUpdate = true;
-      if (this.coloursChanged && b.mesh.instanceColor) b.mesh.instanceColor.needsUpdate = true;
+    for (const m of this.meshes) {
+      m.instanceMatrix.needsUpdate = true;
+      if (this.coloursChanged && m.instanceColor) m.instanceColor.needsUpdate = true;
     }
     this.coloursChanged = false;
   }
 
-  // World positions of character i's joints as drawn (read back from the bones' instance
-  // matrices): for tests.
+  // World positions of character i's joints as drawn, read back from the meshes' instance
+  // matrices (a bone's far end is its joint, its origin its parent; a drawn end sits on its
+  // joint): for tests.
   drawnJoints(i) {
-    const out = [];
+    const out = this.joints.map(() => null);
     const m = new THREE.Matrix4();
-    const v = new THREE.Vector3();
-    for (let j = 0; j < this.joints.length; j++) {
-      const b = this.bones.find((x) => x.frame === j);
-      if (!b) { out.push(null); continue; }
-      b.mesh.getMatrixAt(i, m);
-      v.setFromMatrixPosition(m);
-      out.push([v.x, v.y, v.z]);
+    for (const bone of this.bones) {
+      bone.mesh.getMatrixAt(i, m);
+      out[bone.joint] = new THREE.Vector3(0, bone.len, 0).applyMatrix4(m).toArray();
+      if (out[bone.parent] === null) out[bone.parent] = new THREE.Vector3().setFromMatrixPosition(m).toArray();
+    }
+    for (const e of this.ends) {
+      if (out[e.joint] !== null) continue;
+      e.mesh.getMatrixAt(i, m);
+      out[e.joint] = new THREE.Vector3().setFromMatrixPosition(m).toArray();
     }
     return out;
   }

@@ -10,6 +10,7 @@ import { Crowd } from './crowd.js';
 import { Rig } from './rig.js';
 import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
+import { Playback } from './playback.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -53,6 +54,10 @@ let rateCount = 0;
 let rateSince = performance.now();
 let renders = 0;
 const renderWaiters = [];
+let playback = null; // the playback bar, when the page shows a replay
+// Each playback message with the newest frame's time when it came (for tests: frames against the
+// replay's own clock).
+const playbackLog = [];
 
 function setCamera(name) {
   cameras.use(name);
@@ -88,12 +93,18 @@ function onFrame(buffer, layoutId, seq) {
   rateCount++;
 }
 
-connect({
+const conn = connect({
   onScene,
   onRig,
   onStatus: (s) => { status = s; hud.setStatus(s); },
   onFrame,
   onState: (s) => { connection = s; hud.setConnection(s); },
+  onPlayback: (p) => {
+    if (!playback) playback = new Playback(document.getElementById('playback'), conn.send);
+    playback.setState(p);
+    playbackLog.push({ clock_s: p.clock_s, t_s: p.t_s, frame_t: latest ? latest.t : null, playing: p.playing, speed: p.speed });
+    if (playbackLog.length > 400) playbackLog.shift();
+  },
 });
 
 function resize() {
@@ -127,6 +138,7 @@ function frameLoop(now) {
     if (crowd) crowd.apply(latest.f);
     rig.apply(latest.f, desc.layout);
     applied = latest;
+    if (playback) playback.setTime(applied.t);
   }
   if (now - rateSince >= 1000) {
     hud.setFrameRate((rateCount * 1000) / (now - rateSince));
@@ -160,11 +172,16 @@ window.spidarView = {
     framesReceived,
     seq: applied ? applied.seq : null,
     t: applied ? applied.t : null,
+    receivedT: latest ? latest.t : null,
     paused,
     camera: cameras.active,
     status,
     renders,
+    replay: !!playback,
   }),
+  // A replay's state (its last `playback` message) and the bar's text, or null when live.
+  playback: () => playback && { ...playback.state, shown: playback.k.time.textContent, button: playback.k.play.textContent },
+  playbackLog: () => playbackLog.slice(),
   pause: () => { paused = true; return { seq: applied ? applied.seq : null, t: applied ? applied.t : null }; },
   resume: () => { paused = false; },
   // Resolves after the next two renders (the screen then shows the applied frame).
@@ -184,7 +201,8 @@ window.spidarView = {
     m.getWorldPosition(tmp);
     const pos = [tmp.x, tmp.y, tmp.z];
     const o = desc.layout.shapes_at + i * desc.layout.shape_floats;
-    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash };
+    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash,
+      force: applied.f[desc.layout.shape_force_at + i] };
   },
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
   character: (i) => {

@@ -10,16 +10,18 @@
 
 use glam::{DQuat, DVec3};
 use spidar_msg::ProxyId;
-use spidar_sim::character::keyframe::{Pose as SkeletonPose, MAX_JOINTS};
 use spidar_sim::collide::Shape;
 
 /// Numbers per moving shape in a frame: position (3), rotation quaternion x, y, z, w (4).
 pub const SHAPE_FLOATS: usize = 7;
-/// Numbers per character before its joints: body position (3), body rotation (4), the skeleton
-/// root's offset from rest (3), control state (1), push force on it this step (1).
-pub const CHARACTER_HEAD_FLOATS: usize = 12;
-/// Numbers per skeleton joint: its rotation relative to its parent (quaternion x, y, z, w).
-pub const JOINT_FLOATS: usize = 4;
+/// Numbers per character before its joints: body position (3), body rotation (4), control state
+/// (1), push force on it this step (1).
+pub const CHARACTER_HEAD_FLOATS: usize = 9;
+/// Where in a character's numbers its control state and the push force on it are.
+pub const CHARACTER_STATE: usize = 7;
+pub const CHARACTER_PUSH: usize = 8;
+/// Numbers per joint of the drawn figure: its position in the scene frame (x, y, z).
+pub const JOINT_FLOATS: usize = 3;
 /// Numbers per contact: point (3), force on the body named first (3).
 pub const CONTACT_FLOATS: usize = 6;
 /// Most contacts one frame carries (the scene's own and the rig's rendered ones).
@@ -165,42 +167,35 @@ impl Poses<'_> {
         }
     }
 
-    /// Character `i`: its body pose (scene frame), its skeleton pose (in the body frame, the
-    /// first `joints` joints), its control state and the force pushing it.
+    /// Character `i`: its body pose and the joints of its drawn figure (scene frame), its control
+    /// state and the force pushing it.
     #[inline]
     pub fn character(
         &mut self,
         i: usize,
         pos_m: DVec3,
         rot: DQuat,
-        pose: &SkeletonPose,
+        joints_m: &[DVec3],
         state: usize,
         push_n: f64,
     ) {
         let n = self.character_floats;
-        let Some(c) = self.characters.get_mut(i * n..(i + 1) * n) else { return };
-        put3(&mut c[0..3], pos_m);
-        put_quat(&mut c[3..7], rot);
-        c[7] = pose.root_m.x;
-        c[8] = pose.root_m.y;
-        c[9] = pose.root_m.z;
-        c[10] = state as f32;
-        c[11] = push_n as f32;
-        let joints = ((n - CHARACTER_HEAD_FLOATS) / JOINT_FLOATS).min(MAX_JOINTS);
-        for (j, q) in pose.rot.iter().take(joints).enumerate() {
-            let o = CHARACTER_HEAD_FLOATS + j * JOINT_FLOATS;
-            c[o] = q.x;
-            c[o + 1] = q.y;
-            c[o + 2] = q.z;
-            c[o + 3] = q.w;
+        if let Some(c) = self.characters.get_mut(i * n..(i + 1) * n) {
+            put_character(c, pos_m, rot, joints_m, state, push_n);
         }
+    }
+
+    /// The characters' section and the numbers per character, for a scene that writes many at
+    /// once (in parallel), each with [`put_character`].
+    pub fn characters_mut(&mut self) -> (&mut [f32], usize) {
+        (&mut *self.characters, self.character_floats)
     }
 
     /// Adds the push force on character `i` (magnitude, N).
     #[inline]
     pub fn character_push(&mut self, i: usize, push_n: f64) {
         let n = self.character_floats;
-        if let Some(p) = self.characters.get_mut(i * n + 11) {
+        if let Some(p) = self.characters.get_mut(i * n + CHARACTER_PUSH) {
             *p += push_n as f32;
         }
     }
@@ -216,6 +211,19 @@ impl Poses<'_> {
         put3(&mut s[3..6], c.force_n);
         *self.contact_count += 1;
         true
+    }
+}
+
+/// Writes one character's numbers (`c`: its share of a frame, see [`CHARACTER_HEAD_FLOATS`]): body
+/// pose, control state, push force and the joints of its drawn figure (as many as `c` holds).
+#[inline]
+pub fn put_character(c: &mut [f32], pos_m: DVec3, rot: DQuat, joints_m: &[DVec3], state: usize, push_n: f64) {
+    put3(&mut c[0..3], pos_m);
+    put_quat(&mut c[3..7], rot);
+    c[CHARACTER_STATE] = state as f32;
+    c[CHARACTER_PUSH] = push_n as f32;
+    for (s, j) in c[CHARACTER_HEAD_FLOATS..].chunks_exact_mut(JOINT_FLOATS).zip(joints_m) {
+        put3(s, *j);
     }
 }
 

@@ -413,6 +413,49 @@ impl<C: Connector> UartDevice<C> {
         Ok(())
     }
 
+    /// Opens the link to boards already known, without enumerating them: the boards and reply
+    /// layouts another process found at its open (`boards()`, `layouts()`), whose command-length
+    /// tables the boards still hold (they keep them until power-off). For the supervisor's
+    /// takeover, which must write zero within milliseconds: a full open waits out every absent
+    /// board id (`enumerate_timeout` each). The first frame starts with the resynchronising
+    /// zeros, since the process before may have died in the middle of a write.
+    pub fn open_known(&mut self, boards: &[BoardInfo], layouts: &[ReplyLayout]) -> Result<(), OpenError> {
+        let port = self.conn.describe().to_owned();
+        self.link = None;
+        self.opened = false;
+        self.active = false;
+        if boards.is_empty() || boards.len() > MAX_BOARDS || layouts.len() != boards.len() {
+            return Err(OpenError::WrongBoard {
+                what: format!("{} known boards with {} layouts on {port}", boards.len(), layouts.len()),
+            });
+        }
+        let channels: usize = boards.iter().map(|b| usize::from(b.n_motor)).sum();
+        if channels > MAX_CHANNELS {
+            return Err(OpenError::WrongBoard {
+                what: format!("{channels} motors on {port}: spidar drives at most {MAX_CHANNELS}"),
+            });
+        }
+        let link = self.conn.connect().map_err(|e| OpenError::from_serial(&port, e))?;
+        self.port = link.port_report();
+        let mut l = [ReplyLayout::Forces; MAX_BOARDS];
+        l[..layouts.len()].copy_from_slice(layouts);
+        self.install(boards, l);
+        self.resync = true;
+        self.last_failed = true;
+        let names: Vec<String> = boards.iter().map(|b| format!("{}#{}", b.model_name(), b.id)).collect();
+        let (vmin, vmax) = self.volts_range();
+        self.info = DeviceInfo {
+            board: short_string(&format!("UART {}", names.join("+"))),
+            identity: short_string(&port),
+            channels,
+            volts_min: vmin,
+            volts_max: vmax,
+        };
+        self.link = Some(link);
+        self.opened = true;
+        Ok(())
+    }
+
     /// Takes the boards found at open: channel table, counters, frame state.
     fn install(&mut self, found: &[BoardInfo], layouts: [ReplyLayout; MAX_BOARDS]) {
         let mut off = 0;

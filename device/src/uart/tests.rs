@@ -846,3 +846,49 @@ proptest::proptest! {
         }
     }
 }
+
+#[test]
+fn a_takeover_on_known_boards_zeroes_them_without_enumerating_even_after_a_cut_write() {
+    let r = rigged(vec![1, 5], ReplyLayout::Currents);
+    let mut d = r.dev;
+    d.open().unwrap();
+    d.activate().unwrap();
+    let out = Output { volts: [0.5; crate::MAX_CHANNELS] };
+    d.exchange(&out, &mut Input::default()).unwrap();
+    // The process dies in the middle of a write: board 0's parser waits for the rest.
+    *r.fault.lock().unwrap() = Fault::CutWrite(4);
+    let _ = d.exchange(&out, &mut Input::default());
+    assert_ne!(r.boards.lock().unwrap().motor_commands(), [0; crate::MAX_CHANNELS]);
+    let (boards, layouts) = (d.boards().to_vec(), d.layouts().to_vec());
+    drop(d);
+    let before = r.boards.lock().unwrap().stats();
+    // Another process (the supervisor) with what the first one found.
+    let conn = LoopConnector {
+        boards: r.boards.clone(),
+        fault: r.fault.clone(),
+        written: r.written.clone(),
+        recording: r.recording.clone(),
+    };
+    let mut t = UartDevice::new(conn, UartOptions::default());
+    t.open_known(&boards, &layouts).unwrap();
+    assert_eq!(t.info().board.as_str(), "UART B1M#0+B3M#1");
+    assert_eq!(t.info().channels, 8);
+    t.deactivate().unwrap();
+    let b = r.boards.lock().unwrap();
+    assert_eq!(b.motor_commands(), [0; crate::MAX_CHANNELS], "the zero reached every motor");
+    assert_eq!(b.locked(), 0);
+    let after = b.stats();
+    assert_eq!(after.length_tables, before.length_tables, "no length tables sent again");
+    // One board-info request marks the tick's frame; an enumeration would ask every id.
+    assert_eq!(after.info_requests - before.info_requests, 1, "no enumeration");
+}
+
+#[test]
+fn a_takeover_refuses_a_board_list_it_cannot_drive() {
+    let (mut d, _, _) = driver(vec![1]);
+    let b = BoardInfo::of_model(0, 1).unwrap();
+    assert!(d.open_known(&[], &[]).is_err());
+    assert!(d.open_known(&[b], &[]).is_err(), "a layout per board");
+    assert!(d.open_known(&[b; 9], &[ReplyLayout::Forces; 9]).is_err());
+    assert!(d.exchange(&Output::default(), &mut Input::default()).is_err(), "not opened");
+}

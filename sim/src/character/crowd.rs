@@ -1,5 +1,6 @@
-//! The crowd stepper: thousands of single-rigid-body characters stepped and posed per 3 ms step on
-//! one core (the project's goal: more than 5,000).
+//! The crowd stepper: thousands of single-rigid-body characters stepped per 3 ms step (the
+//! project's goals: 5,000 on one core, 10,000 on two). Their drawn poses are computed only when
+//! someone draws them ([`Crowd::pose`]), at the drawer's rate: nothing in a step depends on them.
 //!
 //! Why not the general engine: `Model::build_pairs` lists every pair of shapes (O(n^2) for n
 //! characters) and the articulated-body machinery is general. Here every body is one free rigid
@@ -240,14 +241,15 @@ pub const PARALLEL_MIN: usize = 256;
 /// Characters per parallel task.
 const CHUNK: usize = 64;
 
-/// A crowd: bodies, characters and their poses, and the scratch of the step.
+/// A crowd: bodies, characters, and the scratch of the step.
 ///
-/// A step has four phases: every character's own part (AI, controller, scenery contacts, pose), in
-/// parallel over characters; the grid; the contacts between characters, in parallel over
-/// characters (each sums the forces of its own pairs, in a fixed order, computing each pair's
-/// contact the same way from both sides, so the two get exactly opposite forces); integration, in
-/// parallel. Nothing a character computes depends on the order characters are visited, so any
-/// number of threads gives the same bits (tested with 1, 2 and 4).
+/// A step has three phases: every character's own part (AI, controller, scenery contacts), in
+/// parallel over characters; the grid (on the calling thread); the contacts between characters
+/// and integration, in parallel over characters (each sums the forces of its own pairs, in a fixed
+/// order, computing each pair's contact the same way from both sides, so the two get exactly
+/// opposite forces, then moves its body: the pairs read only the caches of the step's start).
+/// Nothing a character computes depends on the order characters are visited, so any number of
+/// threads gives the same bits (tested with 1, 2 and 4).
 #[derive(Clone, Debug)]
 pub struct Crowd {
     pub body: CrowdBody,
@@ -257,10 +259,8 @@ pub struct Crowd {
     pub statics: Vec<(Shape, ShapePose)>,
     pub bodies: Vec<BodyState>,
     pub chars: Vec<Character>,
-    /// Pose of each character (in its body frame `S_r`, origin at the centre of mass), from the
-    /// last step: what a viewer draws (joints and parents in `set.joints`).
-    pub poses: Vec<Pose>,
-    /// Rigid-body space of each character at the start of the last step.
+    /// Rigid-body space of each character at the start of the last step (what its drawn pose,
+    /// [`Crowd::pose`], is computed from).
     pub spaces: Vec<BodySpace>,
     pub time_s: f64,
     pub steps: u64,
@@ -272,11 +272,15 @@ pub struct Crowd {
     rng: u64,
     kin: Vec<Kin>,
     acc: Vec<Acc>,
+    /// Each character's position at the step's start, packed for the grid.
+    pos: Vec<DVec3>,
     // Uniform grid on the floor (x, z), rebuilt every step: each character's cell, the start of
-    // each cell's run in `cell_items`, and the characters in cell order.
+    // each cell's run in `cell_items`, the characters in cell order and their positions (so the
+    // neighbour search reads positions in cell order, packed).
     cell_of: Vec<u32>,
     cell_start: Vec<u32>,
     cell_items: Vec<u32>,
+    cell_pos: Vec<DVec3>,
     grid: Grid,
     /// `plane_normal` of each static shape (unused for non-planes), refreshed every step.
     static_normal: Vec<DVec3>,
@@ -315,7 +319,6 @@ impl Crowd {
             statics: Vec::new(),
             bodies: Vec::new(),
             chars: Vec::new(),
-            poses: Vec::new(),
             spaces: Vec::new(),
             time_s: 0.0,
             steps: 0,
@@ -325,9 +328,11 @@ impl Crowd {
             rng: 0x9e37_79b9_7f4a_7c15,
             kin: Vec::new(),
             acc: Vec::new(),
+            pos: Vec::new(),
             cell_of: Vec::new(),
             cell_start: Vec::new(),
             cell_items: Vec::new(),
+            cell_pos: Vec::new(),
             grid: Grid::default(),
             static_normal: Vec::new(),
         }
@@ -363,13 +368,14 @@ impl Crowd {
             vel_m_per_s: DVec3::ZERO,
         });
         self.chars.push(Character { goal, ..Character::default() });
-        self.poses.push(Pose::default());
         let b = self.body_space(self.bodies.len() - 1);
         self.spaces.push(b);
         self.kin.push(Kin::default());
         self.acc.push(Acc::default());
+        self.pos.push(DVec3::ZERO);
         self.cell_of.push(0);
         self.cell_items.push(0);
+        self.cell_pos.push(DVec3::ZERO);
         self.bodies.len() - 1
     }
 
@@ -416,30 +422,43 @@ impl Crowd {
         s.vel_m_per_s + (s.rot * s.w_body).cross(p - s.pos_m)
     }
 
-    /// One step: AI and controllers, contacts, integration, then every character's pose.
+    /// The drawn pose of character `i` as of the last step, in its body frame `S_r` (origin at the
+    /// centre of mass; joints and parents in `set.joints`): the keyframe set at the point of Q its
+    /// state at the start of that step maps to, the legs stood on its feet. Nothing in a step
+    /// depends on a pose, so a step computes none: whoever draws (the view, the recorder, the
+    /// tools) asks for the poses it draws, at its own rate, and gets exactly the pose the step
+    /// would have computed.
+    #[inline]
+    pub fn pose(&self, i: usize, out: &mut Pose) {
+        *out = Pose::default();
+        self.chars[i].pose(&self.spaces[i], &self.set, &self.params.controller, out);
+    }
+
+    /// [`Crowd::pose`], returned.
+    pub fn pose_of(&self, i: usize) -> Pose {
+        let mut p = Pose::default();
+        self.pose(i, &mut p);
+        p
+    }
+
+    /// One step: AI and controllers, contacts, integration (no poses: see [`Crowd::pose`]).
     pub fn step(&mut self) {
         let parallel = self.len() >= PARALLEL_MIN && rayon::current_num_threads() > 1;
-        self.per_character(parallel);
-        self.build_grid();
-        self.pair_contacts(parallel);
-        self.integrate_all(parallel);
-        self.stats = CrowdStats::default();
-        for a in &self.acc {
-            self.stats.scenery_points += a.scenery_points as usize;
-            self.stats.near_pairs += a.near as usize;
-            self.stats.pair_points += a.pair_points as usize;
-        }
+        let (lo, hi) = self.per_character(parallel);
+        self.build_grid(lo, hi);
+        let [scenery_points, near, pair_points] = self.pairs_and_integration(parallel);
         // Each pair was met from both sides.
-        self.stats.near_pairs /= 2;
-        self.stats.pair_points /= 2;
+        self.stats = CrowdStats { near_pairs: near / 2, pair_points: pair_points / 2, scenery_points };
+        self.time_s += self.world.dt_s;
+        self.steps += 1;
     }
 
     /// Everything that concerns one character alone, done while its data is in cache: AI and
-    /// controller (on the floor contacts of the last step, like the engine), contacts with the
-    /// scenery, and its pose at the point of Q its state at the start of the step maps to.
+    /// controller (on the floor contacts of the last step, like the engine) and contacts with the
+    /// scenery. Returns the box (min, max) around the finite positions, for the grid.
     // The phases stay separate functions so a profile shows each one.
     #[inline(never)]
-    fn per_character(&mut self, parallel: bool) {
+    fn per_character(&mut self, parallel: bool) -> (DVec3, DVec3) {
         // Scenery is a handful of shapes: this grows only when scenery is added.
         self.static_normal.clear();
         self.static_normal.extend(self.statics.iter().map(|(_, p)| plane_normal(p)));
@@ -464,80 +483,84 @@ impl Crowd {
             steps: self.steps,
         };
         let bodies = &self.bodies;
+        // Minima and maxima are exact in any order: the box is the same bits on any threads.
+        const EMPTY: (DVec3, DVec3) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let join = |a: (DVec3, DVec3), b: (DVec3, DVec3)| (a.0.min(b.0), a.1.max(b.1));
         let run = |base: usize,
                    chars: &mut [Character],
-                   poses: &mut [Pose],
                    spaces: &mut [BodySpace],
                    kin: &mut [Kin],
-                   acc: &mut [Acc]| {
+                   acc: &mut [Acc],
+                   pos: &mut [DVec3]| {
+            let mut bx = EMPTY;
             for k in 0..chars.len() {
-                one_character(
-                    &sh,
-                    base + k,
-                    &bodies[base + k],
-                    &mut chars[k],
-                    &mut poses[k],
-                    &mut spaces[k],
-                    &mut kin[k],
-                    &mut acc[k],
-                );
+                let s = &bodies[base + k];
+                one_character(&sh, base + k, s, &mut chars[k], &mut spaces[k], &mut kin[k], &mut acc[k]);
+                pos[k] = s.pos_m;
+                // A body with a non-finite position (a broken state) goes to cell 0 and does not
+                // size the grid.
+                if s.pos_m.is_finite() {
+                    bx = join(bx, (s.pos_m, s.pos_m));
+                }
             }
+            bx
         };
         if parallel {
             use rayon::prelude::*;
             self.chars
                 .par_chunks_mut(CHUNK)
-                .zip(self.poses.par_chunks_mut(CHUNK))
                 .zip(self.spaces.par_chunks_mut(CHUNK))
                 .zip(self.kin.par_chunks_mut(CHUNK))
                 .zip(self.acc.par_chunks_mut(CHUNK))
+                .zip(self.pos.par_chunks_mut(CHUNK))
                 .enumerate()
-                .for_each(|(c, ((((ch, po), sp), ki), ac))| run(c * CHUNK, ch, po, sp, ki, ac));
+                .map(|(c, ((((ch, sp), ki), ac), po))| run(c * CHUNK, ch, sp, ki, ac, po))
+                .reduce(|| EMPTY, join)
         } else {
-            run(0, &mut self.chars, &mut self.poses, &mut self.spaces, &mut self.kin, &mut self.acc);
+            run(0, &mut self.chars, &mut self.spaces, &mut self.kin, &mut self.acc, &mut self.pos)
         }
     }
 
-    /// The engine's semi-implicit Euler for a free joint.
+    /// Every character sums the contacts of the pairs it is in (its own and the eight neighbouring
+    /// cells, neighbours in a fixed order), then integrates (the engine's semi-implicit Euler for a
+    /// free joint): its pairs read only the caches of the step's start, never a body, so each
+    /// character moves as soon as its own sum is done. Returns the counts of scenery points, near
+    /// pairs and pair points (each pair counted from both sides).
     #[inline(never)]
-    fn integrate_all(&mut self, parallel: bool) {
-        let h = self.world.dt_s;
-        let (body, g) = (&self.body, self.world.gravity_m_per_s2);
-        let run = |s: &mut BodyState, a: &mut Acc, k: &Kin| {
-            let f = a.force + g * body.mass_kg;
-            let r = k.rotm;
-            let t_body = r.transpose() * a.torque;
-            let iw = body.i_com * s.w_body;
-            let w_dot = body.inv_i_com * (t_body - s.w_body.cross(iw));
-            // The body origin's acceleration: the centre of mass's minus the rotation terms.
-            let c = r * body.com_m;
-            let w = k.w_world;
-            let a_origin = f / body.mass_kg - (r * w_dot).cross(c) - w.cross(w.cross(c));
-            s.w_body += w_dot * h;
-            s.vel_m_per_s += a_origin * h;
-            s.pos_m += s.vel_m_per_s * h;
-            s.rot = (s.rot * quat_exp(s.w_body * h)).normalize();
-            a.force = DVec3::ZERO;
-            a.torque = DVec3::ZERO;
+    fn pairs_and_integration(&mut self, parallel: bool) -> [usize; 3] {
+        let ctx = PairCtx {
+            body: &self.body,
+            world: &self.world,
+            kin: &self.kin,
+            grid: self.grid,
+            cell_start: &self.cell_start,
+            cell_items: &self.cell_items,
+            cell_pos: &self.cell_pos,
+            cell_of: &self.cell_of,
+        };
+        let run = |base: usize, acc: &mut [Acc], bodies: &mut [BodyState]| {
+            let mut counts = [0usize; 3];
+            for (k, (a, s)) in acc.iter_mut().zip(bodies.iter_mut()).enumerate() {
+                let i = base + k;
+                ctx.gather(i, a);
+                counts[0] += a.scenery_points as usize;
+                counts[1] += a.near as usize;
+                counts[2] += a.pair_points as usize;
+                integrate(ctx.body, &ctx.world.gravity_m_per_s2, ctx.world.dt_s, s, a, &ctx.kin[i]);
+            }
+            counts
         };
         if parallel {
             use rayon::prelude::*;
-            self.bodies
+            self.acc
                 .par_chunks_mut(CHUNK)
-                .zip(self.acc.par_chunks_mut(CHUNK))
-                .zip(self.kin.par_chunks(CHUNK))
-                .for_each(|((b, a), k)| {
-                    for i in 0..b.len() {
-                        run(&mut b[i], &mut a[i], &k[i]);
-                    }
-                });
+                .zip(self.bodies.par_chunks_mut(CHUNK))
+                .enumerate()
+                .map(|(c, (a, b))| run(c * CHUNK, a, b))
+                .reduce(|| [0; 3], |x, y| [x[0] + y[0], x[1] + y[1], x[2] + y[2]])
         } else {
-            for i in 0..self.bodies.len() {
-                run(&mut self.bodies[i], &mut self.acc[i], &self.kin[i]);
-            }
+            run(0, &mut self.acc, &mut self.bodies)
         }
-        self.time_s += h;
-        self.steps += 1;
     }
 
     /// Cell size: two bounding radii, so touching characters are in the same or adjacent cells.
@@ -545,17 +568,12 @@ impl Crowd {
         2.0 * self.body.bound_m
     }
 
+    /// The grid over the box `lo`..`hi` around the characters' positions.
     #[inline(never)]
-    fn build_grid(&mut self) {
+    fn build_grid(&mut self, mut lo: DVec3, mut hi: DVec3) {
         let n = self.len();
         if n == 0 {
             return;
-        }
-        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        // A body with a non-finite position (a broken state) goes to cell 0 and does not size the grid.
-        for k in self.kin.iter().filter(|k| k.pos_m.is_finite()) {
-            lo = lo.min(k.pos_m);
-            hi = hi.max(k.pos_m);
         }
         if !lo.is_finite() {
             (lo, hi) = (DVec3::ZERO, DVec3::ZERO);
@@ -583,7 +601,7 @@ impl Crowd {
         let cells = nx * nz;
         self.cell_start[..cells + 1].fill(0);
         for i in 0..n {
-            let (cx, cz) = self.grid.cell(self.kin[i].pos_m);
+            let (cx, cz) = self.grid.cell(self.pos[i]);
             let c = (cz * nx + cx) as u32;
             self.cell_of[i] = c;
             self.cell_start[c as usize + 1] += 1;
@@ -596,6 +614,7 @@ impl Crowd {
             let c = self.cell_of[i] as usize;
             let at = self.cell_start[c] as usize;
             self.cell_items[at] = i as u32;
+            self.cell_pos[at] = self.pos[i];
             self.cell_start[c] += 1;
         }
         // Restore the starts (each was advanced by its count).
@@ -603,33 +622,6 @@ impl Crowd {
             self.cell_start[c] = self.cell_start[c - 1];
         }
         self.cell_start[0] = 0;
-    }
-
-    /// Every character sums the contacts of the pairs it is in: its own and the eight neighbouring
-    /// cells, neighbours in a fixed order.
-    #[inline(never)]
-    fn pair_contacts(&mut self, parallel: bool) {
-        let ctx = PairCtx {
-            body: &self.body,
-            world: &self.world,
-            kin: &self.kin,
-            grid: self.grid,
-            cell_start: &self.cell_start,
-            cell_items: &self.cell_items,
-            cell_of: &self.cell_of,
-        };
-        if parallel {
-            use rayon::prelude::*;
-            self.acc.par_chunks_mut(CHUNK).enumerate().for_each(|(c, acc)| {
-                for (k, a) in acc.iter_mut().enumerate() {
-                    ctx.gather(c * CHUNK + k, a);
-                }
-            });
-        } else {
-            for (i, a) in self.acc.iter_mut().enumerate() {
-                ctx.gather(i, a);
-            }
-        }
     }
 
     /// A digest of the exact bits of every body and character, for determinism tests.
@@ -691,6 +683,27 @@ fn wander_unit(seed: u64, i: usize, step: u64, k: u64) -> f64 {
     unit(mix(z))
 }
 
+/// The engine's semi-implicit Euler for a free joint: one character's body over one step under
+/// what it added up (then cleared for the next step).
+#[inline]
+fn integrate(body: &CrowdBody, g: &DVec3, h: f64, s: &mut BodyState, a: &mut Acc, k: &Kin) {
+    let f = a.force + *g * body.mass_kg;
+    let r = k.rotm;
+    let t_body = r.transpose() * a.torque;
+    let iw = body.i_com * s.w_body;
+    let w_dot = body.inv_i_com * (t_body - s.w_body.cross(iw));
+    // The body origin's acceleration: the centre of mass's minus the rotation terms.
+    let c = r * body.com_m;
+    let w = k.w_world;
+    let a_origin = f / body.mass_kg - (r * w_dot).cross(c) - w.cross(w.cross(c));
+    s.w_body += w_dot * h;
+    s.vel_m_per_s += a_origin * h;
+    s.pos_m += s.vel_m_per_s * h;
+    s.rot = (s.rot * quat_exp(s.w_body * h)).normalize();
+    a.force = DVec3::ZERO;
+    a.torque = DVec3::ZERO;
+}
+
 /// One character's own part of a step (see [`Crowd::per_character`]).
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -699,7 +712,6 @@ fn one_character(
     i: usize,
     s: &BodyState,
     ch: &mut Character,
-    pose: &mut Pose,
     space: &mut BodySpace,
     kin: &mut Kin,
     acc: &mut Acc,
@@ -751,7 +763,6 @@ fn one_character(
     kin.box_c = s.pos_m + r * c;
     kin.box_e = r.x_axis.abs() * e.x + r.y_axis.abs() * e.y + r.z_axis.abs() * e.z;
     scenery_contacts(sh, kin, acc);
-    ch.pose(&b, sh.set, &sh.params.controller, pose);
 }
 
 /// Contacts of one character with the scenery (its caches filled).
@@ -811,6 +822,7 @@ struct PairCtx<'a> {
     grid: Grid,
     cell_start: &'a [u32],
     cell_items: &'a [u32],
+    cell_pos: &'a [DVec3],
     cell_of: &'a [u32],
 }
 
@@ -834,10 +846,10 @@ impl PairCtx<'_> {
                     continue;
                 }
                 let cell = z as usize * g.nx + x as usize;
-                for &j in &self.cell_items[self.cell_start[cell] as usize..self.cell_start[cell + 1] as usize]
-                {
+                let run = self.cell_start[cell] as usize..self.cell_start[cell + 1] as usize;
+                for (&j, &pj) in self.cell_items[run.clone()].iter().zip(&self.cell_pos[run]) {
                     let j = j as usize;
-                    if j == i || (pi - self.kin[j].pos_m).length_squared() > reach {
+                    if j == i || (pi - pj).length_squared() > reach {
                         continue;
                     }
                     a.near += 1;

@@ -7,17 +7,24 @@
 
 use glam::{DMat3, DVec3, Vec3};
 
-use super::crowd::{Crowd, CrowdBody};
-use super::keyframe::MAX_JOINTS;
+use super::crowd::{Crowd, CrowdBody, PARALLEL_MIN};
+use super::keyframe::{Pose, MAX_JOINTS};
 use super::legs::joint_positions;
 use crate::collide::Shape;
 
-/// World positions of the joints of character `i` as drawn: the pose in `S_r` placed at the
-/// body's centre of mass and orientation. Returns how many joints the skeleton has.
+/// World positions of the joints of character `i` as drawn: its pose ([`Crowd::pose`], in `S_r`)
+/// placed at the body's centre of mass and orientation. Returns how many joints the skeleton has.
 pub fn world_joints(c: &Crowd, i: usize, out: &mut [DVec3; MAX_JOINTS]) -> usize {
+    let mut pose = Pose::default();
+    c.pose(i, &mut pose);
+    world_joints_of(c, i, &pose, out)
+}
+
+/// [`world_joints`] of a pose already computed.
+pub fn world_joints_of(c: &Crowd, i: usize, pose: &Pose, out: &mut [DVec3; MAX_JOINTS]) -> usize {
     let n = c.set.joints.len().min(MAX_JOINTS);
     let mut local = [Vec3::ZERO; MAX_JOINTS];
-    joint_positions(&c.set.joints, &c.poses[i], &mut local);
+    joint_positions(&c.set.joints, pose, &mut local);
     let s = &c.bodies[i];
     let r = DMat3::from_quat(s.rot);
     let com = s.pos_m + r * c.body.com_m;
@@ -25,6 +32,36 @@ pub fn world_joints(c: &Crowd, i: usize, out: &mut [DVec3; MAX_JOINTS]) -> usize
         out[k] = com + r * local[k].as_dvec3();
     }
     n
+}
+
+/// Every character's drawn figure in the world ([`world_joints`]), handed to `f(i, joints, slot)`
+/// with character `i`'s share of `out` (`per` items each; as many characters as `out` holds): on
+/// all of rayon's threads for crowds of [`PARALLEL_MIN`] or more, like the step. What a viewer or
+/// a recorder asks for, at its own rate (a step computes no poses).
+pub fn for_each_figure<T: Send>(
+    c: &Crowd,
+    out: &mut [T],
+    per: usize,
+    f: impl Fn(usize, &[DVec3], &mut [T]) + Sync,
+) {
+    if per == 0 {
+        return;
+    }
+    let n = c.len().min(out.len() / per);
+    let one = |i: usize, slot: &mut [T]| {
+        let mut j = [DVec3::ZERO; MAX_JOINTS];
+        let k = world_joints(c, i, &mut j);
+        f(i, &j[..k], slot);
+    };
+    let out = &mut out[..n * per];
+    if n >= PARALLEL_MIN && rayon::current_num_threads() > 1 {
+        use rayon::prelude::*;
+        out.par_chunks_mut(per).enumerate().with_min_len(64).for_each(|(i, s)| one(i, s));
+    } else {
+        for (i, s) in out.chunks_mut(per).enumerate() {
+            one(i, s);
+        }
+    }
 }
 
 /// How far `p` (world) is outside every collision shape of character `i`'s body (0 inside one).

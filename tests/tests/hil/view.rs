@@ -22,11 +22,13 @@ use spidar_msg::{ContactModel, HandSample, HandState, RigState, RigStatus};
 use spidar_rt::status::rig_info;
 use spidar_rt::{Clock, MonotonicClock};
 use spidar_sim::character::controller::Policy;
-use spidar_sim::character::keyframe::Pose as SkeletonPose;
+use spidar_sim::character::drawn::world_joints;
+use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_tools::scene_thread::{self, SceneCounters};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;
+use spidar_world::look::{CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS};
 use spidar_world::view::{View, ViewHandle, ViewOptions};
 use spidar_world::{Observer, Scene, StepView};
 
@@ -44,6 +46,9 @@ struct Ctl {
     punch_at: AtomicU64,
     /// A character to push over at the next step.
     push: Mutex<Option<usize>>,
+    /// The right fist's jab: from its home point at loop-clock time `.0` to `.1` (link frame) in
+    /// 0.2 s, and held there until cleared.
+    jab: Mutex<Option<(f64, DVec3)>>,
 }
 
 /// What the world was after one step.
@@ -52,8 +57,9 @@ struct Rec {
     t: f64,
     /// Boxing: every shape's pose. Crowd: every character's body pose.
     parts: Vec<(DVec3, DQuat)>,
-    /// Crowd: every character's skeleton pose and policy.
-    skeletons: Vec<(SkeletonPose, Policy)>,
+    /// Crowd: every character's drawn figure (its joints in the world, as
+    /// `spidar_sim::character::drawn::world_joints` gives them) and policy.
+    skeletons: Vec<(Vec<DVec3>, Policy)>,
     counters: Vec<f64>,
 }
 
@@ -111,7 +117,13 @@ fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
     Rec {
         t,
         parts: c.bodies.iter().map(|b| (b.pos_m, b.rot)).collect(),
-        skeletons: (0..c.len()).map(|i| (c.poses[i], c.chars[i].control.policy)).collect(),
+        skeletons: (0..c.len())
+            .map(|i| {
+                let mut j = [DVec3::ZERO; MAX_JOINTS];
+                let n = world_joints(c, i, &mut j);
+                (j[..n].to_vec(), c.chars[i].control.policy)
+            })
+            .collect(),
         counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
     }
 }
@@ -236,8 +248,11 @@ fn host<S: Scene + 'static>(
             while !stop.load(Ordering::Relaxed) {
                 let t = clock.now_ns() as f64 * 1e-9;
                 let punch_at = f64::from_bits(ctl.punch_at.load(Ordering::Relaxed));
-                let s =
+                let mut s =
                     HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
+                if let Some((at, to)) = *ctl.jab.lock().unwrap() {
+                    s.hands[1] = jab(s.hands[1].pos_m, t - at, to);
+                }
                 let _ = samples_tx.try_send(s);
                 tick += 1;
                 std::thread::sleep(Duration::from_millis(1));
@@ -258,6 +273,19 @@ fn host<S: Scene + 'static>(
     }
 }
 
+/// A hand from `home` to `to` in 0.2 s (minimum jerk), `s` seconds after it started, then held.
+fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
+    let tau = (s / 0.2).clamp(0.0, 1.0);
+    let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
+    let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
+    HandState {
+        pos_m: home + (to - home) * p,
+        vel_m_per_s: (to - home) * v,
+        valid: true,
+        ..Default::default()
+    }
+}
+
 fn boxing_world(opts: &ViewOptions) -> Hosting {
     let scene = BoxingScene::new(Default::default()).unwrap();
     // The right jab aims at the virtual human's head, in the rt-loop's frame.
@@ -273,11 +301,11 @@ fn crowd_world(opts: &ViewOptions) -> Hosting {
 /// other view tests' worlds.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+pub(super) fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-fn any_port() -> ViewOptions {
+pub(super) fn any_port() -> ViewOptions {
     ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() }
 }
 
@@ -345,15 +373,22 @@ impl Hosting {
                     let what = format!("character {i}");
                     close(rec.parts[i].0, &c[0..3], &what);
                     same_rot(rec.parts[i].1, &c[3..7], &what);
-                    let (pose, policy) = &rec.skeletons[i];
-                    close(pose.root_m.as_dvec3(), &c[7..10], &what);
-                    assert_eq!(states[c[10].as_u64().unwrap() as usize], policy.name(), "{what}'s state");
-                    for j in 0..self.look.crowd.as_ref().unwrap().joints.len() {
-                        same_rot(
-                            pose.rot[j].as_dquat(),
-                            &c[12 + 4 * j..16 + 4 * j],
-                            &format!("{what} joint {j}"),
-                        );
+                    let (joints, policy) = &rec.skeletons[i];
+                    assert_eq!(
+                        states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
+                        policy.name(),
+                        "{what}'s state"
+                    );
+                    // The frame carries the world's drawn figure, joint by joint.
+                    assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
+                    assert_eq!(
+                        c.len(),
+                        CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(),
+                        "{what}'s numbers"
+                    );
+                    for (j, p) in joints.iter().enumerate() {
+                        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+                        close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
                     }
                 }
                 json!({"ok": true})
@@ -390,6 +425,23 @@ impl Hosting {
                 }
             }
             "hold" => json!({"t_hold": self.hold()}),
+            "jab" => {
+                // The right fist jabs at the virtual human's head (hit) or out to the right, clear
+                // of every body (miss), and stays there.
+                let head = self.look.shapes.iter().position(|s| s.name == "virtual human/head").unwrap();
+                let head_m = self.latest().parts[head].0 - self.look.link_offset_m;
+                let r = rig();
+                let home = r.rig_to_world.point(r.hands[1].home_m);
+                let to =
+                    if q["hit"].as_bool().unwrap() { head_m } else { home + DVec3::new(0.35, 0.05, 0.0) };
+                let at = self.now();
+                *self.ctl.jab.lock().unwrap() = Some((at, to));
+                json!({"t_out": at + 0.2})
+            }
+            "release" => {
+                *self.ctl.jab.lock().unwrap() = None;
+                json!({"ok": true})
+            }
             "check_hud" => {
                 let hud = q["hud"].as_object().unwrap();
                 let text = |k: &str| {
@@ -451,7 +503,7 @@ fn browser_missing() -> Option<String> {
 }
 
 /// True when the browser tests can run; false (after a loud message) when they are skipped.
-fn browser_here(test: &str) -> bool {
+pub(super) fn browser_here(test: &str) -> bool {
     let Some(why) = browser_missing() else { return true };
     if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
         panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
@@ -462,7 +514,7 @@ fn browser_here(test: &str) -> bool {
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
 /// unless it ends with `RESULT ok`.
-fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+pub(super) fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
     let mut child = Command::new("node")
         .arg("view.mjs")
         .args(args)
@@ -515,6 +567,22 @@ fn view_boxing_in_a_browser() {
     let w = boxing_world(&any_port());
     node(&["boxing", w.view.url()], |q| w.answer(q));
     assert_eq!(w.view.counters().viewers_total.load(Ordering::Relaxed), 2);
+}
+
+/// A hit as a flash on the part hit: a scripted jab that lands on the virtual human (the avatar's
+/// glove, which follows the user's hand, on its head: the world's own contact) lights the part it
+/// lands on in the page; one that misses lights nothing.
+#[test]
+fn view_a_hit_flashes_the_part_hit_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_a_hit_flashes_the_part_hit_in_a_browser") {
+        return;
+    }
+    // A passive virtual human: it neither dodges nor blocks the jab.
+    let scene =
+        BoxingScene::new(spidar_sim::boxer::BoxerParams { active: false, ..Default::default() }).unwrap();
+    let w = host(scene, record_boxing, |_, _| {}, DVec3::ZERO, &any_port());
+    node(&["flash", w.view.url()], |q| w.answer(q));
 }
 
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
@@ -641,9 +709,14 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
 #[test]
 fn view_observer_allocates_nothing_per_step() {
     let _one = one_at_a_time();
-    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    observer_allocates_nothing(BoxingScene::new(Default::default()).unwrap(), "boxing");
+    // The crowd's frames carry its drawn figures, computed while the frame is written.
+    observer_allocates_nothing(CrowdScene::builtin().unwrap(), "crowd");
+}
+
+fn observer_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
     let look = scene.look();
-    let mut view = View::start("boxing", &look, &any_port()).unwrap();
+    let mut view = View::start(name, &look, &any_port()).unwrap();
     let handle = view.counters_handle();
     let stop = Arc::new(AtomicBool::new(false));
     let frames = Arc::new(AtomicU64::new(0));
@@ -664,11 +737,30 @@ fn view_observer_allocates_nothing_per_step() {
     let (before, _) = forbidden_allocs();
     run(1000, true);
     let (after, first) = forbidden_allocs();
-    assert_eq!(after - before, 0, "the observer allocated (first: {first} bytes)");
-    assert!(handle.counters().frames_published.load(Ordering::Relaxed) >= 150, "frames were written");
+    assert_eq!(after - before, 0, "the {name} observer allocated (first: {first} bytes)");
+    assert!(handle.counters().frames_published.load(Ordering::Relaxed) >= 150, "{name}: frames were written");
     stop.store(true, Ordering::Relaxed);
     drop(view);
     let _ = reader.join();
+}
+
+/// The world's recorder after a step allocates nothing either: it makes the live view's frame (for
+/// `spidar replay`) with the view's own code, into buffers taken from its pool.
+#[test]
+fn world_recorder_allocates_nothing_per_step() {
+    let mut scene = BoxingScene::new(Default::default()).unwrap();
+    let look = scene.look();
+    let path = std::env::temp_dir().join(format!("spidar-hil-alloc-{}.world.mcap", std::process::id()));
+    let info = spidar_record::world::WorldInfo { name: "boxing".into(), ..Default::default() };
+    let (rec, mut obs) = spidar_record::world::WorldRecording::start(&path, &info, &look).unwrap();
+    step_observed(&mut scene, 100, |v| obs.after_step(v));
+    let (before, _) = forbidden_allocs();
+    step_observed(&mut scene, 300, |v| no_alloc(|| obs.after_step(v)));
+    let (after, first) = forbidden_allocs();
+    assert_eq!(after - before, 0, "the recorder allocated (first: {first} bytes)");
+    let r = rec.finish();
+    assert!(r.steps + r.dropped == 400 && r.error.is_none(), "{r}");
+    let _ = std::fs::remove_file(&path);
 }
 
 // ---------------------------------------------------------------------------------------------

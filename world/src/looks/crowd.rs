@@ -1,12 +1,15 @@
-//! The crowd scene's look: every character as the 11-joint humanoid of its keyframe set, posed as
-//! the world interpolated it, tinted by its control state (balance, fall, down, stand up).
+//! The crowd scene's look: every character as its drawn figure (the 16-joint humanoid of its
+//! keyframe set, posed as the world interpolates it and stood on its feet: the figure that lies on
+//! the body, `spidar_sim::character::drawn`), tinted by its control state (balance, fall, down,
+//! stand up).
 
 use glam::DVec3;
 use spidar_sim::character::controller::Policy;
+use spidar_sim::character::drawn::for_each_figure;
 
 use super::quat;
 use crate::crowd::CrowdScene;
-use crate::look::{Look, LookCrowd, LookJoint, LookShape, Poses};
+use crate::look::{put_character, Look, LookCrowd, LookJoint, LookShape, Poses};
 
 const POLICIES: [Policy; 4] = [Policy::Balance, Policy::Fall, Policy::Down, Policy::StandUp];
 const STATE_COLOURS: [[u8; 3]; 4] = [[80, 165, 95], [235, 160, 35], [200, 55, 55], [80, 135, 225]];
@@ -55,14 +58,15 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
 
 pub(crate) fn pose(scene: &CrowdScene, out: &mut Poses<'_>) {
     let c = &scene.crowd;
-    let mut not_balancing = 0;
-    for i in 0..c.len() {
+    let not_balancing = c.chars.iter().filter(|ch| ch.control.policy != Policy::Balance).count();
+    // The figures are computed here, at the view's (or recorder's) rate: a step computes none.
+    let (slots, per) = out.characters_mut();
+    for_each_figure(c, slots, per, |i, joints, slot| {
         let policy = c.chars[i].control.policy;
         let state = POLICIES.iter().position(|p| *p == policy).unwrap_or(0);
-        not_balancing += usize::from(policy != Policy::Balance);
         let b = &c.bodies[i];
-        out.character(i, b.pos_m, b.rot, &c.poses[i], state, 0.0);
-    }
+        put_character(slot, b.pos_m, b.rot, joints, state, 0.0);
+    });
     out.counter(0, c.len() as f64);
     out.counter(1, not_balancing as f64);
     out.counter(2, scene.impulse_total_n_s.length());

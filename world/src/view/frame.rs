@@ -9,8 +9,8 @@
 //! then         shapes: position xyz, rotation quaternion xyzw, per moving shape         (f32)
 //!              contact force on each moving shape this frame (N)                        (f32)
 //!              label states, one per label                                              (f32)
-//!              characters: position xyz, rotation xyzw, skeleton root offset xyz,       (f32)
-//!                control state, push force (N), then per joint rotation xyzw
+//!              characters: body position xyz, body rotation xyzw, control state,       (f32)
+//!                push force (N), then per joint of the drawn figure its position xyz
 //!              proxies (16): kind (0 none, 1 plane, 2 sphere, 3 capsule), a xyz, b xyz, radius
 //!              contacts (up to 32, the count above): point xyz, force xyz               (f32)
 //! ```
@@ -21,7 +21,7 @@
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyShape, HANDS, MAX_PROXIES, STRINGS};
 
-use crate::look::{Look, Poses, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
+use crate::look::{Look, Poses, CHARACTER_PUSH, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
 
 /// "SPV1" read as a little-endian u32.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"SPV1");
@@ -50,6 +50,31 @@ pub struct Layout {
 }
 
 impl Layout {
+    /// The layout of `look`'s frames, with an id that changes with the look (FNV-1a over its
+    /// sizes and names): a page that described another look ignores the frames.
+    pub fn for_look(look: &Look) -> Layout {
+        let mut h: u32 = 0x811c_9dc5;
+        let mut eat = |b: &[u8]| {
+            for x in b {
+                h ^= *x as u32;
+                h = h.wrapping_mul(0x0100_0193);
+            }
+        };
+        for s in &look.shapes {
+            eat(s.name.as_bytes());
+        }
+        for l in &look.labels {
+            eat(l.name.as_bytes());
+        }
+        if let Some(c) = &look.crowd {
+            eat(&(c.characters as u64).to_le_bytes());
+            for j in &c.joints {
+                eat(j.name.as_bytes());
+            }
+        }
+        Layout::of(look, h)
+    }
+
     pub fn of(look: &Look, id: u32) -> Layout {
         let shapes = look.shapes.len();
         let labels = look.labels.len();
@@ -167,7 +192,7 @@ pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
     // The scene's sections start clean: forces and pushes add up, contacts are counted.
     buf[layout.shape_force_at..layout.shape_force_at + layout.shapes].fill(0.0);
     for i in 0..layout.characters {
-        buf[layout.characters_at + i * layout.character_floats + 11] = 0.0;
+        buf[layout.characters_at + i * layout.character_floats + CHARACTER_PUSH] = 0.0;
     }
 }
 

@@ -11,8 +11,10 @@
 //! Must never: block, allocate or format on the stepping thread (the observer `try_lock`s the
 //! mailbox and skips a frame when the broadcaster is copying it).
 
+mod fed;
 mod frame;
 pub mod json;
+mod maker;
 mod server;
 
 use std::net::SocketAddr;
@@ -20,14 +22,15 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use glam::DVec3;
-use spidar_msg::{ContactModel, HandState, ProxyId, RigInfo, HANDS, MAX_PROXIES};
-use spidar_sim::impulse::{nearest_on_surface, touching_hand};
+use spidar_msg::RigInfo;
+use std::sync::mpsc::SyncSender;
 
+pub use fed::FedView;
 pub use frame::{Layout, MAGIC};
 pub use json::StatusData;
+pub use maker::FrameMaker;
 
-use crate::look::{DrawnContact, Look};
+use crate::look::Look;
 use crate::{Observer, StepView};
 
 /// The view's page, its bundle of three.js and the page code, embedded so a build needs no npm.
@@ -43,6 +46,8 @@ pub enum ViewError {
     Address(String),
     #[error("starting the view's threads: {0}")]
     Thread(std::io::Error),
+    #[error("the scene description to serve does not read: {0}")]
+    Description(String),
 }
 
 /// Parses `--view`'s value: `HOST:PORT`, `http://HOST:PORT[/]`, `:PORT` or `PORT` (the last two
@@ -105,7 +110,7 @@ pub struct ViewCounters {
     pub viewers_refused: AtomicU64,
 }
 
-/// The mailbox between the stepping thread and the broadcaster.
+/// The mailbox between the stepping thread (or a replay) and the broadcaster.
 struct Mailbox {
     frame: Vec<f32>,
     frame_words: usize,
@@ -114,6 +119,23 @@ struct Mailbox {
     status_fresh: bool,
     rig: Option<RigInfo>,
     rig_fresh: bool,
+    /// A replay's playback state (JSON, `type` `playback`), handed on as it is.
+    playback: Option<String>,
+}
+
+impl Mailbox {
+    fn new(words: usize) -> Mailbox {
+        Mailbox {
+            frame: vec![0.0; words],
+            frame_words: 0,
+            frame_fresh: false,
+            status: StatusData { sample_t_s: f64::NAN, ..Default::default() },
+            status_fresh: false,
+            rig: None,
+            rig_fresh: false,
+            playback: None,
+        }
+    }
 }
 
 struct Shared {
@@ -125,61 +147,55 @@ struct Shared {
     /// Set when the view stops; `done` once the broadcaster has handed out the last status.
     stop: AtomicBool,
     done: AtomicBool,
+    /// Where the viewers' text messages go (a replay's controls); the live view takes none.
+    commands: Option<SyncSender<String>>,
 }
 
-/// A rendered contact gathered between two frames.
-#[derive(Clone, Copy, Default)]
-struct Rendered {
-    id: ProxyId,
-    contact: DrawnContact,
-}
+impl Shared {
+    fn new(words: usize, commands: Option<SyncSender<String>>) -> Arc<Shared> {
+        Arc::new(Shared {
+            mailbox: Mutex::new(Mailbox::new(words)),
+            fresh: AtomicBool::new(false),
+            counters: ViewCounters::default(),
+            stop: AtomicBool::new(false),
+            done: AtomicBool::new(false),
+            commands,
+        })
+    }
 
-/// Contact models remembered, so the impulses of late samples find their proxies.
-const KEPT_MODELS: usize = 8;
+    /// Ends the view: the last status says the world ended; the threads send it and stop.
+    fn stop(&self, server: Option<server::Server>) {
+        if let Ok(mut mb) = self.mailbox.lock() {
+            mb.status.ended = true;
+            mb.status_fresh = true;
+        }
+        self.fresh.store(true, Ordering::Release);
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(s) = server {
+            s.stop();
+        }
+    }
+}
 
 /// The live view, as an observer of the world's steps.
 pub struct View {
     shared: Arc<Shared>,
     server: Option<server::Server>,
-    layout: Layout,
-    offset: DVec3,
-    /// Proxy id of each look shape, and whether proxy bodies are crowd characters.
-    shape_proxies: Vec<Option<ProxyId>>,
-    proxies_are_characters: bool,
+    maker: FrameMaker,
     frame_every_s: f64,
     status_every_s: f64,
     next_frame_t_s: f64,
     next_status_t_s: f64,
     next_counters_t_s: f64,
-    seq: u32,
-    models: [ContactModel; KEPT_MODELS],
-    rendered: [Rendered; MAX_PROXIES],
-    rendered_count: usize,
-    hands: [HandState; HANDS],
-    status: StatusData,
-    rate_window: (f64, u64),
     urls: (String, String),
 }
 
 impl View {
     /// Starts the view's servers for a scene that looks like `look`.
     pub fn start(scene_name: &str, look: &Look, opts: &ViewOptions) -> Result<View, ViewError> {
-        let layout = Layout::of(look, layout_id(look));
-        let shared = Arc::new(Shared {
-            mailbox: Mutex::new(Mailbox {
-                frame: vec![0.0; layout.max_words],
-                frame_words: 0,
-                frame_fresh: false,
-                status: StatusData { sample_t_s: f64::NAN, ..Default::default() },
-                status_fresh: false,
-                rig: None,
-                rig_fresh: false,
-            }),
-            fresh: AtomicBool::new(false),
-            counters: ViewCounters::default(),
-            stop: AtomicBool::new(false),
-            done: AtomicBool::new(false),
-        });
+        let maker = FrameMaker::new(look);
+        let layout = *maker.layout();
+        let shared = Shared::new(layout.max_words, None);
         let description = json::scene(scene_name, look, &layout, opts.frame_hz);
         let server = server::Server::start(
             opts,
@@ -192,22 +208,12 @@ impl View {
         Ok(View {
             shared,
             server: Some(server),
-            layout,
-            offset: look.link_offset_m,
-            shape_proxies: look.shapes.iter().map(|s| s.proxy).collect(),
-            proxies_are_characters: look.crowd.as_ref().is_some_and(|c| c.proxy_body_is_character),
+            maker,
             frame_every_s: 1.0 / opts.frame_hz.max(1.0),
             status_every_s: 1.0 / opts.status_hz.max(0.1),
             next_frame_t_s: f64::NEG_INFINITY,
             next_status_t_s: f64::NEG_INFINITY,
             next_counters_t_s: f64::NEG_INFINITY,
-            seq: 0,
-            models: [ContactModel::default(); KEPT_MODELS],
-            rendered: [Rendered::default(); MAX_PROXIES],
-            rendered_count: 0,
-            hands: [HandState::default(); HANDS],
-            status: StatusData { sample_t_s: f64::NAN, ..Default::default() },
-            rate_window: (f64::NAN, 0),
             urls,
         })
     }
@@ -231,38 +237,6 @@ impl View {
         ViewHandle { shared: self.shared.clone(), urls: self.urls.clone() }
     }
 
-    /// Gathers the contacts the rig rendered in this step's samples (the virtual contact's own
-    /// force, on the body the proxy stands for), strongest per proxy since the last frame.
-    fn gather_rendered(&mut self, step: &StepView<'_>) {
-        let period = step.rig_info.map_or(0.001, |r| r.period_s);
-        for s in step.samples {
-            if s.model_seq == 0 {
-                continue;
-            }
-            let Some(m) = self.models.iter().find(|m| m.seq == s.model_seq) else { continue };
-            for (p, imp) in m.proxies().iter().zip(s.proxy_contact_impulse_n_s.iter()) {
-                if *imp == DVec3::ZERO {
-                    continue;
-                }
-                let Some(h) = touching_hand(&p.shape, s) else { continue };
-                let c = DrawnContact {
-                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_m) + self.offset,
-                    force_n: *imp / period,
-                };
-                let slot = self.rendered[..self.rendered_count].iter().position(|r| r.id == p.id);
-                match slot {
-                    Some(i) if self.rendered[i].contact.force_n.length() >= c.force_n.length() => {}
-                    Some(i) => self.rendered[i].contact = c,
-                    None if self.rendered_count < MAX_PROXIES => {
-                        self.rendered[self.rendered_count] = Rendered { id: p.id, contact: c };
-                        self.rendered_count += 1;
-                    }
-                    None => {}
-                }
-            }
-        }
-    }
-
     /// Writes the frame (when one is due) and the status into the mailbox, if the broadcaster is
     /// not copying it right now. The scene poses every time: its counters feed the status.
     fn publish(&mut self, step: &StepView<'_>, frame_due: bool) {
@@ -274,58 +248,17 @@ impl View {
         // Unwatched, the scene poses (for the status's counters) once a second: posing a big
         // crowd costs tens of microseconds.
         let counters_due = step.t_s >= self.next_counters_t_s;
-        if !frame_due && (mb.frame_fresh || !counters_due) {
-            // A frame waits to be sent (keep it whole), or the counters can wait: status only.
-            mb.status = self.status;
-            mb.status_fresh = true;
-            drop(guard);
-            self.shared.fresh.store(true, Ordering::Release);
-            return;
-        }
-        let l = self.layout;
-        let buf = &mut mb.frame[..];
-        if frame_due {
-            self.seq = self.seq.wrapping_add(1);
-        }
-        self.next_counters_t_s = step.t_s + 1.0;
-        let common = frame::Common {
-            seq: self.seq,
-            t_s: step.t_s,
-            hands: &self.hands,
-            tensions_n: step.rig_status.map(|r| &r.tensions_n),
-            model: step.model,
-            offset: self.offset,
-        };
-        frame::write_common(buf, &l, &common);
-        let mut contacts = 0usize;
-        {
-            let mut poses = l.poses(buf, &mut self.status.counters, &mut contacts);
-            step.scene.pose(&mut poses);
+        if frame_due || (!mb.frame_fresh && counters_due) {
+            // (A frame that waits to be sent is kept whole.)
+            self.next_counters_t_s = step.t_s + 1.0;
+            let words = self.maker.write(&mut mb.frame, step, frame_due);
             if frame_due {
-                for r in &self.rendered[..self.rendered_count] {
-                    let f = r.contact.force_n.length();
-                    let mut on_shape = false;
-                    for (k, p) in self.shape_proxies.iter().enumerate() {
-                        if *p == Some(r.id) {
-                            poses.shape_force(k, f);
-                            on_shape = true;
-                        }
-                    }
-                    if !on_shape && self.proxies_are_characters {
-                        poses.character_push(r.id.body as usize, f);
-                    }
-                    poses.contact(r.contact);
-                }
+                mb.frame_words = words;
+                mb.frame_fresh = true;
+                self.shared.counters.frames_published.fetch_add(1, Ordering::Relaxed);
             }
         }
-        buf[frame::GLOBALS_AT + 1] = contacts as f32;
-        if frame_due {
-            mb.frame_words = frame::words(&l, contacts);
-            mb.frame_fresh = true;
-            self.rendered_count = 0;
-            self.shared.counters.frames_published.fetch_add(1, Ordering::Relaxed);
-        }
-        mb.status = self.status;
+        mb.status = *self.maker.status();
         mb.status_fresh = true;
         if let Some(info) = step.rig_info {
             if mb.rig != Some(*info) {
@@ -342,33 +275,7 @@ impl Observer for View {
     fn after_step(&mut self, step: &StepView<'_>) {
         let t = step.t_s;
         let watched = self.shared.counters.viewers.load(Ordering::Relaxed) > 0;
-        if watched {
-            // The models the rendered contacts of the coming samples refer to.
-            let k = (step.model.seq as usize) % KEPT_MODELS;
-            self.models[k] = *step.model;
-        }
-        if let Some(s) = step.samples.last() {
-            self.hands = s.hands;
-            self.status.sample_t_s = t;
-        }
-        self.status.t_s = t;
-        self.status.steps += 1;
-        if self.rate_window.0.is_nan() {
-            self.rate_window = (t, self.status.steps);
-        } else if t - self.rate_window.0 >= 0.5 {
-            self.status.step_rate_hz =
-                (self.status.steps - self.rate_window.1) as f64 / (t - self.rate_window.0);
-            self.rate_window = (t, self.status.steps);
-        }
-        if let Some(r) = step.rig_status {
-            if self.status.rig.is_none_or(|o| o.tick != r.tick) {
-                self.status.rig_seen_t_s = t;
-            }
-            self.status.rig = Some(*r);
-        }
-        if watched {
-            self.gather_rendered(step);
-        }
+        self.maker.observe(step, watched);
         let frame_due = watched && t >= self.next_frame_t_s;
         let status_due = t >= self.next_status_t_s;
         if frame_due || status_due {
@@ -385,15 +292,7 @@ impl Observer for View {
 
 impl Drop for View {
     fn drop(&mut self) {
-        if let Ok(mut mb) = self.shared.mailbox.lock() {
-            mb.status.ended = true;
-            mb.status_fresh = true;
-        }
-        self.shared.fresh.store(true, Ordering::Release);
-        self.shared.stop.store(true, Ordering::Relaxed);
-        if let Some(s) = self.server.take() {
-            s.stop();
-        }
+        self.shared.stop(self.server.take());
     }
 }
 
@@ -417,33 +316,11 @@ impl ViewHandle {
     }
 }
 
-/// A layout id that changes with the description (FNV-1a over its sizes and names).
-fn layout_id(look: &Look) -> u32 {
-    let mut h: u32 = 0x811c_9dc5;
-    let mut eat = |b: &[u8]| {
-        for x in b {
-            h ^= *x as u32;
-            h = h.wrapping_mul(0x0100_0193);
-        }
-    };
-    for s in &look.shapes {
-        eat(s.name.as_bytes());
-    }
-    for l in &look.labels {
-        eat(l.name.as_bytes());
-    }
-    if let Some(c) = &look.crowd {
-        eat(&(c.characters as u64).to_le_bytes());
-        for j in &c.joints {
-            eat(j.name.as_bytes());
-        }
-    }
-    h
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::DVec3;
+    use spidar_msg::{ContactModel, HandState, HANDS};
 
     #[test]
     fn view_addresses_default_to_the_loopback_host() {

@@ -24,8 +24,11 @@ use super::{json, Shared, ViewError, ViewOptions, BUNDLE_JS, INDEX_HTML};
 #[derive(Default)]
 struct Latest {
     scene: String,
+    /// The newest frame: a viewer that connects sees it at once (a paused replay sends no other).
+    frame: Option<Bytes>,
     rig: Option<String>,
     status: Option<String>,
+    playback: Option<String>,
 }
 
 #[derive(Default)]
@@ -33,6 +36,7 @@ struct Slot {
     frame: Option<Bytes>,
     rig: Option<String>,
     status: Option<String>,
+    playback: Option<String>,
 }
 
 struct Viewer {
@@ -138,6 +142,10 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
                 latest.lock().ok().and_then(|l| l.rig.clone()).unwrap_or_else(|| "null".into()),
                 "application/json",
             ),
+            "/playback.json" => (
+                latest.lock().ok().and_then(|l| l.playback.clone()).unwrap_or_else(|| "null".into()),
+                "application/json",
+            ),
             "/favicon.ico" => {
                 let _ = req.respond(tiny_http::Response::empty(204));
                 continue;
@@ -235,14 +243,26 @@ fn serve_viewer(
 
 /// Sends the viewer its slot until it leaves, the view stops, or its socket stalls (returns true).
 fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, latest: &Mutex<Latest>) -> bool {
-    let first: Vec<String> = match latest.lock() {
-        Ok(l) => [Some(l.scene.clone()), l.rig.clone(), l.status.clone()].into_iter().flatten().collect(),
+    let (first, frame): (Vec<String>, _) = match latest.lock() {
+        Ok(l) => (
+            [Some(l.scene.clone()), l.rig.clone(), l.status.clone(), l.playback.clone()]
+                .into_iter()
+                .flatten()
+                .collect(),
+            l.frame.clone(),
+        ),
         Err(_) => return false,
     };
     for t in first {
         if let Err(e) = ws.send(Message::text(t)) {
             return timed_out(&e);
         }
+    }
+    if let Some(f) = frame {
+        if let Err(e) = ws.send(Message::Binary(f)) {
+            return timed_out(&e);
+        }
+        shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
     }
     // Reads only drain the viewer's control messages: never wait on them.
     if ws.get_mut().set_read_timeout(Some(Duration::from_millis(1))).is_err() {
@@ -252,15 +272,17 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
         let stopping = shared.done.load(Ordering::Relaxed);
         let slot = {
             let Ok(mut s) = me.slot.lock() else { return false };
-            if s.frame.is_none() && s.rig.is_none() && s.status.is_none() && !stopping {
-                s = match me.wake.wait_timeout(s, Duration::from_millis(200)) {
+            if s.frame.is_none() && s.rig.is_none() && s.status.is_none() && s.playback.is_none() && !stopping
+            {
+                // Not long: the viewer's messages are read in between.
+                s = match me.wake.wait_timeout(s, Duration::from_millis(50)) {
                     Ok((s, _)) => s,
                     Err(_) => return false,
                 };
             }
             std::mem::take(&mut *s)
         };
-        let texts = [slot.rig, slot.status].into_iter().flatten();
+        let texts = [slot.rig, slot.status, slot.playback].into_iter().flatten();
         for t in texts {
             if let Err(e) = ws.send(Message::text(t)) {
                 return timed_out(&e);
@@ -277,6 +299,12 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
                 Ok(Message::Close(_)) => {
                     let _ = ws.flush();
                     return false;
+                }
+                Ok(Message::Text(t)) => {
+                    // A replay's controls; a full queue drops the command (the page resends).
+                    if let Some(c) = &shared.commands {
+                        let _ = c.try_send(t.as_str().to_string());
+                    }
                 }
                 Ok(_) => continue,
                 Err(e) if timed_out(&e) => break,
@@ -303,7 +331,7 @@ fn broadcast(
     let mut bytes: Vec<u8> = Vec::new();
     let mut last_status = Instant::now() - status_every;
     loop {
-        let (frame, status, rig, stopping) = {
+        let (frame, status, rig, playback, stopping) = {
             // Poll: the stepping thread never wakes anyone.
             let until = Instant::now() + Duration::from_millis(250);
             while !shared.fresh.load(Ordering::Acquire)
@@ -326,7 +354,7 @@ fn broadcast(
             mb.status_fresh = false;
             let rig = if mb.rig_fresh { mb.rig } else { None };
             mb.rig_fresh = false;
-            (frame, status, rig, shared.stop.load(Ordering::Relaxed))
+            (frame, status, rig, mb.playback.take(), shared.stop.load(Ordering::Relaxed))
         };
         let viewer_count = c.viewers.load(Ordering::Relaxed);
         let rig_json = rig.map(|r| json::rig(&r, offset));
@@ -348,6 +376,12 @@ fn broadcast(
             if let Some(s) = &status_json {
                 l.status = Some(s.clone());
             }
+            if let Some(p) = &playback {
+                l.playback = Some(p.clone());
+            }
+            if let Some(f) = &frame {
+                l.frame = Some(f.clone());
+            }
         }
         let list: Vec<Arc<Viewer>> = viewers.lock().map(|l| l.clone()).unwrap_or_default();
         for v in list.iter().filter(|v| !v.gone.load(Ordering::Relaxed)) {
@@ -363,6 +397,9 @@ fn broadcast(
             }
             if let Some(st) = &status_json {
                 s.status = Some(st.clone());
+            }
+            if let Some(p) = &playback {
+                s.playback = Some(p.clone());
             }
             drop(s);
             v.wake.notify_one();
