@@ -1179,6 +1179,50 @@ mod tests {
         assert!((booked - want).abs() < 0.1 * want, "booked {booked} J, the held force did {want} J");
     }
 
+    /// The energy the world's bodies put into an avatar-hand contact (its power times the time
+    /// since the last model) goes into that hand's reserve; a gap in the models counts for at
+    /// most 10 ms (a world that was gone does not credit its absence).
+    #[test]
+    fn the_worlds_energy_into_a_contact_is_credited_over_the_time_between_models() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let at_w = c.rig().rig_to_world.point(home[0]);
+        let contact = |seq: u64, source_w: f64| {
+            let mut m = ContactModel { seq, ..Default::default() };
+            m.hand_contacts[0] = spidar_msg::HandContact {
+                force_n: DVec3::Z,
+                normal: DVec3::Z,
+                k_n_per_m: 0.0,
+                at_m: at_w,
+                source_w,
+            };
+            m
+        };
+        let mut out = Output::default();
+        let still = counts_at(&c, home);
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(contact(1, 0.0)), &still, Ok(()));
+        }
+        let reserve = |r: &TickRecord| r.hands[0].reserve_j;
+        let (_, r0) = tick_io(&mut c, &mut out, Some(contact(1, 0.0)), &still, Ok(()));
+        // A model every tick (1 ms apart) at 2 W: 2 mJ each.
+        let (_, r1) = tick_io(&mut c, &mut out, Some(contact(2, 2.0)), &still, Ok(()));
+        assert!((reserve(&r1) - reserve(&r0) - 0.002).abs() < 1e-9, "{} -> {}", reserve(&r0), reserve(&r1));
+        // Two ticks without a model, then one: 3 ms at 2 W.
+        tick_io(&mut c, &mut out, None, &still, Ok(()));
+        tick_io(&mut c, &mut out, None, &still, Ok(()));
+        let (_, r2) = tick_io(&mut c, &mut out, Some(contact(3, 2.0)), &still, Ok(()));
+        assert!((reserve(&r2) - reserve(&r1) - 0.006).abs() < 1e-9, "{} -> {}", reserve(&r1), reserve(&r2));
+        // 20 ticks without a model (late, not yet stale: still engaged), then one: 21 ms, of
+        // which 10 count.
+        for _ in 0..20 {
+            tick_io(&mut c, &mut out, None, &still, Ok(()));
+        }
+        let (_, r3) = tick_io(&mut c, &mut out, Some(contact(4, 2.0)), &still, Ok(()));
+        assert!((reserve(&r3) - reserve(&r2) - 0.02).abs() < 1e-9, "{} -> {}", reserve(&r2), reserve(&r3));
+    }
+
     /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.
     fn counts_at(c: &TickCore, p: [DVec3; 2]) -> [i64; MAX_CHANNELS] {
         let mut counts = [0i64; MAX_CHANNELS];
