@@ -1223,6 +1223,49 @@ mod tests {
         assert!((reserve(&r3) - reserve(&r2) - 0.02).abs() < 1e-9, "{} -> {}", reserve(&r2), reserve(&r3));
     }
 
+    /// After a late reply the count step's tolerance covers two periods of the hand's motion, and
+    /// the string's own predicted motion over one period (not over two, or four): a corrupt count
+    /// just beyond that is rejected on the tick it arrives, one just within it is taken.
+    #[test]
+    fn after_a_late_reply_a_count_just_beyond_the_fast_hands_tolerance_is_rejected() {
+        let dt = 0.001;
+        let v = DVec3::new(2.0, 0.0, 0.0); // a fast punch: 2 mm per tick
+        // The string that moves most per tick, and how much.
+        let probe = core();
+        let hr = probe.rig().hands[0].clone();
+        let home = hr.home_m;
+        let len = |p: DVec3, s: usize| (hr.anchors_m[s] - p).length();
+        let (s_max, m) = (0..4)
+            .map(|s| (s, (len(home + v * dt, s) - len(home, s)).abs()))
+            .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        assert!(m > 0.001, "{m}");
+        let jump = probe.rig().safety.reply_jump_m;
+        // Run a hand at constant speed, one late reply, then a reply off by `err_m` on s_max.
+        let taken = |err_m: f64| {
+            let mut c = core();
+            home_and_activate(&mut c);
+            let other = c.rig().hands[1].home_m;
+            let mut out = Output::default();
+            for i in 0..100 {
+                let counts = counts_at(&c, [home + v * (dt * i as f64), other]);
+                tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            }
+            let counts = counts_at(&c, [home + v * (dt * 100.0), other]);
+            tick_io(&mut c, &mut out, None, &counts, Err(TIMEOUT));
+            let p = home + v * (dt * 101.0);
+            let mut counts = counts_at(&c, [p, other]);
+            counts[hr.channels[s_max]] += (err_m / hr.metres_per_count[s_max]).round() as i64;
+            let jumps = c.counters().count_jumps[0];
+            let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            assert_eq!(r.state, Lifecycle::Active);
+            (c.counters().count_jumps[0] == jumps, r.hands[0].held)
+        };
+        // Two periods of reply jump, plus one period of the string's motion (m), plus half a
+        // period more: beyond; half a period less: within.
+        assert_eq!(taken(2.0 * jump + 1.5 * m), (false, true), "rejected, held");
+        assert_eq!(taken(2.0 * jump + 0.5 * m), (true, false), "taken");
+    }
+
     /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.
     fn counts_at(c: &TickCore, p: [DVec3; 2]) -> [i64; MAX_CHANNELS] {
         let mut counts = [0i64; MAX_CHANNELS];
