@@ -1230,7 +1230,7 @@ mod tests {
     fn after_a_late_reply_a_count_just_beyond_the_fast_hands_tolerance_is_rejected() {
         let dt = 0.001;
         let v = DVec3::new(2.0, 0.0, 0.0); // a fast punch: 2 mm per tick
-        // The string that moves most per tick, and how much.
+                                           // The string that moves most per tick, and how much.
         let probe = core();
         let hr = probe.rig().hands[0].clone();
         let home = hr.home_m;
@@ -1264,6 +1264,53 @@ mod tests {
         // period more: beyond; half a period less: within.
         assert_eq!(taken(2.0 * jump + 1.5 * m), (false, true), "rejected, held");
         assert_eq!(taken(2.0 * jump + 0.5 * m), (true, false), "taken");
+    }
+
+    /// An avatar-hand contact's force is rendered as the world gives it (its direction, not only
+    /// its size); a hand that moves with it while the reserve is empty has it scaled down, and
+    /// every such tick is counted.
+    #[test]
+    fn an_avatar_hand_contact_is_rendered_as_given_and_each_passivity_limited_tick_counted() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let f = DVec3::new(0.0, 0.5, 1.5);
+        let xf = c.rig().rig_to_world;
+        let contact = |p_rig: DVec3| {
+            let mut m = ContactModel { seq: 1, ..Default::default() };
+            m.hand_contacts[0] = spidar_msg::HandContact {
+                force_n: f,
+                normal: f.normalize(),
+                k_n_per_m: 0.0,
+                at_m: xf.point(p_rig),
+                source_w: 0.0,
+            };
+            m
+        };
+        let mut out = Output::default();
+        let still = counts_at(&c, home);
+        let mut r = TickRecord::default();
+        for _ in 0..600 {
+            r = tick_io(&mut c, &mut out, Some(contact(home[0])), &still, Ok(())).1;
+        }
+        // World and rig axes agree here.
+        assert!((r.hands[0].commanded_n - f).length() < 1e-9, "{:?}", r.hands[0]);
+        assert!(!r.hands[0].passivity_limited);
+        let before = c.counters().passivity_limited;
+        // The hand goes along the force at 0.5 m/s: the force would give it energy it never put in.
+        let mut limited = 0;
+        for i in 1..=40 {
+            let p = home[0] + f.normalize() * (0.0005 * i as f64);
+            let counts = counts_at(&c, [p, home[1]]);
+            let (_, r) = tick_io(&mut c, &mut out, Some(contact(p)), &counts, Ok(()));
+            if r.hands[0].passivity_limited {
+                limited += 1;
+                assert!(r.hands[0].commanded_n.length() < f.length());
+                assert!(r.hands[0].commanded_n.dot(f) >= 0.0, "scaled along its own direction");
+            }
+        }
+        assert!(limited > 20, "{limited}");
+        assert_eq!(c.counters().passivity_limited, [before[0] + limited, before[1]]);
     }
 
     /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.
