@@ -612,9 +612,13 @@ enum ToWriter {
     Finish,
 }
 
-/// The observer half: copies each step into a pooled buffer and queues it (never waits).
+/// The observer half: copies each step into a pooled buffer and queues it. On the real clock it
+/// never waits (a step whose buffer is not free is dropped and counted); on the virtual clock
+/// (`clock: "virtual"`, a run as fast as the machine computes) nothing is real-time, so it waits
+/// for the writer rather than lose steps.
 pub struct WorldRecorder {
     maker: FrameMaker,
+    wait: bool,
     next_view_t_s: f64,
     full: Sender<ToWriter>,
     pub(crate) free: Receiver<Box<Snap>>,
@@ -625,7 +629,8 @@ pub struct WorldRecorder {
 impl Observer for WorldRecorder {
     fn after_step(&mut self, s: &StepView<'_>) {
         self.steps += 1;
-        let Ok(mut snap) = self.free.try_recv() else {
+        let got = if self.wait { self.free.recv().ok() } else { self.free.try_recv().ok() };
+        let Some(mut snap) = got else {
             self.dropped.fetch_add(1, Ordering::Relaxed);
             return;
         };
@@ -643,7 +648,12 @@ impl Observer for WorldRecorder {
         snap.status = *self.maker.status();
         snap.rig_info = s.rig_info.copied();
         snap.decisions = s.scene.decisions();
-        if self.full.try_send(ToWriter::Step(snap)).is_err() {
+        let sent = if self.wait {
+            self.full.send(ToWriter::Step(snap)).is_ok()
+        } else {
+            self.full.try_send(ToWriter::Step(snap)).is_ok()
+        };
+        if !sent {
             self.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
@@ -694,6 +704,7 @@ impl WorldRecording {
             })?;
         let rec = WorldRecorder {
             maker: FrameMaker::new(look),
+            wait: info.clock == "virtual",
             next_view_t_s: f64::NEG_INFINITY,
             full: full_tx.clone(),
             free: free_rx,
