@@ -1829,6 +1829,32 @@ mod tests {
         (s, rec)
     }
 
+    /// A proxy touched with no force (zero stiffness and damping: a trigger volume) is a contact
+    /// that renders nothing: the impulses sent back are zero, never NaN (0 / 0 in the applied share).
+    #[test]
+    fn a_contact_with_no_force_sends_zero_impulses_not_nan() {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = c.rig().rig_to_world.point(c.rig().hands[0].home_m);
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Z * 0.01, normal: DVec3::Z },
+            k_n_per_m: 0.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        for _ in 0..600 {
+            tick_with(&mut c, Some(m));
+        }
+        let (s, rec) = tick_with(&mut c, Some(m));
+        assert_eq!(rec.hands[0].contacts, 1, "touching: {:?}", rec.hands[0]);
+        assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO);
+        assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
+    }
+
     #[test]
     fn contact_impulse_is_the_rendered_force_with_the_gain_but_without_the_clamp() {
         use spidar_msg::{Proxy, ProxyId, ProxyShape};
