@@ -1,8 +1,8 @@
 //! `spidar calib` as an operator meets it: the binary run as a child process, on the simulated
 //! rig, and on the board emulator through a pseudo-terminal with a 100 ms reply deadline
 //! (the emulator runs on a thread of this test, advancing its simulated rig one period per servo
-//! tick, and may be late on a busy machine; this test plays the person at the console: it reads each prompt, moves the emulator's
-//! simulated hand there and presses Enter, or sends SIGINT).
+//! tick, and may be late on a busy machine; this test plays the person at the console: it reads
+//! each prompt, moves the emulator's simulated hand there and presses Enter, or sends SIGINT).
 //!
 //! Every child gets its own `XDG_CONFIG_HOME`, so the user's rig file is one this test owns.
 //! Waiting on a child's output has a generous limit only so that a broken build fails instead
