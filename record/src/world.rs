@@ -628,9 +628,14 @@ enum ToWriter {
     Finish,
 }
 
-/// The observer half: copies each step into a pooled buffer and queues it (never waits).
+/// The observer half: copies each step into a pooled buffer (and, on the steps that draw a crowd's
+/// figures, its figure states into a buffer of the second pool) and queues it. On the real clock
+/// it never waits (a step whose buffers are not free is dropped and counted); on the virtual clock
+/// (`clock: "virtual"`, a run as fast as the machine computes) nothing is real-time, so it waits
+/// for the writer rather than lose steps.
 pub struct WorldRecorder {
     maker: FrameMaker,
+    wait: bool,
     next_view_t_s: f64,
     next_scene_t_s: f64,
     next_skeleton_t_s: f64,
@@ -658,7 +663,12 @@ impl WorldRecorder {
 impl Observer for WorldRecorder {
     fn after_step(&mut self, s: &StepView<'_>) {
         self.steps += 1;
-        let Some(mut snap) = self.spare.take().or_else(|| self.free.try_recv().ok()) else {
+        let got = match self.spare.take() {
+            Some(spare) => Some(spare),
+            None if self.wait => self.free.recv().ok(),
+            None => self.free.try_recv().ok(),
+        };
+        let Some(mut snap) = got else {
             self.dropped.fetch_add(1, Ordering::Relaxed);
             return;
         };
@@ -679,7 +689,9 @@ impl Observer for WorldRecorder {
         snap.skeletons = l.characters > 0
             && (snap.full || s.t_s >= self.next_skeleton_t_s || self.states != self.prev_states);
         if self.figure_states > 0 && (snap.view || snap.skeletons) {
-            let Ok(mut figures) = self.figures_free.try_recv() else { return self.drop_step(snap) };
+            let got =
+                if self.wait { self.figures_free.recv().ok() } else { self.figures_free.try_recv().ok() };
+            let Some(mut figures) = got else { return self.drop_step(snap) };
             s.scene.figure_states(&mut figures);
             snap.figures = Some(figures);
         }
@@ -687,7 +699,12 @@ impl Observer for WorldRecorder {
         snap.rig_info = s.rig_info.copied();
         snap.decisions = s.scene.decisions();
         let (t, view, full, skeletons) = (s.t_s, snap.view, snap.full, snap.skeletons);
-        if self.full.try_send(ToWriter::Step(snap)).is_err() {
+        let sent = if self.wait {
+            self.full.send(ToWriter::Step(snap)).is_ok()
+        } else {
+            self.full.try_send(ToWriter::Step(snap)).is_ok()
+        };
+        if !sent {
             self.dropped.fetch_add(1, Ordering::Relaxed);
             return;
         }
@@ -757,6 +774,7 @@ impl WorldRecording {
             })?;
         let rec = WorldRecorder {
             maker: FrameMaker::new(look),
+            wait: info.clock == "virtual",
             next_view_t_s: f64::NEG_INFINITY,
             next_scene_t_s: f64::NEG_INFINITY,
             next_skeleton_t_s: f64::NEG_INFINITY,

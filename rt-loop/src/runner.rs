@@ -596,6 +596,7 @@ mod tests {
         let mut ticks = 0;
         while rt.tick() {
             ticks += 1;
+            assert!(ticks < 100_000, "the stop never ended");
             assert!(!lifeline.done(), "not done while the device is on");
             assert!(rt.device().active);
         }

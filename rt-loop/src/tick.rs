@@ -1179,6 +1179,140 @@ mod tests {
         assert!((booked - want).abs() < 0.1 * want, "booked {booked} J, the held force did {want} J");
     }
 
+    /// The energy the world's bodies put into an avatar-hand contact (its power times the time
+    /// since the last model) goes into that hand's reserve; a gap in the models counts for at
+    /// most 10 ms (a world that was gone does not credit its absence).
+    #[test]
+    fn the_worlds_energy_into_a_contact_is_credited_over_the_time_between_models() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let at_w = c.rig().rig_to_world.point(home[0]);
+        let contact = |seq: u64, source_w: f64| {
+            let mut m = ContactModel { seq, ..Default::default() };
+            m.hand_contacts[0] = spidar_msg::HandContact {
+                force_n: DVec3::Z,
+                normal: DVec3::Z,
+                k_n_per_m: 0.0,
+                at_m: at_w,
+                source_w,
+            };
+            m
+        };
+        let mut out = Output::default();
+        let still = counts_at(&c, home);
+        for _ in 0..600 {
+            tick_io(&mut c, &mut out, Some(contact(1, 0.0)), &still, Ok(()));
+        }
+        let reserve = |r: &TickRecord| r.hands[0].reserve_j;
+        let (_, r0) = tick_io(&mut c, &mut out, Some(contact(1, 0.0)), &still, Ok(()));
+        // A model every tick (1 ms apart) at 2 W: 2 mJ each.
+        let (_, r1) = tick_io(&mut c, &mut out, Some(contact(2, 2.0)), &still, Ok(()));
+        assert!((reserve(&r1) - reserve(&r0) - 0.002).abs() < 1e-9, "{} -> {}", reserve(&r0), reserve(&r1));
+        // Two ticks without a model, then one: 3 ms at 2 W.
+        tick_io(&mut c, &mut out, None, &still, Ok(()));
+        tick_io(&mut c, &mut out, None, &still, Ok(()));
+        let (_, r2) = tick_io(&mut c, &mut out, Some(contact(3, 2.0)), &still, Ok(()));
+        assert!((reserve(&r2) - reserve(&r1) - 0.006).abs() < 1e-9, "{} -> {}", reserve(&r1), reserve(&r2));
+        // 20 ticks without a model (late, not yet stale: still engaged), then one: 21 ms, of
+        // which 10 count.
+        for _ in 0..20 {
+            tick_io(&mut c, &mut out, None, &still, Ok(()));
+        }
+        let (_, r3) = tick_io(&mut c, &mut out, Some(contact(4, 2.0)), &still, Ok(()));
+        assert!((reserve(&r3) - reserve(&r2) - 0.02).abs() < 1e-9, "{} -> {}", reserve(&r2), reserve(&r3));
+    }
+
+    /// After a late reply the count step's tolerance covers two periods of the hand's motion, and
+    /// the string's own predicted motion over one period (not over two, or four): a corrupt count
+    /// just beyond that is rejected on the tick it arrives, one just within it is taken.
+    #[test]
+    fn after_a_late_reply_a_count_just_beyond_the_fast_hands_tolerance_is_rejected() {
+        let dt = 0.001;
+        let v = DVec3::new(2.0, 0.0, 0.0); // a fast punch: 2 mm per tick
+                                           // The string that moves most per tick, and how much.
+        let probe = core();
+        let hr = probe.rig().hands[0].clone();
+        let home = hr.home_m;
+        let len = |p: DVec3, s: usize| (hr.anchors_m[s] - p).length();
+        let (s_max, m) = (0..4)
+            .map(|s| (s, (len(home + v * dt, s) - len(home, s)).abs()))
+            .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        assert!(m > 0.001, "{m}");
+        let jump = probe.rig().safety.reply_jump_m;
+        // Run a hand at constant speed, one late reply, then a reply off by `err_m` on s_max.
+        let taken = |err_m: f64| {
+            let mut c = core();
+            home_and_activate(&mut c);
+            let other = c.rig().hands[1].home_m;
+            let mut out = Output::default();
+            for i in 0..100 {
+                let counts = counts_at(&c, [home + v * (dt * i as f64), other]);
+                tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            }
+            let counts = counts_at(&c, [home + v * (dt * 100.0), other]);
+            tick_io(&mut c, &mut out, None, &counts, Err(TIMEOUT));
+            let p = home + v * (dt * 101.0);
+            let mut counts = counts_at(&c, [p, other]);
+            counts[hr.channels[s_max]] += (err_m / hr.metres_per_count[s_max]).round() as i64;
+            let jumps = c.counters().count_jumps[0];
+            let (_, r) = tick_io(&mut c, &mut out, None, &counts, Ok(()));
+            assert_eq!(r.state, Lifecycle::Active);
+            (c.counters().count_jumps[0] == jumps, r.hands[0].held)
+        };
+        // Two periods of reply jump, plus one period of the string's motion (m), plus half a
+        // period more: beyond; half a period less: within.
+        assert_eq!(taken(2.0 * jump + 1.5 * m), (false, true), "rejected, held");
+        assert_eq!(taken(2.0 * jump + 0.5 * m), (true, false), "taken");
+    }
+
+    /// An avatar-hand contact's force is rendered as the world gives it (its direction, not only
+    /// its size); a hand that moves with it while the reserve is empty has it scaled down, and
+    /// every such tick is counted.
+    #[test]
+    fn an_avatar_hand_contact_is_rendered_as_given_and_each_passivity_limited_tick_counted() {
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+        let f = DVec3::new(0.0, 0.5, 1.5);
+        let xf = c.rig().rig_to_world;
+        let contact = |p_rig: DVec3| {
+            let mut m = ContactModel { seq: 1, ..Default::default() };
+            m.hand_contacts[0] = spidar_msg::HandContact {
+                force_n: f,
+                normal: f.normalize(),
+                k_n_per_m: 0.0,
+                at_m: xf.point(p_rig),
+                source_w: 0.0,
+            };
+            m
+        };
+        let mut out = Output::default();
+        let still = counts_at(&c, home);
+        let mut r = TickRecord::default();
+        for _ in 0..600 {
+            r = tick_io(&mut c, &mut out, Some(contact(home[0])), &still, Ok(())).1;
+        }
+        // World and rig axes agree here.
+        assert!((r.hands[0].commanded_n - f).length() < 1e-9, "{:?}", r.hands[0]);
+        assert!(!r.hands[0].passivity_limited);
+        let before = c.counters().passivity_limited;
+        // The hand goes along the force at 0.5 m/s: the force would give it energy it never put in.
+        let mut limited = 0;
+        for i in 1..=40 {
+            let p = home[0] + f.normalize() * (0.0005 * i as f64);
+            let counts = counts_at(&c, [p, home[1]]);
+            let (_, r) = tick_io(&mut c, &mut out, Some(contact(p)), &counts, Ok(()));
+            if r.hands[0].passivity_limited {
+                limited += 1;
+                assert!(r.hands[0].commanded_n.length() < f.length());
+                assert!(r.hands[0].commanded_n.dot(f) >= 0.0, "scaled along its own direction");
+            }
+        }
+        assert!(limited > 20, "{limited}");
+        assert_eq!(c.counters().passivity_limited, [before[0] + limited, before[1]]);
+    }
+
     /// Counts of both hands for grips at `p` (rig frame), with the zero lengths homing took at home.
     fn counts_at(c: &TickCore, p: [DVec3; 2]) -> [i64; MAX_CHANNELS] {
         let mut counts = [0i64; MAX_CHANNELS];
@@ -1693,6 +1827,32 @@ mod tests {
         }
         c.step(t, Ok(()), &Input::default(), &mut out, &mut s, &mut rec);
         (s, rec)
+    }
+
+    /// A proxy touched with no force (zero stiffness and damping: a trigger volume) is a contact
+    /// that renders nothing: the impulses sent back are zero, never NaN (0 / 0 in the applied share).
+    #[test]
+    fn a_contact_with_no_force_sends_zero_impulses_not_nan() {
+        use spidar_msg::{Proxy, ProxyId, ProxyShape};
+        let mut c = core();
+        home_and_activate(&mut c);
+        let home = c.rig().rig_to_world.point(c.rig().hands[0].home_m);
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.push(Proxy {
+            id: ProxyId { body: 3, part: 0 },
+            shape: ProxyShape::Plane { point_m: home - DVec3::Z * 0.01, normal: DVec3::Z },
+            k_n_per_m: 0.0,
+            d_n_s_per_m: 0.0,
+            vel_m_per_s: DVec3::ZERO,
+            hand_mask: 0b01,
+        });
+        for _ in 0..600 {
+            tick_with(&mut c, Some(m));
+        }
+        let (s, rec) = tick_with(&mut c, Some(m));
+        assert_eq!(rec.hands[0].contacts, 1, "touching: {:?}", rec.hands[0]);
+        assert_eq!(s.proxy_impulse_n_s[0], DVec3::ZERO);
+        assert_eq!(s.proxy_contact_impulse_n_s[0], DVec3::ZERO);
     }
 
     #[test]

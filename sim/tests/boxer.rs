@@ -462,7 +462,7 @@ fn boxing_bout_with_the_mind_on_is_pinned() {
     assert_eq!(bout().0, a, "two identical bouts differ");
     assert!(predictions > 30 && attacks > 0, "the bout must predict and attack: {predictions}, {attacks}");
     eprintln!("digest {a:#018x}, {predictions} predictions, {attacks} attacks");
-    assert_eq!(a, 0x8506_1c61_5c8c_42c9, "digest changed: {a:#018x}");
+    assert_eq!(a, 0x2158_444b_d0f4_b850, "digest changed: {a:#018x}");
 }
 
 /// The user's hand `hand` along a path from the avatar's guard (`path(s)`, s in [0, 1], minimum-
@@ -728,4 +728,70 @@ fn at_the_scenes_distance_both_reach_the_others_head_and_chest() {
         "attacks {}, head {head}, chest {chest}",
         w.mind.attacks
     );
+}
+
+/// The stance moves the base spring's anchor: with the stance 3 cm up and 5 cm back from its place
+/// (and nothing else acting), the waist settles there, in the world's axes (the virtual human's
+/// actor frame faces the other way).
+#[test]
+fn a_stance_away_from_its_place_holds_the_waist_there() {
+    let mut w = settled(BoxerParams { active: false, ..Default::default() });
+    let place = w.mind.stance.place_m;
+    assert!((w.mind.stance.waist_m(&w.ws) - place).length() < 0.005, "a settled waist is at its place");
+    let home = place + DVec3::new(0.0, 0.03, -0.05);
+    w.mind.stance.home_m = home;
+    for _ in 0..((2.0 / w.dt_s()) as usize) {
+        w.step(&[None, None]);
+    }
+    let off = (w.mind.stance.waist_m(&w.ws) - home).length();
+    assert!(off < 0.003, "the waist settled {off:.4} m from the stance");
+}
+
+/// Issue 15, no part moves toward the fist by more than 2 cm: a body that was lifted and pushed
+/// back (as an uppercut or a fist pressing on a block does) while an avatar fist is out in front
+/// of it does not spring back toward that fist. Its legs (the stance) follow it away from the fist
+/// and brace; without them the base spring alone brings the head and chest back toward the fist
+/// by several centimetres.
+#[test]
+fn a_body_pushed_back_does_not_spring_back_toward_a_fist_that_is_out() {
+    let run = |stance: bool| {
+        let mut p = BoxerParams::default();
+        if !stance {
+            p.mind.stance_step_max_m = 0.0;
+            p.mind.brace_k_n_per_m = 0.0;
+            p.mind.brace_d_n_s_per_m = 0.0;
+        }
+        let mut w = settled(p);
+        // The left fist held out 15 cm in front of the chest and 5 cm below its centre.
+        let fist = w.com(w.vh.chest) + DVec3::new(0.0, -0.05, 0.15);
+        let mut targets = guard_targets(&w, 0, HandTarget { pos_m: fist, vel_m_per_s: DVec3::ZERO });
+        for _ in 0..((0.5 / w.dt_s()) as usize) {
+            w.step(&targets);
+        }
+        // A push: the whole body 6 cm back (away from the avatar, -z) and 4 cm up. The waist's
+        // position is in its actor's frame.
+        let root = &w.model.bodies[w.vh.waist];
+        let (qa, push) = (root.q_at, root.x_tree.e * DVec3::new(0.0, 0.04, -0.06));
+        for k in 0..3 {
+            w.state.q[qa + k] += push[k];
+        }
+        w.state.v.fill(0.0);
+        w.begin_step();
+        targets[0] = Some(HandTarget { pos_m: fist, vel_m_per_s: DVec3::ZERO });
+        let from = [w.com(w.vh.head), w.com(w.vh.chest)];
+        let mut toward: f64 = 0.0;
+        for _ in 0..((1.0 / w.dt_s()) as usize) {
+            w.step(&targets);
+            let f = w.com(w.avatar.hand[0]);
+            for (i, b) in [w.vh.head, w.vh.chest].into_iter().enumerate() {
+                let p = w.com(b);
+                toward = toward.max((p - from[i]).dot((f - p).normalize()));
+            }
+        }
+        toward
+    };
+    let (with, without) = (run(true), run(false));
+    eprintln!("toward the fist: {with:.4} m with the stance, {without:.4} m without");
+    assert!(without > 0.03, "without the stance the body came only {without:.3} m toward the fist");
+    assert!(with <= 0.02, "the head or chest moved {with:.3} m toward the fist");
 }

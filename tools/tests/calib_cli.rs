@@ -1,8 +1,8 @@
 //! `spidar calib` as an operator meets it: the binary run as a child process, on the simulated
-//! rig, and on the board emulator through a pseudo-terminal with the default device options
+//! rig, and on the board emulator through a pseudo-terminal with a 100 ms reply deadline
 //! (the emulator runs on a thread of this test, advancing its simulated rig one period per servo
-//! tick, and this test plays the person at the console: it reads each prompt, moves the emulator's
-//! simulated hand there and presses Enter, or sends SIGINT).
+//! tick, and may be late on a busy machine; this test plays the person at the console: it reads
+//! each prompt, moves the emulator's simulated hand there and presses Enter, or sends SIGINT).
 //!
 //! Every child gets its own `XDG_CONFIG_HOME`, so the user's rig file is one this test owns.
 //! Waiting on a child's output has a generous limit only so that a broken build fails instead
@@ -258,7 +258,9 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
     std::fs::copy(SHIPPED, &rig_file).unwrap();
     let port = emu.link().to_str().unwrap().to_string();
     let rig = rig_file.to_str().unwrap();
-    let device = ["--device", "uart", "--port", &port];
+    // The emulator runs in this test process: on a busy machine its replies can be late by tens
+    // of milliseconds, also at the enumeration (which waits as long); not what this test is about.
+    let device = ["--device", "uart", "--port", &port, "--reply-timeout-us", "100000"];
     let record =
         ["calib", "record", "--rig", rig, "--hands", "left", "--jig", JIG, "--free", "0", "--out", "s.ron"];
 
@@ -271,7 +273,7 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
     assert!(err.contains("interrupted by a stop signal"), "{err}");
     assert!(err.contains("4 poses kept in s.ron"), "{err}");
     let hint = format!(
-        "continue with: spidar calib record --rig {rig} --device uart --port {port} --out s.ron --resume"
+        "continue with: spidar calib record --rig {rig} --device uart --port {port} --reply-timeout-us 100000 --out s.ron --resume"
     );
     assert!(err.contains(&hint), "{err}");
     assert!(emu.control().boards().motor_commands().iter().all(|&c| c == 0), "outputs left on after Ctrl-C");
@@ -310,8 +312,22 @@ fn sigterm_also_switches_the_outputs_off_and_keeps_the_session() {
     let (emu, _) = emulator(&dir);
     let port = emu.link().to_str().unwrap().to_string();
     let args = [
-        "calib", "record", "--hands", "right", "--jig", JIG, "--free", "0", "--out", "s.ron", "--device",
-        "uart", "--port", &port,
+        "calib",
+        "record",
+        "--hands",
+        "right",
+        "--jig",
+        JIG,
+        "--free",
+        "0",
+        "--out",
+        "s.ron",
+        "--device",
+        "uart",
+        "--port",
+        &port,
+        "--reply-timeout-us",
+        "100000",
     ];
     let mut c = Console::start(&dir, &args);
     // Home, then SIGTERM (as systemd or `kill` sends) at the first jig point.

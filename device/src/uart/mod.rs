@@ -399,15 +399,7 @@ impl<C: Connector> UartDevice<C> {
         }
         self.install(&found, layouts);
         self.warnings = self.open_warnings(&port);
-        let names: Vec<String> = found.iter().map(|b| format!("{}#{}", b.model_name(), b.id)).collect();
-        let (vmin, vmax) = self.volts_range();
-        self.info = DeviceInfo {
-            board: short_string(&format!("UART {}", names.join("+"))),
-            identity: short_string(&port),
-            channels,
-            volts_min: vmin,
-            volts_max: vmax,
-        };
+        self.describe_installed(&port);
         self.link = Some(link);
         self.opened = true;
         Ok(())
@@ -442,18 +434,23 @@ impl<C: Connector> UartDevice<C> {
         self.install(boards, l);
         self.resync = true;
         self.last_failed = true;
-        let names: Vec<String> = boards.iter().map(|b| format!("{}#{}", b.model_name(), b.id)).collect();
-        let (vmin, vmax) = self.volts_range();
-        self.info = DeviceInfo {
-            board: short_string(&format!("UART {}", names.join("+"))),
-            identity: short_string(&port),
-            channels,
-            volts_min: vmin,
-            volts_max: vmax,
-        };
+        self.describe_installed(&port);
         self.link = Some(link);
         self.opened = true;
         Ok(())
+    }
+
+    /// The device info of the installed boards on `port`: their names, channels and volts range.
+    fn describe_installed(&mut self, port: &str) {
+        let names: Vec<String> = self.boards.iter().map(|b| format!("{}#{}", b.model_name(), b.id)).collect();
+        let (vmin, vmax) = self.volts_range();
+        self.info = DeviceInfo {
+            board: short_string(&format!("UART {}", names.join("+"))),
+            identity: short_string(port),
+            channels: self.channels,
+            volts_min: vmin,
+            volts_max: vmax,
+        };
     }
 
     /// Takes the boards found at open: channel table, counters, frame state.

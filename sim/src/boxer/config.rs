@@ -56,6 +56,11 @@ pub struct MindFile {
     pub attack_scatter_m: f64,
     pub hold_s: f64,
     pub return_s: f64,
+    pub fist_near_m: f64,
+    pub stance_step_max_m: f64,
+    pub stance_return_m_per_s: f64,
+    pub brace_k_n_per_m: f64,
+    pub brace_d_n_s_per_m: f64,
 }
 
 /// Parses and validates boxer text; `origin` names it in errors.
@@ -65,14 +70,14 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         let key = field.rsplit('.').next().unwrap_or(field);
         SimError::Config(config::invalid(text, origin, field, key, 0, msg))
     };
-    config::check_version(text, origin, f.version, 2)?;
+    config::check_version(text, origin, f.version, 3)?;
     let o = f.user_offset_m;
     if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
         return Err(err("user_offset_m", "must be finite".into()));
     }
     let m = &f.mind;
     // (field, value, low, high): every number must lie in [low, high].
-    let ranges: [(&str, f64, f64, f64); 30] = [
+    let ranges: [(&str, f64, f64, f64); 35] = [
         ("coupling_k_n_per_m", f.coupling_k_n_per_m, 1.0, 20_000.0),
         ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
         ("coupling_max_n", f.coupling_max_n, 1.0, 10_000.0),
@@ -102,6 +107,11 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
         ("mind.attack_scatter_m", m.attack_scatter_m, 0.0, 0.3),
         ("mind.hold_s", m.hold_s, 0.0, 5.0),
         ("mind.return_s", m.return_s, 0.05, 5.0),
+        ("mind.fist_near_m", m.fist_near_m, 0.0, 2.0),
+        ("mind.stance_step_max_m", m.stance_step_max_m, 0.0, 0.5),
+        ("mind.stance_return_m_per_s", m.stance_return_m_per_s, 0.01, 5.0),
+        ("mind.brace_k_n_per_m", m.brace_k_n_per_m, 0.0, 100_000.0),
+        ("mind.brace_d_n_s_per_m", m.brace_d_n_s_per_m, 0.0, 5_000.0),
         ("mind.attack_max_s", m.attack_max_s - m.attack_min_s, 1e-6, 5.0),
     ];
     for (field, v, lo, hi) in ranges {
@@ -147,6 +157,11 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
             attack_scatter_m: m.attack_scatter_m,
             hold_s: m.hold_s,
             return_s: m.return_s,
+            fist_near_m: m.fist_near_m,
+            stance_step_max_m: m.stance_step_max_m,
+            stance_return_m_per_s: m.stance_return_m_per_s,
+            brace_k_n_per_m: m.brace_k_n_per_m,
+            brace_d_n_s_per_m: m.brace_d_n_s_per_m,
         },
         active: true,
         seed: 0,

@@ -26,6 +26,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use super::reach::Reach;
+use super::stance::{not_toward, Stance};
 use super::{coupling_force, BoxerParams, HandTarget, Parts, StepReport, AVATAR, BOXER};
 use crate::model::{Model, Part};
 use crate::state::{State, Workspace};
@@ -186,6 +187,16 @@ pub struct MindParams {
     pub hold_s: f64,
     /// After a defence the body goes back to its guard in a reach this long (s).
     pub return_s: f64,
+    /// An avatar fist closer than this to the head's or the chest's centre, or touching the
+    /// virtual human, is out at it: the body holds and braces as while a fist comes (m).
+    pub fist_near_m: f64,
+    /// The stance ([`Stance`]) follows the waist at most this far from its place (m), and steps
+    /// back to it at this speed once no fist comes or is near (m/s).
+    pub stance_step_max_m: f64,
+    pub stance_return_m_per_s: f64,
+    /// While it guards, the legs brace: a spring toward the stance (N/m) and a damper (N s/m).
+    pub brace_k_n_per_m: f64,
+    pub brace_d_n_s_per_m: f64,
 }
 
 impl Default for MindParams {
@@ -228,6 +239,12 @@ pub struct Mind {
     /// extrapolation.
     prev_vel: [Option<DVec3>; 2],
     pub hand_acc_m_per_s2: [DVec3; 2],
+    /// Where its legs hold its waist ([`Stance`]): it follows the waist while a fist comes or a
+    /// defence is under way, and steps back to its place once none does.
+    pub stance: Stance,
+    /// The legs brace (`brace_k_n_per_m`, `brace_d_n_s_per_m`): while a fist comes or is near,
+    /// or a defence is under way.
+    pub braced: bool,
     vh: Parts,
     av: Parts,
     rng: Pcg64Mcg,
@@ -261,6 +278,8 @@ impl Mind {
             next_predict_s: 0.0,
             prev_vel: [None; 2],
             hand_acc_m_per_s2: [DVec3::ZERO; 2],
+            stance: Stance::new(model, vh.waist),
+            braced: false,
             vh: *vh,
             av: *av,
             rng: Pcg64Mcg::seed_from_u64(p.seed),
@@ -290,6 +309,27 @@ impl Mind {
         })
     }
 
+    /// Is an avatar fist out at the virtual human: within `m` of its head's or chest's centre,
+    /// where they are or where going back to its guard would take them (the waist back at its
+    /// place, the head at the guard its reach left from), or touching any part of it (pressing
+    /// on a block, say)? `ws` holds the state's contacts.
+    pub fn fist_at(&self, model: &Model, ws: &Workspace, m: f64) -> bool {
+        let (head, chest) = (ws.com_world(model, self.vh.head), ws.com_world(model, self.vh.chest));
+        let back = self.stance.place_m - self.stance.waist_m(ws);
+        let head_guard = self.reaches[2].map_or(head + back, |r| r.home_m);
+        let parts = [head, chest, head_guard, chest + back];
+        let near = self.av.hand.iter().any(|&h| {
+            let p = ws.com_world(model, h);
+            parts.iter().any(|&b| (b - p).length() < m)
+        });
+        let fist = |b: Option<u16>| b.is_some_and(|b| self.av.hand.contains(&(b as usize)));
+        let boxer = |b: Option<u16>| b.is_some_and(|b| model.bodies[b as usize].articulation == BOXER);
+        near || ws
+            .contacts
+            .iter()
+            .any(|c| (fist(c.body_a) && boxer(c.body_b)) || (fist(c.body_b) && boxer(c.body_a)))
+    }
+
     /// Runs a prediction from `state` with the user's hands at `targets` extrapolated and the
     /// current reaches continuing; returns the deciding contact (highest priority, earliest),
     /// following Table I's stopping rules.
@@ -301,10 +341,11 @@ impl Mind {
         bp: &BoxerParams,
     ) -> Option<Decision> {
         let reaches = self.reaches;
-        self.predict_with(model, state, targets, bp, &reaches)
+        self.predict_with(model, state, targets, bp, &reaches, false)
     }
 
-    /// [`Mind::predict`] with `reaches` instead of the current ones.
+    /// [`Mind::predict`] with `reaches` instead of the current ones, and the stance stepping
+    /// back to its place from the start (`stance_returning`) instead of staying where it is.
     pub fn predict_with(
         &mut self,
         model: &Model,
@@ -312,6 +353,7 @@ impl Mind {
         targets: &[Option<HandTarget>; 2],
         bp: &BoxerParams,
         reaches: &[Option<Reach>; 3],
+        stance_returning: bool,
     ) -> Option<Decision> {
         let started = Instant::now();
         let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
@@ -329,6 +371,9 @@ impl Mind {
         let mut present = [(usize::MAX, usize::MAX); 16];
         let mut n_present = 0;
         let decel = self.params.decel_m_per_s2;
+        let stance = self.stance;
+        let brace = (self.braced && !stance_returning).then_some(self.brace());
+        let stance_speed = self.params.stance_return_m_per_s;
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -393,6 +438,9 @@ impl Mind {
             for r in reaches.iter().flatten() {
                 r.apply(m, ws, s.t_s);
             }
+            let home =
+                if stance_returning { stance.returning(dt_ahead, stance_speed) } else { stance.home_m };
+            stance.apply(ws, home, brace);
             n += 1;
             true
         });
@@ -486,7 +534,12 @@ impl Mind {
                     let away = DVec3::new(b.x - a.x, 0.0, b.z - a.z).normalize_or(DVec3::NEG_Z);
                     // Mostly back (the virtual human faces +z).
                     let dir = DVec3::new(away.x * 0.5, 0.0, -1.0).normalize();
-                    home + dir * self.params.lean_m
+                    // From where the head is now (a punch may have lifted the body, or a dodge
+                    // taken it aside) it goes neither toward the avatar nor toward the fist.
+                    let mut r = home + dir * self.params.lean_m;
+                    r.z = r.z.min(b.z);
+                    let to_fist = (a - b).normalize_or_zero();
+                    r - to_fist * (r - b).dot(to_fist).max(0.0)
                 } else {
                     avoid_target(a, p, b, &self.params)
                 };
@@ -593,7 +646,7 @@ impl Mind {
             bp.reach_body_d_n_s_per_m,
         );
         back.home_m = r.home_m;
-        back
+        back.tracking()
     }
 
     /// Called before the world step: trigger, predict, decide, start attacks, end finished reaches.
@@ -641,6 +694,9 @@ impl Mind {
         // A fist coming at it, even slowly: the body does not go back toward it, nor does an
         // attack start.
         let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
+        // A fist out at its head or chest, or touching it, coming or not: the body does not go
+        // back toward it.
+        let guarding = approaching || self.fist_at(model, ws, self.params.fist_near_m);
         if now >= self.next_predict_s && (defending || closing) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
@@ -653,7 +709,7 @@ impl Mind {
                 }
                 reaches[2] = None;
             }
-            let d = self.predict_with(model, state, targets, bp, &reaches);
+            let d = self.predict_with(model, state, targets, bp, &reaches, self.defence.is_some());
             match d {
                 Some(d) if d.class == ContactClass::AvatarAttack => self.decide(model, ws, now, &d, bp),
                 other => {
@@ -667,13 +723,13 @@ impl Mind {
                 }
             }
         }
-        // While a fist comes at it and it is not avoiding, the body holds still where it is: it
-        // neither goes back to its guard after a defence (that would be toward the fist) nor
-        // sways there on its joints; the head, its most mobile part, is held if nothing else
-        // is. Once no fist comes, it goes back to its guard.
+        // While a fist comes at it or is out near it and it is not avoiding, the body holds still
+        // where it is: it neither goes back to its guard after a defence (that would be toward
+        // the fist) nor sways there on its joints; the head, its most mobile part, is held if
+        // nothing else is. Once no fist comes and none is near, it goes back to its guard.
         if self.body == BodyBehaviour::Standby {
-            let held = self.reaches[2].is_some_and(|r| r.duration_s.is_infinite());
-            if approaching && !held {
+            let held = self.reaches[2].is_some_and(|r| is_hold(&r));
+            if guarding && !held {
                 let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
                 let here = ws.com_world(model, body);
                 let mut hold = Reach::start(
@@ -689,13 +745,14 @@ impl Mind {
                 hold.home_m = home.unwrap_or(here);
                 hold.duration_s = f64::INFINITY;
                 self.reaches[2] = Some(hold);
-            } else if !approaching && held && self.defence.is_none() {
+            } else if !guarding && held && self.defence.is_none() {
                 self.reaches[2] = self.reaches[2].and_then(|r| {
                     ((r.home_m - r.target_m).length() > 0.01)
                         .then(|| self.return_reach(model, ws, &r, now, bp))
                 });
             }
         }
+        self.place_stance(model, ws, guarding);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
         let idle =
@@ -731,11 +788,48 @@ impl Mind {
         }
     }
 
-    /// Applies the current reaches for this step.
+    /// Moves the stance ([`Stance`]) and lets a hold go of what pulls toward a fist. While a
+    /// fist comes at it or is near, or a defence is under way, the stance follows the waist
+    /// wherever staying would pull the body toward one of the avatar's fists (seen from the head
+    /// and from the chest), and a hold ([`is_hold`]) follows the head the same way: both resist
+    /// being moved toward a fist and yield to being moved away. Otherwise the stance steps back
+    /// to its place.
+    fn place_stance(&mut self, model: &Model, ws: &Workspace, guarding: bool) {
+        self.braced = guarding || self.defence.is_some();
+        if self.braced {
+            let mut toward = [DVec3::ZERO; 4];
+            for (k, (part, fist)) in [self.vh.head, self.vh.chest]
+                .into_iter()
+                .flat_map(|p| self.av.hand.map(|h| (p, h)))
+                .enumerate()
+            {
+                toward[k] = (ws.com_world(model, fist) - ws.com_world(model, part)).normalize_or_zero();
+            }
+            let waist = self.stance.waist_m(ws);
+            self.stance.follow(waist, &toward, self.params.stance_step_max_m);
+            if let Some(r) = self.reaches[2].as_mut().filter(|r| is_hold(r)) {
+                let at = ws.point_world(r.body, r.point_body_m);
+                let target = at + not_toward(r.target_m - at, &toward);
+                if target.is_finite() {
+                    r.target_m = target;
+                }
+            }
+        } else {
+            self.stance.step_back(model.dt_s, self.params.stance_return_m_per_s);
+        }
+    }
+
+    /// The legs' bracing spring and damper (N/m, N s/m).
+    fn brace(&self) -> (f64, f64) {
+        (self.params.brace_k_n_per_m, self.params.brace_d_n_s_per_m)
+    }
+
+    /// Applies the current reaches and the stance for this step.
     pub fn act(&self, model: &Model, ws: &mut Workspace, now_s: f64) {
         for r in self.reaches.iter().flatten() {
             r.apply(model, ws, now_s);
         }
+        self.stance.apply(ws, self.stance.home_m, self.braced.then_some(self.brace()));
     }
 
     /// Counts hits after the world step at `t_s`: a hit is a contact of the kind that begins at
@@ -760,6 +854,11 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A reach that holds its part where it is while a fist is about (it never ends).
+fn is_hold(r: &Reach) -> bool {
+    r.duration_s.is_infinite()
 }
 
 /// A hand speeding up is expected to reach at most this many times its present speed (the peak

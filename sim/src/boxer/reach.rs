@@ -43,6 +43,12 @@ pub struct Reach {
     pub duration_s: f64,
     /// Distance from the part to the target at the start: the spring's initial natural length.
     pub l0_m: f64,
+    /// Where the point was when this reach started (world).
+    pub from_m: DVec3,
+    /// The spring pulls the point toward where the straight path from `from_m` has got to
+    /// (minimum-jerk in time), in every direction ([`Reach::tracking`]); otherwise it is the
+    /// paper's spring along the line to the target, whose natural length shrinks.
+    pub track: bool,
     pub k_n_per_m: f64,
     pub d_n_s_per_m: f64,
 }
@@ -71,9 +77,19 @@ impl Reach {
             start_s: now_s,
             duration_s: duration_s.max(1e-3),
             l0_m,
+            from_m: home_m,
+            track: false,
             k_n_per_m,
             d_n_s_per_m,
         }
+    }
+
+    /// The same reach, tracking its straight path: the paper's spring acts only along the line
+    /// to the target, so whatever else pulls on the body (its joints' springs after a dodge)
+    /// swings the part freely around the target, at any speed; tracking holds it on the path at
+    /// the minimum-jerk pace.
+    pub fn tracking(self) -> Reach {
+        Reach { track: true, ..self }
     }
 
     pub fn tau(&self, t_s: f64) -> f64 {
@@ -95,6 +111,18 @@ impl Reach {
     /// articulation (applied to its root body there). Returns the force on the part.
     pub fn apply(&self, model: &Model, ws: &mut Workspace, t_s: f64) -> DVec3 {
         let p = ws.point_world(self.body, self.point_body_m);
+        if self.track {
+            let tau = self.tau(t_s);
+            let path = self.target_m - self.from_m;
+            let at = self.from_m + path * min_jerk(tau);
+            let rate = path * (min_jerk_rate(tau) / self.duration_s);
+            let v = ws.point_velocity(self.body, self.point_body_m);
+            let f = (at - p) * self.k_n_per_m + (rate - v) * self.d_n_s_per_m;
+            if !f.is_finite() {
+                return DVec3::ZERO;
+            }
+            return self.push(model, ws, p, f);
+        }
         let d = self.target_m - p;
         let dist = d.length();
         if !(dist > 1e-9) {
@@ -111,6 +139,12 @@ impl Reach {
         if !f.is_finite() {
             return DVec3::ZERO;
         }
+        self.push(model, ws, p, f)
+    }
+
+    /// Adds `f` at the point `p` of the body and the opposite force at the articulation's centre
+    /// of mass; returns `f`.
+    fn push(&self, model: &Model, ws: &mut Workspace, p: DVec3, f: DVec3) -> DVec3 {
         ws.add_force_at(self.body, p, f);
         let art = model.bodies[self.body].articulation;
         let root = model.articulations[art].bodies.start;

@@ -426,10 +426,10 @@ fn the_users_jabs_move_a_passive_virtual_humans_head() {
 /// an active and a passive virtual human (the same punches):
 /// - active: at most 30 % land on the head and at most 30 % on the chest; passive: at least 90 %;
 /// - feints start an avoidance at most 20 % of the time;
-/// - the head and chest move toward the fist while it comes out (its own attacks, which lean it
-///   into the punch it throws, left out) by over 2 cm no more often than a passive virtual human's
-///   do (whose body springs back from earlier punches too), and never by over 5 cm (the issue asks
-///   for 2 cm; see docs/boxing.md for what is left);
+/// - the head and chest never move toward the fist by more than 2 cm while it comes out (its own
+///   attacks, which lean it into the punch it throws, left out): its stance follows the waist away
+///   from the fists and braces while a fist comes (docs/boxing.md). A passive virtual human, which
+///   only yields, shows such motions, so the measure can see them;
 /// - no attack is under way while a defence is;
 /// - the first motion over 1 cm comes at most 0.15 s (median) after the punch starts;
 /// - a block that meets the fist on its way out is felt on the first tick that renders it (at
@@ -462,10 +462,20 @@ fn punches_of_every_kind_through_the_rig_meet_the_issues_numbers() {
     assert!(ph.head >= 0.9 && pc.chest >= 0.9, "passive: head {:.2}, chest {:.2}", ph.head, pc.chest);
     assert!(ah.head <= 0.3 && ac.chest <= 0.3, "active: head {:.2}, chest {:.2}", ah.head, ac.chest);
     assert!(feints.avoidance <= 0.2, "feints started an avoidance {:.2} of the time", feints.avoidance);
-    assert!(toward <= 0.05, "the head or chest moved {toward:.3} m toward a fist");
     assert!(
-        a_over <= p_over + 2,
-        "{a_over} punches saw the active head or chest come over 2 cm toward them, {p_over} the passive"
+        p_over > 0,
+        "the passive virtual human never moved over 2 cm toward a fist: the measure sees nothing"
+    );
+    let over_2cm: Vec<String> = a
+        .punches
+        .iter()
+        .filter(|o| o.toward_fist_out_m > 0.02)
+        .map(|o| o.toward_fist_description())
+        .collect();
+    assert!(
+        toward <= 0.02 && over_2cm.is_empty(),
+        "the head or chest moved {toward:.3} m toward a fist; over 2 cm:\n{}",
+        over_2cm.join("\n")
     );
     assert_eq!(a.attack_during_defence_steps, 0);
     assert!(react <= 0.15, "reaction median {react:.3} s");
