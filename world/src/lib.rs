@@ -43,7 +43,8 @@ pub trait Scene: Send {
     fn pose(&self, _out: &mut look::Poses<'_>) {}
     /// Copies what its characters' drawn figures depend on after a step (as many as `out` holds),
     /// for another thread to compute them with the look's [`look::LookCrowd::figures`]. Runs on
-    /// the stepping thread: a copy. Scenes without a crowd copy nothing.
+    /// the stepping thread: a copy. Scenes without a crowd copy nothing; a scene that wraps
+    /// another hands this on with [`Scene::pose`] (the look it hands on promises the figures).
     fn figure_states(&self, _out: &mut [spidar_sim::character::drawn::FigureState]) {}
     /// What the scene's virtual human decided (recorded after every step); `None` for scenes
     /// without one. Runs on the stepping thread: it only copies numbers.

@@ -95,6 +95,9 @@ impl<S: Scene> Scene for Hosted<S> {
     fn pose(&self, out: &mut spidar_world::look::Poses<'_>) {
         self.inner.pose(out)
     }
+    fn figure_states(&self, out: &mut [spidar_sim::character::drawn::FigureState]) {
+        self.inner.figure_states(out)
+    }
 }
 
 fn record_boxing(s: &BoxingScene, t: f64) -> Rec {
