@@ -270,6 +270,16 @@ message!(RigStatusMsg = "spidar/RigStatus" {
     seen_t_s: f64,
 });
 
+/// Per-hand string values as the messages carry them: hand 0's strings, then hand 1's.
+fn flat<T: Copy>(x: &[[T; STRINGS]; HANDS]) -> [T; HANDS * STRINGS] {
+    std::array::from_fn(|i| x[i / STRINGS][i % STRINGS])
+}
+
+/// The reverse of [`flat`].
+fn per_hand<T: Copy>(x: &[T; HANDS * STRINGS]) -> [[T; STRINGS]; HANDS] {
+    std::array::from_fn(|h| std::array::from_fn(|s| x[h * STRINGS + s]))
+}
+
 /// The rig's geometry as the world had it (anchors, home points, eye), in `/world/view`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RigGeometryMsg {
@@ -338,10 +348,7 @@ impl ViewFrameMsg {
             3 => RigState::Faulted,
             _ => RigState::Stopping,
         };
-        let mut tensions_n = [[0.0; STRINGS]; HANDS];
-        for (h, t) in tensions_n.iter_mut().enumerate() {
-            t.copy_from_slice(&r.tensions_n[h * STRINGS..(h + 1) * STRINGS]);
-        }
+        let tensions_n = per_hand(&r.tensions_n);
         StatusData {
             t_s: self.t_s,
             steps: self.steps,
@@ -371,10 +378,7 @@ impl ViewFrameMsg {
     pub fn rig_info(&self) -> Option<RigInfo> {
         let g = &self.geometry;
         g.known.then(|| {
-            let mut anchors_m = [[DVec3::ZERO; STRINGS]; HANDS];
-            for (h, a) in anchors_m.iter_mut().enumerate() {
-                a.copy_from_slice(&g.anchors_m[h * STRINGS..(h + 1) * STRINGS]);
-            }
+            let anchors_m = per_hand(&g.anchors_m);
             RigInfo {
                 period_s: g.period_s,
                 anchors_m,
@@ -390,10 +394,7 @@ impl ViewFrameMsg {
 
     fn new(s: &StatusData, info: Option<&RigInfo>, frame: Vec<f32>) -> ViewFrameMsg {
         let rig = s.rig.map_or(RigStatusMsg::default(), |r| {
-            let mut tensions_n = [0.0; HANDS * STRINGS];
-            for h in 0..HANDS {
-                tensions_n[h * STRINGS..(h + 1) * STRINGS].copy_from_slice(&r.tensions_n[h]);
-            }
+            let tensions_n = flat(&r.tensions_n);
             RigStatusMsg {
                 known: true,
                 tick: r.tick,
@@ -412,10 +413,7 @@ impl ViewFrameMsg {
             }
         });
         let geometry = info.map_or(RigGeometryMsg::default(), |i| {
-            let mut anchors_m = [DVec3::ZERO; HANDS * STRINGS];
-            for h in 0..HANDS {
-                anchors_m[h * STRINGS..(h + 1) * STRINGS].copy_from_slice(&i.anchors_m[h]);
-            }
+            let anchors_m = flat(&i.anchors_m);
             RigGeometryMsg {
                 known: true,
                 period_s: i.period_s,

@@ -25,6 +25,24 @@ fn crowd() -> Crowd {
     builtin_crowd().unwrap().empty_like()
 }
 
+/// 30 characters on a 6 x 5 grid, wandering in a 6 m square, seeded with `seed`; the random
+/// source (same seed) that placed them, for the pushes that follow.
+fn wandering_crowd(seed: u64) -> (Crowd, Pcg64) {
+    let mut c = crowd();
+    c.seed(seed);
+    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
+    let mut rng = Pcg64::seed_from_u64(seed);
+    for i in 0..30 {
+        c.add(
+            (i % 6) as f64 * 1.1 - 3.0,
+            (i / 6) as f64 * 1.1 - 3.0,
+            rng.random_range(-3.0..3.0),
+            Goal::Stand,
+        );
+    }
+    (c, rng)
+}
+
 fn steps(c: &mut Crowd, seconds: f64) {
     for _ in 0..(seconds / DT).round() as usize {
         c.step();
@@ -334,18 +352,7 @@ fn the_drawn_figure_stays_on_the_body() {
 fn a_copied_figure_state_draws_the_figure_of_its_step() {
     use spidar_sim::character::drawn::{world_joints, FigureState, Figures};
     use spidar_sim::character::keyframe::MAX_JOINTS;
-    let mut c = crowd();
-    c.seed(4);
-    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
-    let mut rng = Pcg64::seed_from_u64(4);
-    for i in 0..30 {
-        c.add(
-            (i % 6) as f64 * 1.1 - 3.0,
-            (i / 6) as f64 * 1.1 - 3.0,
-            rng.random_range(-3.0..3.0),
-            Goal::Stand,
-        );
-    }
+    let (mut c, mut rng) = wandering_crowd(4);
     let figures = Figures::of(&c);
     let n = figures.joints();
     let mut seen_policies = Vec::new();
@@ -417,18 +424,7 @@ fn a_copied_figure_state_draws_the_figure_of_its_step() {
 fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
     use spidar_sim::character::drawn::world_joints;
     use spidar_sim::character::keyframe::MAX_JOINTS;
-    let mut c = crowd();
-    c.seed(7);
-    c.wander = Some([-3.0, -3.0, 3.0, 3.0]);
-    let mut rng = Pcg64::seed_from_u64(7);
-    for i in 0..30 {
-        c.add(
-            (i % 6) as f64 * 1.1 - 3.0,
-            (i / 6) as f64 * 1.1 - 3.0,
-            rng.random_range(-3.0..3.0),
-            Goal::Stand,
-        );
-    }
+    let (mut c, mut rng) = wandering_crowd(7);
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     let mut falls = 0;
     for k in 0..(10.0 / DT) as usize {

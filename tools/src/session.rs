@@ -442,17 +442,7 @@ impl std::fmt::Display for VirtualSummary {
         if let Some(r) = &self.recording {
             writeln!(f, "  recording    {r}")?;
         }
-        let by = match self.signals {
-            0 => String::new(),
-            1 => ", on a stop signal".into(),
-            n => format!(", on {n} stop signals"),
-        };
-        write!(
-            f,
-            "  end          {} ({}{by})",
-            self.final_state.name(),
-            end_words(self.clean_stop, self.halted)
-        )
+        write_end(f, self.final_state, self.clean_stop, self.halted, self.signals)
     }
 }
 
@@ -767,17 +757,7 @@ impl std::fmt::Display for Summary {
             "  dropped      telemetry {}, samples {} (their impulses went with the next), impulses {}, events {}",
             c.telemetry_dropped, c.samples_dropped, c.impulses_lost, c.events_dropped
         )?;
-        let by = match self.signals {
-            0 => String::new(),
-            1 => ", on a stop signal".into(),
-            n => format!(", on {n} stop signals"),
-        };
-        write!(
-            f,
-            "  end          {} ({}{by})",
-            self.final_state.name(),
-            end_words(self.clean_stop, self.halted)
-        )
+        write_end(f, self.final_state, self.clean_stop, self.halted, self.signals)
     }
 }
 
@@ -793,6 +773,22 @@ fn stopping_words(time_up: bool) -> &'static str {
 const HALT_WORDS: &str = "stopping at once: zero on every channel, device off";
 
 /// How a loop ended, in words.
+/// The summary's last line: the final state, how the session stopped and on how many signals.
+fn write_end(
+    f: &mut std::fmt::Formatter<'_>,
+    state: Lifecycle,
+    clean_stop: bool,
+    halted: bool,
+    signals: u32,
+) -> std::fmt::Result {
+    let by = match signals {
+        0 => String::new(),
+        1 => ", on a stop signal".into(),
+        n => format!(", on {n} stop signals"),
+    };
+    write!(f, "  end          {} ({}{by})", state.name(), end_words(clean_stop, halted))
+}
+
 fn end_words(clean_stop: bool, halted: bool) -> &'static str {
     match (clean_stop, halted) {
         (true, false) => "forces ramped out, strings at minimum tension, device off",

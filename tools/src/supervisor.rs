@@ -41,6 +41,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use spidar_device::uart::protocol::{BoardInfo, ReplyLayout, MAX_BOARDS};
 use spidar_device::{Device, Input, Output};
+use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::Lifeline;
 
 use crate::child_world::describe_exit;
@@ -404,23 +405,22 @@ pub fn supervise(
     let args: Vec<std::ffi::OsString> = std::env::args_os().skip(1).collect();
     let mut child = spawn_rig(&page, &exe, &args)?;
     if let Some(p) = fifo_priority {
-        if let Err(e) = raise_priority(p.saturating_add(1).min(99)) {
-            eprintln!("spidar supervisor: warning: {e}: a loop hung at its real-time priority may delay the takeover");
+        let opts = RtOptions {
+            fifo_priority: Some(p.saturating_add(1).min(99)),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        };
+        if !rt_thread::setup_current_thread(&opts).fifo {
+            eprintln!(
+                "spidar supervisor: warning: SCHED_FIFO not permitted: a loop hung at its real-time priority may \
+                 delay the takeover"
+            );
         }
     }
     let shared = page.shared();
     let ended = watch(&mut child, shared, stop, stall_limit())?;
     Ok(finish(&ended, &mut || open(shared), &mut |line| eprintln!("{line}")))
-}
-
-/// SCHED_FIFO at `priority` for this thread.
-fn raise_priority(priority: u8) -> std::io::Result<()> {
-    let param = libc::sched_param { sched_priority: i32::from(priority) };
-    // SAFETY: a plain struct for this thread (pid 0); the result is checked.
-    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
-        return Err(std::io::Error::last_os_error());
-    }
-    Ok(())
 }
 
 /// The stall limit: [`STALL`], or `SPIDAR_SUPERVISOR_STALL_MS` (10 ms to 60 s) for a loop that
