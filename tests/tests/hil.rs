@@ -11,7 +11,7 @@ use spidar_device::sim::{Script, ScriptFile, Segment, SimRig, Truth};
 use spidar_device::DeviceError;
 use spidar_msg::{ContactModel, HandSample};
 use spidar_rt::{Command, Lifecycle, Rig};
-use spidar_tools::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+use spidar_runtime::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 use spidar_world::walls::WallsScene;
 use spidar_world::Scene;
 

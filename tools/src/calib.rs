@@ -36,9 +36,9 @@ use spidar_device::sim::SimRig;
 use spidar_device::Device;
 use spidar_rt::Rig;
 
-use crate::hardware::{self, DeviceKind, HardwareArgs};
-use crate::rigpath::{self, shell_quote, RigSource};
-use crate::signals::Stop;
+use spidar_runtime::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_runtime::rigpath::{self, shell_quote, RigSource};
+use spidar_runtime::signals::Stop;
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
 pub enum Hands {

@@ -9,23 +9,25 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod calib;
+
 use anyhow::bail;
 use clap::parser::ValueSource;
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use spidar_device::Device;
+use spidar_lab::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
 use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::telemetry::fmt_dur;
 use spidar_rt::Rig;
-use spidar_tools::bench::{bench_link, bench_rt, LinkBenchOptions, RtBenchOptions};
-use spidar_tools::child_world::ChildWorldSpec;
-use spidar_tools::hardware::{self, DeviceKind, HardwareArgs};
-use spidar_tools::report;
-use spidar_tools::session::{
+use spidar_runtime::child_world::ChildWorldSpec;
+use spidar_runtime::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_runtime::report;
+use spidar_runtime::session::{
     self, load_scripts, sim_device, LiveOptions, SimOptions, VirtualOptions, WorldChoice,
 };
-use spidar_tools::signals::Stop;
-use spidar_tools::world_process::WorldArgs;
-use spidar_tools::{errln, outln, supervisor, term};
+use spidar_runtime::signals::Stop;
+use spidar_runtime::world_process::WorldArgs;
+use spidar_runtime::{errln, outln, supervisor, term};
 
 /// Longest `spidar run` or `spidar emulate` (a week): a number that would run for ever is a typo.
 const MAX_RUN_S: f64 = 7.0 * 24.0 * 3600.0;
@@ -85,7 +87,7 @@ enum Cmd {
     /// Calibrate the string geometry: home, record, fit, verify (simulated rig by default).
     Calib {
         #[command(subcommand)]
-        what: spidar_tools::calib::CalibCmd,
+        what: crate::calib::CalibCmd,
     },
     /// Serve the UART board protocol on a pseudo-terminal, backed by the simulated rig (Ctrl-C,
     /// SIGTERM or SIGHUP print the final status and remove the link).
@@ -117,11 +119,11 @@ enum Cmd {
     /// Play a recording (`run --record`) into the live view (the page gets a playback bar: play,
     /// pause, seek, speed) and print what it holds; with --verify, re-run the rt-loop from its
     /// recorded inputs and check every output bit for bit.
-    Replay(spidar_tools::recording::ReplayArgs),
+    Replay(spidar_runtime::replay::ReplayArgs),
     /// Write one CSV file per channel of a recording, each with a header line.
-    Export(spidar_tools::recording::ExportArgs),
+    Export(spidar_runtime::replay::ExportArgs),
     /// Plot a recording as SVG: force per hand, tensions per string, lateness, events and hits.
-    Plot(spidar_tools::recording::PlotArgs),
+    Plot(spidar_runtime::replay::PlotArgs),
 }
 
 #[derive(Subcommand)]
@@ -144,7 +146,7 @@ enum EvalCmd {
         /// scene (the user's path); stepper: a force on the crowd stepper's character (at heights
         /// down to the feet).
         #[arg(long, value_enum, default_value = "rig")]
-        path: spidar_tools::eval_impacts::ImpactPath,
+        path: spidar_lab::eval_impacts::ImpactPath,
     },
     /// Contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
     /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
@@ -301,7 +303,7 @@ struct RunArgs {
     quiet: bool,
     /// The live view of the world (served by the world: the child process or the thread).
     #[command(flatten)]
-    view: spidar_tools::world_process::ViewArgs,
+    view: spidar_runtime::world_process::ViewArgs,
     /// Record the session into this MCAP file (zstd chunks): every tick, every hand sample and
     /// contact model, the events, and the files that made the session. See docs/recording.md.
     #[arg(long, value_name = "FILE.mcap")]
@@ -420,7 +422,7 @@ enum BenchCmd {
 }
 
 fn load_rig(args: &RigArgs) -> anyhow::Result<Rig> {
-    spidar_tools::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
+    spidar_runtime::rigpath::load_rig(args.rig.as_deref(), &args.overrides)
 }
 
 fn rt_options(args: &RigArgs) -> anyhow::Result<RtOptions> {
@@ -457,15 +459,15 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         Cmd::Run(a) => run(a, matches.subcommand_matches("run").unwrap_or(matches)),
         Cmd::World(a) => {
             let stop = Stop::install()?;
-            spidar_tools::world_process::run_world(&a, &stop).map(|_| 0)
+            spidar_runtime::world_process::run_world(&a, &stop).map(|_| 0)
         }
-        Cmd::Calib { what } => spidar_tools::calib::run(what).map(|_| 0),
+        Cmd::Calib { what } => crate::calib::run(what).map(|_| 0),
         Cmd::Emulate(a) => emulate(a).map(|_| 0),
-        Cmd::Replay(a) => spidar_tools::recording::replay(&a).map(|_| 0),
-        Cmd::Export(a) => spidar_tools::recording::export(&a).map(|_| 0),
-        Cmd::Plot(a) => spidar_tools::recording::plot(&a).map(|_| 0),
+        Cmd::Replay(a) => spidar_runtime::replay::replay(&a).map(|_| 0),
+        Cmd::Export(a) => spidar_runtime::replay::export(&a).map(|_| 0),
+        Cmd::Plot(a) => spidar_runtime::replay::plot(&a).map(|_| 0),
         Cmd::Eval { what: EvalCmd::Reactions { trials, punches, seed, bout_seconds }, json } => {
-            use spidar_tools::eval;
+            use spidar_lab::eval;
             let stop = Stop::install()?;
             if !json {
                 outln!("measured on {}\n", eval::PATH);
@@ -523,7 +525,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             Ok(0)
         }
         Cmd::Eval { what: EvalCmd::Poses { out }, json } => {
-            let report = spidar_tools::eval_poses::eval_poses(&out)?;
+            let report = spidar_lab::eval_poses::eval_poses(&out)?;
             if json {
                 outln!("{:#}", serde_json::json!({ "command": "eval poses", "report": report }));
             } else {
@@ -551,7 +553,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             Ok(0)
         }
         Cmd::Eval { what: EvalCmd::Impacts { trials, practice, seed, path }, json } => {
-            use spidar_tools::eval_impacts::{eval_impacts, ImpactOptions};
+            use spidar_lab::eval_impacts::{eval_impacts, ImpactOptions};
             let o = ImpactOptions {
                 trials: trials as usize,
                 practice_per_combo: practice as usize,
@@ -577,9 +579,9 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         Cmd::Bench { what: BenchCmd::Record { rig, seconds, blocks, scene, script } } => {
             let r = load_rig(&rig)?;
             errln!("{blocks} blocks of live sessions each way, {seconds} s per arm ...");
-            let rep = spidar_tools::bench_record::bench_record(
+            let rep = spidar_lab::bench_record::bench_record(
                 &r,
-                &spidar_tools::bench_record::RecordBenchOptions {
+                &spidar_lab::bench_record::RecordBenchOptions {
                     seconds_each: seconds,
                     blocks,
                     rt: rt_options(&rig)?,
@@ -592,7 +594,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::Replay { file, seeks, viewers, seconds } } => {
-            use spidar_tools::bench_replay::{bench_replay, ReplayBenchOptions};
+            use spidar_lab::bench_replay::{bench_replay, ReplayBenchOptions};
             errln!(
                 "opening {}, {seeks} seeks, then {seconds} s of playing to {viewers} viewer(s) ...",
                 file.display()
@@ -625,7 +627,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             Ok(0)
         }
         Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
-            use spidar_tools::bench_view::{bench_view, ViewBenchOptions};
+            use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
             let r = match &rig {
                 Some(p) => Rig::load(p)?,
@@ -839,7 +841,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     check_run_options(&a, m)?;
     let rig = load_rig(&a.rig)?;
     // The rig file the run loads (yours when no --rig is given): named in the summary and the record.
-    let rig_src = spidar_tools::rigpath::RigSource::resolve(a.rig.rig.as_deref());
+    let rig_src = spidar_runtime::rigpath::RigSource::resolve(a.rig.rig.as_deref());
     let choice = a.hw.choice(a.device, &rig)?;
     // Real boards hold their last command if this process dies: a supervisor watches over it.
     let supervised = supervisor::attached();
@@ -867,7 +869,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 }
                 None
             } else {
-                spidar_tools::world_process::start_view(&a.view, &*scene)?
+                spidar_runtime::world_process::start_view(&a.view, &*scene)?
             };
             let mut stepper = spidar_world::host::Stepper::new(scene);
             if let Some(v) = view {
@@ -899,7 +901,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     // Created before the device opens: a path that cannot be written stops the run here.
     let mut recorder = match &a.record {
         Some(path) => {
-            let info = spidar_tools::recording::session_info(
+            let info = spidar_runtime::recording::session_info(
                 rig_src.path(),
                 &scene_arg,
                 &script,
@@ -907,7 +909,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
                 a.seed,
                 a.virtual_clock,
             )?;
-            Some(spidar_tools::recording::create(path, &info)?)
+            Some(spidar_runtime::recording::create(path, &info)?)
         }
         None => None,
     };
@@ -921,7 +923,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         let start_ns = recorder.as_ref().map(|r| r.start_unix_ns());
         match &mut world {
             WorldChoice::Thread(stepper) => {
-                let (rec, obs) = spidar_tools::recording::start_world_recording(
+                let (rec, obs) = spidar_runtime::recording::start_world_recording(
                     &wpath,
                     &scene_arg,
                     stepper.scene(),

@@ -20,8 +20,8 @@ use std::time::{Duration, Instant};
 use spidar_device::emulator::{Emulator, EmulatorOptions, PlantClock};
 use spidar_device::uart::protocol::ReplyLayout;
 use spidar_rt::Rig;
-use spidar_tools::hardware::{emulator_options, start_emulator, EmulateOptions};
-use spidar_tools::session::{load_scripts, SimOptions};
+use spidar_runtime::hardware::{emulator_options, start_emulator, EmulateOptions};
+use spidar_runtime::session::{load_scripts, SimOptions};
 
 const BIN: &str = env!("CARGO_BIN_EXE_spidar");
 /// Bound for a process to start up and reach a state, on a loaded 2-core machine.

@@ -8,7 +8,7 @@
 //! keyframe characters. Whatever hosts a scene steps it through a [`host::Stepper`]: the world
 //! process ([`host::serve`], `spidar world`), a thread in the rig's process on the real clock, or
 //! the loop's own thread interleaved with it on the virtual clock (both wired in
-//! `spidar_tools::session`).
+//! `spidar_runtime::session`).
 
 pub mod boxing;
 pub mod crowd;

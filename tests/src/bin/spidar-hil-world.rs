@@ -9,13 +9,13 @@ use clap::Parser;
 #[command(name = "spidar-hil-world", about = "spidar world, for the hardware-in-the-loop tests")]
 struct Cli {
     #[command(flatten)]
-    world: spidar_tools::world_process::WorldArgs,
+    world: spidar_runtime::world_process::WorldArgs,
 }
 
 fn main() -> anyhow::Result<()> {
     let mut cli = Cli::parse();
     // The tests' worlds serve no live view unless a test asks for one.
     cli.world.view.no_view |= cli.world.view.view.is_none();
-    let stop = spidar_tools::signals::Stop::install()?;
-    spidar_tools::world_process::run_world(&cli.world, &stop).map(|_| ())
+    let stop = spidar_runtime::signals::Stop::install()?;
+    spidar_runtime::world_process::run_world(&cli.world, &stop).map(|_| ())
 }

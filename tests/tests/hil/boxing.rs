@@ -6,12 +6,12 @@
 //! active one; the ticks allocate nothing; a bout repeats bit for bit.
 
 use super::*;
+use spidar_lab::eval::{punch_outcomes, punch_plan, Bout};
 use spidar_msg::HandContact;
 use spidar_rt::local::render_contact;
 use spidar_rt::Clock;
+use spidar_runtime::scripts::{boxing_scripts, Aim};
 use spidar_sim::boxer::BoxerParams;
-use spidar_tools::eval::{punch_outcomes, punch_plan, Bout};
-use spidar_tools::scripts::{boxing_scripts, Aim};
 
 /// A bout of `punches` from the `box` script (aimed at `aim` if given), seeded.
 fn bout(params: BoxerParams, seed: u64, punches: usize, aim: Option<Aim>) -> Bout {
@@ -231,7 +231,7 @@ fn closed_loops_into_a_contact_give_the_hand_no_net_work() {
 fn presses_into_the_virtual_human_give_the_hand_no_net_work() {
     let r = rig();
     let params = BoxerParams { active: false, ..Default::default() };
-    let aims = spidar_tools::scripts::aim_points_rig(&r, &params).unwrap();
+    let aims = spidar_runtime::scripts::aim_points_rig(&r, &params).unwrap();
     let home = r.hands[0].home_m;
     let mut segs = Vec::new();
     for k in 0..5 {
@@ -446,7 +446,7 @@ fn punches_of_every_kind_through_the_rig_meet_the_issues_numbers() {
     let react = a.reaction_median_s().unwrap_or(f64::INFINITY);
     let (_, toward) = a.toward_fist_max_m();
     let over =
-        |b: &spidar_tools::eval::BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
+        |b: &spidar_lab::eval::BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
     let (a_over, p_over) = (over(&a), over(&p));
     let limit = rig().hands[0].force_limit_n;
     let blocks: Vec<_> = a.punches.iter().filter(|o| o.blocked_on_the_way_out()).collect();

@@ -5,9 +5,9 @@
 use glam::DVec3;
 use spidar_device::sim::Script;
 use spidar_rt::Clock;
+use spidar_runtime::session::{load_scripts, SimOptions};
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::Policy;
-use spidar_tools::session::{load_scripts, SimOptions};
 use spidar_world::crowd::CrowdScene;
 use spidar_world::Scene;
 
@@ -71,7 +71,7 @@ fn a_hand_push_reaches_the_character_and_its_reaction_reaches_the_hand() {
 #[test]
 fn the_crowd_scene_with_its_default_script_pushes_topples_and_raises_characters() {
     let r = rig();
-    let scripts = load_scripts(spidar_tools::session::default_script("crowd"), &r, 1).unwrap();
+    let scripts = load_scripts(spidar_runtime::session::default_script("crowd"), &r, 1).unwrap();
     let mut v = session(scripts, None, &SimOptions::default());
     let mut scene = CrowdScene::builtin().unwrap();
     let mut last_tick = None;

@@ -17,9 +17,9 @@ use std::time::{Duration, Instant};
 use spidar_link::{Endpoint, LinkState, LinkStats, PrivateDir};
 use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::telemetry::TickRecord;
-use spidar_tools::child_world::ChildWorldSpec;
-use spidar_tools::session::{LiveOptions, LiveSession, WorldChoice};
-use spidar_tools::signals::Stop;
+use spidar_runtime::child_world::ChildWorldSpec;
+use spidar_runtime::session::{LiveOptions, LiveSession, WorldChoice};
+use spidar_runtime::signals::Stop;
 
 use super::*;
 
@@ -610,7 +610,7 @@ fn a_child_world_ends_when_the_rig_that_started_it_is_gone() {
         extra: Vec::new(),
     };
     let pid = std::thread::spawn(move || {
-        let child = spidar_tools::child_world::ChildWorld::start(spec, &at).unwrap();
+        let child = spidar_runtime::child_world::ChildWorld::start(spec, &at).unwrap();
         let pid = child.pid().unwrap();
         std::mem::forget(child); // no clean stop: the "rig" just vanishes
         pid

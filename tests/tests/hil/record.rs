@@ -8,7 +8,7 @@ use spidar_record::verify::verify;
 use spidar_record::writer::{EndInfo, Recorder, RecorderThread};
 use spidar_rt::rig::DEFAULT_RIG_RON;
 use spidar_rt::telemetry::TickRecord;
-use spidar_tools::recording::session_info;
+use spidar_runtime::recording::session_info;
 
 fn temp(name: &str) -> std::path::PathBuf {
     let dir = std::env::temp_dir().join(format!("spidar-hil-record-{}", std::process::id()));
@@ -123,13 +123,13 @@ fn child_records_a_live_session_until_killed() {
     let dev = sim_device(&r, scripts, &SimOptions::default()).unwrap();
     let info = session_info(None, "walls", "tour", "Sim", 1, false).unwrap();
     let rec = Recorder::create(std::path::Path::new(&path), &info).unwrap();
-    let opts = spidar_tools::session::LiveOptions {
+    let opts = spidar_runtime::session::LiveOptions {
         // Ends by itself if nobody kills it.
         seconds: Some(120.0),
         rt: spidar_rt::rt_thread::RtOptions { fifo_priority: None, lock_memory: false, ..Default::default() },
         spin_ns: 0,
         status_every: None,
-        stop: spidar_tools::signals::Stop::detached(),
+        stop: spidar_runtime::signals::Stop::detached(),
         scene_name: "walls".into(),
         script_name: "tour".into(),
         connect_timeout: std::time::Duration::from_secs(10),
@@ -137,10 +137,10 @@ fn child_records_a_live_session_until_killed() {
         supervisor: None,
         recorder: Some(RecorderThread::spawn(rec).unwrap()),
     };
-    let world = spidar_tools::session::WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(
+    let world = spidar_runtime::session::WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(
         WallsScene::builtin(),
     )));
-    let _ = spidar_tools::session::run_live(dev, &r, world, opts);
+    let _ = spidar_runtime::session::run_live(dev, &r, world, opts);
 }
 
 #[test]

@@ -13,7 +13,7 @@ use serde_json::{json, Value};
 use spidar_record::foxglove::FrameTransforms;
 use spidar_record::reader::{self, Flow, Msg};
 use spidar_record::world::{world_path, ViewFrameMsg, WorldStep, TOPIC_STEP, TOPIC_TF, TOPIC_VIEW};
-use spidar_tools::replay_view::{Replay, ReplayOptions};
+use spidar_runtime::replay_view::{Replay, ReplayOptions};
 use spidar_world::view::{ViewHandle, ViewOptions};
 
 use super::view::{any_port, browser_here, node, one_at_a_time};
@@ -30,11 +30,11 @@ fn temp(name: &str) -> PathBuf {
 fn record_boxing(path: &Path, seconds: f64) -> PathBuf {
     let r = rig();
     let dev = sim_device(&r, load_scripts("box", &r, 1).unwrap(), &SimOptions::default()).unwrap();
-    let info = spidar_tools::recording::session_info(None, "boxing", "box", "Sim", 1, true).unwrap();
-    let recorder = spidar_tools::recording::create(path, &info).unwrap();
+    let info = spidar_runtime::recording::session_info(None, "boxing", "box", "Sim", 1, true).unwrap();
+    let recorder = spidar_runtime::recording::create(path, &info).unwrap();
     let scene = spidar_world::load("boxing").unwrap();
     let wpath = world_path(path);
-    let (wrec, obs) = spidar_tools::recording::start_world_recording(
+    let (wrec, obs) = spidar_runtime::recording::start_world_recording(
         &wpath,
         "boxing",
         &*scene,
@@ -42,9 +42,9 @@ fn record_boxing(path: &Path, seconds: f64) -> PathBuf {
         Some(recorder.start_unix_ns()),
     )
     .unwrap();
-    let opts = spidar_tools::session::VirtualOptions {
+    let opts = spidar_runtime::session::VirtualOptions {
         seconds,
-        stop: spidar_tools::signals::Stop::detached(),
+        stop: spidar_runtime::signals::Stop::detached(),
         progress: false,
         device: "Sim".into(),
         scene_name: "boxing".into(),
@@ -53,7 +53,7 @@ fn record_boxing(path: &Path, seconds: f64) -> PathBuf {
         recorder: Some(recorder),
         observers: vec![Box::new(obs)],
     };
-    let sum = spidar_tools::session::run_virtual(dev, &r, scene, opts).unwrap();
+    let sum = spidar_runtime::session::run_virtual(dev, &r, scene, opts).unwrap();
     assert!(sum.counters.active_ticks > 1000, "{sum}");
     let w = wrec.finish();
     assert_eq!((w.dropped, w.write_failed, w.error.clone()), (0, 0, None), "{w}");

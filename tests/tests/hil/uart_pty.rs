@@ -18,8 +18,8 @@ use spidar_device::uart::{SerialPath, UartDevice};
 use spidar_device::ErrorKind;
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Command, FaultReason, Lifecycle};
-use spidar_tools::hardware::{emulator_options, uart_options};
-use spidar_tools::session::{sim_device, SimOptions, VirtualRun};
+use spidar_runtime::hardware::{emulator_options, uart_options};
+use spidar_runtime::session::{sim_device, SimOptions, VirtualRun};
 
 use super::{front_wall, left_hand_pressing_the_wall, reach_and_hold, rig, HOLD_AT_HOME_S, WALL_Z_M};
 

@@ -21,10 +21,10 @@ use spidar_link::channel::ChannelWorldEnd;
 use spidar_msg::{ContactModel, HandSample, HandState, RigState, RigStatus};
 use spidar_rt::status::rig_info;
 use spidar_rt::{Clock, MonotonicClock};
+use spidar_runtime::scene_thread::{self, SceneCounters};
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::drawn::world_joints;
 use spidar_sim::character::keyframe::MAX_JOINTS;
-use spidar_tools::scene_thread::{self, SceneCounters};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;
@@ -657,7 +657,7 @@ fn step_observed<S: Scene>(scene: &mut S, n: usize, mut observe: impl FnMut(&Ste
 fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let _one = one_at_a_time();
     // Big frames (400 characters, about 90 kB each).
-    let mut scene = spidar_tools::bench_view::crowd_of(400).unwrap();
+    let mut scene = spidar_lab::bench_view::crowd_of(400).unwrap();
     let look = scene.look();
     let opts = ViewOptions { write_timeout: Duration::from_secs(3600), ..any_port() };
     let mut view = View::start("crowd", &look, &opts).unwrap();
@@ -718,7 +718,7 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
 fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
     use spidar_world::view::FrameMaker;
     let _one = one_at_a_time();
-    let mut scene = spidar_tools::bench_view::crowd_of(300).unwrap();
+    let mut scene = spidar_lab::bench_view::crowd_of(300).unwrap();
     let look = scene.look();
     let mut view = View::start("crowd", &look, &any_port()).unwrap();
     let handle = view.counters_handle();
@@ -881,19 +881,19 @@ fn recorder_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
 struct RunPath {
     /// The view's address, as the world printed it.
     url: String,
-    stop: spidar_tools::signals::Stop,
-    run: Option<JoinHandle<spidar_tools::session::Summary>>,
+    stop: spidar_runtime::signals::Stop,
+    run: Option<JoinHandle<spidar_runtime::summary::Summary>>,
     said: Arc<Mutex<Vec<String>>>,
 }
 
 impl RunPath {
     fn start(scene: &str, script: &str) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
-        use spidar_tools::child_world::ChildWorldSpec;
-        use spidar_tools::session::{
+        use spidar_runtime::child_world::ChildWorldSpec;
+        use spidar_runtime::session::{
             load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice,
         };
-        let stop = spidar_tools::signals::Stop::detached();
+        let stop = spidar_runtime::signals::Stop::detached();
         let said = Arc::new(Mutex::new(Vec::<String>::new()));
         let (url_tx, url_rx) = crossbeam_channel::bounded(1);
         let opts = LiveOptions {
@@ -947,7 +947,7 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    fn finish(mut self) -> spidar_tools::session::Summary {
+    fn finish(mut self) -> spidar_runtime::summary::Summary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }

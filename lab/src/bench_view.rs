@@ -18,8 +18,8 @@ use spidar_world::crowd::CrowdScene;
 use spidar_world::view::{View, ViewOptions};
 use spidar_world::{Observer, Scene, StepView};
 
-use crate::session::{load_scripts, sim_device, SimOptions, VirtualRun};
 use spidar_rt::status::rig_info;
+use spidar_runtime::session::{load_scripts, sim_device, SimOptions, VirtualRun};
 
 /// A crowd scene of `n` characters: the built-in one, spread over an area that holds them.
 pub fn crowd_of(n: usize) -> anyhow::Result<CrowdScene> {

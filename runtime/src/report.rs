@@ -6,7 +6,7 @@ use spidar_record::writer::RecordingReport;
 use spidar_rt::telemetry::{Percentiles, Stats};
 use spidar_rt::{Counters, Lifecycle};
 
-use crate::session::{FaultTally, Summary, VirtualSummary};
+use crate::summary::{FaultTally, Summary, VirtualSummary};
 
 /// Fails a run that ended faulted or whose rig never became active, so scripts and CI see it in
 /// the exit status (the summary says the same in words).

@@ -28,8 +28,8 @@ use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind};
 
-use crate::scripts::{box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind};
-use crate::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+use spidar_runtime::scripts::{box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind};
+use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::Scene;
 

@@ -10,8 +10,8 @@ use spidar_rt::rt_thread::{RtOptions, RtReport};
 use spidar_rt::telemetry::{DurationHist, Percentiles};
 use spidar_rt::Rig;
 
-use crate::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions, WorldChoice};
-use crate::signals::Stop;
+use spidar_runtime::session::{load_scripts, run_live, sim_device, LiveOptions, SimOptions, WorldChoice};
+use spidar_runtime::signals::Stop;
 
 pub struct RecordBenchOptions {
     /// Seconds of session per arm, split into `blocks` blocks.
@@ -66,8 +66,10 @@ pub fn bench_record(rig: &Rig, o: &RecordBenchOptions) -> anyhow::Result<RecordB
         let scene = spidar_world::load(&o.scene)?;
         let path = o.dir.join(format!("bench-{b}.mcap"));
         let recorder = if recording {
-            let info = crate::recording::session_info(None, &o.scene, &o.script, "Sim", 1, false)?;
-            Some(spidar_record::writer::RecorderThread::spawn(crate::recording::create(&path, &info)?)?)
+            let info = spidar_runtime::recording::session_info(None, &o.scene, &o.script, "Sim", 1, false)?;
+            Some(spidar_record::writer::RecorderThread::spawn(spidar_runtime::recording::create(
+                &path, &info,
+            )?)?)
         } else {
             None
         };

@@ -15,7 +15,7 @@ use spidar_sim::character::drawn::outside_body;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::Scene as _;
 
-use crate::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 
 /// The loop time (s) from which a motion is watched: the rig has homed and its force ramped in.
 pub const SETTLED_S: f64 = HOLD_AT_HOME_S + 0.7;

@@ -9,9 +9,9 @@
 
 use std::ffi::OsString;
 use std::io::BufRead;
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -19,7 +19,12 @@ use anyhow::Context;
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use spidar_link::Endpoint;
 
-use crate::world_process::{REPORT_PREFIX, STATUS_PREFIX};
+use crate::signals::describe_exit;
+
+/// Marks a status line on a child world's stderr (written by `world_process`, read here).
+pub const STATUS_PREFIX: &str = "@status ";
+/// Marks the final report line on a child world's stderr.
+pub const REPORT_PREFIX: &str = "@report ";
 
 /// How to start a world process.
 #[derive(Clone, Debug)]
@@ -72,18 +77,6 @@ pub struct ChildWorld {
     gave_up: bool,
     /// Lines already read (while the world started), given to `show` at the next read.
     held: Vec<String>,
-}
-
-/// Says how a process ended.
-pub fn describe_exit(s: ExitStatus) -> String {
-    match (s.code(), s.signal()) {
-        (Some(c), _) => format!("exited with status {c}"),
-        (_, Some(9)) => "was killed (signal 9, SIGKILL)".into(),
-        (_, Some(sig)) => {
-            format!("ended by signal {sig}{}", if s.core_dumped() { " (core dumped)" } else { "" })
-        }
-        _ => "ended".into(),
-    }
 }
 
 impl ChildWorld {

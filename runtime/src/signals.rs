@@ -11,6 +11,8 @@
 //! is taken, so a Ctrl-C that reaches both processes counts once, and a `kill -TERM` sent to the
 //! supervisor alone still stops the rig.
 
+use std::os::unix::process::ExitStatusExt;
+use std::process::ExitStatus;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, OnceLock};
 
@@ -83,6 +85,18 @@ impl Stop {
     /// This process's own requests only (what a supervisor passes on).
     pub fn own_count(&self) -> u32 {
         self.count.load(Ordering::SeqCst)
+    }
+}
+
+/// Says how a process ended.
+pub fn describe_exit(s: ExitStatus) -> String {
+    match (s.code(), s.signal()) {
+        (Some(c), _) => format!("exited with status {c}"),
+        (_, Some(9)) => "was killed (signal 9, SIGKILL)".into(),
+        (_, Some(sig)) => {
+            format!("ended by signal {sig}{}", if s.core_dumped() { " (core dumped)" } else { "" })
+        }
+        _ => "ended".into(),
     }
 }
 

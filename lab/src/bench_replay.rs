@@ -13,7 +13,7 @@ use rand::{Rng, SeedableRng};
 use spidar_record::play::{Indexed, Player, ViewTrack};
 use spidar_world::view::ViewOptions;
 
-use crate::replay_view::{Replay, ReplayOptions};
+use spidar_runtime::replay_view::{Replay, ReplayOptions};
 
 pub struct ReplayBenchOptions {
     /// The world recording (or the rig's, with the world's next to it).

@@ -44,7 +44,7 @@ use spidar_device::{Device, Input, Output};
 use spidar_rt::rt_thread::{self, RtOptions};
 use spidar_rt::Lifeline;
 
-use crate::child_world::describe_exit;
+use crate::signals::describe_exit;
 use crate::signals::Stop;
 
 /// The environment variable that gives the rig process the shared page's descriptor.

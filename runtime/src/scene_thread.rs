@@ -38,7 +38,7 @@ pub fn spawn(
 ) -> std::io::Result<JoinHandle<Stepper>> {
     std::thread::Builder::new().name("spidar-scene".into()).spawn(move || {
         // Below the rig's loop, whatever thread started this one (threads inherit the policy).
-        crate::world_process::setup_world_thread(priority);
+        setup_world_thread(priority);
         let step_ns = (stepper.step_s() * 1e9).round() as u64;
         let mut buf: Vec<HandSample> = Vec::with_capacity(256);
         let mut status = None;
@@ -73,4 +73,23 @@ pub fn spawn(
         }
         stepper
     })
+}
+
+/// Sets the calling world thread's scheduling: SCHED_FIFO at `priority`, or the normal scheduler
+/// (threads inherit their creator's policy: a world started from the rig's loop must not keep it).
+pub fn setup_world_thread(priority: Option<u8>) -> spidar_rt::rt_thread::RtReport {
+    match priority {
+        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
+            fifo_priority: Some(p),
+            lock_memory: false,
+            prefault_stack_bytes: 0,
+            cpu: None,
+        }),
+        None => {
+            let normal = libc::sched_param { sched_priority: 0 };
+            // SAFETY: sets the calling thread's policy; a valid sched_param.
+            unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &normal) };
+            spidar_rt::rt_thread::RtReport { policy: "SCHED_OTHER (normal)".into(), ..Default::default() }
+        }
+    }
 }

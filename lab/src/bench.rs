@@ -10,7 +10,7 @@ use spidar_rt::rt_thread::{self, RtOptions, RtReport};
 use spidar_rt::telemetry::{DurationHist, Percentiles};
 use spidar_rt::{Clock, Command, Endpoints, MonotonicClock, Rig, RtLoop};
 
-use crate::session::{load_scripts, sim_device, SimOptions};
+use spidar_runtime::session::{load_scripts, sim_device, SimOptions};
 use spidar_world::{walls::WallsScene, Scene};
 
 pub struct RtBenchOptions {
@@ -149,7 +149,7 @@ pub struct LinkBenchOptions {
     /// Samples echoed for the round-trip figures, per transport.
     pub echoes: u64,
     /// How to start a world process (`spidar world` from this executable).
-    pub world: crate::child_world::ChildWorldSpec,
+    pub world: spidar_runtime::child_world::ChildWorldSpec,
     /// SCHED_FIFO priority of both worlds (None: the normal scheduler).
     pub world_priority: Option<u8>,
 }
@@ -186,7 +186,7 @@ pub struct LinkBenchReport {
 /// world's kernel stamped the sample's arrival.
 fn echo_round_trips(
     rig: &Rig,
-    spec: &crate::child_world::ChildWorldSpec,
+    spec: &spidar_runtime::child_world::ChildWorldSpec,
     at: &spidar_link::Endpoint,
     dir: &spidar_link::PrivateDir,
     n: u64,
@@ -195,8 +195,14 @@ fn echo_round_trips(
     let mut spec = spec.clone();
     spec.extra.push("--echo".into());
     let mut clock = MonotonicClock::new();
-    let (mut child, mut link, _) =
-        crate::session::start_child_world_at(rig, spec, at, dir, &clock, std::time::Duration::from_secs(30))?;
+    let (mut child, mut link, _) = spidar_runtime::session::start_child_world_at(
+        rig,
+        spec,
+        at,
+        dir,
+        &clock,
+        std::time::Duration::from_secs(30),
+    )?;
     let waiter = link.waiter()?;
     let (mut rtt, mut one_way) = (DurationHist::default(), DurationHist::default());
     let mut unanswered = 0;
@@ -208,7 +214,7 @@ fn echo_round_trips(
         let sent_ns = clock.now_ns();
         let now_s = sent_ns as f64 * 1e-9;
         let _ = link.poll(now_s); // late echoes of earlier samples
-        link.send_sample(&crate::world_process::echo_sample(k, now_s));
+        link.send_sample(&spidar_runtime::world_process::echo_sample(k, now_s));
         let mut answered = false;
         loop {
             let left = (sent_ns + 900_000).saturating_sub(clock.now_ns());
@@ -284,7 +290,7 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
             if let Some(p) = world_priority {
                 spec.extra.extend(["--priority".into(), p.to_string().into()]);
             }
-            let (mut child, plink, welcome) = crate::session::start_child_world(
+            let (mut child, plink, welcome) = spidar_runtime::session::start_child_world(
                 &rig,
                 spec,
                 &dir,
@@ -317,8 +323,9 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
                     } else {
                         let (rig_end, world_end) = channel::pair();
                         let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-                        let counters = std::sync::Arc::new(crate::scene_thread::SceneCounters::default());
-                        let h = crate::scene_thread::spawn(
+                        let counters =
+                            std::sync::Arc::new(spidar_runtime::scene_thread::SceneCounters::default());
+                        let h = spidar_runtime::scene_thread::spawn(
                             stepper.take().expect("the thread's scene"),
                             clock,
                             world_end,

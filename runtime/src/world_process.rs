@@ -17,12 +17,9 @@ use spidar_link::{Endpoint, PrivateDir};
 use spidar_world::host::{serve, ServeOptions, ServeReport, Stepper};
 use spidar_world::{Observer, StepView};
 
+use crate::child_world::{REPORT_PREFIX, STATUS_PREFIX};
+use crate::scene_thread::setup_world_thread;
 use crate::signals::Stop;
-
-/// Marks a status line on a child world's stderr.
-pub const STATUS_PREFIX: &str = "@status ";
-/// Marks the final report line on a child world's stderr.
-pub const REPORT_PREFIX: &str = "@report ";
 
 /// The world process's options (`spidar world --help`).
 #[derive(clap::Args, Clone, Debug)]
@@ -159,25 +156,6 @@ impl Observer for StatusLines {
             self.last = Some(Instant::now());
             let _ =
                 writeln!(std::io::stderr().lock(), "{STATUS_PREFIX}{}\t{}", self.steps, step.scene.status());
-        }
-    }
-}
-
-/// Sets the calling world thread's scheduling: SCHED_FIFO at `priority`, or the normal scheduler
-/// (threads inherit their creator's policy: a world started from the rig's loop must not keep it).
-pub fn setup_world_thread(priority: Option<u8>) -> spidar_rt::rt_thread::RtReport {
-    match priority {
-        Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
-            fifo_priority: Some(p),
-            lock_memory: false,
-            prefault_stack_bytes: 0,
-            cpu: None,
-        }),
-        None => {
-            let normal = libc::sched_param { sched_priority: 0 };
-            // SAFETY: sets the calling thread's policy; a valid sched_param.
-            unsafe { libc::sched_setscheduler(0, libc::SCHED_OTHER, &normal) };
-            spidar_rt::rt_thread::RtReport { policy: "SCHED_OTHER (normal)".into(), ..Default::default() }
         }
     }
 }

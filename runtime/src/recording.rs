@@ -1,0 +1,94 @@
+//! What `run --record` writes about the session: the rig file, scene and script files that made
+//! it, the world's recording, and how the session ended. The work is in `spidar_record`.
+
+use std::path::Path;
+
+use anyhow::Context;
+use spidar_record::world::{WorldInfo, WorldRecorder, WorldRecording};
+use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
+use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
+
+use crate::summary::Summary;
+
+/// What made a session, from its arguments: the rig file's text, the scene and script files.
+pub fn session_info(
+    rig_path: Option<&Path>,
+    scene: &str,
+    script: &str,
+    device: &str,
+    seed: u64,
+    virtual_clock: bool,
+) -> anyhow::Result<SessionInfo> {
+    let (rig_origin, rig_text) = match rig_path {
+        Some(p) => (
+            p.display().to_string(),
+            std::fs::read_to_string(p).with_context(|| format!("reading the rig file {}", p.display()))?,
+        ),
+        None => (DEFAULT_RIG_NAME.to_string(), DEFAULT_RIG_RON.to_string()),
+    };
+    let mut files = Vec::new();
+    for f in [scene, script] {
+        if f.ends_with(".ron") {
+            let text = std::fs::read_to_string(f).with_context(|| format!("reading {f}"))?;
+            let name = Path::new(f).file_name().map_or(f.to_string(), |n| n.to_string_lossy().into_owned());
+            files.push((name, text));
+        }
+    }
+    Ok(SessionInfo {
+        rig_origin,
+        rig_text,
+        scene: scene.into(),
+        script: script.into(),
+        device: device.into(),
+        seed,
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        virtual_clock,
+        files,
+    })
+}
+
+/// Creates the recording before anything starts, so a path that cannot be written is refused
+/// before the rig moves.
+pub fn create(path: &Path, info: &SessionInfo) -> anyhow::Result<Recorder> {
+    Ok(Recorder::create(path, info)?)
+}
+
+/// Starts the world's recording of `scene` (asked as `scene_arg`) into `path`: the file is
+/// created here (an unwritable path fails before the session starts). Returns the recording (to
+/// finish when the world stops) and the observer to add to the scene's host.
+pub fn start_world_recording(
+    path: &Path,
+    scene_arg: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    start_unix_ns: Option<u64>,
+) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
+    let mut files = Vec::new();
+    if scene_arg.ends_with(".ron") {
+        let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
+        let name = Path::new(scene_arg)
+            .file_name()
+            .map_or(scene_arg.to_string(), |n| n.to_string_lossy().into_owned());
+        files.push((name, text));
+    }
+    let info = WorldInfo {
+        scene: format!("{scene_arg} ({})", scene.name()),
+        name: scene.name().into(),
+        command_line: std::env::args().collect::<Vec<_>>().join(" "),
+        clock: if virtual_clock { "virtual" } else { "real" }.into(),
+        start_unix_ns,
+        files,
+    };
+    Ok(WorldRecording::start(path, &info, &scene.look())?)
+}
+
+/// How a live session ended, for the recording's `spidar.end` record.
+pub fn end_info(s: &Summary) -> EndInfo {
+    EndInfo {
+        ticks: s.counters.ticks,
+        telemetry_dropped: s.counters.telemetry_dropped,
+        final_state: s.final_state.name().into(),
+        clean_stop: s.clean_stop,
+        faults: s.counters.faults,
+    }
+}
