@@ -723,7 +723,7 @@ impl<D: Device + 'static> LiveSession<D> {
             })
             .context("starting the real-time thread")?;
         // The grips start at their home points on the simulated rig; a real rig's operator holds
-        // them there before starting (see README).
+        // them there before starting (see docs/guide.md).
         let _ = commands.try_send(Command::Home);
         let _ = commands.try_send(Command::Activate);
         Ok(LiveSession {
