@@ -409,8 +409,8 @@ fn punch_outcomes_with(
         // The force felt on the first tick that rendered the previous step's model.
         let first = b.consumed.iter().find(|s| s.model_seq == prev_seq);
         let felt = [0, 1].map(|h| first.map_or(0.0, |s| s.hands[h].force_n.length()));
-        let speed =
-            [0, 1].map(|h| b.consumed.iter().map(|s| s.hands[h].vel_m_per_s.length()).fold(0.0, f64::max));
+        let speed = [0, 1]
+            .map(|h| b.consumed.iter().map(|s| s.hands[h].vel_world_m_per_s.length()).fold(0.0, f64::max));
         let vh = w.vh;
         frames.push(Frame {
             t_s: b.script_t_s(),

@@ -39,7 +39,7 @@ fn record(i: u64) -> TickRecord {
         TickRecord { tick: i, t_s: t, lateness_s: 1e-5 * (i % 7) as f64, gain: 1.0, ..Default::default() };
     r.state = if i < 100 { Lifecycle::Inactive } else { Lifecycle::Active };
     for h in 0..2 {
-        r.hands[h].pos_m = DVec3::new((t * 3.0).sin(), 0.1 * h as f64, (t * 2.0).cos());
+        r.hands[h].pos_rig_m = DVec3::new((t * 3.0).sin(), 0.1 * h as f64, (t * 2.0).cos());
         r.hands[h].output_n = DVec3::new(0.0, (t * 5.0).sin() * 3.0, 0.0);
         r.hands[h].tensions_n = [1.0 + t, 2.0, 3.0 - (t * 0.1).sin(), 4.0];
         r.hands[h].contacts = ((i / 200) % 2) as u8;

@@ -23,8 +23,8 @@ pub(crate) fn temp(name: &str) -> PathBuf {
 pub(crate) fn sample(k: u64, t_s: f64) -> HandSample {
     let mut s = HandSample { tick: k, t_s, ..Default::default() };
     let jab = ((k % 300) as f64 / 300.0 * std::f64::consts::TAU).sin().max(0.0);
-    s.hands[0].pos_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
-    s.hands[1].pos_m = DVec3::new(0.15, 0.0, 0.0);
+    s.hands[0].pos_world_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
+    s.hands[1].pos_world_m = DVec3::new(0.15, 0.0, 0.0);
     for h in &mut s.hands {
         h.valid = true;
     }

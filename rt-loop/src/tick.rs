@@ -897,14 +897,14 @@ impl TickCore {
                 }
             }
             sample.hands[hi] = HandState {
-                pos_m: xf.point(h.pose.pos_m),
-                vel_m_per_s: xf.vector(vel),
+                pos_world_m: xf.point(h.pose.pos_m),
+                vel_world_m_per_s: xf.vector(vel),
                 force_n: xf.vector(alloc.force_n),
                 valid: pose_ok,
             };
             rec.hands[hi] = HandRecord {
-                pos_m: h.pose.pos_m,
-                vel_m_per_s: vel,
+                pos_rig_m: h.pose.pos_m,
+                vel_rig_m_per_s: vel,
                 residual_m: h.pose.residual_m,
                 valid: pose_ok,
                 rendered_n: want_rig,
@@ -1352,17 +1352,17 @@ mod tests {
         // A reply with 4096 counts (12 cm) too many on hand 0's string 2: rejected at once.
         let r = step(&mut c, &mut out, Some((2, 4096)));
         assert!(r.hands[0].held && !r.hands[1].held, "only the hand with the bad count is held");
-        assert_eq!(r.hands[0].pos_m, before.hands[0].pos_m);
+        assert_eq!(r.hands[0].pos_rig_m, before.hands[0].pos_rig_m);
         assert_eq!(out.volts[..4], held_out.volts[..4]);
         assert_eq!(c.counters().count_jumps, [1, 0]);
         // The next good reply is accepted, from where the hand really is now.
         let r = step(&mut c, &mut out, None);
         assert!(!r.hands[0].held);
-        assert!((r.hands[0].pos_m - at(k.get() - 1)[0]).length() < 1e-4, "{}", r.hands[0].pos_m);
+        assert!((r.hands[0].pos_rig_m - at(k.get() - 1)[0]).length() < 1e-4, "{}", r.hands[0].pos_rig_m);
         assert!(
-            (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+            (r.hands[0].vel_rig_m_per_s.x - 1.0).abs() < 0.05,
             "velocity over the skipped tick: {}",
-            r.hands[0].vel_m_per_s
+            r.hands[0].vel_rig_m_per_s
         );
         // Small corruptions too: 200 counts (6 mm) on hand 1.
         let r = step(&mut c, &mut out, Some((5, -200)));
@@ -1405,9 +1405,9 @@ mod tests {
         assert!(!r.hands[0].held && !r.hands[1].held, "{:?}", c.counters());
         assert_eq!(c.counters().count_jumps, [0, 0]);
         assert!(
-            (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+            (r.hands[0].vel_rig_m_per_s.x - 1.0).abs() < 0.05,
             "velocity over the late tick: {}",
-            r.hands[0].vel_m_per_s
+            r.hands[0].vel_rig_m_per_s
         );
     }
 

@@ -307,7 +307,7 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
         let rec = v.tick();
         for h in 0..2 {
             assert!(rec.hands[h].valid);
-            worst = worst.max((rec.hands[h].pos_m - before.hands[h].pos_m).length());
+            worst = worst.max((rec.hands[h].pos_rig_m - before.hands[h].pos_m).length());
             worst_residual = worst_residual.max(rec.hands[h].residual_m);
         }
     }
@@ -413,7 +413,7 @@ impl Scene for Hostile {
         let mut m = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
         let Some(s) = samples.last() else { return m };
         for h in 0..2 {
-            let p = s.hands[h].pos_m;
+            let p = s.hands[h].pos_world_m;
             let k = match self.seq % 5 {
                 0 => f64::NAN,
                 1 => f64::INFINITY,
@@ -601,8 +601,8 @@ fn digest_of_run(seed: u64, ticks: usize) -> u64 {
         d.f(rec.t_s);
         d.f(rec.gain);
         for h in &rec.hands {
-            d.v(h.pos_m);
-            d.v(h.vel_m_per_s);
+            d.v(h.pos_rig_m);
+            d.v(h.vel_rig_m_per_s);
             d.f(h.residual_m);
             d.v(h.commanded_n);
             for t in h.tensions_n {
@@ -907,7 +907,7 @@ fn homing_makes_each_grip_read_its_home_point() {
     assert!(v.rt.core().is_homing(), "homing waits for the strings to settle");
     v.run_ticks((spidar_rt::tick::HOMING_SETTLE_S / r.period_s) as u64 + 2);
     for h in 0..2 {
-        let e = (v.rt.last_record().hands[h].pos_m - r.hands[h].home_m).length();
+        let e = (v.rt.last_record().hands[h].pos_rig_m - r.hands[h].home_m).length();
         assert!(e < 1e-4, "hand {h} reads {e} m from home after homing");
     }
     assert!(v.rt.core().is_homed());

@@ -160,8 +160,9 @@ impl Scene for BoxingScene {
             let off = self.world.params.user_offset_m;
             for h in 0..HANDS {
                 let hs = s.hands[h];
-                self.targets[h] =
-                    hs.valid.then_some(HandTarget { pos_m: hs.pos_m + off, vel_m_per_s: hs.vel_m_per_s });
+                self.targets[h] = hs
+                    .valid
+                    .then_some(HandTarget { pos_m: hs.pos_world_m + off, vel_m_per_s: hs.vel_world_m_per_s });
             }
         }
         self.world.step(&self.targets);

@@ -117,7 +117,7 @@ impl CrowdScene {
 
     fn apply(&mut self, s: &HandSample) {
         for (h, hs) in s.hands.iter().enumerate() {
-            self.hands[h] = hs.valid.then_some(hs.pos_m);
+            self.hands[h] = hs.valid.then_some(hs.pos_world_m);
         }
         if s.model_seq == 0 || s.proxy_impulse_n_s.iter().all(|i| *i == DVec3::ZERO) {
             return;
@@ -137,7 +137,7 @@ impl CrowdScene {
                 continue;
             }
             let at = touching_hand(&p.shape, s)
-                .map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, s.hands[h].pos_m));
+                .map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, s.hands[h].pos_world_m));
             self.crowd.add_impulse_at(i, at, *imp);
             self.impulse_total_n_s += *imp;
             self.impulse_sum_n_s += imp.length();

@@ -140,7 +140,7 @@ fn measure(seed: u64, rate: f64, ticks: usize) -> Damage {
             } else {
                 d.force_err_used_n = d.force_err_used_n.max(err);
                 if rb.hands[h].valid {
-                    d.pose_err_m = d.pose_err_m.max(rb.hands[h].pos_m.distance(rc.hands[h].pos_m));
+                    d.pose_err_m = d.pose_err_m.max(rb.hands[h].pos_rig_m.distance(rc.hands[h].pos_rig_m));
                 }
             }
             d.over_half_newton += (err > 0.5) as u64;

@@ -466,7 +466,7 @@ fn unplugged_board_goes_safe_is_reopened_and_the_rig_rehomes_once_the_grips_rest
         assert!(n < 10, "not active again after re-homing");
     }
     run_checked(&mut s, 300);
-    let est = s.v.rt.last_record().hands[0].pos_m;
+    let est = s.v.rt.last_record().hands[0].pos_rig_m;
     let t = c.truth().hands[0].pos_m;
     assert!(
         ((t - est) - offset).length() < 1e-3,

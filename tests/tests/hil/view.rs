@@ -189,7 +189,7 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
     let r = rig();
     let w = r.rig_to_world;
     let home = [w.point(r.hands[0].home_m), w.point(r.hands[1].home_m)];
-    let mut h = home.map(|p| HandState { pos_m: p, valid: true, ..Default::default() });
+    let mut h = home.map(|p| HandState { pos_world_m: p, valid: true, ..Default::default() });
     let (out_s, hold_s) = (0.2, 0.3);
     let s = t - punch_at;
     if punch_at > 0.0 && s > 0.0 && s < out_s + hold_s + out_s {
@@ -203,8 +203,8 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
         };
         let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
         let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / out_s;
-        h[1].pos_m = from + (to - from) * p;
-        h[1].vel_m_per_s = (to - from) * v;
+        h[1].pos_world_m = from + (to - from) * p;
+        h[1].vel_world_m_per_s = (to - from) * v;
     }
     h
 }
@@ -254,7 +254,7 @@ fn host<S: Scene + 'static>(
                 let mut s =
                     HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
                 if let Some((at, to)) = *ctl.jab.lock().unwrap() {
-                    s.hands[1] = jab(s.hands[1].pos_m, t - at, to);
+                    s.hands[1] = jab(s.hands[1].pos_world_m, t - at, to);
                 }
                 let _ = samples_tx.try_send(s);
                 tick += 1;
@@ -282,8 +282,8 @@ fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
     let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
     let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
     HandState {
-        pos_m: home + (to - home) * p,
-        vel_m_per_s: (to - home) * v,
+        pos_world_m: home + (to - home) * p,
+        vel_world_m_per_s: (to - home) * v,
         valid: true,
         ..Default::default()
     }

@@ -126,7 +126,7 @@ impl FrameMaker {
                 }
                 let Some(h) = touching_hand(&p.shape, s) else { continue };
                 let c = DrawnContact {
-                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_m) + self.offset,
+                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_world_m) + self.offset,
                     force_n: *imp / period,
                 };
                 let slot = self.rendered[..self.rendered_count].iter().position(|r| r.id == p.id);
