@@ -11,8 +11,8 @@ mod decoder_props;
 pub mod discover;
 pub mod emulator;
 pub mod frame;
-pub mod link;
 pub mod sim;
+pub mod transport;
 pub mod uart;
 pub mod usb;
 

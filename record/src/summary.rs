@@ -14,7 +14,7 @@ use crate::RecordError;
 const EVENTS_LISTED: usize = 20;
 
 /// A recording's summary.
-pub struct Summary {
+pub struct RecordingSummary {
     pub recording: Recording,
     /// The rt-loop's statistics over the recorded ticks.
     pub stats: Stats,
@@ -30,7 +30,7 @@ pub struct Summary {
     pub final_state: Option<Lifecycle>,
 }
 
-pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
+pub fn summarize(path: &Path) -> Result<RecordingSummary, RecordError> {
     let mut stats = Stats::new();
     let (mut active, mut samples, mut models, mut faults, mut n_events) = (0, 0, 0, 0, 0);
     let mut events = Vec::new();
@@ -64,7 +64,7 @@ pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
         }
         Ok(Flow::Continue)
     })?;
-    Ok(Summary {
+    Ok(RecordingSummary {
         recording,
         stats,
         active_ticks: active,
@@ -79,7 +79,7 @@ pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
     })
 }
 
-impl std::fmt::Display for Summary {
+impl std::fmt::Display for RecordingSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let r = &self.recording;
         let s = &self.stats;

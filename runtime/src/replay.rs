@@ -177,7 +177,7 @@ fn start_replay(world: &std::path::Path, a: &ReplayArgs) -> anyhow::Result<crate
     Ok(r)
 }
 
-fn rig_json(s: &spidar_record::summary::Summary) -> serde_json::Value {
+fn rig_json(s: &spidar_record::summary::RecordingSummary) -> serde_json::Value {
     let r = &s.recording;
     let lat = s.stats.lateness.percentiles();
     serde_json::json!({

@@ -6,7 +6,7 @@ use spidar_record::writer::RecordingReport;
 use spidar_rt::telemetry::{Percentiles, Stats};
 use spidar_rt::{Counters, Lifecycle};
 
-use crate::summary::{FaultTally, Summary, VirtualSummary};
+use crate::summary::{FaultTally, SessionSummary, VirtualSummary};
 
 /// Fails a run that ended faulted or whose rig never became active, so scripts and CI see it in
 /// the exit status (the summary says the same in words).
@@ -102,7 +102,7 @@ pub fn world_recording_json(r: &WorldRecordingReport) -> Value {
 
 /// `spidar run --json`: the summary's figures, in SI units (seconds, newtons).
 pub fn run_json(
-    s: &Summary,
+    s: &SessionSummary,
     recording: Option<&RecordingReport>,
     world_recording: Option<&WorldRecordingReport>,
 ) -> Value {

@@ -97,7 +97,7 @@ fn write_held(f: &mut std::fmt::Formatter<'_>, c: &Counters) -> std::fmt::Result
 
 /// What a live run reports at the end.
 #[derive(Debug)]
-pub struct Summary {
+pub struct SessionSummary {
     pub device: String,
     pub scene: String,
     pub script: String,
@@ -180,7 +180,7 @@ impl std::fmt::Display for FaultTally {
     }
 }
 
-impl std::fmt::Display for Summary {
+impl std::fmt::Display for SessionSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let c = &self.counters;
         let s = &self.stats;

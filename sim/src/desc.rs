@@ -16,7 +16,7 @@ use glam::{DMat3, DQuat, DVec3};
 use serde::Deserialize;
 use spidar_config as config;
 
-use crate::collide::{Pose, Shape};
+use crate::collide::{Shape, ShapePose};
 use crate::joint::{write_quat, JointKind, MAX_JOINT_DOF};
 use crate::model::{
     box_inertia, ellipsoid_inertia, shape_bound, Articulation, Body, ContactParams, LimitParams, Model, Part,
@@ -625,7 +625,7 @@ pub fn build_scene(
             name: s.name.clone(),
             body: None,
             shape: s.shape.to_shape(),
-            local: Pose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
+            local: ShapePose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
             group: s.group,
             mask: s.mask,
             bound_m: shape_bound(&s.shape.to_shape()),
@@ -748,7 +748,7 @@ pub fn add_articulation(m: &mut Model, name: &str, body: &BodyFile, frame: &Xfor
                 name: format!("{name}.{}", s.name),
                 body: Some(body_index),
                 shape,
-                local: Pose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
+                local: ShapePose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
                 group: s.group,
                 mask: s.mask,
                 bound_m: shape_bound(&shape),

@@ -12,7 +12,7 @@ use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::{body_energy_j, Policy};
 use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::drawn::{self, FigureStats};
-use spidar_sim::character::keyframe::{KeyframeSet, Pose, QPoint, KEYFRAMES_HUMANOID_RON};
+use spidar_sim::character::keyframe::{KeyframeSet, QPoint, SkeletonPose, KEYFRAMES_HUMANOID_RON};
 use spidar_sim::character::scene::{build_crowd, builtin_crowd, BODY_CHARACTER_RON, SCENE_CROWD_RON};
 use spidar_sim::desc::{build_scene, parse_body};
 use spidar_sim::state::kinematics;
@@ -481,7 +481,7 @@ fn a_stop_settles_into_the_standing_pose() {
         "feet {side} m apart across, {front} m along"
     );
     // The walk cycle is at a standing phase: the drawn arms hang as in the standing keyframe.
-    let mut rest = Pose::default();
+    let mut rest = SkeletonPose::default();
     c.set.pose(&QPoint::default(), &mut rest);
     let arms: Vec<usize> = c
         .set
@@ -562,7 +562,7 @@ fn the_shipped_set_has_the_papers_shape() {
 fn the_interpolated_pose_equals_the_keyframe_at_each_keyframe() {
     let set = KeyframeSet::builtin();
     let n = set.joints.len();
-    let mut out = Pose::default();
+    let mut out = SkeletonPose::default();
     for k in &set.keys {
         set.pose(&k.at, &mut out);
         let err = out.max_angle_to(&k.pose, n);
@@ -581,7 +581,7 @@ fn the_pose_changes_continuously_along_a_long_random_path() {
     let mut rng = Pcg64::seed_from_u64(7);
     let mut q = QPoint::default();
     let mut anim = spidar_sim::character::Correspondence { blend: 1.0, ..Default::default() };
-    let (mut prev, mut cur) = (Pose::default(), Pose::default());
+    let (mut prev, mut cur) = (SkeletonPose::default(), SkeletonPose::default());
     set.pose(&q, &mut prev);
     let (mut worst, mut total) = (0.0f64, 0.0);
     let mut wraps = 0;
@@ -616,7 +616,7 @@ fn the_pose_changes_continuously_along_a_long_random_path() {
 fn the_pose_wraps_smoothly_at_the_walk_phase_boundary() {
     let set = KeyframeSet::builtin();
     let n = set.joints.len();
-    let (mut a, mut b) = (Pose::default(), Pose::default());
+    let (mut a, mut b) = (SkeletonPose::default(), SkeletonPose::default());
     for theta_x in [0.0, 0.3, 0.52, -0.52, 0.7] {
         for theta_z in [0.0, 0.2, -0.43] {
             let q = QPoint { theta_x, theta_z, d_x: 0.3, ..QPoint::default() };

@@ -189,10 +189,11 @@ struct EmulateArgs {
     /// (2020-01 to 2021-08: currents in the reply).
     #[arg(long, default_value_t = 2021, value_parser = clap::value_parser!(u32).range(2020..=2021))]
     firmware: u32,
-    /// Path of the link to the pty (a symlink that survives `disconnect`/`reconnect`). Default:
-    /// `uart` in a directory private to you ($XDG_RUNTIME_DIR/spidar, or /tmp/spidar-<uid>).
-    #[arg(long)]
-    link: Option<PathBuf>,
+    /// Path of the symlink to the pty (it survives `disconnect`/`reconnect`). Default: `uart` in
+    /// a directory private to you ($XDG_RUNTIME_DIR/spidar, or /tmp/spidar-<uid>). `--link` is
+    /// the older name of this option.
+    #[arg(long, alias = "link")]
+    symlink: Option<PathBuf>,
     /// The simulated user's hands: hold, circle, spar, tour, or a script file (.ron).
     #[arg(long, default_value = "tour")]
     script: String,
@@ -676,14 +677,14 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     } else {
         spidar_device::uart::protocol::ReplyLayout::Forces
     };
-    let link = match a.link.clone() {
+    let symlink = match a.symlink.clone() {
         Some(l) => l,
-        None => hardware::default_link()?,
+        None => hardware::default_symlink()?,
     };
-    // Signals end the emulator cleanly (status, link removed) from here on.
+    // Signals end the emulator cleanly (status, symlink removed) from here on.
     let stop = Stop::install()?;
     let opts = hardware::EmulateOptions {
-        link,
+        symlink,
         emulator: spidar_device::emulator::EmulatorOptions {
             watchdog: a.watchdog_ms.map(Duration::from_millis),
             fifo_priority: (!a.no_rt).then_some(70),
@@ -693,18 +694,18 @@ fn emulate(a: EmulateArgs) -> anyhow::Result<()> {
     };
     let emu = hardware::start_emulator(&rig, scripts, &opts)?;
     outln!(
-        "spidar emulate: boards {} ({}) on {} (link {}), rig '{}', script {}, watchdog {}",
+        "spidar emulate: boards {} ({}) on {} (symlink {}), rig '{}', script {}, watchdog {}",
         a.boards,
         layout.firmware(),
         emu.pty_path().map_or("?".into(), |p| p.display().to_string()),
-        emu.link().display(),
+        emu.symlink().display(),
         rig.name,
         a.script,
         a.watchdog_ms.map_or("none (as the real boards)".to_string(), |w| format!("{w} ms (experiment)"))
     );
     outln!(
         "run the stack against it: spidar run --device uart   (--port {} is the default)",
-        emu.link().display()
+        emu.symlink().display()
     );
     if !a.no_rt && !emu.control().fifo() {
         // The thread sets its policy as it starts; give it a moment before reporting.

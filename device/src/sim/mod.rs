@@ -207,7 +207,7 @@ pub struct Truth {
 
 /// Set-up errors of the simulated rig and its scripts.
 #[derive(Debug, Error)]
-pub enum SimError {
+pub enum SimRigError {
     #[error("simulated rig: {field}: {problem}")]
     InvalidParam { field: String, problem: String },
     #[error("script {script}, segment {segment}: {problem}")]
@@ -267,7 +267,7 @@ pub struct SimRig {
 impl SimRig {
     /// Validates the parameters and scripts (loading any trajectory files, relative to the
     /// current directory) and puts both grips at rest at their start positions.
-    pub fn new(params: SimRigParams, mut scripts: [Script; 2]) -> Result<SimRig, SimError> {
+    pub fn new(params: SimRigParams, mut scripts: [Script; 2]) -> Result<SimRig, SimRigError> {
         validate(&params)?;
         for (i, s) in scripts.iter_mut().enumerate() {
             s.prepare(std::path::Path::new(""), &format!("hand {i}"))?;
@@ -347,9 +347,9 @@ impl SimRig {
     }
 
     /// [`SimRig::set_script`] that reports bad scripts and hands instead of panicking.
-    pub fn try_set_script(&mut self, hand: usize, mut script: Script) -> Result<(), SimError> {
+    pub fn try_set_script(&mut self, hand: usize, mut script: Script) -> Result<(), SimRigError> {
         if hand >= 2 {
-            return Err(SimError::NoSuchHand { hand });
+            return Err(SimRigError::NoSuchHand { hand });
         }
         script.prepare(std::path::Path::new(""), &format!("hand {hand}"))?;
         let from = self.truth.hands[hand].target_m - self.hands[hand].push_m;
@@ -548,8 +548,8 @@ impl Device for SimRig {
     }
 }
 
-fn validate(p: &SimRigParams) -> Result<(), SimError> {
-    let bad = |field: String, problem: String| Err(SimError::InvalidParam { field, problem });
+fn validate(p: &SimRigParams) -> Result<(), SimRigError> {
+    let bad = |field: String, problem: String| Err(SimRigError::InvalidParam { field, problem });
     let positive = |field: &str, v: f64| {
         if v.is_finite() && v > 0.0 {
             Ok(())

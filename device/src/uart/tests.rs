@@ -284,7 +284,7 @@ struct Loopback {
     recording: Arc<std::sync::atomic::AtomicBool>,
 }
 
-impl ByteLink for Loopback {
+impl ByteTransport for Loopback {
     fn write_all(&mut self, bytes: &[u8], _deadline: Instant) -> Result<(), DeviceError> {
         self.out.clear();
         self.ticks.clear();
@@ -457,7 +457,7 @@ struct OddBoard {
     rx: VecDeque<u8>,
 }
 
-impl ByteLink for OddBoard {
+impl ByteTransport for OddBoard {
     fn write_all(&mut self, bytes: &[u8], _: Instant) -> Result<(), DeviceError> {
         for &b in bytes {
             if b == header(cmd::BOARD_INFO, 0) {
@@ -719,7 +719,7 @@ fn a_late_reply_frame_is_never_taken_as_the_next_ticks() {
 fn no_board_names_the_port_and_what_to_check() {
     // A link nobody answers on.
     struct Silent;
-    impl ByteLink for Silent {
+    impl ByteTransport for Silent {
         fn write_all(&mut self, _: &[u8], _: Instant) -> Result<(), DeviceError> {
             Ok(())
         }

@@ -24,12 +24,10 @@ use glam::{DMat3, DQuat, DVec3};
 
 use super::ai::Goal;
 use super::controller::{Ground, TiltCosines};
-use super::keyframe::{KeyframeSet, Pose};
+use super::keyframe::{KeyframeSet, SkeletonPose};
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
-use crate::collide::{
-    bounding_radius, box_on_plane, collide, plane_normal, Hit, Pose as ShapePose, Shape, MAX_HITS,
-};
+use crate::collide::{bounding_radius, box_on_plane, collide, plane_normal, Hit, Shape, ShapePose, MAX_HITS};
 use crate::contact::{penalty_force, Penalty};
 use crate::desc::{BodyFile, ContactDesc, MassDesc};
 use crate::spatial::quat_exp;
@@ -447,14 +445,14 @@ impl Crowd {
     /// tools) asks for the poses it draws, at its own rate, and gets exactly the pose the step
     /// would have computed.
     #[inline]
-    pub fn pose(&self, i: usize, out: &mut Pose) {
-        *out = Pose::default();
+    pub fn pose(&self, i: usize, out: &mut SkeletonPose) {
+        *out = SkeletonPose::default();
         self.chars[i].pose(&self.starts[i].space(), &self.set, &self.params.controller, out);
     }
 
     /// [`Crowd::pose`], returned.
-    pub fn pose_of(&self, i: usize) -> Pose {
-        let mut p = Pose::default();
+    pub fn pose_of(&self, i: usize) -> SkeletonPose {
+        let mut p = SkeletonPose::default();
         self.pose(i, &mut p);
         p
     }

@@ -66,21 +66,21 @@ pub struct Lean {
 /// Single precision: a pose is for display (the physics is all f64), and f32 quaternions blend
 /// four at a time in SIMD registers, which is what makes posing thousands of characters cheap.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
+pub struct SkeletonPose {
     pub rot: [Quat; MAX_JOINTS],
     pub root_m: Vec3,
 }
 
-impl Default for Pose {
+impl Default for SkeletonPose {
     fn default() -> Self {
-        Pose { rot: [Quat::IDENTITY; MAX_JOINTS], root_m: Vec3::ZERO }
+        SkeletonPose { rot: [Quat::IDENTITY; MAX_JOINTS], root_m: Vec3::ZERO }
     }
 }
 
-impl Pose {
+impl SkeletonPose {
     /// Largest rotation angle between two poses over the first `n` joints (rad), from the chord
     /// `|a - b| = 2 sin(angle / 4)` (well conditioned for nearly equal rotations, unlike acos).
-    pub fn max_angle_to(&self, o: &Pose, n: usize) -> f64 {
+    pub fn max_angle_to(&self, o: &SkeletonPose, n: usize) -> f64 {
         (0..n)
             .map(|j| {
                 let (a, b) = (self.rot[j].as_dquat(), o.rot[j].as_dquat());
@@ -193,7 +193,7 @@ pub struct Joint {
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Key {
     phase: f64,
-    pose: Pose,
+    pose: SkeletonPose,
 }
 
 #[derive(Clone, Debug)]
@@ -225,14 +225,14 @@ struct Subspace {
     front: Plane,
     side: Plane,
     /// The pose at the origin of the subspace (the side plane's keys are offsets from it).
-    origin: Pose,
+    origin: SkeletonPose,
 }
 
 /// A keyframe as it was placed in Q, for tests and tools.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlacedKey {
     pub at: QPoint,
-    pub pose: Pose,
+    pub pose: SkeletonPose,
 }
 
 /// A loaded, validated multidimensional keyframe set.
@@ -494,7 +494,7 @@ impl KeyframeSet {
                 if !in_front && !in_side {
                     return Err(err(text, origin, &field("line"), "line", ai, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
                 }
-                let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
+                let mut pose = SkeletonPose { root_m: k.root_m.as_vec3(), ..SkeletonPose::default() };
                 for (name, rv) in &k.pose {
                     let Some(j) = joints.iter().position(|j| &j.name == name) else {
                         return Err(err(
@@ -595,7 +595,7 @@ impl KeyframeSet {
     }
 
     /// The pose at a point of Q (no behaviour blend).
-    pub fn pose(&self, q: &QPoint, out: &mut Pose) {
+    pub fn pose(&self, q: &QPoint, out: &mut SkeletonPose) {
         let n = self.posed;
         let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
         if s.side.rows.is_empty() || s.front.rows.is_empty() {
@@ -627,7 +627,7 @@ impl KeyframeSet {
     /// lean toward the front or back and the side plane's at the lean toward the side, blended by
     /// how much of the lean is in each direction. A body lying down and rolling between its side
     /// and its face moves between the lying poses, never through the poses of falling.
-    pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut Pose) {
+    pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut SkeletonPose) {
         let n = self.posed;
         let s = &self.sub[(behaviour as usize).min(self.sub.len() - 1)];
         let (wf, ws) = (lean.front_share, 1.0 - lean.front_share);
@@ -680,12 +680,12 @@ impl KeyframeSet {
     }
 
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
-    pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut Pose) {
+    pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut SkeletonPose) {
         self.pose(q, out);
         if w >= 1.0 || from == q.behaviour {
             return;
         }
-        let mut other = Pose::default();
+        let mut other = SkeletonPose::default();
         self.pose(&QPoint { behaviour: from, ..*q }, &mut other);
         let n = self.joints.len();
         for j in 0..n {
@@ -773,7 +773,7 @@ impl Plane {
         self.aligned = ok;
     }
 
-    fn insert(&mut self, lean: f64, phase: f64, pose: Pose) {
+    fn insert(&mut self, lean: f64, phase: f64, pose: SkeletonPose) {
         let r = match self.rows.iter().position(|r| (r.lean - lean).abs() < SAME) {
             Some(r) => r,
             None => {
@@ -792,7 +792,7 @@ impl Plane {
 
     /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
     #[inline(always)]
-    fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
+    fn weights(&self, lean: f64, phase: f64) -> [(&SkeletonPose, f64); 4] {
         let rows = &self.rows;
         let hi = count_le(&self.leans, lean);
         if hi == 0 || hi == rows.len() {
@@ -841,7 +841,7 @@ fn count_le(xs: &[f64], x: f64) -> usize {
 /// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
 /// when the plane is pre-aligned and no sign test is needed).
 #[inline]
-fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
+fn weights32(w: &[(&SkeletonPose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
     let w32 = [w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32];
     if aligned {
         return (w32, usize::MAX);
@@ -857,7 +857,7 @@ fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
 
 /// Weighted sum of one joint's rotations (signs aligned with the heaviest), not normalised.
 #[inline]
-fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
+fn blend4(w: &[(&SkeletonPose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
     if *heavy == usize::MAX {
         let q = |i: usize| w[i].0.rot[j] * wt[i];
         return q(0) + q(1) + q(2) + q(3);
@@ -889,7 +889,7 @@ fn normalize_joints(rot: &mut [Quat; MAX_JOINTS], n: usize) {
 }
 
 #[inline]
-fn root4(w: &[(&Pose, f64); 4]) -> Vec3 {
+fn root4(w: &[(&SkeletonPose, f64); 4]) -> Vec3 {
     let r = |i: usize| w[i].0.root_m * w[i].1 as f32;
     r(0) + r(1) + r(2) + r(3)
 }

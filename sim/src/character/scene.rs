@@ -14,7 +14,7 @@ use super::ai::Goal;
 use super::crowd::{Crowd, CrowdBody, CrowdWorld};
 use super::keyframe::{KeyframeSet, KEYFRAMES_HUMANOID_RON};
 use super::CharacterParams;
-use crate::collide::Pose;
+use crate::collide::ShapePose;
 use crate::desc::{parse_body, ContactDesc, ShapeFile};
 use crate::spatial::quat_exp;
 use crate::SimError;
@@ -218,7 +218,7 @@ pub fn build_crowd(
     for s in &f.statics {
         let shape = s.shape.to_shape();
         let rot = DMat3::from_quat(quat_exp(s.rot_deg * (std::f64::consts::PI / 180.0)));
-        c.statics.push((shape, Pose { pos_m: s.pos_m, rot }));
+        c.statics.push((shape, ShapePose { pos_m: s.pos_m, rot }));
     }
     c.seed(f.crowd.seed);
     c.wander = Some(a);

@@ -882,7 +882,7 @@ struct RunPath {
     /// The view's address, as the world printed it.
     url: String,
     stop: spidar_runtime::signals::Stop,
-    run: Option<JoinHandle<spidar_runtime::summary::Summary>>,
+    run: Option<JoinHandle<spidar_runtime::summary::SessionSummary>>,
     said: Arc<Mutex<Vec<String>>>,
 }
 
@@ -947,7 +947,7 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    fn finish(mut self) -> spidar_runtime::summary::Summary {
+    fn finish(mut self) -> spidar_runtime::summary::SessionSummary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }
