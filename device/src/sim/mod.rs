@@ -432,8 +432,14 @@ impl SimRig {
                 *cmd = match out {
                     Some(out) if self.active => {
                         let v = out.volts.get(s.channel).copied().unwrap_or(0.0);
-                        let v = if v.is_nan() { 0.0 } else { v.clamp(-vmax, vmax) };
-                        (v / s.volts_per_newton).clamp(0.0, s.tension_max_n)
+                        let t = crate::clamp_symmetric(v, vmax) / s.volts_per_newton;
+                        // Never panics: a NaN tension (a zero scale) or a NaN or negative motor
+                        // limit is no tension.
+                        if t.is_nan() || !(s.tension_max_n >= 0.0) {
+                            0.0
+                        } else {
+                            t.clamp(0.0, s.tension_max_n)
+                        }
                     }
                     _ => 0.0,
                 };
