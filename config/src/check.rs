@@ -67,7 +67,13 @@ impl Bound {
     }
 
     /// A bound a file may exceed by naming `key` in its `overrides`.
-    pub const fn physical(key: &'static str, lo: f64, hi: f64, unit: &'static str, why: &'static str) -> Bound {
+    pub const fn physical(
+        key: &'static str,
+        lo: f64,
+        hi: f64,
+        unit: &'static str,
+        why: &'static str,
+    ) -> Bound {
         Bound { key, lo, hi, unit, why, limit: Limit::Physical }
     }
 
@@ -191,7 +197,10 @@ mod tests {
         let c = Checker::new(TEXT, "f.ron");
         let e = c.positive(&At::new("list[1].b_n", "b_n", 1), -1.0, "N", "a string pulls").unwrap_err();
         assert_eq!((e.line, e.column, e.field.as_str()), (4, 23, "list[1].b_n"));
-        assert_eq!(e.to_string(), "f.ron:4:23: list[1].b_n: -1 N: must be a positive number (a string pulls)");
+        assert_eq!(
+            e.to_string(),
+            "f.ron:4:23: list[1].b_n: -1 N: must be a positive number (a string pulls)"
+        );
         assert!(c.positive(&At::new("list[0].b_n", "b_n", 0), 1.0, "N", "x").is_ok());
     }
 
@@ -220,7 +229,10 @@ mod tests {
         let plain = Checker::new(TEXT, "f.ron");
         let e = plain.within(&At::key("a_m"), 2.0, &physical).unwrap_err();
         assert_eq!(e.line, 3);
-        assert!(e.message.contains("0 .. 1 m because a reason") && e.message.contains("\"a_m\" in overrides"), "{e}");
+        assert!(
+            e.message.contains("0 .. 1 m because a reason") && e.message.contains("\"a_m\" in overrides"),
+            "{e}"
+        );
         let over = ["a_m".to_string()];
         let lenient = plain.with_overrides(&over);
         assert_eq!(lenient.within(&At::key("a_m"), 2.0, &physical).unwrap(), 2.0);

@@ -228,14 +228,7 @@ fn run_virtual(
     let mut summary = session::run_virtual(dev, &plan.rig, stepper.into_scene(), options)?;
     summary.rig_file = plan.rig_source.describe();
     let world_rec = records.world.take().map(|r| r.finish());
-    if plan.json {
-        outln!("{:#}", report::virtual_json(&summary, world_rec.as_ref()));
-    } else {
-        outln!("{summary}");
-        if let Some(r) = &world_rec {
-            outln!("  world rec.   {r}");
-        }
-    }
+    print_summary(plan, &summary.summary(world_rec.as_ref()));
     report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
     Ok(0)
 }
@@ -280,17 +273,7 @@ fn run_live(
             .ok(),
         (None, None) => None,
     };
-    if plan.json {
-        outln!("{:#}", report::run_json(&summary, recording.as_ref(), world_rec.as_ref()));
-    } else {
-        outln!("{summary}");
-        if let Some(r) = &recording {
-            outln!("  recording    {r}");
-        }
-        if let Some(r) = &world_rec {
-            outln!("  world rec.   {r}");
-        }
-    }
+    print_summary(plan, &summary.summary(recording.as_ref(), world_rec.as_ref()));
     if summary.counters.misses > 0 {
         errln!(
             "note: {} ticks woke more than 1 ms late (worst {}); see `spidar bench rt` for this machine's floor",
@@ -303,6 +286,15 @@ fn run_live(
     }
     report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
     Ok(0)
+}
+
+/// The summary as text, or as JSON with `--json`.
+fn print_summary(plan: &RunPlan, summary: &spidar_rt::summary::Summary) {
+    if plan.json {
+        outln!("{:#}", summary.json());
+    } else {
+        outln!("{summary}");
+    }
 }
 
 fn parent_pid() -> u32 {
