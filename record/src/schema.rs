@@ -342,8 +342,8 @@ message!(TakenModel = "spidar/TakenModel" {
 });
 
 message!(HandState = "spidar/HandState" {
-    pos_world_m: DVec3,
-    vel_world_m_per_s: DVec3,
+    pos_world_m as "pos_m": DVec3,
+    vel_world_m_per_s as "vel_m_per_s": DVec3,
     force_n: DVec3,
     valid: bool,
 });
@@ -371,8 +371,8 @@ message!(Output = "spidar/DeviceOutput" {
 
 message!(HandRecord = "spidar/HandTick" {
     /// rig frame
-    pos_rig_m: DVec3,
-    vel_rig_m_per_s: DVec3,
+    pos_rig_m as "pos_m": DVec3,
+    vel_rig_m_per_s as "vel_m_per_s": DVec3,
     residual_m: f64,
     valid: bool,
     /// force asked by rendering (and the scene's extra force), before safety
