@@ -204,7 +204,7 @@ impl OpenError {
 /// unknown or nonsense) allows only 0, the safe command.
 #[inline]
 pub fn clamp_symmetric(v: f64, max: f64) -> f64 {
-    if v.is_nan() || !(max >= 0.0) {
+    if v.is_nan() || max.is_nan() || max < 0.0 {
         return 0.0;
     }
     v.clamp(-max, max)

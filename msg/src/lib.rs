@@ -14,6 +14,7 @@
 //! own clock; it stamps a model with the rig time it estimates from the newest sample (see
 //! `docs/link.md`).
 
+pub mod digest;
 pub mod handshake;
 pub mod wire;
 

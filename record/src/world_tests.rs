@@ -377,20 +377,12 @@ fn a_killed_world_leaves_a_recording_read_up_to_its_last_chunk() {
         .spawn()
         .unwrap();
     // Wait until two or more chunks are on disk, then SIGKILL.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(100);
-    loop {
-        let len = std::fs::metadata(&path).map_or(0, |m| m.len());
-        if len > 400_000 {
-            break;
-        }
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("the recording child ended by itself ({status}) at {len} bytes");
-        }
-        assert!(std::time::Instant::now() < deadline, "the recording child wrote only {len} bytes");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean-up of any kind
-    child.wait().unwrap();
+    spidar_testkit::kill_once_written(
+        &mut child,
+        Path::new(&path),
+        400_000,
+        std::time::Duration::from_secs(100),
+    );
     let mut steps = Vec::new();
     let rec = reader::read(&path, |_, m| {
         if let reader::Msg::Other { channel, data, .. } = m {

@@ -43,19 +43,12 @@ impl State {
 
     /// A digest of the exact bits of the state, for determinism tests.
     pub fn digest(&self) -> u64 {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |x: u64| {
-            for b in x.to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
-        eat(self.steps);
-        eat(self.t_s.to_bits());
+        let mut d = spidar_msg::digest::Digest::new();
+        d.u64(self.steps).f64(self.t_s);
         for x in self.q.iter().chain(self.v.iter()) {
-            eat(x.to_bits());
+            d.f64(*x);
         }
-        h
+        d.value()
     }
 }
 

@@ -425,7 +425,7 @@ fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
     use spidar_sim::character::drawn::world_joints;
     use spidar_sim::character::keyframe::MAX_JOINTS;
     let (mut c, mut rng) = wandering_crowd(7);
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h = spidar_msg::digest::Digest::new();
     let mut falls = 0;
     for k in 0..(10.0 / DT) as usize {
         if k % 60 == 30 {
@@ -441,17 +441,13 @@ fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
                 let mut j = [DVec3::ZERO; MAX_JOINTS];
                 let n = world_joints(&c, i, &mut j);
                 for p in &j[..n] {
-                    for x in [p.x, p.y, p.z] {
-                        for b in x.to_bits().to_le_bytes() {
-                            h ^= b as u64;
-                            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-                        }
-                    }
+                    h.vec3(*p);
                 }
             }
         }
     }
     assert!(falls > 0, "the pushes should topple someone");
+    let h = h.value();
     assert_eq!(h, 0x2247_5b35_6b54_6e2b, "figure digest changed: {h:#018x}");
 }
 

@@ -435,7 +435,7 @@ impl SimRig {
                         let t = crate::clamp_symmetric(v, vmax) / s.volts_per_newton;
                         // Never panics: a NaN tension (a zero scale) or a NaN or negative motor
                         // limit is no tension.
-                        if t.is_nan() || !(s.tension_max_n >= 0.0) {
+                        if t.is_nan() || s.tension_max_n.is_nan() || s.tension_max_n < 0.0 {
                             0.0
                         } else {
                             t.clamp(0.0, s.tension_max_n)

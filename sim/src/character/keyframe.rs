@@ -477,14 +477,17 @@ fn check_legs(c: &Checker, l: &LegsFile, joints: &[Joint]) -> Result<super::legs
     super::legs::Legs::new(joints, [left, right], l.ankle_height_m as f32).map_err(|m| c.error(&at, m))
 }
 
+/// Each behaviour's front and side planes, as the keyframes are placed in them.
+type Planes = Vec<(Plane, Plane)>;
+
 /// Every keyframe of every animation placed in Q and in its behaviour's front and side planes.
 /// Two keyframes at one point must agree.
 fn place_keys(
     c: &Checker,
     f: &KeyframeFile,
     joints: &[Joint],
-) -> Result<(Vec<PlacedKey>, Vec<(Plane, Plane)>), ConfigError> {
-    let mut planes: Vec<(Plane, Plane)> = vec![(Plane::default(), Plane::default()); f.behaviours.len()];
+) -> Result<(Vec<PlacedKey>, Planes), ConfigError> {
+    let mut planes: Planes = vec![(Plane::default(), Plane::default()); f.behaviours.len()];
     let mut keys: Vec<PlacedKey> = Vec::new();
     let mut seen = KeysSeen { keys: 0, roots: 0 };
     for (ai, a) in f.animations.iter().enumerate() {
@@ -598,7 +601,7 @@ fn subspaces(
     c: &Checker,
     behaviours: &[String],
     keys: &[PlacedKey],
-    planes: Vec<(Plane, Plane)>,
+    planes: Planes,
     n_joints: usize,
 ) -> Result<Vec<Subspace>, ConfigError> {
     let mut sub = Vec::with_capacity(planes.len());
