@@ -2,7 +2,7 @@
 //! that the tension allocator needs.
 //!
 //! Why it exists: every 1 kHz tick turns encoder lengths into the grip position (closed form seed
-//! from `reference/spidar.md` section 2, then damped Gauss-Newton over all four strings) and
+//! from `docs/reference.md` section 2, then damped Gauss-Newton over all four strings) and
 //! reports the least-squares residual as a free health signal (slack string, encoder slip, wrong
 //! anchor).
 //!

@@ -10,7 +10,7 @@
 //! own direction instead and reports the fraction), jump between ticks when its inputs do not,
 //! allocate, lock, format or panic.
 //!
-//! Method (`reference/spidar.md` section 3). With `W = [u_1 .. u_4]` (3x4, unit string directions)
+//! Method (`docs/reference.md` section 3). With `W = [u_1 .. u_4]` (3x4, unit string directions)
 //! every exact solution of `W t = s F` is `t = s t0 + lambda n`, where `t0 = W^T (W W^T)^-1 F` and
 //! `n` spans the null space of `W` (from signed 3x3 minors). For the pair `(s, lambda)` the box
 //! `min <= t_i <= max` is 8 half-planes, so:

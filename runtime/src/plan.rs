@@ -133,7 +133,8 @@ pub struct RunArgs {
     /// The simulated user's hands (--device sim only): box (straights, hooks, uppercuts and
     /// feints at the virtual human), crowd (pushes at the crowd's front row), hold, circle, spar,
     /// tour (for `walls`), or a script file of any name (see configs/script-example.ron).
-    /// Default: the scene's own (crowd for a crowd scene, box otherwise).
+    /// Default: crowd for `--scene crowd` or a .ron file whose name contains "crowd", box
+    /// otherwise (the name decides the script; the file's `kind` decides the scene).
     #[arg(long)]
     pub script: Option<String>,
     /// Stop after this many seconds, at most a week (default: run until Ctrl-C, SIGTERM or SIGHUP).

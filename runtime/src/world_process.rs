@@ -24,9 +24,9 @@ use crate::signals::Stop;
 /// The world process's options (`spidar world --help`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct WorldArgs {
-    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, a boxer file like
-    /// configs/boxer.ron, `crowd` or a crowd scene file (*crowd*.ron), `walls` (the rig check) or
-    /// a walls scene file (.ron).
+    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, `crowd`, `walls` (the rig
+    /// check), or a file of any name that says what it is in its `kind`: a boxer file like
+    /// configs/boxer.ron, a crowd scene like configs/scene-crowd.ron or a walls scene.
     #[arg(long, default_value = "boxing")]
     pub scene: String,
     /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host

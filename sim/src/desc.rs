@@ -5,7 +5,7 @@
 //! each with the joint to its parent, a mass, and collision shapes. A *scene file*
 //! (`configs/scene-boxing.ron`) sets the step, gravity and contact gains, places static scenery,
 //! and instantiates body files as named actors. Gains may be absolute or "rates" (fractions of the
-//! critical gain, `reference/spidar.md` section 6): `K = 2 rate m / dt^2`, `D = rate m / dt`.
+//! critical gain, `docs/reference.md` section 4): `K = 2 rate m / dt^2`, `D = rate m / dt`.
 //!
 //! Must never: accept a file it cannot build faithfully. Every error names the file, line,
 //! column and field and says what to change.

@@ -156,7 +156,7 @@ impl SimRigParams {
         }
     }
 
-    /// The lab's human-scale two-hand rig (reference/spidar.md section 1): hand 0 on channels
+    /// The lab's human-scale two-hand rig (docs/reference.md section 1): hand 0 on channels
     /// 0-3, hand 1 on 4-7, 2.924e-5 m per count, 0.2 V/N, 20 N motors, counters zeroed with
     /// the grip at the origin (the lab's homing), grips starting at `start_m`.
     pub fn lab(start_m: [DVec3; 2]) -> SimRigParams {
