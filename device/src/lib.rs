@@ -16,6 +16,8 @@ pub mod frame;
 pub mod sim;
 pub mod transport;
 pub mod uart;
+#[cfg(test)]
+mod uart_tests;
 pub mod usb;
 
 use thiserror::Error;

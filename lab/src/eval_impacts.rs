@@ -33,8 +33,8 @@ use glam::DVec3;
 use spidar_rt::Rig;
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::crowd::Crowd;
-use spidar_sim::character::keyframe::SkeletonPose;
 use spidar_sim::character::scene::builtin_crowd;
+use spidar_sim::character::skeleton::SkeletonPose;
 
 use crate::crowd_run::{first_touch, shove_scripts, CrowdRun, Shove, SETTLED_S};
 

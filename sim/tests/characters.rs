@@ -12,8 +12,9 @@ use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::{body_energy_j, Policy};
 use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::drawn::{self, FigureStats};
-use spidar_sim::character::keyframe::{KeyframeSet, QPoint, SkeletonPose, KEYFRAMES_HUMANOID_RON};
+use spidar_sim::character::keyframe::{KeyframeSet, QPoint, KEYFRAMES_HUMANOID_RON};
 use spidar_sim::character::scene::{build_crowd, builtin_crowd, BODY_CHARACTER_RON, SCENE_CROWD_RON};
+use spidar_sim::character::skeleton::SkeletonPose;
 use spidar_sim::desc::{build_scene, parse_body};
 use spidar_sim::state::kinematics;
 use spidar_sim::{step, State, Workspace};
@@ -351,7 +352,7 @@ fn the_drawn_figure_stays_on_the_body() {
 #[test]
 fn a_copied_figure_state_draws_the_figure_of_its_step() {
     use spidar_sim::character::drawn::{world_joints, FigureState, Figures};
-    use spidar_sim::character::keyframe::MAX_JOINTS;
+    use spidar_sim::character::skeleton::MAX_JOINTS;
     let (mut c, mut rng) = wandering_crowd(4);
     let figures = Figures::of(&c);
     let n = figures.joints();
@@ -423,7 +424,7 @@ fn a_copied_figure_state_draws_the_figure_of_its_step() {
 #[test]
 fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
     use spidar_sim::character::drawn::world_joints;
-    use spidar_sim::character::keyframe::MAX_JOINTS;
+    use spidar_sim::character::skeleton::MAX_JOINTS;
     let (mut c, mut rng) = wandering_crowd(7);
     let mut h = spidar_msg::digest::Digest::new();
     let mut falls = 0;

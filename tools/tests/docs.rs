@@ -25,7 +25,8 @@ fn crate_graph() -> BTreeMap<String, BTreeSet<String>> {
     let folders: Vec<String> = line.split('"').skip(1).step_by(2).map(String::from).collect();
     let package = |folder: &str| {
         let t = std::fs::read_to_string(root().join(folder).join("Cargo.toml")).unwrap();
-        let name = t.lines().find_map(|l| l.strip_prefix("name = \"")).unwrap().trim_end_matches('"').to_string();
+        let name =
+            t.lines().find_map(|l| l.strip_prefix("name = \"")).unwrap().trim_end_matches('"').to_string();
         (name, t)
     };
     let names: BTreeMap<String, String> = folders.iter().map(|f| (package(f).0, short(f))).collect();

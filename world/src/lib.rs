@@ -15,7 +15,6 @@ pub mod crowd;
 pub mod decisions;
 pub mod host;
 pub mod look;
-mod looks;
 pub mod view;
 pub mod walls;
 

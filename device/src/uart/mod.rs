@@ -184,8 +184,8 @@ const RX_MAX: usize = 512;
 /// The UART boards on one link; see the module doc.
 pub struct UartDevice<C: Connector> {
     conn: C,
-    link: Option<C::Link>,
-    opts: UartOptions,
+    pub(crate) link: Option<C::Link>,
+    pub(crate) opts: UartOptions,
     boards: heapless::Vec<BoardInfo, MAX_BOARDS>,
     layouts: [ReplyLayout; MAX_BOARDS],
     /// First channel of each board in `boards`.
@@ -806,6 +806,3 @@ impl<C: Connector> Device for UartDevice<C> {
         &self.info
     }
 }
-
-#[cfg(test)]
-mod tests;

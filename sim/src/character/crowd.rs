@@ -23,8 +23,10 @@
 use glam::{DMat3, DQuat, DVec3};
 
 use super::ai::Goal;
-use super::controller::{Ground, TiltCosines};
-use super::keyframe::{KeyframeSet, SkeletonPose};
+use super::controller::Ground;
+use super::keyframe::KeyframeSet;
+use super::params::TiltCosines;
+use super::skeleton::SkeletonPose;
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
 use crate::collide::{bounding_radius, box_on_plane, collide, plane_normal, Hit, Shape, ShapePose, MAX_HITS};

@@ -13,11 +13,13 @@
 
 use glam::{DMat3, DQuat, DVec3, Vec3};
 
-use super::controller::{ControllerParams, ControllerState, Ground};
+use super::controller::{ControllerState, Ground};
 use super::crowd::{Crowd, CrowdBody, StartPose, PARALLEL_MIN};
 use super::feet::{Feet, Foot};
-use super::keyframe::{Joint, KeyframeSet, SkeletonPose, MAX_JOINTS};
+use super::keyframe::KeyframeSet;
 use super::legs::joint_positions;
+use super::params::ControllerParams;
+use super::skeleton::{Joint, SkeletonPose, MAX_JOINTS};
 use super::{Character, Correspondence};
 use crate::collide::Shape;
 

@@ -11,7 +11,7 @@
 
 use glam::{Quat, Vec3};
 
-use super::keyframe::{Joint, SkeletonPose, MAX_JOINTS};
+use super::skeleton::{Joint, SkeletonPose, MAX_JOINTS};
 
 /// The two legs of a skeleton: hip, knee and ankle joints (each the parent of the next), the
 /// segment lengths, and the joints from the root to each hip.

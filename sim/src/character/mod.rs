@@ -22,7 +22,9 @@ pub mod drawn;
 pub mod feet;
 pub mod keyframe;
 pub mod legs;
+pub mod params;
 pub mod scene;
+pub mod skeleton;
 pub mod space;
 
 use glam::{DQuat, DVec3};
@@ -31,8 +33,10 @@ use serde::Deserialize;
 use crate::model::Model;
 use crate::state::Workspace;
 use ai::{AiParams, Goal};
-use controller::{ControllerParams, ControllerState, Drive, Ground, TiltCosines};
-use keyframe::{KeyframeSet, Lean, QPoint, SkeletonPose};
+use controller::{ControllerState, Drive, Ground};
+use keyframe::{KeyframeSet, Lean, QPoint};
+use params::{ControllerParams, TiltCosines};
+use skeleton::SkeletonPose;
 use space::BodySpace;
 
 /// All settings of a kind of character.
@@ -288,7 +292,7 @@ impl Character {
         &self,
         b: &BodySpace,
         set: &KeyframeSet,
-        p: &controller::ControllerParams,
+        p: &params::ControllerParams,
         out: &mut SkeletonPose,
     ) {
         self.anim.pose(b, set, out);

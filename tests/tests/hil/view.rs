@@ -24,7 +24,7 @@ use spidar_rt::{Clock, MonotonicClock};
 use spidar_runtime::scene_thread::{self, SceneCounters};
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::drawn::world_joints;
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyId, HANDS, MAX_PROXIES};
 use spidar_sim::character::drawn::{FigureState, Figures};
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_sim::impulse::{nearest_on_surface, touching_hand};
 
 use super::frame::{self, Layout};

@@ -1,5 +1,7 @@
 //! The UART protocol byte by byte (`docs/protocols.md`), and the driver against the emulator's
 //! boards in-process (a fake transport that plays the boards' side with the firmware's parser).
+//! Above both `uart` and `emulator` (and `discover`'s probe report), so neither module's tests
+//! import the other: the crate's modules import each other in one direction only.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -7,11 +9,12 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 
-use super::protocol::*;
-use super::*;
 use crate::emulator::{Boards, EmulatorOptions, PlantClock};
 use crate::sim::{Script, SimRig, SimRigParams};
-use crate::Device;
+use crate::transport::ByteTransport;
+use crate::uart::protocol::*;
+use crate::uart::*;
+use crate::{Device, DeviceError, Input, Output};
 
 #[test]
 fn header_packs_board_id_in_bits_0_to_2_and_command_in_bits_3_to_7() {

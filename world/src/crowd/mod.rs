@@ -30,6 +30,8 @@ use spidar_sim::collide::Shape;
 
 use crate::Scene;
 
+mod look;
+
 /// Penalty gains of the character proxies the hands render against: the rig's stiffest contact
 /// (the renderer softens anything stiffer to it), and the damping of a hand pressing into a body.
 pub const PROXY_K_N_PER_M: f64 = 5000.0;
@@ -277,11 +279,11 @@ impl Scene for CrowdScene {
     }
 
     fn look(&self) -> crate::look::Look {
-        crate::looks::crowd::look(self)
+        look::look(self)
     }
 
     fn pose(&self, out: &mut crate::look::Poses<'_>) {
-        crate::looks::crowd::pose(self, out)
+        look::pose(self, out)
     }
 
     fn figure_states(&self, out: &mut [spidar_sim::character::drawn::FigureState]) {

@@ -18,6 +18,8 @@ use spidar_sim::boxer::{BoxerParams, BoxingWorld, HandTarget};
 
 use crate::Scene;
 
+mod look;
+
 pub struct BoxingScene {
     pub world: BoxingWorld,
     seq: u64,
@@ -176,11 +178,11 @@ impl Scene for BoxingScene {
     }
 
     fn look(&self) -> crate::look::Look {
-        crate::looks::boxing::look(self)
+        look::look(self)
     }
 
     fn pose(&self, out: &mut crate::look::Poses<'_>) {
-        crate::looks::boxing::pose(self, out)
+        look::pose(self, out)
     }
 
     fn decisions(&self) -> Option<crate::decisions::Decisions> {
