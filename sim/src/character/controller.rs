@@ -213,7 +213,80 @@ impl ControllerState {
         let (v_side, v_front) = b.velocity_sc();
         let speed = (v_side * v_side + v_front * v_front).sqrt();
         let spin = b.w_world.length();
-        // Fig. 3 transitions.
+        self.transition(p, cos, dt_s, b, ground, t, speed, spin);
+        self.feet.update_grip(dt_s);
+        let n = ground.normal_n;
+        if !(n > 0.0) {
+            // In the air: nothing to push on. A swing still finishes (the foot is drawn landing).
+            self.feet.advance(p, dt_s, None);
+            return Drive { at_m: b.r_m, rest_m: b.r_m, ..Drive::default() };
+        }
+        let alpha = ground.point_m;
+        let h = b.heading;
+        let l = p.base_to_com_m;
+        let f_max = (p.floor_friction * n).min(p.leg_force_max_n);
+        // Energy: what the AI asked for is standing (or walking at its speed); above that the drive
+        // may only take energy out.
+        let e = body_energy_j(p, mass_kg, g_m_per_s2, b, alpha.y);
+        if self.policy == Policy::Balance && speed < 0.02 && spin < 0.02 && cos_tilt > cos.stand_done {
+            self.rest_energy_j = e;
+        }
+        let e_stand = if self.rest_energy_j > 0.0 { self.rest_energy_j } else { mass_kg * g_m_per_s2 * l };
+        let v0 = t.velocity_m_per_s;
+        let e_cap = e_stand + 0.5 * mass_kg * v0.length_squared() + ENERGY_SLACK_J;
+        // Nor may the legs make the body move faster than the AI asks (plus a walk's sway): a
+        // body leaning back lowers its potential energy, which would otherwise let the legs run it
+        // backward.
+        let ke = e - mass_kg * g_m_per_s2 * (b.r_m.y - alpha.y);
+        let v_allow = v0.length() + KE_SWAY_M_PER_S;
+        let excess = e > e_cap || ke > 0.5 * mass_kg * v_allow * v_allow;
+        let mut drive = match self.policy {
+            Policy::Balance => self.balance(p, mass_kg, g_m_per_s2, dt_s, b, alpha, n, t, excess),
+            Policy::Fall | Policy::Down => self.brake(p, mass_kg, dt_s, b, alpha, n),
+            Policy::StandUp => self.stand_up(p, cos, mass_kg, g_m_per_s2, b, alpha),
+        };
+        // |f_F| within [f_F_min, f_F_max]: below the minimum the legs do not react.
+        let f_len = drive.force_n.length();
+        if f_len > f_max {
+            drive.force_n *= f_max / f_len;
+        } else if f_len < p.leg_force_min_n {
+            drive.force_n = DVec3::ZERO;
+        }
+        // Turning: toward the AI's heading, or only damped; the feet's twist is friction-limited.
+        let yaw_acc = match (self.policy, t.heading) {
+            (Policy::Balance, Some(dir)) => {
+                let (wy, ky) = (p.yaw_omega_rad_per_s, p.yaw_omega_rad_per_s.powi(2));
+                ky * h.angle_to(dir) - 2.0 * wy * b.theta_y_dot
+            }
+            _ => -p.yaw_damping_per_s * b.theta_y_dot,
+        };
+        let yaw_max = n * p.yaw_arm_m;
+        let tau_y = (p.yaw_inertia_kg_m2 * yaw_acc).clamp(-yaw_max, yaw_max);
+        drive.torque_n_m += DVec3::Y * tau_y;
+        // Standing up is the AI's own doing (section 6.1): it spends what getting up costs, which
+        // ends at the standing energy the bound refers to.
+        if excess && self.policy != Policy::StandUp {
+            drive = passive(drive, b, alpha, n, tau_y);
+        }
+        drive
+    }
+
+    /// Fig. 3's transitions between the policies, from the lean (`b`), the body's horizontal
+    /// `speed` and `spin`, the floor's contact and what the AI allows.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn transition(
+        &mut self,
+        p: &ControllerParams,
+        cos: &TiltCosines,
+        dt_s: f64,
+        b: &BodySpace,
+        ground: &Ground,
+        t: &Targets,
+        speed: f64,
+        spin: f64,
+    ) {
+        let cos_tilt = b.e_yr.y;
         match self.policy {
             Policy::Balance if cos_tilt < cos.fall => {
                 self.enter(Policy::Fall);
@@ -245,96 +318,66 @@ impl ControllerState {
             }
             Policy::Balance => {}
         }
-        self.feet.update_grip(dt_s);
-        let n = ground.normal_n;
-        if !(n > 0.0) {
-            // In the air: nothing to push on. A swing still finishes (the foot is drawn landing).
-            self.feet.advance(p, dt_s, None);
-            return Drive { at_m: b.r_m, rest_m: b.r_m, ..Drive::default() };
-        }
-        let alpha = ground.point_m;
-        let h = b.heading;
-        let i = p.lean_inertia_kg_m2;
-        let l = p.base_to_com_m;
-        let f_max = (p.floor_friction * n).min(p.leg_force_max_n);
-        // Energy: what the AI asked for is standing (or walking at its speed); above that the drive
-        // may only take energy out.
-        let e = body_energy_j(p, mass_kg, g_m_per_s2, b, alpha.y);
-        if self.policy == Policy::Balance && speed < 0.02 && spin < 0.02 && cos_tilt > cos.stand_done {
-            self.rest_energy_j = e;
-        }
-        let e_stand = if self.rest_energy_j > 0.0 { self.rest_energy_j } else { mass_kg * g_m_per_s2 * l };
-        let v0 = t.velocity_m_per_s;
-        let e_cap = e_stand + 0.5 * mass_kg * v0.length_squared() + ENERGY_SLACK_J;
-        // Nor may the legs make the body move faster than the AI asks (plus a walk's sway): a
-        // body leaning back lowers its potential energy, which would otherwise let the legs run it
-        // backward.
-        let ke = e - mass_kg * g_m_per_s2 * (b.r_m.y - alpha.y);
-        let v_allow = v0.length() + KE_SWAY_M_PER_S;
-        let excess = e > e_cap || ke > 0.5 * mass_kg * v_allow * v_allow;
-        let mut drive = match self.policy {
-            Policy::Balance => self.balance(p, mass_kg, g_m_per_s2, dt_s, b, alpha, n, t, excess),
-            Policy::Fall | Policy::Down => {
-                // Friction at the contact, opposing its slip, viscous below the floor's bound.
-                let v_alpha = horizontal(b.r_dot_m_per_s + b.w_world.cross(alpha - b.r_m));
-                let force = -v_alpha * (p.brake_rate_per_s * mass_kg);
-                let spin_max = n * p.brake_arm_m;
-                let w_h = horizontal(b.w_world);
-                let mut torque = clamp_len(-w_h * (p.brake_spin_rate_per_s * i), spin_max);
-                torque += roll_torque(b, n * p.roll_arm_m);
-                self.feet.advance(p, dt_s, None);
-                Drive { force_n: force, at_m: alpha, torque_n_m: torque, rest_m: alpha, dropped: 0 }
-            }
-            Policy::StandUp => {
-                let (kp, kd) = (p.stand_omega_rad_per_s.powi(2), 2.0 * p.stand_omega_rad_per_s);
-                let v_alpha = horizontal(b.r_dot_m_per_s + b.w_world.cross(alpha - b.r_m));
-                let force = -v_alpha * (p.brake_rate_per_s * mass_kg);
-                // The body turns about its base, not its centre of mass: the inertia the lean loop
-                // moves is that about the base.
-                let i_base = i + mass_kg * l * l;
-                let up = |th: f64, sin_th: f64, th_dot: f64| {
-                    (i_base * (-kp * th - kd * th_dot) - mass_kg * g_m_per_s2 * l * sin_th)
-                        .clamp(-p.stand_torque_max_n_m, p.stand_torque_max_n_m)
-                };
-                let tau_x = up(b.theta_x, b.sin_cos_x.0, b.theta_x_dot);
-                let tau_z = up(b.theta_z, b.sin_cos_z.0, b.theta_z_dot);
-                // Nearly up: the feet go down under the body, where it will stand.
-                if !self.feet.placed && cos_tilt > cos.fall {
-                    self.feet.place(p, alpha, h.e_xc, alpha.y);
-                }
-                Drive {
-                    force_n: force,
-                    at_m: alpha,
-                    torque_n_m: h.e_xc * tau_x - h.e_zc * tau_z,
-                    rest_m: alpha,
-                    dropped: 0,
-                }
-            }
+    }
+
+    /// The Fall and Down policies: friction at the contact `alpha` opposing its slip, viscous
+    /// below the floor's bound, the spin braked and a body on its side rolled over.
+    #[inline]
+    fn brake(
+        &mut self,
+        p: &ControllerParams,
+        mass_kg: f64,
+        dt_s: f64,
+        b: &BodySpace,
+        alpha: DVec3,
+        n: f64,
+    ) -> Drive {
+        let v_alpha = horizontal(b.r_dot_m_per_s + b.w_world.cross(alpha - b.r_m));
+        let force = -v_alpha * (p.brake_rate_per_s * mass_kg);
+        let spin_max = n * p.brake_arm_m;
+        let w_h = horizontal(b.w_world);
+        let mut torque = clamp_len(-w_h * (p.brake_spin_rate_per_s * p.lean_inertia_kg_m2), spin_max);
+        torque += roll_torque(b, n * p.roll_arm_m);
+        self.feet.advance(p, dt_s, None);
+        Drive { force_n: force, at_m: alpha, torque_n_m: torque, rest_m: alpha, dropped: 0 }
+    }
+
+    /// The StandUp policy: PD control of the lean back to upright about the base `alpha`, the slip
+    /// braked, the feet put down under the body once it is nearly up.
+    #[inline]
+    fn stand_up(
+        &mut self,
+        p: &ControllerParams,
+        cos: &TiltCosines,
+        mass_kg: f64,
+        g_m_per_s2: f64,
+        b: &BodySpace,
+        alpha: DVec3,
+    ) -> Drive {
+        let (i, l, h) = (p.lean_inertia_kg_m2, p.base_to_com_m, b.heading);
+        let (kp, kd) = (p.stand_omega_rad_per_s.powi(2), 2.0 * p.stand_omega_rad_per_s);
+        let v_alpha = horizontal(b.r_dot_m_per_s + b.w_world.cross(alpha - b.r_m));
+        let force = -v_alpha * (p.brake_rate_per_s * mass_kg);
+        // The body turns about its base, not its centre of mass: the inertia the lean loop
+        // moves is that about the base.
+        let i_base = i + mass_kg * l * l;
+        let up = |th: f64, sin_th: f64, th_dot: f64| {
+            (i_base * (-kp * th - kd * th_dot) - mass_kg * g_m_per_s2 * l * sin_th)
+                .clamp(-p.stand_torque_max_n_m, p.stand_torque_max_n_m)
         };
-        // |f_F| within [f_F_min, f_F_max]: below the minimum the legs do not react.
-        let f_len = drive.force_n.length();
-        if f_len > f_max {
-            drive.force_n *= f_max / f_len;
-        } else if f_len < p.leg_force_min_n {
-            drive.force_n = DVec3::ZERO;
+        let tau_x = up(b.theta_x, b.sin_cos_x.0, b.theta_x_dot);
+        let tau_z = up(b.theta_z, b.sin_cos_z.0, b.theta_z_dot);
+        // Nearly up: the feet go down under the body, where it will stand.
+        if !self.feet.placed && b.e_yr.y > cos.fall {
+            self.feet.place(p, alpha, h.e_xc, alpha.y);
         }
-        // Turning: toward the AI's heading, or only damped; the feet's twist is friction-limited.
-        let yaw_acc = match (self.policy, t.heading) {
-            (Policy::Balance, Some(dir)) => {
-                let (wy, ky) = (p.yaw_omega_rad_per_s, p.yaw_omega_rad_per_s.powi(2));
-                ky * h.angle_to(dir) - 2.0 * wy * b.theta_y_dot
-            }
-            _ => -p.yaw_damping_per_s * b.theta_y_dot,
-        };
-        let yaw_max = n * p.yaw_arm_m;
-        let tau_y = (p.yaw_inertia_kg_m2 * yaw_acc).clamp(-yaw_max, yaw_max);
-        drive.torque_n_m += DVec3::Y * tau_y;
-        // Standing up is the AI's own doing (section 6.1): it spends what getting up costs, which
-        // ends at the standing energy the bound refers to.
-        if excess && self.policy != Policy::StandUp {
-            drive = passive(drive, b, alpha, n, tau_y);
+        Drive {
+            force_n: force,
+            at_m: alpha,
+            torque_n_m: h.e_xc * tau_x - h.e_zc * tau_z,
+            rest_m: alpha,
+            dropped: 0,
         }
-        drive
     }
 
     /// The Balance policy: stepping and the bounded balance law (see the module docs).
