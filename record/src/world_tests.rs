@@ -83,16 +83,7 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     let (shapes, labels, rep) = record_scene("boxing", &p, 600);
     assert_eq!((rep.steps, rep.dropped, rep.write_failed, rep.error.clone()), (600, 0, 0, None), "{rep}");
     let bytes = std::fs::read(&p).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
-    let mut topics: Vec<(String, String, String, String)> = summary
-        .channels
-        .values()
-        .map(|c| {
-            let s = c.schema.as_ref().expect("every channel has a schema");
-            (c.topic.clone(), s.name.clone(), s.encoding.clone(), c.message_encoding.clone())
-        })
-        .collect();
-    topics.sort();
+    let (summary, topics) = crate::tests::mcap_topics(&bytes);
     let want = |t: &str, s: &str| (t.to_string(), s.to_string(), "ros2msg".to_string(), "cdr".to_string());
     assert_eq!(
         topics,
@@ -369,13 +360,11 @@ fn child_records_a_world_until_killed() {
 fn a_killed_world_leaves_a_recording_read_up_to_its_last_chunk() {
     let path = temp("killed.world.mcap");
     let _ = std::fs::remove_file(&path);
-    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "world_tests::child_records_a_world_until_killed", "--ignored", "--nocapture"])
-        .env("SPIDAR_WORLD_RECORD_CHILD", &path)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spidar_testkit::spawn_test_child(
+        "world_tests::child_records_a_world_until_killed",
+        "SPIDAR_WORLD_RECORD_CHILD",
+        Path::new(&path),
+    );
     // Wait until two or more chunks are on disk, then SIGKILL.
     spidar_testkit::kill_once_written(
         &mut child,

@@ -143,6 +143,15 @@ pub fn safety_json(c: &Counters) -> Value {
     })
 }
 
+/// The start of every `safety` line: ticks per hand (left/right) the force was clamped to the
+/// hand's limit, could not be rendered in full, or needed the box-QP fallback.
+pub fn clamped_counts(c: &Counters) -> String {
+    format!(
+        "clamped {}/{}, infeasible {}/{}, fallback {}/{}",
+        c.clamped[0], c.clamped[1], c.infeasible[0], c.infeasible[1], c.fallback[0], c.fallback[1]
+    )
+}
+
 /// The line continuing `safety`: the ticks that held the last safe output (a late, missing or
 /// rejected reply) and why.
 pub fn held(out: &mut Summary, c: &Counters) {

@@ -645,14 +645,7 @@ mod tests {
 
     /// Deterministic runs (fixed seed, nothing written to disk); set PROPTEST_RNG_SEED to explore.
     fn cfg(cases: u32) -> ProptestConfig {
-        let base = ProptestConfig::default();
-        let rng_seed = if std::env::var_os("PROPTEST_RNG_SEED").is_some() {
-            base.rng_seed
-        } else {
-            proptest::test_runner::RngSeed::Fixed(SEED)
-        };
-        let cases = if std::env::var_os("PROPTEST_CASES").is_some() { base.cases } else { cases };
-        ProptestConfig { cases, failure_persistence: None, rng_seed, max_local_rejects: u32::MAX, ..base }
+        spidar_testkit::proptest_config(SEED, cases)
     }
 
     /// Anchors of the human-scale rig's two hands and of the desktop cube preset (reference section 1).

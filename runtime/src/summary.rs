@@ -66,17 +66,7 @@ impl VirtualSummary {
         lines::forces(&mut out, &self.stats, false);
         out.row(
             "safety",
-            format!(
-                "clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}, device errors {}",
-                c.clamped[0],
-                c.clamped[1],
-                c.infeasible[0],
-                c.infeasible[1],
-                c.fallback[0],
-                c.fallback[1],
-                c.faults,
-                c.device_errors
-            ),
+            format!("{}, faults {}, device errors {}", lines::clamped_counts(c), c.faults, c.device_errors),
             "safety",
             lines::safety_json(c),
         );
@@ -352,13 +342,8 @@ fn safety(out: &mut Summary, c: &Counters) {
     out.row(
         "safety",
         format!(
-            "clamped {}/{}, infeasible {}/{}, fallback {}/{}, stiffness-limited {}/{} (left/right ticks)",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
+            "{}, stiffness-limited {}/{} (left/right ticks)",
+            lines::clamped_counts(c),
             c.stiffness_limited[0],
             c.stiffness_limited[1]
         ),

@@ -5,8 +5,21 @@
 //! or wait for ever (a child that ends by itself or writes too little fails the test).
 
 use std::path::Path;
-use std::process::Child;
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+
+/// Starts this test binary again as a child that runs only the ignored test `test` (its full
+/// path, e.g. `record::child_records_a_live_session_until_killed`), with `env` set to `value` so
+/// the test knows it is the child (it returns at once otherwise). Its output is dropped.
+pub fn spawn_test_child(test: &str, env: &str, value: &Path) -> Child {
+    Command::new(std::env::current_exe().expect("the test binary"))
+        .args(["--exact", test, "--ignored", "--nocapture"])
+        .env(env, value)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start the test binary as a child")
+}
 
 /// Waits until `path` holds more than `bytes` bytes, then kills `child` with SIGKILL (no clean-up
 /// of any kind) and reaps it. Panics, saying why, when the child ends by itself first or the file

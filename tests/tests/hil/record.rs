@@ -147,13 +147,11 @@ fn child_records_a_live_session_until_killed() {
 fn a_kill_during_recording_leaves_a_file_that_replays_up_to_its_last_chunk() {
     let path = temp("killed.mcap");
     let _ = std::fs::remove_file(&path);
-    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "record::child_records_a_live_session_until_killed", "--ignored", "--nocapture"])
-        .env("SPIDAR_RECORD_CHILD", &path)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spidar_testkit::spawn_test_child(
+        "record::child_records_a_live_session_until_killed",
+        "SPIDAR_RECORD_CHILD",
+        std::path::Path::new(&path),
+    );
     // Wait until a few chunks are on disk (about 3 s of session), then SIGKILL.
     spidar_testkit::kill_once_written(&mut child, &path, 400_000, std::time::Duration::from_secs(100));
 
