@@ -50,16 +50,26 @@ mod tests {
         std::env::temp_dir().join(format!("spidar-testkit-{}-{name}", std::process::id()))
     }
 
+    /// The child of the test below (skipped otherwise): appends 1 KiB to the file every 2 ms
+    /// for up to a minute, from this one process (no helper process that could outlive a kill).
+    #[test]
+    #[ignore = "the child process of the kill test"]
+    fn child_writes_until_killed() {
+        use std::io::Write;
+        let Some(path) = std::env::var_os("SPIDAR_TESTKIT_CHILD") else { return };
+        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).unwrap();
+        for _ in 0..30_000 {
+            f.write_all(&[0u8; 1024]).unwrap();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
     #[test]
     fn the_child_is_killed_only_once_the_file_has_grown() {
         let path = temp("grows");
         let _ = std::fs::remove_file(&path);
-        // Appends 1 KiB every few milliseconds for up to a minute.
-        let script = format!(
-            "for i in $(seq 1 20000); do head -c 1024 /dev/zero >> {}; sleep 0.003; done",
-            path.display()
-        );
-        let mut child = Command::new("sh").args(["-c", &script]).spawn().unwrap();
+        let mut child =
+            spawn_test_child("kill::tests::child_writes_until_killed", "SPIDAR_TESTKIT_CHILD", &path);
         kill_once_written(&mut child, &path, 64 * 1024, Duration::from_secs(60));
         let len = std::fs::metadata(&path).unwrap().len();
         assert!(len > 64 * 1024, "{len}");
