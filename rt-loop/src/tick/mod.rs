@@ -44,7 +44,7 @@ use crate::safety::{Ramp, ReturnRamp};
 use crate::telemetry::{HandRecord, TickRecord};
 use crate::tension::{Allocator, TensionLimits};
 use crate::velocity::VelocityFilter;
-use output::{Impulses, TickView};
+use output::{HandOut, Impulses, TickView};
 
 /// Everything the rig counts; reported live and at exit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -338,10 +338,13 @@ impl TickCore {
         // Render, safety, allocate, volts per hand (output.rs).
         let mut impulses = Impulses::zero();
         for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
-            let (state, hand_rec) =
-                output::hand_output(hi, h, hr, hold[hi], &view, &mut self.counters, out, &mut impulses);
-            sample.hands[hi] = state;
-            rec.hands[hi] = hand_rec;
+            let to = HandOut {
+                out: &mut *out,
+                impulses: &mut impulses,
+                state: &mut sample.hands[hi],
+                rec: &mut rec.hands[hi],
+            };
+            output::hand_output(hi, h, hr, hold[hi], &view, &mut self.counters, to);
         }
         sample.tick = tick;
         sample.t_s = now_s;

@@ -70,10 +70,18 @@ pub(super) struct SafeForce {
     pub(super) passivity_limited: bool,
 }
 
-/// One hand's output of one tick: volts into `out`, its impulses into `acc`, counted into
-/// `counters`; returns the hand's state for the scene and its record. A held hand (`hold`, a
-/// rig not faulted, an output to hold) repeats what the strings were told last tick.
-#[allow(clippy::too_many_arguments)]
+/// Where one hand's output goes: the device's volts, both hands' impulses, the hand's state for
+/// the scene and its record (written in place: the tick copies no more than it must).
+pub(super) struct HandOut<'a> {
+    pub(super) out: &'a mut Output,
+    pub(super) impulses: &'a mut Impulses,
+    pub(super) state: &'a mut HandState,
+    pub(super) rec: &'a mut HandRecord,
+}
+
+/// One hand's output of one tick: volts, impulses, state and record into `to`, counted into
+/// `counters`, and kept as the hand's last output. A held hand (`hold`, a rig not faulted, an
+/// output to hold) repeats what the strings were told last tick.
 pub(super) fn hand_output(
     hi: usize,
     h: &mut HandCore,
@@ -81,13 +89,12 @@ pub(super) fn hand_output(
     hold: bool,
     v: &TickView,
     counters: &mut Counters,
-    out: &mut Output,
-    acc: &mut Impulses,
-) -> (HandState, HandRecord) {
+    to: HandOut,
+) {
     // A faulted rig never holds (it outputs the safe tensions from this very tick).
     if hold && !v.faulted && h.last.some {
         counters.held[hi] += 1;
-        return replay_held(h, hr, out, acc);
+        return replay_held(h, hr, to);
     }
     let pose_ok = h.pose.valid && h.zero_m.is_some() && v.device_ok && !hold;
     let vel = h.velocity_if(pose_ok);
@@ -111,28 +118,29 @@ pub(super) fn hand_output(
     }
     let alloc = allocate_phase(h, pose_ok, safe.command_n);
     h.passivity.commanded(alloc.force_n);
-    let (mine, mine_contact) = hand_impulses_of(&rendered, &hand_impulses, want_rig, alloc.force_n, v.gain);
+    let last = &mut h.last;
+    hand_impulses_of(&rendered, &hand_impulses, want_rig, alloc.force_n, v.gain, last);
     if rendered.contacts > 0 {
-        acc.add(&mine, &mine_contact);
+        to.impulses.add(&last.impulses, &last.contact_impulses);
     }
     match alloc.method {
         Method::Exact => {}
         Method::Scaled => counters.infeasible[hi] += 1,
         Method::Fallback => counters.fallback[hi] += 1,
     }
-    let volts = volts_of(hr, &alloc.tensions_n);
-    for (&ch, &v) in hr.channels.iter().zip(volts.iter()) {
+    last.volts = volts_of(hr, &alloc.tensions_n);
+    for (&ch, &volts) in hr.channels.iter().zip(last.volts.iter()) {
         if ch < MAX_CHANNELS {
-            out.volts[ch] = v;
+            to.out.volts[ch] = volts;
         }
     }
-    let state = HandState {
+    last.state = HandState {
         pos_m: v.xf.point(h.pose.pos_m),
         vel_m_per_s: v.xf.vector(vel),
         force_n: v.xf.vector(alloc.force_n),
         valid: pose_ok,
     };
-    let rec = HandRecord {
+    last.rec = HandRecord {
         pos_m: h.pose.pos_m,
         vel_m_per_s: vel,
         residual_m: h.pose.residual_m,
@@ -151,28 +159,25 @@ pub(super) fn hand_output(
         passivity_limited: safe.passivity_limited,
         held: false,
     };
-    h.last = HeldHand { some: true, volts, rec, state, impulses: mine, contact_impulses: mine_contact };
-    (state, rec)
+    last.some = true;
+    *to.state = last.state;
+    *to.rec = last.rec;
 }
 
 /// A held hand: its last volts written again (not left in `out`: the step does not depend on
 /// what the buffer held), its last impulses sent again, its last state and record repeated.
-fn replay_held(
-    h: &mut HandCore,
-    hr: &HandRig,
-    out: &mut Output,
-    acc: &mut Impulses,
-) -> (HandState, HandRecord) {
+fn replay_held(h: &mut HandCore, hr: &HandRig, to: HandOut) {
     for s in 0..4 {
-        if let Some(v) = out.volts.get_mut(hr.channels[s]) {
+        if let Some(v) = to.out.volts.get_mut(hr.channels[s]) {
             *v = h.last.volts[s];
         }
     }
-    acc.add(&h.last.impulses, &h.last.contact_impulses);
+    to.impulses.add(&h.last.impulses, &h.last.contact_impulses);
     // The held output is what the strings apply this tick: the energy reserve books the hand's
     // motion over a run of held ticks against it, not against the force commanded before the run.
     h.passivity.commanded(h.last.rec.output_n);
-    (h.last.state, HandRecord { held: true, ..h.last.rec })
+    *to.state = h.last.state;
+    *to.rec = HandRecord { held: true, ..h.last.rec };
 }
 
 /// The render phase: the force the contact model asks at the hand's pose (rig frame: the
@@ -241,29 +246,30 @@ pub(super) fn allocate_phase(h: &mut HandCore, pose_ok: bool, command_n: DVec3) 
 /// (all along its own direction). The virtual contact itself acts with the loop's gain only (a
 /// stale or ramped-out model must not push the world either), never limited by what the rig can
 /// display. `render_hand` already dropped non-finite contacts; the check keeps a NaN gain out.
-/// Both zero when the hand touched nothing.
+/// Both zero when the hand touched nothing. Written into the hand's last output.
 fn hand_impulses_of(
     rendered: &Rendered,
     impulses: &[DVec3; MAX_PROXIES],
     want_rig_n: DVec3,
     output_n: DVec3,
     gain: f64,
-) -> ([DVec3; MAX_PROXIES], [DVec3; MAX_PROXIES]) {
-    let mut mine = [DVec3::ZERO; MAX_PROXIES];
-    let mut mine_contact = [DVec3::ZERO; MAX_PROXIES];
+    last: &mut HeldHand,
+) {
+    last.impulses = [DVec3::ZERO; MAX_PROXIES];
+    last.contact_impulses = [DVec3::ZERO; MAX_PROXIES];
     if rendered.contacts == 0 {
-        return (mine, mine_contact);
+        return;
     }
     let want_sq = want_rig_n.length_squared();
     let applied = if want_sq > 0.0 { (output_n.dot(want_rig_n) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
-    for ((m, mc), imp) in mine.iter_mut().zip(mine_contact.iter_mut()).zip(impulses.iter()) {
+    let mine = last.impulses.iter_mut().zip(last.contact_impulses.iter_mut());
+    for ((m, mc), imp) in mine.zip(impulses.iter()) {
         *m = *imp * applied;
         let c = *imp * gain;
         if c.is_finite() {
             *mc = c;
         }
     }
-    (mine, mine_contact)
 }
 
 /// The volts of a hand's four channels for its string tensions.
