@@ -27,7 +27,7 @@ class Fixture(spidar.World):
 
     name = "python fixture"
 
-    def __init__(self, k_n_per_m=150.0, d_n_s_per_m=3.0, limit_n=3.0, direction=(0.0, -0.6, -0.8)):
+    def __init__(self, k_n_per_m=300.0, d_n_s_per_m=3.0, limit_n=4.0, direction=(0.0, -0.6, -0.8)):
         self.k_n_per_m = k_n_per_m
         self.d_n_s_per_m = d_n_s_per_m
         self.limit_n = limit_n

@@ -15,7 +15,7 @@ LEFT = 0
 
 
 class Spring(spidar.World):
-    """The left hand on a 60 N/m spring to a point 10 cm in front of and 5 cm above its home."""
+    """The left hand on a 60 N/m spring to a point 5 cm in front of and 3 cm above its home."""
 
     name = "python spring"
 
@@ -28,7 +28,7 @@ class Spring(spidar.World):
 
     def on_connect(self, rig):
         hx, hy, hz = rig.home_m[LEFT]
-        self.anchor_m = (hx, hy + 0.05, hz - 0.10)
+        self.anchor_m = (hx, hy + 0.03, hz - 0.05)
 
     def step(self, t_s, samples):
         model = spidar.ContactModel()
