@@ -22,13 +22,14 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{bounded, Sender, TrySendError};
-use mcap::records::{MessageHeader, Metadata};
-use mcap::{Attachment, WriteOptions, Writer};
+use mcap::records::Metadata;
+use mcap::{Attachment, Writer};
 use spidar_rt::telemetry::TickRecord;
 
-use crate::cdr::{self, Field};
+use crate::cdr::Field;
+use crate::channel::{self, ChannelSpec, Channels};
 use crate::schema::{EventMsg, TakenModel, TOPIC_EVENT, TOPIC_MODEL, TOPIC_SAMPLE, TOPIC_TICK};
-use crate::{RecordError, FORMAT_VERSION, PROFILE, SPIDAR_VERSION};
+use crate::{RecordError, FORMAT_VERSION, SPIDAR_VERSION};
 
 /// Uncompressed size of a chunk. A session killed outright loses at most the chunk being filled
 /// (about half a second of ticks at 1 kHz).
@@ -131,10 +132,7 @@ pub struct Recorder<W: Write + Seek = File> {
     written: Arc<AtomicU64>,
     kept_bytes: u64,
     path: PathBuf,
-    channels: [u16; 4],
-    seq: [u32; 4],
-    start_unix_ns: u64,
-    buf: Vec<u8>,
+    ch: Channels,
     /// Bytes of messages in the chunk being filled, and its messages per channel.
     chunk_bytes: u64,
     pending: [u64; 4],
@@ -203,18 +201,8 @@ impl Recorder {
 impl<W: Write + Seek> Recorder<W> {
     /// A recorder writing into `sink` (`path` names it in reports and errors).
     pub fn with_sink(sink: W, path: &Path, info: &SessionInfo) -> Result<Recorder<W>, RecordError> {
-        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
-        // placeholder header patched later): a process killed outright leaves every finished
-        // chunk intact and at most one partial record at the end.
-        let opts = WriteOptions::new()
-            .disable_seeking(true)
-            .profile(PROFILE)
-            .library(format!("spidar {SPIDAR_VERSION}"))
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(ZSTD_LEVEL)
-            .compression_threads(0)
-            // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
-            .chunk_size(None);
+        // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
+        let opts = channel::options(None);
         let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
         let written = Arc::new(AtomicU64::new(0));
         let mut w = opts.create(Counted { inner: sink, n: written.clone() }).map_err(write)?;
@@ -248,31 +236,17 @@ impl<W: Write + Seek> Recorder<W> {
         for (name, text) in &info.files {
             attach(name, text).map_err(write)?;
         }
-        let mut channels = [0u16; 4];
-        for (i, (topic, name, schema)) in [
-            (TOPIC_TICK, TickRecord::ros_type(), cdr::schema_text::<TickRecord>()),
-            (TOPIC_SAMPLE, spidar_msg::HandSample::ros_type(), cdr::schema_text::<spidar_msg::HandSample>()),
-            (TOPIC_MODEL, TakenModel::ros_type(), cdr::schema_text::<TakenModel>()),
-            (TOPIC_EVENT, EventMsg::ros_type(), cdr::schema_text::<EventMsg>()),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
-            channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
-        }
-        // The preamble reaches the disk before the session starts.
-        w.flush().map_err(write)?;
+        // The header, metadata and attachments reach the disk before the session starts; the
+        // schemas and channels go into the first chunk, with the first ticks (see `channel`).
+        let mut ch = Channels::new(start_unix_ns);
+        ch.declare(Some(&mut w), rig_channels()).map_err(write)?;
         let kept_bytes = written.load(Ordering::Relaxed);
         Ok(Recorder {
             w: Some(w),
             written,
             kept_bytes,
             path: path.to_path_buf(),
-            channels,
-            seq: [0; 4],
-            start_unix_ns,
-            buf: Vec::with_capacity(4096),
+            ch,
             chunk_bytes: 0,
             pending: [0; 4],
             report: RecordingReport { path: path.to_path_buf(), ..Default::default() },
@@ -281,18 +255,9 @@ impl<W: Write + Seek> Recorder<W> {
 
     fn put<T: Field>(&mut self, ch: usize, t_s: f64, x: &T) -> bool {
         let Some(w) = self.w.as_mut() else { return false };
-        cdr::encode(x, &mut self.buf);
-        let t = self.start_unix_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64);
-        self.seq[ch] = self.seq[ch].wrapping_add(1);
-        let h = MessageHeader {
-            channel_id: self.channels[ch],
-            sequence: self.seq[ch],
-            log_time: t,
-            publish_time: t,
-        };
-        match w.write_to_known_channel(&h, &self.buf) {
-            Ok(()) => {
-                self.chunk_bytes += self.buf.len() as u64;
+        match self.ch.put(Some(w), None, ch, t_s, x) {
+            Ok(n) => {
+                self.chunk_bytes += n as u64;
                 self.pending[ch] += 1;
                 true
             }
@@ -404,8 +369,19 @@ impl<W: Write + Seek> Recorder<W> {
 
     /// Unix time (ns) the recording's times count from (loop-clock zero).
     pub fn start_unix_ns(&self) -> u64 {
-        self.start_unix_ns
+        self.ch.start_unix_ns()
     }
+}
+
+/// The rig's channels, in the order of the recorder's channel indexes (`TICK`, `SAMPLE`, `MODEL`,
+/// `EVENT`): what a rig recording holds and what a live server of the rig advertises.
+pub fn rig_channels() -> Vec<ChannelSpec> {
+    vec![
+        ChannelSpec::of::<TickRecord>(TOPIC_TICK),
+        ChannelSpec::of::<spidar_msg::HandSample>(TOPIC_SAMPLE),
+        ChannelSpec::of::<TakenModel>(TOPIC_MODEL),
+        ChannelSpec::of::<EventMsg>(TOPIC_EVENT),
+    ]
 }
 
 /// Records handed over per batch.
