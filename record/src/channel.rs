@@ -145,3 +145,24 @@ impl Channels {
         Ok(self.buf.len())
     }
 }
+
+/// A live Foxglove server takes the recorder's messages as they are written.
+impl Tap for spidar_world::foxglove::Publisher {
+    fn message(&mut self, ch: usize, log_ns: u64, data: &[u8]) {
+        self.publish(ch, log_ns, data);
+    }
+}
+
+/// The channels as a live Foxglove server advertises them.
+pub fn foxglove_channels(specs: &[ChannelSpec]) -> Vec<spidar_world::foxglove::FoxgloveChannel> {
+    specs
+        .iter()
+        .map(|s| spidar_world::foxglove::FoxgloveChannel {
+            topic: s.topic.to_string(),
+            encoding: MESSAGE_ENCODING.into(),
+            schema_name: s.schema_name.clone(),
+            schema: s.schema_text.clone(),
+            schema_encoding: SCHEMA_ENCODING.into(),
+        })
+        .collect()
+}

@@ -63,6 +63,19 @@ pub fn start_world_recording(
     virtual_clock: bool,
     start_unix_ns: Option<u64>,
 ) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
+    start_world_recording_with(Some(path), scene_arg, scene, virtual_clock, start_unix_ns, None)
+}
+
+/// The world's recording into `path` (None: no file) and/or to a live Foxglove server `tap`:
+/// the same channels and messages either way.
+pub fn start_world_recording_with(
+    path: Option<&Path>,
+    scene_arg: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    start_unix_ns: Option<u64>,
+    tap: Option<Box<dyn spidar_record::channel::Tap>>,
+) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
     let mut files = Vec::new();
     if scene_arg.ends_with(".ron") {
         let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
@@ -79,7 +92,7 @@ pub fn start_world_recording(
         start_unix_ns,
         files,
     };
-    Ok(WorldRecording::start(path, &info, &scene.look())?)
+    Ok(WorldRecording::start_with(path, &info, &scene.look(), tap)?)
 }
 
 /// How a live session ended, for the recording's `spidar.end` record.

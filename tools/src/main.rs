@@ -780,7 +780,8 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
             ("world_restarts", "--world-restarts"),
             ("world_timeout_s", "--world-timeout-s"),
         ] {
-            let to_a_world_process = id == "world_timeout_s" && !matches!(a.world.as_str(), "child" | "thread");
+            let to_a_world_process =
+                id == "world_timeout_s" && !matches!(a.world.as_str(), "child" | "thread");
             if given(id) && !to_a_world_process {
                 bail!(
                     "{flag} does not apply to --virtual: the loop and the world run on the virtual clock in this \
@@ -818,6 +819,12 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
                 }
             }
         }
+    }
+    if a.view.foxglove.is_some() && (a.virtual_clock || a.world != "child") {
+        bail!(
+            "--foxglove is served by the world process this rig starts (--world child, the default, on the real \
+             clock); a world already running serves it itself: spidar world --foxglove ADDR"
+        );
     }
     if a.rig.no_rt && given("priority") {
         bail!("--priority is the loop's SCHED_FIFO priority, which --no-rt turns off: leave one of them out");
@@ -1028,7 +1035,8 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         if a.json {
             let mut j = report::virtual_json(&summary, world_rec.as_ref());
             if let Some(l) = &link {
-                j["link"] = l.counts().iter().map(|(k, n)| (k.to_string(), serde_json::Value::from(*n))).collect();
+                j["link"] =
+                    l.counts().iter().map(|(k, n)| (k.to_string(), serde_json::Value::from(*n))).collect();
             }
             outln!("{j:#}");
         } else {
