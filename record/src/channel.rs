@@ -153,6 +153,13 @@ impl Tap for spidar_world::foxglove::Publisher {
     }
 }
 
+/// A server owned by its writer (the rig's live channels) stops when the writer ends.
+impl Tap for spidar_world::foxglove::FoxgloveServer {
+    fn message(&mut self, ch: usize, log_ns: u64, data: &[u8]) {
+        self.publish(ch, log_ns, data);
+    }
+}
+
 /// The channels as a live Foxglove server advertises them.
 pub fn foxglove_channels(specs: &[ChannelSpec]) -> Vec<spidar_world::foxglove::FoxgloveChannel> {
     specs

@@ -27,7 +27,7 @@ use mcap::{Attachment, Writer};
 use spidar_rt::telemetry::TickRecord;
 
 use crate::cdr::Field;
-use crate::channel::{self, ChannelSpec, Channels};
+use crate::channel::{self, ChannelSpec, Channels, Tap};
 use crate::schema::{EventMsg, TakenModel, TOPIC_EVENT, TOPIC_MODEL, TOPIC_SAMPLE, TOPIC_TICK};
 use crate::{RecordError, FORMAT_VERSION, SPIDAR_VERSION};
 
@@ -384,6 +384,49 @@ pub fn rig_channels() -> Vec<ChannelSpec> {
     ]
 }
 
+/// The rig's messages for a live server (Foxglove), without a file: the recorder's channels,
+/// messages and order.
+pub struct LiveRig {
+    ch: Channels,
+    tap: Box<dyn Tap>,
+}
+
+impl LiveRig {
+    /// Times count from `start_unix_ns` (loop-clock zero; the recording's, when there is one).
+    pub fn new(start_unix_ns: u64, tap: Box<dyn Tap>) -> LiveRig {
+        let mut ch = Channels::new(start_unix_ns);
+        ch.declare::<File>(None, rig_channels()).expect("no file, nothing to fail");
+        LiveRig { ch, tap }
+    }
+
+    /// One tick's messages, in the recorder's order: its events, the model it took, the tick,
+    /// the sample.
+    pub fn write_tick(&mut self, r: &TickRecord) {
+        // Without a file nothing can fail: the tap takes every message.
+        let tap = &mut *self.tap;
+        for e in r.events.iter() {
+            let _ = self.ch.put::<_, File>(
+                None,
+                Some(&mut *tap),
+                EVENT,
+                r.t_s,
+                &EventMsg::new(r.tick, r.t_s, &e),
+            );
+        }
+        if let Some(m) = r.model {
+            let _ = self.ch.put::<_, File>(
+                None,
+                Some(&mut *tap),
+                MODEL,
+                r.t_s,
+                &TakenModel { tick: r.tick, model: m },
+            );
+        }
+        let _ = self.ch.put::<_, File>(None, Some(&mut *tap), TICK, r.t_s, r);
+        let _ = self.ch.put::<_, File>(None, Some(&mut *tap), SAMPLE, r.t_s, &r.sample);
+    }
+}
+
 /// Records handed over per batch.
 const BATCH: usize = 64;
 /// Batches the queue holds (4 s of ticks at 1 kHz).
@@ -394,7 +437,8 @@ pub struct RecorderThread {
     tx: Option<Sender<Vec<TickRecord>>>,
     batch: Vec<TickRecord>,
     dropped: u64,
-    handle: Option<JoinHandle<Recorder>>,
+    to_file: bool,
+    handle: Option<JoinHandle<Option<Recorder>>>,
 }
 
 impl std::fmt::Debug for RecorderThread {
@@ -405,14 +449,26 @@ impl std::fmt::Debug for RecorderThread {
 
 impl RecorderThread {
     pub fn spawn(rec: Recorder) -> Result<RecorderThread, RecordError> {
+        Self::spawn_with(Some(rec), None)
+    }
+
+    /// A thread writing every tick into `rec` (None: no file) and handing it to `live` (a live
+    /// Foxglove server of the rig's channels).
+    pub fn spawn_with(rec: Option<Recorder>, live: Option<LiveRig>) -> Result<RecorderThread, RecordError> {
         let (tx, rx) = bounded::<Vec<TickRecord>>(QUEUE_BATCHES);
+        let to_file = rec.is_some();
         let handle = std::thread::Builder::new()
             .name("spidar-recorder".into())
             .spawn(move || {
-                let mut rec = rec;
+                let (mut rec, mut live) = (rec, live);
                 for batch in rx {
                     for r in &batch {
-                        rec.write_tick(r);
+                        if let Some(rec) = rec.as_mut() {
+                            rec.write_tick(r);
+                        }
+                        if let Some(l) = live.as_mut() {
+                            l.write_tick(r);
+                        }
                     }
                 }
                 rec
@@ -425,6 +481,7 @@ impl RecorderThread {
             tx: Some(tx),
             batch: Vec::with_capacity(BATCH),
             dropped: 0,
+            to_file,
             handle: Some(handle),
         })
     }
@@ -454,7 +511,13 @@ impl RecorderThread {
         }
     }
 
-    /// Writes what is queued and ends the recording.
+    /// True when it writes a file (not only a live server).
+    pub fn records_to_file(&self) -> bool {
+        self.to_file
+    }
+
+    /// Writes what is queued and ends the recording (a thread without a file reports nothing
+    /// written).
     pub fn finish(mut self, end: &EndInfo) -> Result<RecordingReport, RecordError> {
         self.send(true);
         drop(self.tx.take());
@@ -462,7 +525,7 @@ impl RecorderThread {
             path: PathBuf::new(),
             why: "the recorder thread panicked".into(),
         })?;
-        let mut rec = rec;
+        let Some(mut rec) = rec else { return Ok(RecordingReport::default()) };
         rec.report.queue_dropped = self.dropped;
         Ok(rec.finish(end))
     }

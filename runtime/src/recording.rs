@@ -105,3 +105,44 @@ pub fn end_info(s: &Summary) -> EndInfo {
         faults: s.counters.faults,
     }
 }
+
+/// The rig's recorder thread of a live session: the file `rec` (if any) and, with `foxglove`
+/// (the world's `--foxglove` address), a live Foxglove server of the rig's channels on the port
+/// after it (any free port when it is 0); also the server's address.
+pub fn recorder_thread(
+    rec: Option<spidar_record::writer::Recorder>,
+    foxglove: Option<&str>,
+) -> anyhow::Result<(Option<spidar_record::writer::RecorderThread>, Option<String>)> {
+    use spidar_record::writer::{LiveRig, RecorderThread};
+    use spidar_world::foxglove::{parse_addr, FoxgloveServer};
+    let mut url = None;
+    let live = match foxglove {
+        Some(addr) => {
+            let mut at = parse_addr(addr)?;
+            if at.port() != 0 {
+                at.set_port(at.port().checked_add(1).context("--foxglove: no port after the world's")?);
+            }
+            let channels = spidar_record::channel::foxglove_channels(&spidar_record::writer::rig_channels());
+            let server = FoxgloveServer::start(
+                at,
+                "spidar run: the rig",
+                channels,
+                std::time::Duration::from_secs(2),
+            )?;
+            crate::errln!(
+                "spidar: the rig's channels live to Foxglove at {} (the world's at {addr})",
+                server.url()
+            );
+            url = Some(server.url());
+            let start =
+                rec.as_ref().map_or_else(|| spidar_link::sock::realtime_ns() as u64, |r| r.start_unix_ns());
+            // The recorder thread owns the server: it stops when the session's recording ends.
+            Some(LiveRig::new(start, Box::new(server)))
+        }
+        None => None,
+    };
+    if rec.is_none() && live.is_none() {
+        return Ok((None, url));
+    }
+    Ok((Some(RecorderThread::spawn_with(rec, live)?), url))
+}

@@ -1059,7 +1059,11 @@ pub fn run_live<D: Device + 'static>(
     let mut summary = summary?;
     summary.overrides = rig.overrides.clone();
     if let Some(r) = recorder {
-        summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
+        let to_file = r.records_to_file();
+        let rep = r.finish(&crate::recording::end_info(&summary))?;
+        if to_file {
+            summary.recording = Some(rep);
+        }
     }
     Ok(summary)
 }

@@ -1067,10 +1067,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
             supervisor: supervised,
-            recorder: match recorder {
-                Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
-                None => None,
-            },
+            recorder: spidar_runtime::recording::recorder_thread(recorder, a.view.foxglove.as_deref())?.0,
         },
     )?;
     let mut summary = summary;

@@ -203,6 +203,11 @@ impl FoxgloveServer {
         self.publisher.clone()
     }
 
+    /// [`Publisher::publish`] through the server itself.
+    pub fn publish(&self, ch: usize, log_ns: u64, data: &[u8]) {
+        self.publisher.publish(ch, log_ns, data);
+    }
+
     pub fn counters(&self) -> &FoxgloveCounters {
         &self.publisher.inner.counters
     }
@@ -401,5 +406,130 @@ fn on_request(text: &str, me: &Client, inner: &Inner) {
             }
         }
         _ => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tungstenite::client::IntoClientRequest;
+
+    fn channel(topic: &str) -> FoxgloveChannel {
+        FoxgloveChannel {
+            topic: topic.into(),
+            encoding: "cdr".into(),
+            schema_name: "spidar/Test".into(),
+            schema: "uint8[] data".into(),
+            schema_encoding: "ros2msg".into(),
+        }
+    }
+
+    fn connect(addr: SocketAddr, subprotocol: bool) -> WebSocket<TcpStream> {
+        let mut req = format!("ws://{addr}").into_client_request().unwrap();
+        if subprotocol {
+            req.headers_mut().insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+        }
+        let stream = TcpStream::connect(addr).unwrap();
+        let (ws, resp) = tungstenite::client(req, stream).unwrap();
+        if subprotocol {
+            assert_eq!(resp.headers().get("Sec-WebSocket-Protocol").unwrap(), SUBPROTOCOL);
+        }
+        ws
+    }
+
+    /// Reads the server's two text messages and subscribes to channel 1 as subscription 7.
+    fn subscribe(ws: &mut WebSocket<TcpStream>) -> Value {
+        let info: Value = serde_json::from_str(ws.read().unwrap().to_text().unwrap()).unwrap();
+        assert_eq!(info["op"], "serverInfo");
+        let adv: Value = serde_json::from_str(ws.read().unwrap().to_text().unwrap()).unwrap();
+        ws.send(Message::text(r#"{"op":"subscribe","subscriptions":[{"id":7,"channelId":1}]}"#)).unwrap();
+        adv
+    }
+
+    fn wait_until(what: &str, f: impl Fn() -> bool) {
+        let until = std::time::Instant::now() + Duration::from_secs(30);
+        while !f() {
+            assert!(std::time::Instant::now() < until, "waited too long for {what}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    #[test]
+    fn a_client_that_stops_reading_is_dropped_and_the_others_get_everything() {
+        let mut server = FoxgloveServer::start(
+            "127.0.0.1:0".parse().unwrap(),
+            "test",
+            vec![channel("/a"), channel("/b")],
+            Duration::from_millis(200),
+        )
+        .unwrap();
+        let addr = server.addr();
+        let mut stalled = connect(addr, true);
+        let adv = subscribe(&mut stalled);
+        assert_eq!(adv["channels"][1]["topic"], "/b");
+        assert_eq!(adv["channels"][0]["schemaEncoding"], "ros2msg");
+        let mut reader = connect(addr, true);
+        subscribe(&mut reader);
+        let p = server.publisher();
+        wait_until("both subscriptions", || {
+            p.inner.clients.lock().unwrap().iter().all(|c| c.subs.lock().unwrap().contains_key(&0))
+                && p.counters().clients.load(Ordering::Relaxed) == 2
+        });
+        const N: u64 = 2000;
+        let got = std::thread::spawn(move || {
+            let mut n = 0u64;
+            while n < N {
+                let Message::Binary(b) = reader.read().unwrap() else { continue };
+                assert_eq!(b[0], 1, "a message frame");
+                assert_eq!(u32::from_le_bytes(b[1..5].try_into().unwrap()), 7, "the subscription");
+                assert_eq!(
+                    u64::from_le_bytes(b[5..13].try_into().unwrap()),
+                    1000 + n,
+                    "in order, with its time"
+                );
+                assert_eq!(b.len(), 13 + 16 * 1024);
+                n += 1;
+            }
+            (n, reader)
+        });
+        // 32 MB: far more than the stalled client's socket buffers hold.
+        let data = vec![0xabu8; 16 * 1024];
+        for i in 0..N {
+            p.publish(0, 1000 + i, &data);
+            p.publish(1, 1000 + i, &data); // nobody subscribed: not sent
+        }
+        let (n, reader) = got.join().unwrap();
+        assert_eq!(n, N, "the reading client got every message");
+        wait_until("the stalled client's drop", || p.counters().clients_dropped.load(Ordering::Relaxed) == 1);
+        assert_eq!(p.counters().clients.load(Ordering::Relaxed), 1);
+        assert_eq!(p.counters().messages_published.load(Ordering::Relaxed), 2 * N);
+        drop((stalled, reader));
+        server.stop();
+    }
+
+    #[test]
+    fn a_client_without_the_foxglove_subprotocol_is_refused_and_a_late_one_gets_the_newest_message() {
+        let mut server = FoxgloveServer::start(
+            "127.0.0.1:0".parse().unwrap(),
+            "test",
+            vec![channel("/a")],
+            Duration::from_secs(1),
+        )
+        .unwrap();
+        let mut plain = connect(server.addr(), false);
+        assert!(matches!(plain.read(), Ok(Message::Close(_)) | Err(_)));
+        wait_until("the refusal", || server.counters().refused.load(Ordering::Relaxed) == 1);
+        server.publish(0, 5, b"old");
+        server.publish(0, 9, b"newest");
+        let mut late = connect(server.addr(), true);
+        subscribe(&mut late);
+        let b = loop {
+            if let Message::Binary(b) = late.read().unwrap() {
+                break b;
+            }
+        };
+        assert_eq!(u64::from_le_bytes(b[5..13].try_into().unwrap()), 9);
+        assert_eq!(&b[13..], b"newest");
+        server.stop();
     }
 }

@@ -183,3 +183,57 @@ fn foxglove_reads_the_sessions_time_range_and_the_whole_scene_after_any_seek() {
         }
     }
 }
+
+#[test]
+fn foxglove_client_receives_the_rigs_channels_live_as_its_recording_holds_them() {
+    if !foxglove_here("foxglove_client_receives_the_rigs_channels_live_as_its_recording_holds_them") {
+        return;
+    }
+    use spidar_runtime::session::{run_live, LiveOptions, WorldChoice};
+    let dir = PrivateDir::for_process().unwrap();
+    let rig_mcap = dir.join("live-rig.mcap");
+    let r = rig();
+    let rec = Recorder::create(&rig_mcap, &SessionInfo::default()).unwrap();
+    // `spidar run --record FILE --foxglove ADDR`: the rig's recorder thread writes the file and
+    // serves its channels (here on any free port).
+    let (recorder, url) = spidar_runtime::recording::recorder_thread(Some(rec), Some("127.0.0.1:0")).unwrap();
+    let url = url.unwrap();
+    let mut node = Command::new("node")
+        .args(["live.mjs", &url, rig_mcap.to_str().unwrap()])
+        .current_dir(foxglove_dir())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("starting node");
+    let mut out = BufReader::new(node.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.contains("\"subscribed\":4"), "{first}");
+    let dev = sim_device(&r, load_scripts("tour", &r, 1).unwrap(), &SimOptions::default()).unwrap();
+    let opts = LiveOptions {
+        seconds: Some(2.0),
+        rt: spidar_rt::rt_thread::RtOptions { fifo_priority: None, lock_memory: false, ..Default::default() },
+        spin_ns: 0,
+        status_every: None,
+        stop: spidar_runtime::signals::Stop::detached(),
+        scene_name: "walls".into(),
+        script_name: "tour".into(),
+        connect_timeout: WAIT,
+        world_priority: None,
+        supervisor: None,
+        recorder,
+    };
+    let world = WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(
+        spidar_world::walls::WallsScene::builtin(),
+    )));
+    let summary = run_live(dev, &r, world, opts).unwrap();
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut out, &mut rest).unwrap();
+    assert!(node.wait().unwrap().success(), "{rest}");
+    let s = last_json(&rest);
+    assert_eq!(s["schemasDiffer"], serde_json::json!([]), "{s}");
+    assert_eq!(s["decodeErrors"], serde_json::json!([]), "{s}");
+    let (received, matched) = (s["received"].as_u64().unwrap(), s["matched"].as_u64().unwrap());
+    assert!(received > 2 * summary.counters.ticks, "a tick and a sample every tick: {s}");
+    assert_eq!(matched, received, "{s}");
+    assert_eq!(matched, s["recordedFromFirst"].as_u64().unwrap(), "nothing recorded was missed: {s}");
+}
