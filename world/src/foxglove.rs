@@ -251,6 +251,8 @@ fn timed_out(e: &tungstenite::Error) -> bool {
     matches!(e, tungstenite::Error::Io(io) if matches!(io.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut))
 }
 
+// The handshake callback's error type is tungstenite's own response.
+#[allow(clippy::result_large_err)]
 fn serve_client(stream: TcpStream, inner: Arc<Inner>) {
     let setup = stream
         .set_nonblocking(false)
