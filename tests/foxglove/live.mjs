@@ -4,6 +4,7 @@
 // (@foxglove/rosmsg2-serialization) and compares it with the message of the same topic and time
 // in the session's recording (read with @mcap/core). Prints one JSON summary line.
 // Usage: node live.mjs ws://HOST:PORT RECORDING.mcap
+// It only subscribes, reads (the socket, the recording) and prints; it never writes a file.
 import WebSocket from "ws";
 import wsProtocol from "@foxglove/ws-protocol";
 const { FoxgloveClient } = wsProtocol;

@@ -9,6 +9,7 @@
 // - labels stand above their bodies: a label's frame sits at its body, unturned, the text above;
 // - the Foxglove types' field lists are the released ones (@foxglove/schemas' ROS 2 definitions).
 // Usage: node recording.mjs FILE.mcap [seeks]. Prints one JSON line.
+// It only reads the file and prints; it never writes.
 import { openRecording, allMessages, say } from "./common.mjs";
 import { parse } from "@foxglove/rosmsg";
 import schemasInternal from "@foxglove/schemas/internal.js";
