@@ -780,15 +780,20 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
             ("world_restarts", "--world-restarts"),
             ("world_timeout_s", "--world-timeout-s"),
         ] {
-            if given(id) {
+            let to_a_world_process =
+                id == "world_timeout_s" && !matches!(a.world.as_str(), "child" | "thread");
+            if given(id) && !to_a_world_process {
                 bail!(
                     "{flag} does not apply to --virtual: the loop and the world run on the virtual clock in this \
                      process, as fast as the machine computes; leave it out"
                 );
             }
         }
-        if !matches!(a.world.as_str(), "child" | "thread") {
-            bail!("--virtual runs the world in this process: leave out --world {}", a.world);
+        if a.world == "child" && given("world") {
+            bail!(
+                "--virtual runs the world in this process (or in one already listening, --world ADDR, which then \
+                 answers in lockstep): leave out --world child"
+            );
         }
     } else {
         match a.world.as_str() {
@@ -814,6 +819,12 @@ fn check_run_options(a: &RunArgs, m: &ArgMatches) -> anyhow::Result<()> {
                 }
             }
         }
+    }
+    if a.view.foxglove.is_some() && (a.virtual_clock || a.world != "child") {
+        bail!(
+            "--foxglove is served by the world process this rig starts (--world child, the default, on the real \
+             clock); a world already running serves it itself: spidar world --foxglove ADDR"
+        );
     }
     if a.rig.no_rt && given("priority") {
         bail!("--priority is the loop's SCHED_FIFO priority, which --no-rt turns off: leave one of them out");
@@ -859,7 +870,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
     // The world's scene is loaded where the world runs: here for the virtual clock and a thread,
     // in the world process otherwise (the rig process stays small).
     let (mut world, scene_name) = match (a.virtual_clock, a.world.as_str()) {
-        (true, _) | (false, "thread") => {
+        (true, "child" | "thread") | (false, "thread") => {
             let scene = spidar_world::load(&scene_arg)?;
             let name = format!("{scene_arg} ({})", scene.name());
             // The live view runs on the real clock only.
@@ -885,7 +896,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             spec.extra.extend(a.view.child_args());
             (WorldChoice::Child(spec), scene_arg.clone())
         }
-        (false, addr) => {
+        (_, addr) => {
             if a.view.view.is_some() || a.view.no_view {
                 errln!(
                     "spidar: the world at {addr} serves its own live view (spidar world --view/--no-view)"
@@ -994,13 +1005,19 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
 
     if a.virtual_clock {
         let Some(seconds) = a.seconds else { bail!("--virtual needs --seconds") };
-        let WorldChoice::Thread(stepper) = world else {
-            unreachable!("--virtual runs the world in this process")
+        let world = match world {
+            WorldChoice::Thread(stepper) => session::VirtualWorld::Scene(stepper.into_scene()),
+            WorldChoice::Connect { at, scene } => session::VirtualWorld::Process {
+                at,
+                scene,
+                timeout: Duration::from_secs_f64(a.world_timeout_s),
+            },
+            WorldChoice::Child(_) => unreachable!("--virtual runs no child world"),
         };
-        let mut summary = session::run_virtual(
+        let (mut summary, link) = session::run_virtual_with(
             dev,
             &rig,
-            stepper.into_scene(),
+            world,
             VirtualOptions {
                 seconds,
                 stop,
@@ -1016,11 +1033,19 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         summary.rig_file = rig_src.describe();
         let world_rec = world_recording.take().map(|r| r.finish());
         if a.json {
-            outln!("{:#}", report::virtual_json(&summary, world_rec.as_ref()));
+            let mut j = report::virtual_json(&summary, world_rec.as_ref());
+            if let Some(l) = &link {
+                j["link"] =
+                    l.counts().iter().map(|(k, n)| (k.to_string(), serde_json::Value::from(*n))).collect();
+            }
+            outln!("{j:#}");
         } else {
             outln!("{summary}");
             if let Some(r) = &world_rec {
                 outln!("  world rec.   {r}");
+            }
+            if let Some(l) = &link {
+                outln!("  link         {}", l.summary());
             }
         }
         report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
@@ -1042,10 +1067,7 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
             connect_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
             supervisor: supervised,
-            recorder: match recorder {
-                Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
-                None => None,
-            },
+            recorder: spidar_runtime::recording::recorder_thread(recorder, a.view.foxglove.as_deref())?.0,
         },
     )?;
     let mut summary = summary;
