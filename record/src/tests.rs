@@ -164,6 +164,9 @@ fn the_mcap_crates_own_reader_lists_the_channels_schemas_and_messages() {
     assert_eq!(stats.message_count, 2000 + 2000 + 667 + 2);
     assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"), "every chunk is zstd");
     assert!(summary.chunk_indexes.len() > 1);
+    // No chunk of schemas and channels alone (its index would start the recording in 1970).
+    assert!(summary.chunk_indexes.iter().all(|c| c.message_start_time >= stats.message_start_time));
+    assert!(stats.message_start_time > 1_000_000_000 * 1_600_000_000, "a start after 2020");
     // Every message, streamed by the mcap crate, on the channels above.
     let mut per_topic = std::collections::BTreeMap::<String, u64>::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {

@@ -245,6 +245,14 @@ impl HandRig {
     }
 }
 
+/// The volts the rig's strings need at their highest tension.
+pub fn volts_needed(hands: &[HandRig]) -> f64 {
+    hands
+        .iter()
+        .flat_map(|h| h.volts_per_newton.iter().map(move |v| h.tension_max_n * v.abs()))
+        .fold(0.0, f64::max)
+}
+
 /// Rigid transform from the rig frame to the world frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigToWorld {
@@ -312,7 +320,7 @@ impl Rig {
         let rig_to_world = check_transform(&c, &f.rig_to_world)?;
         check_safety(&c, &f.safety, f.period_s, &hands)?;
         check_estimation(&c, &f.estimation, f.period_s)?;
-        let boards = crate::boards::validate(&f.boards, &hands, &c)?;
+        let boards = crate::boards::validate(&f.boards, volts_needed(&hands), &c)?;
         Ok(Rig {
             name: f.name,
             period_s: f.period_s,
@@ -985,5 +993,68 @@ mod tests {
             RigToWorld { rotation: DQuat::from_rotation_y(0.3), translation_m: DVec3::new(0.0, 1.1, 0.2) };
         let p = DVec3::new(0.3, -0.2, 0.5);
         assert!((t.point_to_rig(t.point(p)) - p).length() < 1e-12);
+    }
+
+    /// The `boards:` section as the rig file reads it (`boards.rs`).
+    mod boards_section {
+        use super::*;
+        use crate::boards::UartCounts;
+
+        /// The default rig file without its `boards:` section.
+        fn without_section() -> String {
+            let start = DEFAULT_RIG_RON.find("    // The boards' commands").unwrap();
+            let end = DEFAULT_RIG_RON[start..].find("\n    ),\n").unwrap() + start + "\n    ),\n".len();
+            format!("{}{}", &DEFAULT_RIG_RON[..start], &DEFAULT_RIG_RON[end..])
+        }
+
+        #[test]
+        fn the_default_rig_file_says_each_boards_command_range() {
+            let b = Rig::default_rig().boards;
+            assert_eq!(b.usb_digits_per_volt, 415.0);
+            assert_eq!(b.usb_limit_v, 4.0);
+            assert!((b.uart_pwm_full_scale_v() - 4.0).abs() < 1e-12);
+            assert!((b.uart_current_full_scale_v() - 4.0).abs() < 1e-12);
+            assert_eq!(b.uart_pwm_digits_per_volt, 256.0);
+            assert_eq!(b.uart_counts_per_rev(), 1024);
+        }
+
+        #[test]
+        fn left_out_the_da_limit_is_what_the_rig_needs_and_uart_takes_the_lab_scale() {
+            let text = without_section();
+            assert!(!text.contains("boards:"));
+            let rig = Rig::from_str(&text, "test").unwrap();
+            let b = rig.boards;
+            // 20 N x 0.2 V/N: not the 10 V the DA could give.
+            assert!((b.usb_limit_v - 4.0).abs() < 1e-12);
+            assert_eq!(b.usb_limit_v, volts_needed(&rig.hands));
+            // The lab host driver's scale: full PWM duty at 0.825 V, full current target at 3.3 V.
+            assert!((b.uart_pwm_full_scale_v() - 0.825).abs() < 1e-12);
+            assert!((b.uart_current_full_scale_v() - 4095.0 * 3.3 / 4096.0).abs() < 1e-12);
+            assert_eq!(b.uart_counts, UartCounts::MagnetAngle);
+        }
+
+        #[test]
+        fn bad_values_are_located_and_encoder_counts_are_read() {
+            let bad = DEFAULT_RIG_RON.replacen(
+                "uart_pwm_duty: (full_scale_v: 4.0)",
+                "uart_pwm_duty: (full_scale_v: -1.0)",
+                1,
+            );
+            let e = Rig::from_str(&bad, "test.ron").unwrap_err().to_string();
+            assert!(e.contains("boards.uart_pwm_duty.full_scale_v") && e.contains("test.ron:"), "{e}");
+            let big = DEFAULT_RIG_RON.replacen("limit_v: 4.0", "limit_v: 100.0", 1);
+            let e = Rig::from_str(&big, "test.ron").unwrap_err().to_string();
+            assert!(e.contains("boards.usb_da.limit_v") && e.contains("78.96"), "{e}");
+            let enc = DEFAULT_RIG_RON.replacen(
+                "uart_counts: MagnetAngle",
+                "uart_counts: Encoder(counts_per_rev: 2000)",
+                1,
+            );
+            assert_eq!(Rig::from_str(&enc, "test").unwrap().boards.uart_counts_per_rev(), 2000);
+            let unknown =
+                DEFAULT_RIG_RON.replacen("uart_counts: MagnetAngle", "uart_counts: MagnetAngle, dac: 1", 1);
+            let e = Rig::from_str(&unknown, "test").unwrap_err().to_string();
+            assert!(e.contains("dac"), "{e}");
+        }
     }
 }

@@ -14,8 +14,8 @@ use hdrhistogram::Histogram;
 use spidar_device::{ErrorKind, Input, Output};
 use spidar_msg::{ContactModel, HandSample};
 
+use crate::control::{Command, Event, FaultReason, Lifecycle};
 use crate::tension::Method;
-use crate::tick::{Command, Event, FaultReason, Lifecycle};
 
 /// One hand in one tick (rig frame).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -173,11 +173,11 @@ pub struct RunArgs {
 /// Where the world of a run steps.
 #[derive(Clone, Debug, PartialEq)]
 pub enum WorldPlan {
-    /// A thread of the rig's process (always so on the virtual clock).
+    /// A thread of the rig's process (on the virtual clock: stepped in the loop's thread).
     Thread,
     /// A `spidar world` child process, restarted this many times if it dies.
     Child { restarts: u32 },
-    /// A world already running at this address.
+    /// A world already running at this address (on the virtual clock it answers in lockstep).
     Connect(Endpoint),
 }
 
@@ -239,9 +239,9 @@ impl RunPlan {
         let rig = a.rig.load()?;
         let hardware = a.hw.choice(a.device, &rig)?;
         let world = match (a.virtual_clock, a.world.as_str()) {
-            (true, _) | (false, "thread") => WorldPlan::Thread,
+            (true, "child" | "thread") | (false, "thread") => WorldPlan::Thread,
             (false, "child") => WorldPlan::Child { restarts: a.world_restarts },
-            (false, addr) => WorldPlan::Connect(
+            (_, addr) => WorldPlan::Connect(
                 Endpoint::parse(addr)
                     .map_err(|e| anyhow::anyhow!("--world: {e}; or use child (the default) or thread"))?,
             ),
@@ -328,15 +328,20 @@ fn check_world_options(a: &RunArgs, given: &dyn Fn(&str) -> bool) -> anyhow::Res
             ("world_restarts", "--world-restarts"),
             ("world_timeout_s", "--world-timeout-s"),
         ] {
-            if given(id) {
+            let to_a_world_process =
+                id == "world_timeout_s" && !matches!(a.world.as_str(), "child" | "thread");
+            if given(id) && !to_a_world_process {
                 bail!(
                     "{flag} does not apply to --virtual: the loop and the world run on the virtual clock in this \
                      process, as fast as the machine computes; leave it out"
                 );
             }
         }
-        if !matches!(a.world.as_str(), "child" | "thread") {
-            bail!("--virtual runs the world in this process: leave out --world {}", a.world);
+        if a.world == "child" && given("world") {
+            bail!(
+                "--virtual runs the world in this process (or in one already listening, --world ADDR, which then \
+                 answers in lockstep): leave out --world child"
+            );
         }
     } else {
         match a.world.as_str() {
@@ -365,6 +370,12 @@ fn check_world_options(a: &RunArgs, given: &dyn Fn(&str) -> bool) -> anyhow::Res
                 }
             }
         }
+    }
+    if a.view.foxglove.is_some() && (a.virtual_clock || a.world != "child") {
+        bail!(
+            "--foxglove is served by the world process this rig starts (--world child, the default, on the real \
+             clock); a world already running serves it itself: spidar world --foxglove ADDR"
+        );
     }
     if a.rig.no_rt && given("priority") {
         bail!("--priority is the loop's SCHED_FIFO priority, which --no-rt turns off: leave one of them out");
@@ -421,6 +432,17 @@ mod tests {
         .unwrap();
         assert_eq!((p.world, p.clock), (WorldPlan::Thread, Clock::Virtual { seconds: 2.0 }));
         assert_eq!(p.sim.script, "crowd", "a crowd scene's own script");
+        let p = check(&[
+            "--rig",
+            "../configs/rig-spidar-h.ron",
+            "--virtual",
+            "--seconds",
+            "2",
+            "--world",
+            "unix:/x",
+        ])
+        .unwrap();
+        assert!(matches!(p.world, WorldPlan::Connect(_)), "a listening world answers in lockstep");
         let p = check(&["--rig", "../configs/rig-spidar-h.ron", "--world", "udp://127.0.0.1:9"]).unwrap();
         assert!(matches!(p.world, WorldPlan::Connect(_)));
     }
@@ -431,7 +453,11 @@ mod tests {
         for (args, says) in [
             (&["--port", "/dev/ttyUSB0"][..], "--port applies to real boards"),
             (&["--virtual"], "--virtual needs --seconds"),
-            (&["--virtual", "--seconds", "1", "--world", "unix:/x"], "leave out --world unix:/x"),
+            (&["--virtual", "--seconds", "1", "--world", "child"], "leave out --world child"),
+            (
+                &["--virtual", "--seconds", "1", "--foxglove", ":8765"],
+                "--foxglove is served by the world process",
+            ),
             (
                 &["--world", "thread", "--world-timeout-s", "5"],
                 "--world-timeout-s applies to a world process",

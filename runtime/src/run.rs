@@ -18,7 +18,7 @@ use spidar_world::host::Stepper;
 use crate::child_world::ChildWorldSpec;
 use crate::plan::{Clock, RunPlan, WorldPlan};
 use crate::recording;
-use crate::session::{self, LiveOptions, SimOptions, VirtualOptions, WorldChoice};
+use crate::session::{self, LiveOptions, SimOptions, VirtualOptions, VirtualWorld, WorldChoice};
 use crate::signals::Stop;
 use crate::supervisor::{self, Shared};
 use crate::{errln, hardware, outln, report, world_process};
@@ -213,7 +213,13 @@ fn run_virtual(
     stop: Stop,
     supervised: Option<&'static Shared>,
 ) -> anyhow::Result<u8> {
-    let WorldChoice::Thread(stepper) = world else { bail!("--virtual runs the world in this process") };
+    let world = match world {
+        WorldChoice::Thread(stepper) => VirtualWorld::Scene(stepper.into_scene()),
+        WorldChoice::Connect { at, scene } => {
+            VirtualWorld::Process { at, scene, timeout: plan.world_timeout }
+        }
+        WorldChoice::Child(_) => bail!("--virtual runs no child world"),
+    };
     let options = VirtualOptions {
         seconds,
         stop,
@@ -225,10 +231,16 @@ fn run_virtual(
         recorder: records.rig.take(),
         observers: records.world_observer.take().into_iter().map(|o| Box::new(o) as _).collect(),
     };
-    let mut summary = session::run_virtual(dev, &plan.rig, stepper.into_scene(), options)?;
+    let (mut summary, link) = session::run_virtual_with(dev, &plan.rig, world, options)?;
     summary.rig_file = plan.rig_source.describe();
     let world_rec = records.world.take().map(|r| r.finish());
-    print_summary(plan, &summary.summary(world_rec.as_ref()));
+    let mut out = summary.summary(world_rec.as_ref());
+    if let Some(l) = &link {
+        let counts: serde_json::Map<String, serde_json::Value> =
+            l.counts().iter().map(|(k, n)| (k.to_string(), serde_json::Value::from(*n))).collect();
+        out.row("link", l.summary(), "link", counts);
+    }
+    print_summary(plan, &out);
     report::check_outcome(summary.final_state, &summary.counters, &summary.faults_seen)?;
     Ok(0)
 }
@@ -256,10 +268,7 @@ fn run_live(
         connect_timeout: plan.world_timeout,
         world_priority: plan.world_priority,
         supervisor: supervised,
-        recorder: match records.rig.take() {
-            Some(r) => Some(spidar_record::writer::RecorderThread::spawn(r)?),
-            None => None,
-        },
+        recorder: recording::recorder_thread(records.rig.take(), plan.view.foxglove.as_deref())?.0,
     };
     let mut summary = session::run_live(dev, &plan.rig, world, options)?;
     summary.rig_file = plan.rig_source.describe();

@@ -75,16 +75,25 @@ pub struct ViewArgs {
     /// No live view.
     #[arg(long, conflicts_with = "view")]
     pub no_view: bool,
+    /// Serve the world's channels live to Foxglove or Lichtblick (the Foxglove WebSocket
+    /// protocol) at this address, e.g. 127.0.0.1:8765 (open ws://127.0.0.1:8765 there): the same
+    /// channels and messages as the world's recording. See docs/foxglove.md.
+    #[arg(long, value_name = "ADDR")]
+    pub foxglove: Option<String>,
 }
 
 impl ViewArgs {
     /// The same choice as arguments of a child `spidar world`.
     pub fn child_args(&self) -> Vec<std::ffi::OsString> {
-        match (&self.view, self.no_view) {
+        let mut args: Vec<std::ffi::OsString> = match (&self.view, self.no_view) {
             (_, true) => vec!["--no-view".into()],
             (Some(a), false) => vec!["--view".into(), a.into()],
             (None, false) => Vec::new(),
+        };
+        if let Some(f) = &self.foxglove {
+            args.extend(["--foxglove".into(), f.into()]);
         }
+        args
     }
 }
 
@@ -110,6 +119,15 @@ pub fn start_view(
     };
     crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))
+}
+
+/// Starts a live Foxglove server of the world's channels at `addr` and says where on stderr.
+pub fn start_foxglove(addr: &str, name: &str) -> anyhow::Result<spidar_world::foxglove::FoxgloveServer> {
+    use spidar_world::foxglove::{parse_addr, FoxgloveServer};
+    let channels = spidar_record::channel::foxglove_channels(&spidar_record::world::channels());
+    let server = FoxgloveServer::start(parse_addr(addr)?, name, channels, Duration::from_secs(2))?;
+    crate::errln!("spidar world: Foxglove live at {} (open it in Foxglove: Open connection)", server.url());
+    Ok(server)
 }
 
 /// Where an echo world puts what it measured in the model it answers with: the sample's tick
@@ -180,15 +198,20 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let scene_label = format!("{} ({})", a.scene, scene.name());
     // Created before the world listens: a path that cannot be written is refused before any rig
     // connects.
-    let recording = match &a.record {
-        Some(p) => Some(crate::recording::start_world_recording(
-            p,
+    let foxglove = match &a.view.foxglove {
+        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {scene_label}"))?),
+        None => None,
+    };
+    let recording = match (&a.record, &foxglove) {
+        (None, None) => None,
+        (path, live) => Some(crate::recording::start_world_recording_with(
+            path.as_deref(),
             &a.scene,
             &*scene,
             a.lockstep,
-            a.record_start_unix_ns,
+            a.record_start_unix_ns.or_else(|| live.as_ref().map(|_| spidar_link::sock::realtime_ns() as u64)),
+            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
         )?),
-        None => None,
     };
     // The default directory lives as long as the world.
     let mut _dir = None;
@@ -234,7 +257,22 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         crate::errln!("spidar world: {line}")
     });
     if let Some(r) = recording {
-        crate::errln!("spidar world: recording {}", r.finish());
+        let rep = r.finish();
+        if a.record.is_some() {
+            crate::errln!("spidar world: recording {rep}");
+        }
+    }
+    if let Some(mut f) = foxglove {
+        f.stop();
+        let c = f.counters();
+        let g = |x: &std::sync::atomic::AtomicU64| x.load(std::sync::atomic::Ordering::Relaxed);
+        crate::errln!(
+            "spidar world: Foxglove: {} clients ({} dropped for not reading), {} messages sent, {} dropped",
+            g(&c.clients_total),
+            g(&c.clients_dropped),
+            g(&c.messages_sent),
+            g(&c.messages_dropped)
+        );
     }
     if a.report_status {
         crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());

@@ -857,3 +857,7 @@ mod record;
 // The rig and the world as two processes.
 #[path = "hil/link.rs"]
 mod link;
+
+// Recordings and live sessions as Foxglove reads them.
+#[path = "hil/foxglove.rs"]
+mod foxglove;

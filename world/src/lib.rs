@@ -13,6 +13,7 @@
 pub mod boxing;
 pub mod crowd;
 pub mod decisions;
+pub mod foxglove;
 pub mod host;
 pub mod look;
 pub mod view;
