@@ -22,6 +22,7 @@ pub mod rt_thread;
 pub mod runner;
 pub mod safety;
 pub mod status;
+pub mod summary;
 pub mod telemetry;
 pub mod tension;
 pub mod tick;

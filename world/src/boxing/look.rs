@@ -6,9 +6,8 @@ use glam::DVec3;
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, AVATAR, BOXER};
 use spidar_sim::impulse::proxy_id;
 
-use super::quat;
-use crate::boxing::BoxingScene;
-use crate::look::{DrawnContact, Look, LookLabel, LookShape, Poses};
+use super::BoxingScene;
+use crate::look::{quat, DrawnContact, Look, LookLabel, LookShape, Poses};
 
 const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
 const AVATAR_GLOVE: [u8; 3] = [30, 60, 150];
