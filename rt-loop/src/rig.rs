@@ -54,6 +54,10 @@ pub struct RigFile {
     /// built-in [`DEFAULT_EYE_M`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub eye_m: Option<[f64; 3]>,
+    /// The rig's screen, for the live view's off-axis user's-eye camera ([`crate::display`]);
+    /// absent: the view's camera is a plain perspective from `eye_m`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub display: Option<crate::display::DisplayFile>,
 }
 
 /// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
@@ -215,6 +219,8 @@ pub struct Rig {
     pub boards: crate::boards::BoardScales,
     /// The user's eye point (rig frame).
     pub eye_m: DVec3,
+    /// The rig's screen (rig frame), if the file places one.
+    pub display: Option<crate::display::Display>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -322,6 +328,12 @@ impl Rig {
                 "must be finite, within 10 m of the rig origin".into(),
             ));
         }
+        let display = match &f.display {
+            Some(d) => Some(
+                crate::display::validate(d, DVec3::from_array(eye)).map_err(|r| bad(r.field, r.key, 0, r.message))?,
+            ),
+            None => None,
+        };
         for (i, o) in f.overrides.iter().enumerate() {
             if !bounds::OVERRIDABLE.contains(&o.as_str()) {
                 return Err(bad(
@@ -721,6 +733,7 @@ impl Rig {
             overrides: f.overrides,
             boards,
             eye_m: DVec3::from_array(eye),
+            display,
         })
     }
 

@@ -793,6 +793,13 @@ fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
             // The viewer gets it before the next frame is due (the test waits, by counts).
             let got = got_rx.recv_timeout(Duration::from_secs(60)).expect("the frame reached the viewer");
             assert_eq!(u32::from_le_bytes(got[8..12].try_into().unwrap()), seq, "the frame published last");
+            // The live view stamps its frames with the tick's wall-clock time (the reference, like
+            // a recording, does not): within a minute of now, and otherwise the same frame.
+            let wall_ms = f64::from_le_bytes(got[32..40].try_into().unwrap());
+            let now_ms = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64() * 1e3;
+            assert!((now_ms - wall_ms).abs() < 60e3, "the tick's wall-clock time {wall_ms} ms, now {now_ms} ms");
+            let mut want = want;
+            want[32..40].copy_from_slice(&got[32..40]);
             assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);
             compared += 1;
             most_down = most_down.max(down);
