@@ -21,6 +21,8 @@ mod crowd;
 mod replay;
 #[path = "hil/view.rs"]
 mod view;
+#[path = "hil/display.rs"]
+mod display;
 
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.

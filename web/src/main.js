@@ -34,7 +34,7 @@ scene.add(sun);
 const cameras = new Cameras(renderer.domElement);
 const rig = new Rig(scene);
 const hud = new Hud(document.getElementById('hud'), {
-  onCamera: (c) => setCamera(c),
+  onCamera: (c) => { cameraChosen = true; setCamera(c); },
   onFullScreen: toggleFullScreen,
 });
 if (params.get('hud') === '0') document.getElementById('hud').style.display = 'none';
@@ -59,9 +59,16 @@ let playback = null; // the playback bar, when the page shows a replay
 // replay's own clock).
 const playbackLog = [];
 
+let cameraChosen = false;
+let avatarHidden = params.get('avatar') === '0';
+// `?hide=ACTOR,...`: actors not drawn (`avatar`, `virtual human`).
+const hiddenActors = (params.get('hide') || '').split(',').filter((a) => a);
+rig.showStrings = params.get('strings') !== '0';
 function setCamera(name) {
   cameras.use(name);
   hud.setCamera(cameras.active);
+  // Labels float over one picture: not over a stereo pair.
+  labelRenderer.domElement.style.visibility = cameras.onScreen && cameras.screen.stereo ? 'hidden' : '';
 }
 setCamera(params.get('camera') || 'orbit');
 
@@ -72,6 +79,8 @@ function onScene(d) {
   scene.add(root);
   world = new World(desc, root);
   world.proxyGroup.visible = params.get('proxies') !== '0';
+  world.hideActor('avatar', avatarHidden);
+  for (const a of hiddenActors) world.hideActor(a, true);
   crowd = desc.crowd ? new Crowd(desc, root) : null;
   latest = null;
   applied = null;
@@ -83,6 +92,10 @@ function onRig(r) {
   rigInfo = r;
   rig.setInfo(r);
   if (desc) cameras.place(desc, r.eye_m);
+  cameras.setDisplay(r.display, r.eye_m, params.get('stereo'));
+  // The page on the rig's screen shows the user's eye unless asked otherwise.
+  if (r.display && !params.get('camera') && !cameraChosen) setCamera('eye');
+  labelRenderer.domElement.style.visibility = cameras.onScreen && cameras.screen.stereo ? 'hidden' : '';
 }
 
 function onFrame(buffer, layoutId, seq) {
@@ -119,8 +132,9 @@ resize();
 
 window.addEventListener('keydown', (e) => {
   if (e.key === 'f') toggleFullScreen();
-  else if (e.key === 'c') setCamera(cameras.active === 'eye' ? 'orbit' : 'eye');
+  else if (e.key === 'c') { cameraChosen = true; setCamera(cameras.active === 'eye' ? 'orbit' : 'eye'); }
   else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
+  else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); }
   else if (e.key === ' ') paused = !paused;
 });
 
@@ -148,7 +162,7 @@ function frameLoop(now) {
   cameras.update();
   // From the user's eye, their own avatar's head is in the way.
   if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
-  renderer.render(scene, cameras.camera);
+  cameras.render(renderer, scene);
   labelRenderer.render(scene, cameras.camera);
   renders++;
   while (renderWaiters.length) renderWaiters.shift()();
@@ -193,6 +207,14 @@ window.spidarView = {
     cameras.controls.update();
   },
   project,
+  // Where each eye's picture of the rig's screen puts scene point p (page px), or null without one.
+  projectEyes: (p) => {
+    if (!cameras.hasScreen) return null;
+    const r = renderer.domElement.getBoundingClientRect();
+    return cameras.screen.project(p, r.width, r.height).map((e) => ({ ...e, x: e.x + r.left, y: e.y + r.top }));
+  },
+  rigInfo: () => rigInfo,
+  screen: () => ({ on: cameras.onScreen, format: cameras.screen.format, display: rigInfo && rigInfo.display }),
   // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
   shape: (name) => {
     const i = desc.shapes.findIndex((s) => s.name === name);
@@ -214,5 +236,8 @@ window.spidarView = {
     .map((e) => [e.dataset.hud ?? `counter:${e.dataset.counter}`, e.textContent])),
   labels: () => Array.from(document.querySelectorAll('.label')).map((e) => ({
     label: e.dataset.label ?? null, character: e.dataset.character ?? null, state: e.dataset.state, text: e.textContent })),
-  grips: () => rig.grips.map((g) => ({ visible: g.visible, pos: g.position.toArray() })),
+  grips: () => rig.grips.map((g, h) => {
+    const o = desc.layout.hands_at + h * desc.layout.hand_floats;
+    return { visible: g.visible, pos: g.position.toArray(), force: applied ? Array.from(applied.f.subarray(o + 3, o + 6)) : null };
+  }),
 };

@@ -73,9 +73,15 @@ export class World {
     this.white = new THREE.Color(0xfff2b0);
   }
 
-  // Hides the shapes within `r` of `p` (the user's own head, seen from their eye), or none.
+  // Hides the shapes within `r` of `p` (the user's own head, seen from their eye), or none, and
+  // those of a hidden actor.
   hideNear(p, r) {
-    for (const m of this.meshes) m.visible = !p || m.position.distanceTo(p) > r;
+    for (const m of this.meshes) m.visible = !m.userData.actorHidden && (!p || m.position.distanceTo(p) > r);
+  }
+
+  // Hides (or shows) every shape of an actor (`avatar`: at the rig, the user's own hands are there).
+  hideActor(actor, hidden) {
+    for (const m of this.meshes) if (m.name.startsWith(`${actor}/`)) m.userData.actorHidden = hidden;
   }
 
   apply(f, dt) {

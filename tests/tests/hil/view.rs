@@ -517,9 +517,14 @@ pub(super) fn browser_here(test: &str) -> bool {
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
 /// unless it ends with `RESULT ok`.
-pub(super) fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+pub(super) fn node(args: &[&str], answer: impl FnMut(&Value) -> Value) {
+    node_script("view.mjs", args, answer)
+}
+
+/// Runs `node SCRIPT ARGS` in `tests/browser` (see [`node`]).
+pub(super) fn node_script(script: &str, args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
     let mut child = Command::new("node")
-        .arg("view.mjs")
+        .arg(script)
         .args(args)
         .current_dir(browser_dir())
         .stdin(Stdio::piped())
@@ -885,16 +890,21 @@ fn recorder_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
 /// rt-loop, and the child world process (this package's `spidar world`) started, watched and
 /// linked by the session as `spidar run` does, with the view option passed through. The session
 /// is polled on its own thread until `stop`.
-struct RunPath {
+pub(super) struct RunPath {
     /// The view's address, as the world printed it.
-    url: String,
+    pub(super) url: String,
     stop: spidar_runtime::signals::Stop,
     run: Option<JoinHandle<spidar_runtime::summary::Summary>>,
-    said: Arc<Mutex<Vec<String>>>,
+    pub(super) said: Arc<Mutex<Vec<String>>>,
 }
 
 impl RunPath {
-    fn start(scene: &str, script: &str) -> RunPath {
+    pub(super) fn start(scene: &str, script: &str) -> RunPath {
+        RunPath::start_on(scene, script, rig())
+    }
+
+    /// The same on a rig of the test's (a rig file with a screen, say).
+    pub(super) fn start_on(scene: &str, script: &str, r: spidar_rt::Rig) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
         use spidar_runtime::child_world::ChildWorldSpec;
         use spidar_runtime::session::{
@@ -925,7 +935,6 @@ impl RunPath {
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {
-            let r = rig();
             let dev = sim_device(&r, load_scripts(&script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
             let mut s = LiveSession::start(dev, &r, WorldChoice::Child(spec), &opts).unwrap();
             let mut url_tx = Some(url_tx);
@@ -954,13 +963,13 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    fn finish(mut self) -> spidar_runtime::summary::Summary {
+    pub(super) fn finish(mut self) -> spidar_runtime::summary::Summary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }
 
     /// `GET path` from the world process's view server: the JSON it answers.
-    fn get(&self, path: &str) -> Value {
+    pub(super) fn get(&self, path: &str) -> Value {
         use std::io::Read;
         let host = self.url.trim_start_matches("http://");
         let mut c = std::net::TcpStream::connect(host).unwrap();

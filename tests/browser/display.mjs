@@ -1,0 +1,116 @@
+// The rig's screen, the headset and the bodies as people, run by tests/tests/hil/display.rs (which
+// runs `spidar run`'s path and answers ASK lines): `node display.mjs screen|headset|bodies|... URL`.
+import { ask, check, open, pause, run, screenshot } from './harness.mjs';
+
+const [mode, url, ...rest] = process.argv.slice(2);
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+const dist2 = (a, b) => Math.hypot(a.x - b.x, a.y - b.y);
+
+// Pixels of a class in a rectangle of the canvas (CSS px): count and centroid. Classes: `yellow`
+// and `cyan` (the grips' colours under any light), `red` (the virtual human), and for an anaglyph
+// `redchannel` (red bright above the blue: the left eye's yellow grip) and `cyanchannels` (bright green and
+// blue: the right eye's cyan grip).
+export function classPixels(page, cls, rect) {
+  return page.evaluate((cls, rect) => {
+    const src = document.querySelector('#view canvas');
+    const c = document.createElement('canvas');
+    c.width = src.width; c.height = src.height;
+    const g = c.getContext('2d', { willReadFrequently: true });
+    g.drawImage(src, 0, 0);
+    const s = src.width / src.clientWidth;
+    const x0 = Math.max(0, Math.floor(rect.x * s)); const y0 = Math.max(0, Math.floor(rect.y * s));
+    const x1 = Math.min(c.width, Math.ceil((rect.x + rect.w) * s)); const y1 = Math.min(c.height, Math.ceil((rect.y + rect.h) * s));
+    const d = g.getImageData(0, 0, c.width, c.height).data;
+    const is = {
+      yellow: (R, G, B) => R >= 80 && G >= 60 && R > 1.5 * B && G > 1.3 * B && G > 0.55 * R,
+      cyan: (R, G, B) => G >= 70 && B >= 70 && G > 1.3 * R && B > 1.3 * R,
+      red: (R, G, B) => R >= 70 && R > 1.8 * G && R > 1.8 * B,
+      redchannel: (R, G, B) => R >= 100 && R > 1.3 * B,
+      cyanchannels: (R, G, B) => G >= 100 && B >= 100,
+    }[cls];
+    let n = 0; let sx = 0; let sy = 0;
+    for (let y = y0; y < y1; y++) {
+      for (let x = x0; x < x1; x++) {
+        const i = (y * c.width + x) * 4;
+        if (!is(d[i], d[i + 1], d[i + 2])) continue;
+        n++; sx += x + 0.5; sy += y + 0.5;
+      }
+    }
+    return { n, x: n ? sx / n / s : null, y: n ? sy / n / s : null };
+  }, cls, rect);
+}
+
+const clip = (r, v) => {
+  const x = Math.max(r.x, v.x); const y = Math.max(r.y, v.y);
+  return { x, y, w: Math.min(r.x + r.w, v.x + v.w) - x, h: Math.min(r.y + r.h, v.y + v.h) - y };
+};
+
+// Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip) and both
+// grips are shown; returns the grips.
+async function pauseStill(page) {
+  for (let tries = 0; tries < 100; tries++) {
+    await pause(page);
+    const grips = await page.evaluate(() => spidarView.grips());
+    if (grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
+    await page.evaluate(() => spidarView.resume());
+    await sleep(150);
+  }
+  throw new Error('no frame with both grips shown and no force on them');
+}
+
+async function screen(browser) {
+  for (const format of ['mono', 'side-by-side', 'top-bottom', 'anaglyph']) {
+    // In the anaglyph a channel's picture is one eye's: the red virtual human would be in the left
+    // eye's grip's channel, so it is not drawn there.
+    const hide = format === 'anaglyph' ? '&hide=virtual%20human' : '';
+    const page = await open(browser, url, `camera=eye&avatar=0&strings=0&hud=0&labels=0&stereo=${format}${hide}`);
+    await page.waitForFunction(() => spidarView.screen().on, { timeout: 60000 });
+    check((await page.evaluate(() => spidarView.screen().format)) === format, `${format}: the page draws the screen ${format}`);
+    const grips = await pauseStill(page);
+    const head = await page.evaluate(() => spidarView.shape('virtual human/head')); // drawn or not
+    const points = [
+      { name: 'left grip', pos: grips[0].pos, radius: true, cls: 'yellow' },
+      { name: 'right grip', pos: grips[1].pos, radius: true, cls: 'cyan' },
+      { name: 'virtual human head', pos: head.pos },
+    ];
+    const { W, H } = await page.evaluate(() => ({ W: innerWidth, H: innerHeight }));
+    const gripR = (await page.evaluate(() => spidarView.rigInfo())).grip_radius_m[0];
+    const withImage = await ask({
+      ask: 'screen_pixels', format, w: W, h: H,
+      points: points.map((p) => (p.radius ? { name: p.name, pos: p.pos, radius: gripR } : { name: p.name, pos: p.pos })),
+    });
+    for (const [k, p] of points.entries()) {
+      const drawn = await page.evaluate((pos) => spidarView.projectEyes(pos), p.pos);
+      const w = withImage.points[k];
+      check(drawn.length === w.eyes.length, `${format}: ${p.name} drawn for ${drawn.length} eye(s)`);
+      for (const [e, eye] of w.eyes.entries()) {
+        const err = dist2(drawn[e], eye.centre);
+        check(err < 2, `${format}, ${drawn[e].eye} eye: ${p.name} drawn at (${drawn[e].x.toFixed(1)}, ${drawn[e].y.toFixed(1)}), its ray crosses the screen at (${eye.centre.x.toFixed(1)}, ${eye.centre.y.toFixed(1)}): ${err.toFixed(2)} px`);
+        if (p.cls) {
+          // The grip's pixels: centred on its image within 2 px.
+          const cls = format === 'anaglyph' ? (e === 0 ? 'redchannel' : 'cyanchannels') : p.cls;
+          if (format === 'anaglyph' && ((e === 0 && p.cls !== 'yellow') || (e === 1 && p.cls !== 'cyan'))) continue;
+          const half = eye.radius_px * 1.6 + 10;
+          const rect = clip({ x: eye.image.x - half, y: eye.image.y - half, w: 2 * half, h: 2 * half }, eye.view);
+          const px = await classPixels(page, cls, rect);
+          const area = Math.PI * eye.radius_px ** 2;
+          check(px.n > 0.5 * area, `${format}, eye ${e}: ${p.name}: ${px.n} ${cls} pixels (its image is about ${area.toFixed(0)})`);
+          const off = dist2(px, eye.image);
+          check(off < 2, `${format}, eye ${e}: ${p.name}'s pixels centre at (${px.x.toFixed(1)}, ${px.y.toFixed(1)}), its image's centre is (${eye.image.x.toFixed(1)}, ${eye.image.y.toFixed(1)}): ${off.toFixed(2)} px`);
+        } else if (format !== 'anaglyph') {
+          const px = await classPixels(page, 'red', clip({ x: eye.centre.x - 25, y: eye.centre.y - 25, w: 50, h: 50 }, eye.view));
+          check(px.n > 300, `${format}, eye ${e}: the virtual human is drawn around its head's crossing (${px.n} red pixels within 25 px)`);
+        }
+      }
+    }
+    if (rest[0]) await screenshot(page, `${rest[0]}/screen-${format}.png`);
+    await page.close();
+  }
+}
+
+const modes = { screen };
+if (!modes[mode]) {
+  process.stdout.write(`RESULT failed: unknown mode ${mode}\n`);
+  process.exit(1);
+}
+run((b) => modes[mode](b));
