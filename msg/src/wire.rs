@@ -25,8 +25,8 @@ use glam::DVec3;
 
 use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
 use crate::{
-    ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo, RigState,
-    RigStatus, HANDS, MAX_PROXIES, STRINGS,
+    ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo,
+    RigState, RigStatus, HANDS, MAX_PROXIES, STRINGS,
 };
 
 pub const MAGIC: [u8; 4] = *b"SPDR";

@@ -177,9 +177,11 @@ pub fn validate(f: &DisplayFile, eye_m: DVec3) -> Result<Display, Refusal> {
     }
     let d = match &f.screen {
         ScreenFile::Corners { lower_left_m, lower_right_m, upper_left_m } => {
-            for (key, v) in
-                [("lower_left_m", lower_left_m), ("lower_right_m", lower_right_m), ("upper_left_m", upper_left_m)]
-            {
+            for (key, v) in [
+                ("lower_left_m", lower_left_m),
+                ("lower_right_m", lower_right_m),
+                ("upper_left_m", upper_left_m),
+            ] {
                 if !finite3(v) || v.iter().any(|x| x.abs() > 20.0) {
                     return Err(refuse(
                         &format!("screen.{key}"),
@@ -188,8 +190,11 @@ pub fn validate(f: &DisplayFile, eye_m: DVec3) -> Result<Display, Refusal> {
                     ));
                 }
             }
-            let (ll, lr, ul) =
-                (DVec3::from_array(*lower_left_m), DVec3::from_array(*lower_right_m), DVec3::from_array(*upper_left_m));
+            let (ll, lr, ul) = (
+                DVec3::from_array(*lower_left_m),
+                DVec3::from_array(*lower_right_m),
+                DVec3::from_array(*upper_left_m),
+            );
             Display::from_corners(ll, lr, ul, sep, f.stereo)
         }
         ScreenFile::Centre { centre_m, size_m, yaw_deg, pitch_deg, roll_deg } => {
@@ -230,7 +235,8 @@ pub fn validate(f: &DisplayFile, eye_m: DVec3) -> Result<Display, Refusal> {
         }
         ScreenFile::Centre { .. } => ("size_m", "size_m", "screen.size_m", "screen.size_m"),
     };
-    for (key, field, side, what) in [(wkey, wfield, d.width_m, "width"), (hkey, hfield, d.height_m, "height")] {
+    for (key, field, side, what) in [(wkey, wfield, d.width_m, "width"), (hkey, hfield, d.height_m, "height")]
+    {
         if !(SIDE_RANGE_M.0..=SIDE_RANGE_M.1).contains(&side) {
             return Err(refuse(
                 field,
@@ -322,7 +328,8 @@ mod tests {
         let a = 20f64.to_radians();
         assert!((d.right - DVec3::new(a.cos(), 0.0, -a.sin())).length() < 1e-12);
         let c = corners(d.lower_left_m.to_array(), d.lower_right_m().to_array(), d.upper_left_m().to_array());
-        let d2 = validate(&DisplayFile { eye_separation_m: 0.06, stereo: Stereo::SideBySide, ..c }, EYE).unwrap();
+        let d2 =
+            validate(&DisplayFile { eye_separation_m: 0.06, stereo: Stereo::SideBySide, ..c }, EYE).unwrap();
         assert!((d2.lower_left_m - d.lower_left_m).length() < 1e-12);
         assert!((d2.up - d.up).length() < 1e-12);
     }
@@ -345,15 +352,35 @@ mod tests {
     #[test]
     fn a_screen_that_cannot_be_right_is_refused_naming_the_field() {
         // NaN.
-        refused(corners([f64::NAN, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, -1.0]), "display.screen.lower_left_m", "finite");
+        refused(
+            corners([f64::NAN, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, -1.0]),
+            "display.screen.lower_left_m",
+            "finite",
+        );
         // Degenerate: two corners on one point.
-        refused(corners([-1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [-1.0, 1.0, -1.0]), "display.screen.lower_right_m", "degenerate");
-        refused(corners([-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0, 0.001, -1.0]), "display.screen.upper_left_m", "degenerate");
+        refused(
+            corners([-1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [-1.0, 1.0, -1.0]),
+            "display.screen.lower_right_m",
+            "degenerate",
+        );
+        refused(
+            corners([-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0, 0.001, -1.0]),
+            "display.screen.upper_left_m",
+            "degenerate",
+        );
         // Not a rectangle (a parallelogram leaning 10 degrees).
         let lean = 1.0 * 10f64.to_radians().tan();
-        refused(corners([-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0 + lean, 1.0, -1.0]), "display.screen.upper_left_m", "rectangle");
+        refused(
+            corners([-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [-1.0 + lean, 1.0, -1.0]),
+            "display.screen.upper_left_m",
+            "rectangle",
+        );
         // The eye behind the screen: the corners given mirrored (as seen from behind).
-        refused(corners([1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [1.0, 1.0, -1.0]), "display.screen", "behind the screen");
+        refused(
+            corners([1.0, 0.0, -1.0], [-1.0, 0.0, -1.0], [1.0, 1.0, -1.0]),
+            "display.screen",
+            "behind the screen",
+        );
         // A screen behind the user, facing away.
         refused(corners([-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [-1.0, 1.0, 1.0]), "display.screen", "behind");
         // Eye separation.
@@ -364,7 +391,13 @@ mod tests {
         refused(f, "display.eye_separation_m", "0 .. 0.1");
         // Centre form: a zero size, a NaN angle.
         let centre = |size: [f64; 2], yaw: f64| DisplayFile {
-            screen: ScreenFile::Centre { centre_m: [0.0, 0.0, -1.0], size_m: size, yaw_deg: yaw, pitch_deg: 0.0, roll_deg: 0.0 },
+            screen: ScreenFile::Centre {
+                centre_m: [0.0, 0.0, -1.0],
+                size_m: size,
+                yaw_deg: yaw,
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+            },
             eye_separation_m: 0.063,
             stereo: Stereo::Mono,
         };

@@ -330,7 +330,8 @@ impl Rig {
         }
         let display = match &f.display {
             Some(d) => Some(
-                crate::display::validate(d, DVec3::from_array(eye)).map_err(|r| bad(r.field, r.key, 0, r.message))?,
+                crate::display::validate(d, DVec3::from_array(eye))
+                    .map_err(|r| bad(r.field, r.key, 0, r.message))?,
             ),
             None => None,
         };

@@ -17,12 +17,12 @@ use spidar_world::Scene;
 
 #[path = "hil/crowd.rs"]
 mod crowd;
+#[path = "hil/display.rs"]
+mod display;
 #[path = "hil/replay.rs"]
 mod replay;
 #[path = "hil/view.rs"]
 mod view;
-#[path = "hil/display.rs"]
-mod display;
 
 // ---------------------------------------------------------------------------------------------
 // A global allocator that fails the test on any allocation inside a forbidden section.

@@ -340,6 +340,16 @@ enum BenchCmd {
         /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
         fifo: Option<u8>,
+        /// Instead: how late the drawn picture is, on `spidar run`'s path with headless chromium
+        /// drawing the page for --seconds (p50/p99 of the age, rig tick to browser frame).
+        #[arg(long)]
+        age: bool,
+        /// With --age: the headset page (its emulated WebXR runtime) instead of a screen's.
+        #[arg(long, requires = "age")]
+        headset: bool,
+        /// With --age: the browser window's size, WIDTHxHEIGHT (px).
+        #[arg(long, default_value = "960x540", requires = "age")]
+        size: String,
     },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
@@ -626,13 +636,30 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             outln!("{rep}");
             Ok(0)
         }
-        Cmd::Bench { what: BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } } => {
+        Cmd::Bench {
+            what:
+                BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo, age, headset, size },
+        } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
             let r = match &rig {
                 Some(p) => Rig::load(p)?,
                 None => Rig::default_rig(),
             };
+            if age {
+                use spidar_lab::bench_age::{bench_age, AgeBenchOptions};
+                errln!("drawing the live view in headless chromium for {seconds} s on spidar run's path ...");
+                let (width, height) = size
+                    .split_once('x')
+                    .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+                    .filter(|(w, h): &(u32, u32)| (64..=8192).contains(w) && (64..=8192).contains(h))
+                    .ok_or_else(|| {
+                        anyhow::anyhow!("--size {size}: give WIDTHxHEIGHT in pixels, e.g. 960x540")
+                    })?;
+                let o = AgeBenchOptions { scene, seconds, headset, width, height, world: None };
+                outln!("{}", bench_age(&r, &o)?);
+                return Ok(0);
+            }
             errln!(
                 "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
             );

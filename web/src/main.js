@@ -11,6 +11,7 @@ import { Rig } from './rig.js';
 import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
 import { Playback } from './playback.js';
+import { AgeReporter, stamp } from './age.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -48,6 +49,7 @@ let status = null;
 let connection = 'connecting';
 let latest = null; // { f: Float32Array, seq, t }
 let applied = null;
+let reported = null; // the newest frame whose drawing was reported (its age)
 let paused = false;
 let framesReceived = 0;
 let rateCount = 0;
@@ -101,7 +103,7 @@ function onRig(r) {
 function onFrame(buffer, layoutId, seq) {
   if (!desc || layoutId !== desc.layout.id) return;
   const f = new Float32Array(buffer);
-  latest = { f, seq, t: f[desc.layout.globals_at] };
+  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout) };
   framesReceived++;
   rateCount++;
 }
@@ -119,6 +121,8 @@ const conn = connect({
     if (playbackLog.length > 400) playbackLog.shift();
   },
 });
+
+const ages = new AgeReporter((m) => conn.send(m));
 
 function resize() {
   const w = container.clientWidth;
@@ -162,8 +166,13 @@ function frameLoop(now) {
   cameras.update();
   // From the user's eye, their own avatar's head is in the way.
   if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
+  const drawStart = performance.now();
   cameras.render(renderer, scene);
   labelRenderer.render(scene, cameras.camera);
+  if (applied && applied !== reported && !playback) {
+    reported = applied;
+    ages.drawn(applied.seq, applied.stamp, false, 0, performance.now() - drawStart);
+  }
   renders++;
   while (renderWaiters.length) renderWaiters.shift()();
 }
@@ -192,6 +201,8 @@ window.spidarView = {
     status,
     renders,
     replay: !!playback,
+    stamp: applied ? applied.stamp : null,
+    drawnReport: ages.last,
   }),
   // A replay's state (its last `playback` message) and the bar's text, or null when live.
   playback: () => playback && { ...playback.state, shown: playback.k.time.textContent, button: playback.k.play.textContent },

@@ -75,9 +75,7 @@ fn screen_pixels(rig: &Rig, link_offset_m: DVec3, q: &Value) -> Value {
     let format = q["format"].as_str().unwrap();
     let views = eye_views(format, w, h);
     let eyes = if views.len() == 1 { vec![rig.eye_m] } else { d.eyes(rig.eye_m).to_vec() };
-    let px = |(x0, y0, vw, vh): (f64, f64, f64, f64), (u, v): (f64, f64)| {
-        json!({"x": x0 + u / d.width_m * vw, "y": y0 + (1.0 - v / d.height_m) * vh})
-    };
+    let px = |(x0, y0, vw, vh): (f64, f64, f64, f64), (u, v): (f64, f64)| json!({"x": x0 + u / d.width_m * vw, "y": y0 + (1.0 - v / d.height_m) * vh});
     let points = q["points"].as_array().unwrap();
     let out: Vec<Value> = points
         .iter()
@@ -124,7 +122,8 @@ fn display_draws_the_rig_frame_through_the_screen_from_the_eye() {
     let rig = screen_rig();
     let run = RunPath::start_on("boxing", "hold", rig.clone());
     let scene = run.get("/scene.json");
-    let off: Vec<f64> = scene["link_offset_m"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let off: Vec<f64> =
+        scene["link_offset_m"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
     let link_offset_m = DVec3::new(off[0], off[1], off[2]);
     node_script("display.mjs", &["screen", &run.url], |q| match q["ask"].as_str().unwrap() {
         "screen_pixels" => screen_pixels(&rig, link_offset_m, q),

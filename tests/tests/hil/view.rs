@@ -801,8 +801,13 @@ fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
             // The live view stamps its frames with the tick's wall-clock time (the reference, like
             // a recording, does not): within a minute of now, and otherwise the same frame.
             let wall_ms = f64::from_le_bytes(got[32..40].try_into().unwrap());
-            let now_ms = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64() * 1e3;
-            assert!((now_ms - wall_ms).abs() < 60e3, "the tick's wall-clock time {wall_ms} ms, now {now_ms} ms");
+            let now_ms =
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64()
+                    * 1e3;
+            assert!(
+                (now_ms - wall_ms).abs() < 60e3,
+                "the tick's wall-clock time {wall_ms} ms, now {now_ms} ms"
+            );
             let mut want = want;
             want[32..40].copy_from_slice(&got[32..40]);
             assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);

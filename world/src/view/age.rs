@@ -31,6 +31,9 @@ pub struct Drawn {
     /// them; equal to the age when it does not).
     #[serde(default)]
     pub hand_lag_ms: Option<f64>,
+    /// How long the page took to draw it (part of the age: a software renderer makes it long).
+    #[serde(default)]
+    pub draw_ms: f64,
     /// Drawn in an immersive (headset) session.
     #[serde(default)]
     pub xr: bool,
@@ -65,6 +68,8 @@ pub struct AgeSummary {
     pub max_ms: f64,
     pub hand_lag_p50_ms: f64,
     pub hand_lag_p99_ms: f64,
+    pub draw_p50_ms: f64,
+    pub draw_p99_ms: f64,
     /// The newest report's step and tick.
     pub step: u64,
     pub tick: u64,
@@ -74,6 +79,7 @@ pub struct AgeSummary {
 struct Window {
     ages_ms: Vec<f64>,
     lags_ms: Vec<f64>,
+    draws_ms: Vec<f64>,
     next: usize,
     total: u64,
     step: u64,
@@ -86,9 +92,11 @@ impl Window {
         if self.ages_ms.len() < WINDOW {
             self.ages_ms.push(d.age_ms);
             self.lags_ms.push(lag);
+            self.draws_ms.push(d.draw_ms);
         } else {
             self.ages_ms[self.next] = d.age_ms;
             self.lags_ms[self.next] = lag;
+            self.draws_ms[self.next] = d.draw_ms;
         }
         self.next = (self.next + 1) % WINDOW;
         self.total += 1;
@@ -113,6 +121,8 @@ impl Window {
             max_ms: pct(&self.ages_ms, 1.0),
             hand_lag_p50_ms: pct(&self.lags_ms, 0.5),
             hand_lag_p99_ms: pct(&self.lags_ms, 0.99),
+            draw_p50_ms: pct(&self.draws_ms, 0.5),
+            draw_p99_ms: pct(&self.draws_ms, 0.99),
             step: self.step,
             tick: self.tick,
         })
@@ -132,7 +142,8 @@ impl PictureAges {
     pub fn record(&mut self, d: &Drawn) {
         // A page's clock may run a little behind the world's (another machine): allow 50 ms.
         let sane = |v: f64| v.is_finite() && (-50.0..=MAX_AGE_MS).contains(&v);
-        if !sane(d.age_ms) || !d.hand_lag_ms.is_none_or(sane) {
+        if !sane(d.age_ms) || !d.hand_lag_ms.is_none_or(sane) || !(d.draw_ms.is_finite() && d.draw_ms >= 0.0)
+        {
             self.refused += 1;
             return;
         }
@@ -160,7 +171,8 @@ mod tests {
 
     #[test]
     fn a_drawn_report_parses_and_other_texts_do_not() {
-        let d = Drawn::parse(r#"{"type":"drawn","seq":3,"step":120,"tick":360,"age_ms":12.5,"xr":true}"#).unwrap();
+        let d = Drawn::parse(r#"{"type":"drawn","seq":3,"step":120,"tick":360,"age_ms":12.5,"xr":true}"#)
+            .unwrap();
         assert_eq!((d.seq, d.step, d.tick, d.age_ms, d.hand_lag_ms, d.xr), (3, 120, 360, 12.5, None, true));
         assert!(Drawn::parse(r#"{"cmd":"play"}"#).is_none());
         assert!(Drawn::parse(r#"{"type":"drawn","seq":"x"}"#).is_none());
@@ -169,7 +181,15 @@ mod tests {
     #[test]
     fn the_window_keeps_the_newest_reports_per_kind_and_refuses_nonsense() {
         let mut a = PictureAges::default();
-        let d = |age: f64, xr: bool| Drawn { seq: 0, step: 1, tick: 2, age_ms: age, hand_lag_ms: None, xr };
+        let d = |age: f64, xr: bool| Drawn {
+            seq: 0,
+            step: 1,
+            tick: 2,
+            age_ms: age,
+            hand_lag_ms: None,
+            draw_ms: 1.0,
+            xr,
+        };
         // 1..=100 ms on the screen, then WINDOW more of 1000 ms push the first ones out.
         for k in 1..=100 {
             a.record(&d(k as f64, false));

@@ -179,6 +179,7 @@ pub fn status(
             json!({
                 "frames": a.frames, "total": a.total, "p50_ms": a.p50_ms, "p99_ms": a.p99_ms, "max_ms": a.max_ms,
                 "hand_lag_p50_ms": a.hand_lag_p50_ms, "hand_lag_p99_ms": a.hand_lag_p99_ms,
+                "draw_p50_ms": a.draw_p50_ms, "draw_p99_ms": a.draw_p99_ms,
                 "step": a.step, "tick": a.tick,
             })
         })
