@@ -27,6 +27,7 @@ export function classPixels(page, cls, rect) {
       red: (R, G, B) => R >= 70 && R > 1.8 * G && R > 1.8 * B,
       redchannel: (R, G, B) => R >= 100 && R > 1.3 * B,
       cyanchannels: (R, G, B) => G >= 100 && B >= 100,
+      skin: (R, G, B) => R >= 90 && R > G && G > B && R < 1.8 * G && R - B > 30,
     }[cls];
     let n = 0; let sx = 0; let sy = 0;
     for (let y = y0; y < y1; y++) {
@@ -108,7 +109,42 @@ async function screen(browser) {
   }
 }
 
-const modes = { screen };
+// The virtual human and the avatar drawn as people follow the simulated bodies joint for joint.
+async function people(browser) {
+  const page = await open(browser, url, 'camera=orbit&bodies=people');
+  const checkAll = async (when) => {
+    const p = await pause(page);
+    for (const name of ['virtual human', 'avatar']) {
+      const joints = await page.evaluate((n) => spidarView.personJoints(n), name);
+      const r = await ask({ ask: 'check_person_joints', t: p.t, name, joints });
+      check(r.worst_m < 0.01, `${when}: ${name}'s ${r.ends} joint ends drawn within ${(r.worst_m * 1000).toFixed(2)} mm of the simulation's`);
+    }
+    // Drawn as people: skin-coloured pixels where the virtual human's head is, no red capsule.
+    const head = await page.evaluate(() => spidarView.shape('virtual human/head'));
+    const skin = await classPixels(page, 'skin', { x: head.screen.x - 30, y: head.screen.y - 30, w: 60, h: 60 });
+    check(skin.n > 150, `${when}: the virtual human's face is drawn (${skin.n} skin pixels at its head)`);
+    await page.evaluate(() => spidarView.resume());
+  };
+  await checkAll('at rest');
+  // SPIDAR_SHOTS=DIR: pictures of what the test saw.
+  if (process.env.SPIDAR_SHOTS) {
+    await page.evaluate(() => spidarView.orbitTo([1.2, 1.7, 0.6], [0, 1.3, -0.6]));
+    await sleep(1500);
+    await screenshot(page, `${process.env.SPIDAR_SHOTS}/people.png`);
+  }
+  const { t_punch } = await ask({ ask: 'punch' });
+  await page.waitForFunction((t) => spidarView.state().t >= t, { timeout: 60000, polling: 50 }, t_punch + 0.45);
+  await checkAll('after a punch');
+  // The toggle: the collision shapes instead (a red capsule head).
+  await page.evaluate(() => spidarView.setBodies(false));
+  await pause(page);
+  const head = await page.evaluate(() => spidarView.shape('virtual human/head'));
+  const red = await classPixels(page, 'red', { x: head.screen.x - 30, y: head.screen.y - 30, w: 60, h: 60 });
+  check(red.n > 400, `as collision shapes the head is the red capsule again (${red.n} red pixels)`);
+  if (rest[0]) await screenshot(page, rest[0]);
+}
+
+const modes = { screen, people };
 if (!modes[mode]) {
   process.stdout.write(`RESULT failed: unknown mode ${mode}\n`);
   process.exit(1);

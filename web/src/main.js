@@ -7,6 +7,7 @@ import { CSS2DRenderer } from 'three/addons/renderers/CSS2DRenderer.js';
 import { connect } from './connection.js';
 import { World } from './world.js';
 import { Crowd } from './crowd.js';
+import { Humanoids } from './humanoid.js';
 import { Rig } from './rig.js';
 import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
@@ -43,6 +44,9 @@ if (params.get('hud') === '0') document.getElementById('hud').style.display = 'n
 let desc = null;
 let world = null;
 let crowd = null;
+let people = null;
+// Bodies as people (the default) or as their collision shapes (`?bodies=shapes`, key `b`).
+let asPeople = params.get('bodies') !== 'shapes';
 let root = null;
 let rigInfo = null;
 let status = null;
@@ -84,10 +88,20 @@ function onScene(d) {
   world.hideActor('avatar', avatarHidden);
   for (const a of hiddenActors) world.hideActor(a, true);
   crowd = desc.crowd ? new Crowd(desc, root) : null;
+  people = new Humanoids(desc, root, world.meshes);
+  setBodies(asPeople);
+  people.hideActor('avatar', avatarHidden);
+  for (const a of hiddenActors) people.hideActor(a, true);
   latest = null;
   applied = null;
   cameras.place(desc, rigInfo ? rigInfo.eye_m : null);
   hud.setScene(desc);
+}
+
+function setBodies(asP) {
+  asPeople = asP;
+  if (world) world.people = asP;
+  if (people) people.setShown(asP);
 }
 
 function onRig(r) {
@@ -138,7 +152,8 @@ window.addEventListener('keydown', (e) => {
   if (e.key === 'f') toggleFullScreen();
   else if (e.key === 'c') { cameraChosen = true; setCamera(cameras.active === 'eye' ? 'orbit' : 'eye'); }
   else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
-  else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); }
+  else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); people.hideActor('avatar', avatarHidden); }
+  else if (e.key === 'b') setBodies(!asPeople);
   else if (e.key === ' ') paused = !paused;
 });
 
@@ -154,6 +169,7 @@ function frameLoop(now) {
     const dt = applied ? Math.max(0, latest.t - applied.t) : 0;
     world.apply(latest.f, dt);
     if (crowd) crowd.apply(latest.f);
+    people.apply(latest.f);
     rig.apply(latest.f, desc.layout);
     applied = latest;
     if (playback) playback.setTime(applied.t);
@@ -166,6 +182,7 @@ function frameLoop(now) {
   cameras.update();
   // From the user's eye, their own avatar's head is in the way.
   if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
+  if (people) people.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
   const drawStart = performance.now();
   cameras.render(renderer, scene);
   labelRenderer.render(scene, cameras.camera);
@@ -237,6 +254,10 @@ window.spidarView = {
     return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash,
       force: applied.f[desc.layout.shape_force_at + i] };
   },
+  // A body drawn as a person: each joint as its two pieces draw it; where its eyes look.
+  personJoints: (name) => people && people.joints(name),
+  personEyes: (name) => people && people.eyeDirections(name),
+  setBodies,
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
   character: (i) => {
     const L = desc.layout;

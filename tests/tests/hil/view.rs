@@ -61,6 +61,9 @@ struct Rec {
     /// `spidar_sim::character::drawn::world_joints` gives them) and policy.
     skeletons: Vec<(Vec<DVec3>, Policy)>,
     counters: Vec<f64>,
+    /// Boxing: each articulated body's joints in the world (actor, joint, where the simulation has
+    /// it: the child solid's origin).
+    body_joints: Vec<(&'static str, String, DVec3)>,
 }
 
 /// The scene behind the view, recording itself after every step and obeying the test.
@@ -107,6 +110,16 @@ fn record_boxing(s: &BoxingScene, t: f64) -> Rec {
         t,
         parts: w.ws.shape_pose.iter().map(|p| (p.pos_m, DQuat::from_mat3(&p.rot).normalize())).collect(),
         skeletons: Vec::new(),
+        body_joints: [(spidar_sim::boxer::BOXER, "virtual human"), (spidar_sim::boxer::AVATAR, "avatar")]
+            .into_iter()
+            .flat_map(|(a, name)| {
+                w.model.articulations[a]
+                    .bodies
+                    .clone()
+                    .filter(|&b| w.model.bodies[b].parent.is_some())
+                    .map(move |b| (name, w.model.bodies[b].name.clone(), w.ws.point_world(b, DVec3::ZERO)))
+            })
+            .collect(),
         counters: [m.hits_taken, m.hits_given, m.attacks, m.avoidances, m.blocks, m.predictions]
             .iter()
             .map(|c| *c as f64)
@@ -128,6 +141,7 @@ fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
             })
             .collect(),
         counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
+        body_joints: Vec::new(),
     }
 }
 
@@ -428,6 +442,27 @@ impl Hosting {
                 }
             }
             "hold" => json!({"t_hold": self.hold()}),
+            "check_person_joints" => {
+                // Every joint of the body drawn as a person, as each of its two pieces draws it,
+                // within 1 cm of where the simulation has it at the frame's step.
+                let rec = self.at(f(&q["t"]));
+                let name = q["name"].as_str().unwrap();
+                let drawn = q["joints"].as_object().unwrap();
+                let mut worst: f64 = 0.0;
+                let mut n = 0;
+                for (actor, joint, truth) in rec.body_joints.iter().filter(|j| j.0 == name) {
+                    let d = drawn.get(joint).unwrap_or_else(|| panic!("{actor}: joint {joint} is not drawn"));
+                    for side in ["parent", "child"] {
+                        let p = d[side].as_array().unwrap_or_else(|| panic!("{actor}'s {joint}: no {side} piece"));
+                        let e = (DVec3::new(f(&p[0]), f(&p[1]), f(&p[2])) - *truth).length();
+                        assert!(e < 0.01, "{actor}'s {joint} as its {side} piece draws it is {e} m from the simulation's");
+                        worst = worst.max(e);
+                        n += 1;
+                    }
+                }
+                assert!(n >= 16, "{name}: {n} joint ends compared");
+                json!({"worst_m": worst, "ends": n})
+            }
             "jab" => {
                 // The right fist jabs at the virtual human's head (hit) or out to the right, clear
                 // of every body (miss), and stays there.
@@ -591,6 +626,19 @@ fn view_a_hit_flashes_the_part_hit_in_a_browser() {
         BoxingScene::new(spidar_sim::boxer::BoxerParams { active: false, ..Default::default() }).unwrap();
     let w = host(scene, record_boxing, |_, _| {}, DVec3::ZERO, &any_port());
     node(&["flash", w.view.url()], |q| w.answer(q));
+}
+
+/// The virtual human and the avatar drawn as people: every joint of each, as both pieces that meet
+/// there draw it, within 1 cm of the simulated body's, before and after a punch moves them; the
+/// collision shapes come back with the toggle.
+#[test]
+fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser") {
+        return;
+    }
+    let w = boxing_world(&any_port());
+    node_script("display.mjs", &["people", w.view.url()], |q| w.answer(q));
 }
 
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.

@@ -97,6 +97,17 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
         "labels": look.labels.iter().map(|l| json!({"name": l.name, "shape": l.shape, "states": l.states})).collect::<Vec<_>>(),
         "counters": look.counters,
         "crowd": crowd,
+        "humanoids": look.humanoids.iter().map(|h| json!({
+            "name": h.name,
+            "colour": colour(h.colour),
+            "skin": colour(h.skin),
+            "forward": v3(h.forward),
+            "segments": h.segments.iter().map(|s| json!({"shape": s.shape, "part": s.part, "side": s.side})).collect::<Vec<_>>(),
+            "joints": h.joints.iter().map(|j| json!({
+                "name": j.name, "parent_shape": j.parent_shape, "child_shape": j.child_shape,
+                "at_parent_m": v3(j.at_parent_m), "at_child_m": v3(j.at_child_m),
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
     })
     .to_string()
 }
