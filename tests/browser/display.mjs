@@ -135,6 +135,56 @@ async function people(browser) {
   const { t_punch } = await ask({ ask: 'punch' });
   await page.waitForFunction((t) => spidarView.state().t >= t, { timeout: 60000, polling: 50 }, t_punch + 0.45);
   await checkAll('after a punch');
+  // The eyes: without a gaze in the frame they look straight ahead of the head.
+  await pause(page);
+  const ahead = await page.evaluate(() => {
+    const h = spidarView.shape('virtual human/head');
+    return { eyes: spidarView.personEyes('virtual human'), quat: h.frame.slice(3, 7), pos: h.pos };
+  });
+  const rot = (q, v) => { // v turned by the unit quaternion q (x, y, z, w)
+    const [x, y, z, w] = q; const [a, b, c] = v;
+    const ix = w * a + y * c - z * b; const iy = w * b + z * a - x * c; const iz = w * c + x * b - y * a; const iw = -x * a - y * b - z * c;
+    return [ix * w + iw * -x + iy * -z - iz * -y, iy * w + iw * -y + iz * -x - ix * -z, iz * w + iw * -z + ix * -y - iy * -x];
+  };
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const norm = (a) => { const n = Math.hypot(...a); return a.map((x) => x / n); };
+  const headAhead = rot(ahead.quat, [0, 0, -1]);
+  for (const e of ahead.eyes) {
+    const deg = Math.acos(Math.min(1, dot(norm(e.dir), headAhead))) * 180 / Math.PI;
+    check(deg < 1, `no gaze sent: an eye looks along the head's own forward (${deg.toFixed(2)} degrees off)`);
+  }
+  // With a gaze (a frame of the test's making: the scene's gaze entry and 9 numbers per looker),
+  // both eyes turn to the attended point.
+  const target = [ahead.pos[0] + 0.35, ahead.pos[1] - 0.15, ahead.pos[2] + 1.2];
+  const eyes = await page.evaluate(async (target) => {
+    const desc = JSON.parse(JSON.stringify(spidarView.desc()));
+    const f = spidarView.frameWords();
+    const L = desc.layout;
+    const head = desc.shapes.findIndex((s) => s.name === 'virtual human/head');
+    desc.gaze = [{ name: 'virtual human', head_shape: head }];
+    L.id = (L.id ^ 0x5a5a5a) >>> 0;
+    const o = L.shapes_at + head * L.shape_floats;
+    const mid = f.slice(o, o + 3);
+    const dir = target.map((t, i) => t - mid[i]);
+    const n = Math.hypot(...dir);
+    const gaze = [...mid, ...dir.map((d) => d / n), ...target];
+    const words = [...f.slice(0, L.contacts_at), ...gaze, ...f.slice(L.contacts_at)];
+    L.gaze_at = L.contacts_at;
+    L.contacts_at += 9;
+    const fw = new Float32Array(words);
+    new Uint32Array(fw.buffer)[1] = L.id;
+    spidarView.resume();
+    spidarView.feed(desc, Array.from(fw));
+    await new Promise((r) => setTimeout(r, 300));
+    await spidarView.rendered();
+    spidarView.pause();
+    return spidarView.personEyes('virtual human');
+  }, target);
+  for (const e of eyes) {
+    const want = norm(target.map((t, i) => t - e.at[i]));
+    const deg = Math.acos(Math.min(1, dot(norm(e.dir), want))) * 180 / Math.PI;
+    check(deg < 1, `gaze sent: an eye looks at the attended point (${deg.toFixed(2)} degrees off)`);
+  }
   // The toggle: the collision shapes instead (a red capsule head).
   await page.evaluate(() => spidarView.setBodies(false));
   await pause(page);

@@ -255,6 +255,16 @@ window.spidarView = {
       force: applied.f[desc.layout.shape_force_at + i] };
   },
   // A body drawn as a person: each joint as its two pieces draw it; where its eyes look.
+  // For tests: the description and the applied frame's numbers, and a page fed a description and
+  // a frame of the test's making (the live frames of another layout are then ignored).
+  desc: () => desc,
+  frameWords: () => (applied ? Array.from(applied.f) : null),
+  feed: (d, words) => {
+    onScene(d);
+    const f = new Float32Array(words);
+    const u = new Uint32Array(f.buffer);
+    onFrame(f.buffer, u[1], u[2]);
+  },
   personJoints: (name) => people && people.joints(name),
   personEyes: (name) => people && people.eyeDirections(name),
   setBodies,
