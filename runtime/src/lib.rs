@@ -20,6 +20,7 @@
 
 pub mod child_world;
 pub mod hardware;
+pub mod placement;
 pub mod recording;
 pub mod replay;
 pub mod replay_view;

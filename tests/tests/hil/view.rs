@@ -453,9 +453,14 @@ impl Hosting {
                 for (actor, joint, truth) in rec.body_joints.iter().filter(|j| j.0 == name) {
                     let d = drawn.get(joint).unwrap_or_else(|| panic!("{actor}: joint {joint} is not drawn"));
                     for side in ["parent", "child"] {
-                        let p = d[side].as_array().unwrap_or_else(|| panic!("{actor}'s {joint}: no {side} piece"));
+                        let p = d[side]
+                            .as_array()
+                            .unwrap_or_else(|| panic!("{actor}'s {joint}: no {side} piece"));
                         let e = (DVec3::new(f(&p[0]), f(&p[1]), f(&p[2])) - *truth).length();
-                        assert!(e < 0.01, "{actor}'s {joint} as its {side} piece draws it is {e} m from the simulation's");
+                        assert!(
+                            e < 0.01,
+                            "{actor}'s {joint} as its {side} piece draws it is {e} m from the simulation's"
+                        );
                         worst = worst.max(e);
                         n += 1;
                     }

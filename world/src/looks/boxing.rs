@@ -8,7 +8,9 @@ use spidar_sim::impulse::proxy_id;
 
 use super::quat;
 use crate::boxing::BoxingScene;
-use crate::look::{DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses};
+use crate::look::{
+    DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
+};
 
 const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
 const AVATAR_GLOVE: [u8; 3] = [30, 60, 150];
@@ -121,14 +123,7 @@ fn humanoid(m: &spidar_sim::model::Model, articulation: usize, name: &str, colou
             })
         })
         .collect();
-    LookHumanoid {
-        name: name.into(),
-        segments,
-        joints,
-        colour,
-        skin: SKIN,
-        forward: DVec3::NEG_Z,
-    }
+    LookHumanoid { name: name.into(), segments, joints, colour, skin: SKIN, forward: DVec3::NEG_Z }
 }
 
 pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
