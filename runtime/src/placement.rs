@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::bail;
 use glam::DVec3;
 use spidar_calib::display::{fit_screen, Placement, TARGETS};
+use spidar_device::sim::{Script, Segment};
 use spidar_device::Device;
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::Rig;
@@ -77,6 +78,89 @@ impl Holds {
         self.window.clear();
         Some(m)
     }
+}
+
+/// The simulated rig's person placing `truth` (rig frame): the right grip's centre reached to each
+/// target, the ball touching the screen, and held there 1.8 s (aimed `aim_off_m[k]` beside the
+/// target: a person who saw the grip land beside it aims again), the left held at home.
+pub fn scripted_person(rig: &Rig, truth: &spidar_rt::display::Display, aim_off_m: [DVec3; 5]) -> [Script; 2] {
+    let r = rig.hands[HAND].grip_radius_m;
+    let mut segments = Vec::new();
+    for (k, &(a, b)) in TARGETS.iter().enumerate() {
+        let p = target_grip_m(truth, (a, b), r) + aim_off_m[k];
+        segments.push(Segment::Reach { to_m: p.to_array(), duration_s: 1.0 });
+        segments.push(Segment::Hold { at_m: p.to_array(), for_s: 1.8 });
+    }
+    segments.push(Segment::Reach { to_m: rig.hands[HAND].home_m.to_array(), duration_s: 1.0 });
+    [
+        Script::hold(rig.hands[1 - HAND].home_m).with_start_hold(1.0),
+        Script::from_segments(segments, false).with_start_hold(1.0),
+    ]
+}
+
+/// Where a grip's centre is when held on target (a, b) of `d`, the ball touching the screen.
+pub fn target_grip_m(d: &spidar_rt::display::Display, (a, b): (f64, f64), grip_radius_m: f64) -> DVec3 {
+    d.lower_left_m + d.right * a * d.width_m + d.up * b * d.height_m + d.normal() * grip_radius_m
+}
+
+/// A world to show the targets in: an empty scene (nothing to touch while placing) stepped on a
+/// thread of this process, with the live view at `view` (None: no view).
+pub fn placement_world(view: Option<std::net::SocketAddr>) -> anyhow::Result<(WorldChoice, Option<String>)> {
+    use spidar_world::Scene;
+    let empty = spidar_world::walls::WallsScene::from_str(
+        "(kind: \"walls-scene\", version: 1, name: \"placing the screen\", step_s: 0.003, planes: [], spheres: [])",
+        "the placement's empty scene",
+    )?;
+    let look = empty.look();
+    let name = empty.name().to_string();
+    let mut stepper = spidar_world::host::Stepper::new(Box::new(empty));
+    let mut url = None;
+    if let Some(addr) = view {
+        let v = spidar_world::view::View::start(
+            &name,
+            &look,
+            &spidar_world::view::ViewOptions { addr, ..Default::default() },
+        )?;
+        url = Some(format!("{}/?place=1&camera=eye", v.url()));
+        stepper.add_observer(Box::new(v));
+    }
+    Ok((WorldChoice::Thread(stepper), url))
+}
+
+/// The session's options while placing: no status line, the rig loop at normal priority unless
+/// `rt` says otherwise.
+pub fn placement_options(rt: spidar_rt::rt_thread::RtOptions) -> LiveOptions {
+    LiveOptions {
+        seconds: None,
+        rt,
+        spin_ns: 0,
+        status_every: None,
+        stop: crate::signals::Stop::detached(),
+        scene_name: "placing the screen".into(),
+        script_name: "placing the screen".into(),
+        connect_timeout: Duration::from_secs(30),
+        world_priority: None,
+        supervisor: None,
+        recorder: None,
+    }
+}
+
+/// A screen in front of the user for the simulated rig's person to place when the rig file has
+/// none: 1.6 x 1.0 m, 0.9 m ahead of the rig's origin, upright, facing the user.
+pub fn demo_screen(rig: &Rig) -> anyhow::Result<spidar_rt::display::Display> {
+    use spidar_rt::display::{validate, DisplayFile, ScreenFile};
+    let f = DisplayFile {
+        screen: ScreenFile::Centre {
+            centre_m: [0.0, 0.0, -0.9],
+            size_m: [1.6, 1.0],
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
+        },
+        eye_separation_m: spidar_rt::display::DEFAULT_EYE_SEPARATION_M,
+        stereo: Default::default(),
+    };
+    validate(&f, rig.eye_m).map_err(|r| anyhow::anyhow!("{}: {}", r.field, r.message))
 }
 
 /// Runs a session on `dev` until the grip was held at every target (or `timeout`), then fits the

@@ -13,6 +13,7 @@ import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
 import { Playback } from './playback.js';
 import { AgeReporter, stamp } from './age.js';
+import { showTargets } from './place.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -40,6 +41,7 @@ const hud = new Hud(document.getElementById('hud'), {
   onFullScreen: toggleFullScreen,
 });
 if (params.get('hud') === '0') document.getElementById('hud').style.display = 'none';
+if (params.get('place') === '1') showTargets(document.body);
 
 let desc = null;
 let world = null;

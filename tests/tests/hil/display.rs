@@ -172,48 +172,20 @@ fn placed_truth() -> Display {
 /// loop at 1 kHz on the real clock, a world serving the view): the right grip's centre held on
 /// each target, the ball touching the screen (`off_m` moves the third target off the screen).
 fn place_with_script(off_m: f64, aim_off_m: [DVec3; 5]) -> anyhow::Result<spidar_calib::display::Placement> {
-    use spidar_device::sim::{Script, Segment};
-    use spidar_runtime::session::{sim_device, LiveOptions, SimOptions, WorldChoice};
+    use spidar_runtime::placement::{placement_world, scripted_person};
+    use spidar_runtime::session::{sim_device, SimOptions};
     let rig = super::rig();
     let truth = placed_truth();
-    let r = rig.hands[1].grip_radius_m;
-    let mut segments = Vec::new();
-    for (k, &(a, b)) in spidar_calib::display::TARGETS.iter().enumerate() {
-        let mut p = truth.lower_left_m
-            + truth.right * a * truth.width_m
-            + truth.up * b * truth.height_m
-            + truth.normal() * r;
-        if k == 2 {
-            p += truth.normal() * off_m;
-        }
-        p += aim_off_m[k];
-        segments.push(Segment::Reach { to_m: p.to_array(), duration_s: 1.0 });
-        segments.push(Segment::Hold { at_m: p.to_array(), for_s: 1.8 });
-    }
-    segments.push(Segment::Reach { to_m: rig.hands[1].home_m.to_array(), duration_s: 1.0 });
-    let scripts = [
-        Script::hold(rig.hands[0].home_m).with_start_hold(1.0),
-        Script::from_segments(segments, false).with_start_hold(1.0),
-    ];
+    let mut aim = aim_off_m;
+    aim[2] += truth.normal() * off_m;
+    let scripts = scripted_person(&rig, &truth, aim);
     let dev = sim_device(&rig, scripts, &SimOptions::default())?;
-    let empty = spidar_world::walls::WallsScene::from_str(
-        "(kind: \"walls-scene\", version: 1, name: \"placement\", step_s: 0.003, planes: [], spheres: [])",
-        "an empty scene",
-    )?;
-    let world = WorldChoice::Thread(spidar_world::host::Stepper::new(Box::new(empty)));
-    let opts = LiveOptions {
-        seconds: None,
-        rt: spidar_rt::rt_thread::RtOptions { fifo_priority: None, lock_memory: false, ..Default::default() },
-        spin_ns: 0,
-        status_every: None,
-        stop: spidar_runtime::signals::Stop::detached(),
-        scene_name: "placement".into(),
-        script_name: "placement".into(),
-        connect_timeout: std::time::Duration::from_secs(30),
-        world_priority: None,
-        supervisor: None,
-        recorder: None,
-    };
+    let (world, _) = placement_world(None)?;
+    let opts = spidar_runtime::placement::placement_options(spidar_rt::rt_thread::RtOptions {
+        fifo_priority: None,
+        lock_memory: false,
+        ..Default::default()
+    });
     spidar_runtime::placement::place_screen(
         dev,
         &rig,
