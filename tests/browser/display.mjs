@@ -104,8 +104,14 @@ async function screen(browser) {
         }
       }
     }
-    if (rest[0]) await screenshot(page, `${rest[0]}/screen-${format}.png`);
     await page.close();
+    // SPIDAR_SHOTS=DIR: the README's pictures, the page as a user sees it.
+    if (process.env.SPIDAR_SHOTS && (format === 'mono' || format === 'side-by-side')) {
+      const shot = await open(browser, url, `camera=eye&bodies=people&stereo=${format}`);
+      await sleep(2500);
+      await screenshot(shot, `${process.env.SPIDAR_SHOTS}/screen-${format}.png`);
+      await shot.close();
+    }
   }
 }
 
