@@ -142,8 +142,7 @@ impl PictureAges {
     pub fn record(&mut self, d: &Drawn) {
         // A page's clock may run a little behind the world's (another machine): allow 50 ms.
         let sane = |v: f64| v.is_finite() && (-50.0..=MAX_AGE_MS).contains(&v);
-        if !sane(d.age_ms) || !d.hand_lag_ms.is_none_or(sane) || !(d.draw_ms.is_finite() && d.draw_ms >= 0.0)
-        {
+        if !(sane(d.age_ms) && d.hand_lag_ms.is_none_or(sane) && d.draw_ms.is_finite() && d.draw_ms >= 0.0) {
             self.refused += 1;
             return;
         }
