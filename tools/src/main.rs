@@ -347,6 +347,9 @@ enum BenchCmd {
         /// With --age: the headset page (its emulated WebXR runtime) instead of a screen's.
         #[arg(long, requires = "age")]
         headset: bool,
+        /// The viewers' block has one headless chromium drawing the page instead of WebSocket clients.
+        #[arg(long, conflicts_with = "age")]
+        browser: bool,
         /// With --age: the browser window's size, WIDTHxHEIGHT (px).
         #[arg(long, default_value = "960x540", requires = "age")]
         size: String,
@@ -638,7 +641,19 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         }
         Cmd::Bench {
             what:
-                BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo, age, headset, size },
+                BenchCmd::View {
+                    rig,
+                    scene,
+                    characters,
+                    seconds,
+                    rounds,
+                    viewers,
+                    fifo,
+                    age,
+                    headset,
+                    size,
+                    browser,
+                },
         } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
@@ -663,7 +678,15 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             errln!(
                 "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
             );
-            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
+            let o = ViewBenchOptions {
+                scene,
+                characters,
+                seconds_per_block: seconds,
+                rounds,
+                viewers,
+                fifo,
+                browser,
+            };
             outln!("{}", bench_view(&r, &o)?);
             Ok(0)
         }
