@@ -1,7 +1,6 @@
 //! `spidar bench view --age`: how late the drawn picture is, on `spidar run`'s path with a real
 //! browser: the simulated rig, the rt-loop at 1 kHz on the real clock, the child world process
-//! serving the live view, and headless chromium drawing the page (a screen's page, or the
-//! headset page with its emulated WebXR runtime). The page reports the age of every frame it
+//! serving the live view, and headless chromium drawing the page from the user's eye. The page reports the age of every frame it
 //! draws, from the rig tick whose hand sample it shows to its drawing (`docs/view.md`), and the
 //! world keeps the last thousand in its status; this reads them there at the end.
 //!
@@ -23,8 +22,6 @@ pub struct AgeBenchOptions {
     pub scene: String,
     /// Seconds of drawing measured (after the page's first report).
     pub seconds: f64,
-    /// The headset page (`?xr=emulate`: an immersive session in the emulated runtime).
-    pub headset: bool,
     /// The browser window's size (px).
     pub width: u32,
     pub height: u32,
@@ -124,8 +121,7 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
         s.request_stop();
         bail!("the world process printed no view address")
     };
-    let (kind, page, query) =
-        if o.headset { ("headset", "headset", "?xr=emulate") } else { ("screen", "screen", "?camera=eye") };
+    let (kind, page, query) = ("screen", "screen", "?camera=eye");
     let browser = Browser::open(&format!("{url}/{query}"), o.width, o.height)?;
     let load_start = load();
     // The page draws and reports; then the window of reports is what this run drew.

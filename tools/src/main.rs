@@ -344,9 +344,6 @@ enum BenchCmd {
         /// drawing the page for --seconds (p50/p99 of the age, rig tick to browser frame).
         #[arg(long)]
         age: bool,
-        /// With --age: the headset page (its emulated WebXR runtime) instead of a screen's.
-        #[arg(long, requires = "age")]
-        headset: bool,
         /// The viewers' block has one headless chromium drawing the page instead of WebSocket clients.
         #[arg(long, conflicts_with = "age")]
         browser: bool,
@@ -641,19 +638,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         }
         Cmd::Bench {
             what:
-                BenchCmd::View {
-                    rig,
-                    scene,
-                    characters,
-                    seconds,
-                    rounds,
-                    viewers,
-                    fifo,
-                    age,
-                    headset,
-                    size,
-                    browser,
-                },
+                BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo, age, size, browser },
         } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
@@ -671,7 +656,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
                     .ok_or_else(|| {
                         anyhow::anyhow!("--size {size}: give WIDTHxHEIGHT in pixels, e.g. 960x540")
                     })?;
-                let o = AgeBenchOptions { scene, seconds, headset, width, height, world: None };
+                let o = AgeBenchOptions { scene, seconds, width, height, world: None };
                 outln!("{}", bench_age(&r, &o)?);
                 return Ok(0);
             }
