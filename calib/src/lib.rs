@@ -87,7 +87,7 @@ pub enum CalibError {
     #[error("{0}")]
     Options(String),
     #[error("simulated rig: {0}")]
-    Sim(#[from] spidar_device::sim::SimError),
+    Sim(#[from] spidar_device::sim::SimRigError),
     #[error("rig file {file}: {message}")]
     RigFile { file: String, message: String },
     #[error("plot {file}: {message}")]

@@ -125,6 +125,77 @@ fn viewer(
     })
 }
 
+impl Phase {
+    /// A viewer read `frames` in `secs`.
+    fn viewer_read(&mut self, frames: u64, secs: f64) {
+        self.frames_read += frames;
+        self.viewer_seconds += secs;
+        let hz = frames as f64 / secs;
+        self.min_viewer_hz = if self.min_viewer_hz == 0.0 { hz } else { self.min_viewer_hz.min(hz) };
+    }
+}
+
+/// The world a block steps: the rig on the virtual clock, the scene, and the view when it watches.
+struct World<'a> {
+    v: &'a mut VirtualRun<spidar_device::sim::SimRig>,
+    scene: &'a mut dyn Scene,
+    info: &'a spidar_msg::RigInfo,
+    observer: Option<&'a mut dyn Observer>,
+}
+
+impl World<'_> {
+    /// `steps` world steps paced by `clock` at the scene's rate, each after the rig's ticks of its
+    /// span, timed into `phase` (the whole step, the scene's part, the observer's part).
+    fn step_block(
+        self,
+        clock: &mut MonotonicClock,
+        samples: &mut Vec<spidar_msg::HandSample>,
+        phase: &mut Phase,
+        steps: u64,
+        ticks_per_step: u64,
+    ) {
+        let World { v, scene, info, mut observer } = self;
+        let step_ns = (scene.step_s() * 1e9).round() as u64;
+        let mut deadline = clock.now_ns();
+        for _ in 0..steps {
+            let wake = clock.sleep_until(deadline);
+            if wake > deadline + step_ns {
+                phase.late += 1;
+            }
+            for _ in 0..ticks_per_step {
+                v.rt.tick();
+            }
+            for _ in v.far.telemetry.try_iter() {}
+            samples.clear();
+            samples.extend(v.far.samples.try_iter());
+            let t = v.clock.now_ns() as f64 * 1e-9;
+            let t0 = Instant::now();
+            let m = scene.step(t, samples);
+            let t1 = Instant::now();
+            if let Some(o) = observer.as_mut() {
+                let sv = StepView {
+                    t_s: t,
+                    scene: &*scene,
+                    samples,
+                    model: &m,
+                    rig_info: Some(info),
+                    rig_status: None,
+                };
+                o.after_step(&sv);
+            }
+            let t2 = Instant::now();
+            let _ = v.far.models.try_send(m);
+            phase.step.record((t2 - t0).as_secs_f64());
+            phase.scene.record((t1 - t0).as_secs_f64());
+            phase.observer.record((t2 - t1).as_secs_f64());
+            deadline += step_ns;
+            if clock.now_ns() > deadline + 10 * step_ns {
+                deadline = clock.now_ns();
+            }
+        }
+    }
+}
+
 pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchReport> {
     let (mut scene, script): (Box<dyn Scene>, &str) = match o.scene.as_str() {
         "boxing" | "boxing-passive" => (spidar_world::load(&o.scene)?, "box"),
@@ -164,7 +235,6 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         .to_string(),
         None => "normal priority".to_string(),
     };
-    let step_ns = (scene.step_s() * 1e9).round() as u64;
     let ticks_per_step = (scene.step_s() / rig.period_s).round().max(1.0) as u64;
     let mut phases: [(String, Phase); 3] = [
         ("view off".into(), Phase::default()),
@@ -230,51 +300,12 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             handle.clear_picture_ages();
             let started = Instant::now();
             let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
-            let mut deadline = clock.now_ns();
-            for _ in 0..steps_per_block {
-                let wake = clock.sleep_until(deadline);
-                if wake > deadline + step_ns {
-                    phase.late += 1;
-                }
-                for _ in 0..ticks_per_step {
-                    v.rt.tick();
-                }
-                for _ in v.far.telemetry.try_iter() {}
-                samples.clear();
-                samples.extend(v.far.samples.try_iter());
-                let t = v.clock.now_ns() as f64 * 1e-9;
-                let t0 = Instant::now();
-                let m = scene.step(t, &samples);
-                let t1 = Instant::now();
-                if p > 0 {
-                    let sv = StepView {
-                        t_s: t,
-                        scene: &*scene,
-                        samples: &samples,
-                        model: &m,
-                        rig_info: Some(&info),
-                        rig_status: None,
-                    };
-                    view.after_step(&sv);
-                }
-                let t2 = Instant::now();
-                let _ = v.far.models.try_send(m);
-                phase.step.record((t2 - t0).as_secs_f64());
-                phase.scene.record((t1 - t0).as_secs_f64());
-                phase.observer.record((t2 - t1).as_secs_f64());
-                deadline += step_ns;
-                if clock.now_ns() > deadline + 10 * step_ns {
-                    deadline = clock.now_ns();
-                }
-            }
+            let observer: Option<&mut dyn Observer> = if p > 0 { Some(&mut view) } else { None };
+            let world = World { v: &mut v, scene: &mut *scene, info: &info, observer };
+            world.step_block(&mut clock, &mut samples, phase, steps_per_block, ticks_per_step);
             let secs = started.elapsed().as_secs_f64();
             for (c, s) in counts.iter().zip(at_start) {
-                let n = c.load(Ordering::Relaxed) - s;
-                phase.frames_read += n;
-                phase.viewer_seconds += secs;
-                let hz = n as f64 / secs;
-                phase.min_viewer_hz =
-                    if phase.min_viewer_hz == 0.0 { hz } else { phase.min_viewer_hz.min(hz) };
+                phase.viewer_read(c.load(Ordering::Relaxed) - s, secs);
             }
             if let Some(b) = browser {
                 let (screen, _) = handle.picture_ages().summaries();

@@ -234,6 +234,30 @@ impl LinkStats {
         c.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// Every counter by name, for a machine-readable summary (`spidar run --json`).
+    pub fn counts(&self) -> [(&'static str, u64); 17] {
+        let g = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        [
+            ("connects", g(&self.connects)),
+            ("worlds", g(&self.worlds)),
+            ("lost", g(&self.lost)),
+            ("hellos", g(&self.hellos)),
+            ("models", g(&self.models)),
+            ("samples_sent", g(&self.samples_sent)),
+            ("samples_dropped", g(&self.samples_dropped)),
+            ("sends_unanswered", g(&self.sends_unanswered)),
+            ("statuses_sent", g(&self.statuses_sent)),
+            ("malformed", g(&self.malformed)),
+            ("wrong_version", g(&self.wrong_version)),
+            ("foreign", g(&self.foreign)),
+            ("unexpected", g(&self.unexpected)),
+            ("bad_stamps", g(&self.bad_stamps) + g(&self.out_of_order)),
+            ("future_stamps", g(&self.future_stamps)),
+            ("refusals", g(&self.refusals)),
+            ("byes", g(&self.byes)),
+        ]
+    }
+
     /// A one-line summary for the end of a run.
     pub fn summary(&self) -> String {
         let g = |c: &AtomicU64| c.load(Ordering::Relaxed);

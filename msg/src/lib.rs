@@ -14,6 +14,7 @@
 //! own clock; it stamps a model with the rig time it estimates from the newest sample (see
 //! `docs/link.md`).
 
+pub mod digest;
 pub mod handshake;
 pub mod wire;
 
@@ -170,8 +171,9 @@ impl ContactModel {
 /// One hand as the rt-loop measured it on one tick (world frame).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HandState {
-    pub pos_m: DVec3,
-    pub vel_m_per_s: DVec3,
+    /// Grip position in the world frame; `HandRecord::pos_rig_m` (rt-loop) is the same point in the rig.
+    pub pos_world_m: DVec3,
+    pub vel_world_m_per_s: DVec3,
     /// Force the rig commanded on the user's hand this tick, after safety.
     pub force_n: DVec3,
     /// False when the pose is not trustworthy (not homed, faulted, residual too large).

@@ -477,15 +477,15 @@ impl Field for ContactModel {
 impl Field for HandState {
     const SIZE: usize = 3 * DVec3::SIZE + 1;
     fn put(&self, w: &mut Put<'_>) {
-        self.pos_m.put(w);
-        self.vel_m_per_s.put(w);
+        self.pos_world_m.put(w);
+        self.vel_world_m_per_s.put(w);
         self.force_n.put(w);
         self.valid.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         HandState {
-            pos_m: DVec3::get(r),
-            vel_m_per_s: DVec3::get(r),
+            pos_world_m: DVec3::get(r),
+            vel_world_m_per_s: DVec3::get(r),
             force_n: DVec3::get(r),
             valid: bool::get(r),
         }

@@ -73,9 +73,9 @@ fn model() -> impl Strategy<Value = ContactModel> {
 }
 
 fn hand_state() -> impl Strategy<Value = HandState> {
-    (v3(), v3(), v3(), any::<bool>()).prop_map(|(pos_m, vel_m_per_s, force_n, valid)| HandState {
-        pos_m,
-        vel_m_per_s,
+    (v3(), v3(), v3(), any::<bool>()).prop_map(|(pos_world_m, vel_world_m_per_s, force_n, valid)| HandState {
+        pos_world_m,
+        vel_world_m_per_s,
         force_n,
         valid,
     })

@@ -1,5 +1,6 @@
 //! The Foxglove message types a world recording uses, as `ros2msg` definitions (the field lists of
-//! the `foxglove_msgs` ROS 2 package, constants left out: they take no bytes), so Foxglove and
+//! the released `foxglove_msgs` ROS 2 package, constants left out: they take no bytes; a test
+//! compares them with Foxglove's own published definitions, `tests/tests/hil/foxglove.rs`), so Foxglove and
 //! Lichtblick draw the world in a 3D panel: `foxglove_msgs/msg/FrameTransforms` (where every body
 //! is) and `foxglove_msgs/msg/SceneUpdate` (what each body looks like, attached to its frame).
 //!
@@ -157,11 +158,9 @@ pub struct TriangleListPrimitive {
     pub color: Color,
     pub colors: Vec<Color>,
     pub indices: Vec<u32>,
-    pub metadata: Vec<KeyValuePair>,
 }
 message!(TriangleListPrimitive = "foxglove_msgs/TriangleListPrimitive" {
     pose: Pose, points: Vec<Point>, color: Color, colors: Vec<Color>, indices: Vec<u32>,
-    metadata: Vec<KeyValuePair>,
 });
 
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -182,14 +181,16 @@ pub struct ModelPrimitive {
     pub pose: Pose,
     pub scale: Vector3,
     pub color: Color,
-    pub use_embedded_materials: bool,
+    /// Draw the whole model in `color` instead of its own materials.
+    pub override_color: bool,
     pub url: String,
-    pub mime_type: String,
+    /// Media type of `data` (e.g. `model/gltf-binary`).
+    pub media_type: String,
     pub data: Vec<u8>,
 }
 message!(ModelPrimitive = "foxglove_msgs/ModelPrimitive" {
-    pose: Pose, scale: Vector3, color: Color, use_embedded_materials: bool, url: String,
-    mime_type: String, data: Vec<u8>,
+    pose: Pose, scale: Vector3, color: Color, override_color: bool, url: String,
+    media_type: String, data: Vec<u8>,
 });
 
 /// One drawn thing: primitives in the frame `frame_id` (following it when `frame_locked`).

@@ -82,7 +82,7 @@ fn a_world_recording_keeps_the_frames_the_live_view_drew() {
         let (_, tf) = truth.tf.iter().find(|(t, _)| *t == f.t_s).expect("the frame's step");
         for k in 0..layout.shapes {
             let s = &f.frame[layout.shapes_at + 7 * k..];
-            let x = &tf.transforms[k + 1];
+            let x = &tf.transforms[k + 2];
             assert_eq!(
                 [s[0], s[1], s[2]],
                 [x.translation.x as f32, x.translation.y as f32, x.translation.z as f32],

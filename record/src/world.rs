@@ -27,8 +27,8 @@ use std::thread::JoinHandle;
 
 use crossbeam_channel::{bounded, Receiver, Sender};
 use glam::{DQuat, DVec3, Quat, Vec3};
-use mcap::records::{MessageHeader, Metadata};
-use mcap::{Attachment, WriteOptions, Writer};
+use mcap::records::Metadata;
+use mcap::{Attachment, Writer};
 use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
 use spidar_sim::character::drawn::FigureState;
 use spidar_sim::collide::Shape;
@@ -40,12 +40,17 @@ use spidar_world::view::{FrameFinisher, FrameMaker, Layout, StatusData};
 use spidar_world::{Observer, StepView};
 
 use crate::cdr::{self, Field};
+use crate::channel::{self, ChannelSpec, Channels, Tap};
 use crate::foxglove::*;
 use crate::writer::{META_END, META_SESSION};
-use crate::{message, RecordError, FORMAT_VERSION, PROFILE, SPIDAR_VERSION};
+use crate::{message, RecordError, FORMAT_VERSION, SPIDAR_VERSION};
 
 pub const TOPIC_TF: &str = "/world/tf";
 pub const TOPIC_SCENE: &str = "/world/scene";
+/// The behaviour labels, all of them in every message (a seek finds them all in the newest).
+pub const TOPIC_LABELS: &str = "/world/labels";
+/// A crowd's drawn figures, all of them in every message.
+pub const TOPIC_SKELETONS: &str = "/world/skeletons";
 pub const TOPIC_STEP: &str = "/world/step";
 pub const TOPIC_BOXER: &str = "/world/boxer";
 pub const TOPIC_CROWD: &str = "/world/crowd";
@@ -57,6 +62,12 @@ pub const VIEW_ATTACHMENT: &str = "view.json";
 pub const VIEW_EVERY_S: f64 = 1.0 / 60.0;
 /// The fixed frame every world frame hangs from.
 pub const WORLD_FRAME: &str = "world";
+/// The root frame above `world`: z up (Foxglove's 3D panel orbits about z), x as the world's x,
+/// y the user's forward (world -z). `world` is this frame turned +90 degrees about x.
+pub const Z_UP_FRAME: &str = "z_up";
+/// Height of the first label above its body, and between two labels of one body (m, world up).
+pub const LABEL_ABOVE_M: f64 = 0.2;
+pub const LABEL_STEP_M: f64 = 0.07;
 /// The scene's whole look (every entity) is written again this often (scene time), so a player
 /// that seeks, or a file cut short, always has the shapes to draw.
 pub const SCENE_EVERY_S: f64 = 1.0;
@@ -470,19 +481,19 @@ pub const EVENT_HAND: u8 = 3;
 pub const EVENT_BODY: u8 = 4;
 pub const EVENT_CHARACTER: u8 = 5;
 
-/// The world channels: (topic, schema name, schema text).
-pub fn channels() -> Vec<(&'static str, String, String)> {
-    fn c<T: Field>(topic: &'static str) -> (&'static str, String, String) {
-        (topic, T::ros_type(), cdr::schema_text::<T>())
-    }
+/// The world channels, in the order of the writer's channel indexes: what a world recording
+/// holds and what the world's live Foxglove server advertises.
+pub fn channels() -> Vec<ChannelSpec> {
     vec![
-        c::<FrameTransforms>(TOPIC_TF),
-        c::<SceneUpdate>(TOPIC_SCENE),
-        c::<WorldStep>(TOPIC_STEP),
-        c::<BoxerMsg>(TOPIC_BOXER),
-        c::<CrowdMsg>(TOPIC_CROWD),
-        c::<WorldEventMsg>(TOPIC_WORLD_EVENT),
-        c::<ViewFrameMsg>(TOPIC_VIEW),
+        ChannelSpec::of::<FrameTransforms>(TOPIC_TF),
+        ChannelSpec::of::<SceneUpdate>(TOPIC_SCENE),
+        ChannelSpec::of::<WorldStep>(TOPIC_STEP),
+        ChannelSpec::of::<BoxerMsg>(TOPIC_BOXER),
+        ChannelSpec::of::<CrowdMsg>(TOPIC_CROWD),
+        ChannelSpec::of::<WorldEventMsg>(TOPIC_WORLD_EVENT),
+        ChannelSpec::of::<ViewFrameMsg>(TOPIC_VIEW),
+        ChannelSpec::of::<SceneUpdate>(TOPIC_LABELS),
+        ChannelSpec::of::<SceneUpdate>(TOPIC_SKELETONS),
     ]
 }
 
@@ -512,7 +523,7 @@ pub fn decode(topic: &str, schema: &str, data: &[u8]) -> Option<Result<WorldMsg,
         TOPIC_BOXER => one(schema, data, |b| WorldMsg::Boxer(Box::new(b))),
         TOPIC_CROWD => one(schema, data, WorldMsg::Crowd),
         TOPIC_WORLD_EVENT => one(schema, data, WorldMsg::Event),
-        TOPIC_TF | TOPIC_SCENE | TOPIC_VIEW => Ok(WorldMsg::Drawing),
+        TOPIC_TF | TOPIC_SCENE | TOPIC_LABELS | TOPIC_SKELETONS | TOPIC_VIEW => Ok(WorldMsg::Drawing),
         _ => return None,
     })
 }
@@ -736,7 +747,18 @@ impl WorldRecording {
         info: &WorldInfo,
         look: &Look,
     ) -> Result<(WorldRecording, WorldRecorder), RecordError> {
-        let w = WorldWriter::create(path, info, look)?;
+        Self::start_with(Some(path), info, look, None)
+    }
+
+    /// As [`WorldRecording::start`], writing the file at `path` (None: none) and handing every
+    /// message to `tap` (a live server: the same channels and messages as the file).
+    pub fn start_with(
+        path: Option<&Path>,
+        info: &WorldInfo,
+        look: &Look,
+        tap: Option<Box<dyn Tap>>,
+    ) -> Result<(WorldRecording, WorldRecorder), RecordError> {
+        let w = WorldWriter::create(path, info, look, tap)?;
         let layout = Layout::for_look(look);
         let (full_tx, full_rx) = bounded::<ToWriter>(QUEUE_STEPS + 1);
         let (free_tx, free_rx) = bounded::<Box<Snap>>(QUEUE_STEPS);
@@ -769,7 +791,7 @@ impl WorldRecording {
             .name("spidar-world-recorder".into())
             .spawn(move || w.run(full_rx, free_tx, figures_tx, d))
             .map_err(|e| RecordError::Write {
-                path: path.to_path_buf(),
+                path: path.map_or_else(PathBuf::new, Path::to_path_buf),
                 why: format!("starting the recorder thread: {e}"),
             })?;
         let rec = WorldRecorder {
@@ -833,11 +855,12 @@ struct Drawn {
 
 struct WorldWriter {
     w: Option<Writer<File>>,
+    /// A file was asked for (`w` None then means writing failed).
+    to_file: bool,
+    /// A live server given every message.
+    tap: Option<Box<dyn Tap>>,
     path: PathBuf,
-    channels: [u16; 7],
-    seq: [u32; 7],
-    start_ns: u64,
-    buf: Vec<u8>,
+    ch: Channels,
     look: Look,
     layout: Layout,
     finisher: FrameFinisher,
@@ -856,6 +879,8 @@ const BOXER: usize = 3;
 const CROWD: usize = 4;
 const EVENT: usize = 5;
 const VIEW: usize = 6;
+const LABELS: usize = 7;
+const SKELETONS: usize = 8;
 
 use crate::writer::describe;
 
@@ -868,6 +893,11 @@ fn pose(pos: DVec3, q: DQuat) -> Pose {
 
 fn v3(x: f64, y: f64, z: f64) -> Vector3 {
     Vector3 { x, y, z }
+}
+
+/// The frame of label `i`: at its body, turned as the world.
+fn label_frame(i: usize) -> String {
+    format!("label/{i}")
 }
 
 /// `virtual human/head` -> `virtual_human/head`.
@@ -924,23 +954,78 @@ fn shape_entity(id: String, frame: String, s: &LookShape, at: Pose) -> SceneEnti
 }
 
 impl WorldWriter {
-    fn create(path: &Path, info: &WorldInfo, look: &Look) -> Result<WorldWriter, RecordError> {
+    /// The writer of a file at `path` (None: no file) and/or a live server `tap`.
+    fn create(
+        path: Option<&Path>,
+        info: &WorldInfo,
+        look: &Look,
+        tap: Option<Box<dyn Tap>>,
+    ) -> Result<WorldWriter, RecordError> {
+        let start_ns = info.start_unix_ns.unwrap_or_else(crate::writer::unix_now_ns);
+        let layout = Layout::for_look(look);
+        let mut ch = Channels::new(start_ns);
+        let w = match path {
+            Some(path) => Some(Self::create_file(path, info, look, &layout, &mut ch)?),
+            None => {
+                ch.declare::<File>(None, self::channels()).expect("no file, nothing to fail");
+                None
+            }
+        };
+        // Frames of the moving shapes (unique names), and their entities in their own frames.
+        let mut shapes: Vec<Drawn> = Vec::with_capacity(look.shapes.len());
+        for (k, s) in look.shapes.iter().enumerate() {
+            let mut frame = frame_name(&s.name);
+            if shapes.iter().any(|d| d.frame == frame) {
+                frame = format!("{frame}_{k}");
+            }
+            let entity = shape_entity(frame.clone(), frame.clone(), s, Pose::default());
+            shapes.push(Drawn { frame, entity });
+        }
+        let statics = look
+            .statics
+            .iter()
+            .enumerate()
+            .map(|(i, (s, p, q))| {
+                let mut e = shape_entity(format!("static/{i}"), WORLD_FRAME.into(), s, pose(*p, *q));
+                e.frame_locked = false;
+                e
+            })
+            .collect();
+        let path = path.map_or_else(|| PathBuf::from("(live only)"), Path::to_path_buf);
+        Ok(WorldWriter {
+            to_file: w.is_some(),
+            w,
+            tap,
+            report: WorldRecordingReport { path: path.clone(), ..Default::default() },
+            path,
+            ch,
+            layout,
+            finisher: FrameFinisher::new(look),
+            look: look.clone(),
+            shapes,
+            statics,
+            prev: None,
+            prev_labels: Vec::new(),
+            prev_states: Vec::new(),
+        })
+    }
+
+    /// Creates the file and writes what made it; declares the channels.
+    fn create_file(
+        path: &Path,
+        info: &WorldInfo,
+        look: &Look,
+        layout: &Layout,
+        ch: &mut Channels,
+    ) -> Result<Writer<File>, RecordError> {
         let create = |e: std::io::Error| RecordError::Create { path: path.to_path_buf(), cause: e };
         if path.is_dir() {
             return Err(create(std::io::Error::other("it is a directory")));
         }
         let file = File::create(path).map_err(create)?;
         let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
-        let opts = WriteOptions::new()
-            .disable_seeking(true)
-            .profile(PROFILE)
-            .library(format!("spidar {SPIDAR_VERSION}"))
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(crate::writer::ZSTD_LEVEL)
-            .compression_threads(0)
-            .chunk_size(Some(CHUNK_BYTES));
-        let mut w = opts.create(file).map_err(write)?;
-        let start_ns = info.start_unix_ns.unwrap_or_else(crate::writer::unix_now_ns);
+        let mut w = channel::options(Some(CHUNK_BYTES)).create(file).map_err(write)?;
+        let start_ns = ch.start_unix_ns();
         let mut meta = BTreeMap::new();
         for (k, v) in [
             ("format_version", FORMAT_VERSION.to_string()),
@@ -965,8 +1050,7 @@ impl WorldWriter {
             .map_err(write)?;
         }
         // What the live view's page is told the scene looks like, for `spidar replay`.
-        let layout = Layout::for_look(look);
-        let view = spidar_world::view::json::scene(&info.name, look, &layout, 1.0 / VIEW_EVERY_S);
+        let view = spidar_world::view::json::scene(&info.name, look, layout, 1.0 / VIEW_EVERY_S);
         w.attach(&Attachment {
             log_time: start_ns,
             create_time: start_ns,
@@ -975,49 +1059,9 @@ impl WorldWriter {
             data: view.as_bytes().into(),
         })
         .map_err(write)?;
-        let mut channels = [0u16; 7];
-        for (i, (topic, name, schema)) in self::channels().into_iter().enumerate() {
-            let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
-            channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
-        }
-        w.flush().map_err(write)?;
-        // Frames of the moving shapes (unique names), and their entities in their own frames.
-        let mut shapes: Vec<Drawn> = Vec::with_capacity(look.shapes.len());
-        for (k, s) in look.shapes.iter().enumerate() {
-            let mut frame = frame_name(&s.name);
-            if shapes.iter().any(|d| d.frame == frame) {
-                frame = format!("{frame}_{k}");
-            }
-            let entity = shape_entity(frame.clone(), frame.clone(), s, Pose::default());
-            shapes.push(Drawn { frame, entity });
-        }
-        let statics = look
-            .statics
-            .iter()
-            .enumerate()
-            .map(|(i, (s, p, q))| {
-                let mut e = shape_entity(format!("static/{i}"), WORLD_FRAME.into(), s, pose(*p, *q));
-                e.frame_locked = false;
-                e
-            })
-            .collect();
-        Ok(WorldWriter {
-            w: Some(w),
-            path: path.to_path_buf(),
-            channels,
-            seq: [0; 7],
-            start_ns,
-            buf: Vec::with_capacity(1 << 16),
-            layout,
-            finisher: FrameFinisher::new(look),
-            look: look.clone(),
-            shapes,
-            statics,
-            prev: None,
-            prev_labels: Vec::new(),
-            prev_states: Vec::new(),
-            report: WorldRecordingReport { path: path.to_path_buf(), ..Default::default() },
-        })
+        // No chunk ends here: the schemas and channels go into the first chunk with its messages.
+        ch.declare(Some(&mut w), self::channels()).map_err(write)?;
+        Ok(w)
     }
 
     fn run(
@@ -1044,23 +1088,12 @@ impl WorldWriter {
         self.finish(dropped.load(Ordering::Relaxed))
     }
 
-    fn log_ns(&self, t_s: f64) -> u64 {
-        self.start_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64)
-    }
-
     fn put<T: Field>(&mut self, ch: usize, t_s: f64, x: &T) -> bool {
-        let t = self.log_ns(t_s);
-        let Some(w) = self.w.as_mut() else { return false };
-        cdr::encode(x, &mut self.buf);
-        self.seq[ch] = self.seq[ch].wrapping_add(1);
-        let h = MessageHeader {
-            channel_id: self.channels[ch],
-            sequence: self.seq[ch],
-            log_time: t,
-            publish_time: t,
-        };
-        match w.write_to_known_channel(&h, &self.buf) {
-            Ok(()) => {
+        if self.to_file && self.w.is_none() {
+            return false;
+        }
+        match self.ch.put(self.w.as_mut(), self.tap.as_deref_mut(), ch, t_s, x) {
+            Ok(_) => {
                 self.report.messages += 1;
                 true
             }
@@ -1073,11 +1106,11 @@ impl WorldWriter {
     }
 
     fn write_step(&mut self, s: &Snap, dropped: u64) {
-        if self.w.is_none() {
+        if self.to_file && self.w.is_none() {
             self.report.write_failed += 1;
             return;
         }
-        let stamp = Time::from_ns(self.log_ns(s.t_s));
+        let stamp = Time::from_ns(self.ch.log_ns(s.t_s));
         let mut ok = self.put(
             STEP,
             s.t_s,
@@ -1085,7 +1118,18 @@ impl WorldWriter {
         );
         // Where every body is.
         let l = self.layout;
-        let mut tf = FrameTransforms { transforms: Vec::with_capacity(l.shapes + l.characters + 1) };
+        let mut tf = FrameTransforms {
+            transforms: Vec::with_capacity(l.shapes + l.characters + self.look.labels.len() + 2),
+        };
+        // The y-up world under a z-up root, so Foxglove's 3D panel shows the floor as a floor.
+        let h = std::f64::consts::FRAC_1_SQRT_2;
+        tf.transforms.push(FrameTransform {
+            timestamp: stamp,
+            parent_frame_id: Z_UP_FRAME.into(),
+            child_frame_id: WORLD_FRAME.into(),
+            translation: v3(0.0, 0.0, 0.0),
+            rotation: Quaternion { x: h, y: 0.0, z: 0.0, w: h },
+        });
         let off = self.look.link_offset_m;
         tf.transforms.push(FrameTransform {
             timestamp: stamp,
@@ -1104,6 +1148,19 @@ impl WorldWriter {
                 rotation: Quaternion { x: f[3] as f64, y: f[4] as f64, z: f[5] as f64, w: f[6] as f64 },
             });
         }
+        // Each labelled body's label frame: at the body, unturned (the world's up stays up), so
+        // its labels stand above it however it turns.
+        for (i, lab) in self.look.labels.iter().enumerate() {
+            let at = lab.shape * SHAPE_FLOATS + l.shapes_at;
+            let p = s.frame.get(at..at + 3).map_or([0.0; 3], |f| [f[0] as f64, f[1] as f64, f[2] as f64]);
+            tf.transforms.push(FrameTransform {
+                timestamp: stamp,
+                parent_frame_id: WORLD_FRAME.into(),
+                child_frame_id: label_frame(i),
+                translation: v3(p[0], p[1], p[2]),
+                rotation: Quaternion::default(),
+            });
+        }
         let mut states = Vec::with_capacity(l.characters);
         for i in 0..l.characters {
             let c = &s.frame[l.characters_at + i * l.character_floats..];
@@ -1117,32 +1174,41 @@ impl WorldWriter {
             states.push(state_of(&s.frame, &l, i));
         }
         ok = ok && self.put(TF, s.t_s, &tf);
-        // What the bodies look like: every entity now and then; labels when they change; the
-        // crowd's skeletons (they move within their frames) at display rate, with every entity and
-        // when a character's state changes (as the observer decided).
+        // What the bodies look like, on three topics so that the newest message of each (all a
+        // Foxglove 3D panel keeps after a seek) holds the whole of it: every shape now and then;
+        // every label when one changes; every skeleton at display rate (as the observer decided).
         let labels: Vec<u8> = (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
-        let full = s.full;
-        let mut update = SceneUpdate::default();
-        if full {
+        if s.full {
+            let mut update = SceneUpdate::default();
             for d in &self.shapes {
                 update.entities.push(SceneEntity { timestamp: stamp, ..d.entity.clone() });
             }
             for e in &self.statics {
                 update.entities.push(SceneEntity { timestamp: stamp, ..e.clone() });
             }
+            if !update.entities.is_empty() {
+                ok = ok && self.put(SCENE, s.t_s, &update);
+            }
         }
-        if full || labels != self.prev_labels {
+        if !self.look.labels.is_empty() && (s.full || labels != self.prev_labels) {
+            let mut update = SceneUpdate::default();
+            // Labels of one body stack upward, one line each.
+            let mut line_of_shape: Vec<(usize, usize)> = Vec::new();
             for (i, lab) in self.look.labels.iter().enumerate() {
                 let state = labels[i] as usize;
                 let text = format!("{}: {}", lab.name, lab.states.get(state).map_or("?", |x| x.as_str()));
-                let frame = self.shapes.get(lab.shape).map_or(WORLD_FRAME.to_string(), |d| d.frame.clone());
+                let line = line_of_shape.iter().filter(|(shape, _)| *shape == lab.shape).count();
+                line_of_shape.push((lab.shape, i));
                 update.entities.push(SceneEntity {
                     timestamp: stamp,
-                    frame_id: frame,
+                    frame_id: label_frame(i),
                     id: format!("label/{i}"),
                     frame_locked: true,
                     texts: vec![TextPrimitive {
-                        pose: pose(DVec3::new(0.0, 0.2 + 0.07 * i as f64, 0.0), DQuat::IDENTITY),
+                        pose: pose(
+                            DVec3::new(0.0, LABEL_ABOVE_M + LABEL_STEP_M * line as f64, 0.0),
+                            DQuat::IDENTITY,
+                        ),
                         billboard: true,
                         font_size: 14.0,
                         scale_invariant: true,
@@ -1152,8 +1218,10 @@ impl WorldWriter {
                     ..Default::default()
                 });
             }
+            ok = ok && self.put(LABELS, s.t_s, &update);
         }
         if let Some(crowd) = self.look.crowd.as_ref().filter(|_| s.skeletons) {
+            let mut update = SceneUpdate::default();
             for (i, state) in states.iter().enumerate() {
                 let c = &s.frame[l.characters_at + i * l.character_floats
                     ..(i + 1) * l.character_floats + l.characters_at];
@@ -1167,9 +1235,7 @@ impl WorldWriter {
                     ..Default::default()
                 });
             }
-        }
-        if !update.entities.is_empty() {
-            ok = ok && self.put(SCENE, s.t_s, &update);
+            ok = ok && self.put(SKELETONS, s.t_s, &update);
         }
         // What the live view drew (at its display rate), for `spidar replay`.
         if s.view {

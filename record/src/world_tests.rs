@@ -23,8 +23,8 @@ pub(crate) fn temp(name: &str) -> PathBuf {
 pub(crate) fn sample(k: u64, t_s: f64) -> HandSample {
     let mut s = HandSample { tick: k, t_s, ..Default::default() };
     let jab = ((k % 300) as f64 / 300.0 * std::f64::consts::TAU).sin().max(0.0);
-    s.hands[0].pos_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
-    s.hands[1].pos_m = DVec3::new(0.15, 0.0, 0.0);
+    s.hands[0].pos_world_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
+    s.hands[1].pos_world_m = DVec3::new(0.15, 0.0, 0.0);
     for h in &mut s.hands {
         h.valid = true;
     }
@@ -83,16 +83,7 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     let (shapes, labels, rep) = record_scene("boxing", &p, 600);
     assert_eq!((rep.steps, rep.dropped, rep.write_failed, rep.error.clone()), (600, 0, 0, None), "{rep}");
     let bytes = std::fs::read(&p).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
-    let mut topics: Vec<(String, String, String, String)> = summary
-        .channels
-        .values()
-        .map(|c| {
-            let s = c.schema.as_ref().expect("every channel has a schema");
-            (c.topic.clone(), s.name.clone(), s.encoding.clone(), c.message_encoding.clone())
-        })
-        .collect();
-    topics.sort();
+    let (summary, topics) = crate::tests::mcap_topics(&bytes);
     let want = |t: &str, s: &str| (t.to_string(), s.to_string(), "ros2msg".to_string(), "cdr".to_string());
     assert_eq!(
         topics,
@@ -100,21 +91,28 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
             want(TOPIC_BOXER, "spidar/Boxer"),
             want(TOPIC_CROWD, "spidar/Crowd"),
             want(TOPIC_WORLD_EVENT, "spidar/WorldEvent"),
+            want(TOPIC_LABELS, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_SCENE, "foxglove_msgs/msg/SceneUpdate"),
+            want(TOPIC_SKELETONS, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_STEP, "spidar/WorldStep"),
             want(TOPIC_TF, "foxglove_msgs/msg/FrameTransforms"),
             want(TOPIC_VIEW, "spidar/ViewFrame"),
         ]
     );
     assert!(summary.chunk_indexes.iter().all(|c| c.compression == "zstd"));
+    // No chunk of schemas and channels alone (its index would start the recording in 1970).
+    let stats = summary.stats.as_ref().expect("statistics");
+    assert!(summary.chunk_indexes.iter().all(|c| c.message_start_time >= stats.message_start_time));
+    assert!(stats.message_start_time > 1_000_000_000 * 1_600_000_000, "a start after 2020");
     // Every message, streamed by the mcap crate.
     let mut per_topic = BTreeMap::<String, u64>::new();
-    let (mut first_scene, mut last_tf) = (None, None);
+    let (mut first_scene, mut first_labels, mut last_tf) = (None, None, None);
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         *per_topic.entry(m.channel.topic.clone()).or_default() += 1;
         match m.channel.topic.as_str() {
             TOPIC_SCENE if first_scene.is_none() => first_scene = Some(m.data.into_owned()),
+            TOPIC_LABELS if first_labels.is_none() => first_labels = Some(m.data.into_owned()),
             TOPIC_TF => last_tf = Some(m.data.into_owned()),
             _ => {}
         }
@@ -126,13 +124,23 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     assert!(per_topic[TOPIC_WORLD_EVENT] >= 3, "the first behaviours at least: {per_topic:?}");
     // Every body has its frame, and the first scene update draws every one in its frame.
     let tf: FrameTransforms = cdr::decode(&last_tf.unwrap()).unwrap();
-    assert_eq!(tf.transforms.len(), shapes + 1, "the link frame and every moving shape");
+    assert_eq!(
+        tf.transforms.len(),
+        2 + shapes + labels,
+        "the world under its z-up root, the link frame, every moving shape, every label's frame"
+    );
     assert!(tf.transforms.iter().any(|t| t.child_frame_id == "virtual_human/head"), "{:?}", tf.transforms);
-    assert!(tf.transforms.iter().all(|t| t.parent_frame_id == WORLD_FRAME));
-    let q = &tf.transforms[2].rotation;
+    assert_eq!(
+        (tf.transforms[0].parent_frame_id.as_str(), tf.transforms[0].child_frame_id.as_str()),
+        (Z_UP_FRAME, WORLD_FRAME)
+    );
+    assert!(tf.transforms[1..].iter().all(|t| t.parent_frame_id == WORLD_FRAME));
+    let q = &tf.transforms[3].rotation;
     assert!(((q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) - 1.0).abs() < 1e-5, "a unit quaternion");
     let scene: SceneUpdate = cdr::decode(&first_scene.unwrap()).unwrap();
-    assert_eq!(scene.entities.len(), shapes + labels, "every shape and every behaviour label");
+    assert_eq!(scene.entities.len(), shapes, "every shape");
+    let label_update: SceneUpdate = cdr::decode(&first_labels.unwrap()).unwrap();
+    assert_eq!(label_update.entities.len(), labels, "every behaviour label");
     for e in &scene.entities[..shapes] {
         assert!(e.frame_locked && tf.transforms.iter().any(|t| t.child_frame_id == e.frame_id), "{}", e.id);
         assert!(!(e.spheres.is_empty() && e.cylinders.is_empty() && e.cubes.is_empty()), "{} is drawn", e.id);
@@ -177,9 +185,9 @@ fn a_crowd_recording_carries_every_characters_state_and_frame() {
         if let reader::Msg::Other { channel, data, .. } = m {
             if channel.topic == TOPIC_TF {
                 let tf: FrameTransforms = cdr::decode(data).unwrap();
-                assert_eq!(tf.transforms.len(), n + 1, "the link frame and one per character");
+                assert_eq!(tf.transforms.len(), n + 2, "the z-up root, the link frame and one per character");
             }
-            if channel.topic == TOPIC_SCENE {
+            if channel.topic == TOPIC_SKELETONS {
                 // Each character's drawn figure, in its body frame (origin at the centre of mass,
                 // 0.75 m above the floor): every bone a segment, standing on the floor.
                 let u: SceneUpdate = cdr::decode(data).unwrap();
@@ -298,8 +306,9 @@ fn a_crowd_recording_keeps_the_figures_of_each_step() {
                 assert_eq!(bits(&v.frame), bits(frame), "the view frame at {} ns", m.log_time);
                 views += 1;
             }
-            TOPIC_SCENE => {
+            TOPIC_SKELETONS => {
                 let u: SceneUpdate = cdr::decode(&m.data).unwrap();
+                assert_eq!(u.entities.len(), n, "every character in every message");
                 for e in u.entities.iter().filter(|e| e.id.starts_with("character/")) {
                     let i: usize = e.id["character/".len()..].parse().unwrap();
                     let c = &frame[l.characters_at + i * l.character_floats..][..l.character_floats];
@@ -369,28 +378,18 @@ fn child_records_a_world_until_killed() {
 fn a_killed_world_leaves_a_recording_read_up_to_its_last_chunk() {
     let path = temp("killed.world.mcap");
     let _ = std::fs::remove_file(&path);
-    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "world_tests::child_records_a_world_until_killed", "--ignored", "--nocapture"])
-        .env("SPIDAR_WORLD_RECORD_CHILD", &path)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spidar_testkit::spawn_test_child(
+        "world_tests::child_records_a_world_until_killed",
+        "SPIDAR_WORLD_RECORD_CHILD",
+        Path::new(&path),
+    );
     // Wait until two or more chunks are on disk, then SIGKILL.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(100);
-    loop {
-        let len = std::fs::metadata(&path).map_or(0, |m| m.len());
-        if len > 400_000 {
-            break;
-        }
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("the recording child ended by itself ({status}) at {len} bytes");
-        }
-        assert!(std::time::Instant::now() < deadline, "the recording child wrote only {len} bytes");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean-up of any kind
-    child.wait().unwrap();
+    spidar_testkit::kill_once_written(
+        &mut child,
+        Path::new(&path),
+        400_000,
+        std::time::Duration::from_secs(100),
+    );
     let mut steps = Vec::new();
     let rec = reader::read(&path, |_, m| {
         if let reader::Msg::Other { channel, data, .. } = m {

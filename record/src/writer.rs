@@ -22,20 +22,18 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crossbeam_channel::{bounded, Sender, TrySendError};
-use mcap::records::{MessageHeader, Metadata};
-use mcap::{Attachment, WriteOptions, Writer};
+use mcap::records::Metadata;
+use mcap::{Attachment, Writer};
 use spidar_rt::telemetry::TickRecord;
 
-use crate::cdr::{self, Field};
+use crate::cdr::Field;
+use crate::channel::{self, ChannelSpec, Channels, Tap};
 use crate::schema::{EventMsg, TakenModel, TOPIC_EVENT, TOPIC_MODEL, TOPIC_SAMPLE, TOPIC_TICK};
-use crate::{RecordError, FORMAT_VERSION, PROFILE, SPIDAR_VERSION};
+use crate::{RecordError, FORMAT_VERSION, SPIDAR_VERSION};
 
 /// Uncompressed size of a chunk. A session killed outright loses at most the chunk being filled
 /// (about half a second of ticks at 1 kHz).
 pub const CHUNK_BYTES: u64 = 1 << 20;
-/// zstd level: 3 is zstd's default; higher levels cost the recorder thread more for a few
-/// per cent (see docs/recording.md for the measurement).
-pub const ZSTD_LEVEL: u32 = 3;
 /// Name of the metadata record that says what made the recording.
 pub const META_SESSION: &str = "spidar";
 /// Name of the metadata record written when a recording ends normally.
@@ -131,10 +129,7 @@ pub struct Recorder<W: Write + Seek = File> {
     written: Arc<AtomicU64>,
     kept_bytes: u64,
     path: PathBuf,
-    channels: [u16; 4],
-    seq: [u32; 4],
-    start_unix_ns: u64,
-    buf: Vec<u8>,
+    ch: Channels,
     /// Bytes of messages in the chunk being filled, and its messages per channel.
     chunk_bytes: u64,
     pending: [u64; 4],
@@ -203,18 +198,8 @@ impl Recorder {
 impl<W: Write + Seek> Recorder<W> {
     /// A recorder writing into `sink` (`path` names it in reports and errors).
     pub fn with_sink(sink: W, path: &Path, info: &SessionInfo) -> Result<Recorder<W>, RecordError> {
-        // Chunks are built in memory and written whole once complete (`disable_seeking`: no
-        // placeholder header patched later): a process killed outright leaves every finished
-        // chunk intact and at most one partial record at the end.
-        let opts = WriteOptions::new()
-            .disable_seeking(true)
-            .profile(PROFILE)
-            .library(format!("spidar {SPIDAR_VERSION}"))
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_level(ZSTD_LEVEL)
-            .compression_threads(0)
-            // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
-            .chunk_size(None);
+        // Chunks are ended here (`end_chunk`), so the recorder knows which ticks each holds.
+        let opts = channel::options(None);
         let write = |e: mcap::McapError| RecordError::Write { path: path.to_path_buf(), why: describe(&e) };
         let written = Arc::new(AtomicU64::new(0));
         let mut w = opts.create(Counted { inner: sink, n: written.clone() }).map_err(write)?;
@@ -248,31 +233,17 @@ impl<W: Write + Seek> Recorder<W> {
         for (name, text) in &info.files {
             attach(name, text).map_err(write)?;
         }
-        let mut channels = [0u16; 4];
-        for (i, (topic, name, schema)) in [
-            (TOPIC_TICK, TickRecord::ros_type(), cdr::schema_text::<TickRecord>()),
-            (TOPIC_SAMPLE, spidar_msg::HandSample::ros_type(), cdr::schema_text::<spidar_msg::HandSample>()),
-            (TOPIC_MODEL, TakenModel::ros_type(), cdr::schema_text::<TakenModel>()),
-            (TOPIC_EVENT, EventMsg::ros_type(), cdr::schema_text::<EventMsg>()),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            let sid = w.add_schema(&name, "ros2msg", schema.as_bytes()).map_err(write)?;
-            channels[i] = w.add_channel(sid, topic, "cdr", &BTreeMap::new()).map_err(write)?;
-        }
-        // The preamble reaches the disk before the session starts.
-        w.flush().map_err(write)?;
+        // The header, metadata and attachments reach the disk before the session starts; the
+        // schemas and channels go into the first chunk, with the first ticks (see `channel`).
+        let mut ch = Channels::new(start_unix_ns);
+        ch.declare(Some(&mut w), rig_channels()).map_err(write)?;
         let kept_bytes = written.load(Ordering::Relaxed);
         Ok(Recorder {
             w: Some(w),
             written,
             kept_bytes,
             path: path.to_path_buf(),
-            channels,
-            seq: [0; 4],
-            start_unix_ns,
-            buf: Vec::with_capacity(4096),
+            ch,
             chunk_bytes: 0,
             pending: [0; 4],
             report: RecordingReport { path: path.to_path_buf(), ..Default::default() },
@@ -281,18 +252,9 @@ impl<W: Write + Seek> Recorder<W> {
 
     fn put<T: Field>(&mut self, ch: usize, t_s: f64, x: &T) -> bool {
         let Some(w) = self.w.as_mut() else { return false };
-        cdr::encode(x, &mut self.buf);
-        let t = self.start_unix_ns.saturating_add((t_s.max(0.0) * 1e9).round() as u64);
-        self.seq[ch] = self.seq[ch].wrapping_add(1);
-        let h = MessageHeader {
-            channel_id: self.channels[ch],
-            sequence: self.seq[ch],
-            log_time: t,
-            publish_time: t,
-        };
-        match w.write_to_known_channel(&h, &self.buf) {
-            Ok(()) => {
-                self.chunk_bytes += self.buf.len() as u64;
+        match self.ch.put(Some(w), None, ch, t_s, x) {
+            Ok(n) => {
+                self.chunk_bytes += n as u64;
                 self.pending[ch] += 1;
                 true
             }
@@ -404,7 +366,61 @@ impl<W: Write + Seek> Recorder<W> {
 
     /// Unix time (ns) the recording's times count from (loop-clock zero).
     pub fn start_unix_ns(&self) -> u64 {
-        self.start_unix_ns
+        self.ch.start_unix_ns()
+    }
+}
+
+/// The rig's channels, in the order of the recorder's channel indexes (`TICK`, `SAMPLE`, `MODEL`,
+/// `EVENT`): what a rig recording holds and what a live server of the rig advertises.
+pub fn rig_channels() -> Vec<ChannelSpec> {
+    vec![
+        ChannelSpec::of::<TickRecord>(TOPIC_TICK),
+        ChannelSpec::of::<spidar_msg::HandSample>(TOPIC_SAMPLE),
+        ChannelSpec::of::<TakenModel>(TOPIC_MODEL),
+        ChannelSpec::of::<EventMsg>(TOPIC_EVENT),
+    ]
+}
+
+/// The rig's messages for a live server (Foxglove), without a file: the recorder's channels,
+/// messages and order.
+pub struct LiveRig {
+    ch: Channels,
+    tap: Box<dyn Tap>,
+}
+
+impl LiveRig {
+    /// Times count from `start_unix_ns` (loop-clock zero; the recording's, when there is one).
+    pub fn new(start_unix_ns: u64, tap: Box<dyn Tap>) -> LiveRig {
+        let mut ch = Channels::new(start_unix_ns);
+        ch.declare::<File>(None, rig_channels()).expect("no file, nothing to fail");
+        LiveRig { ch, tap }
+    }
+
+    /// One tick's messages, in the recorder's order: its events, the model it took, the tick,
+    /// the sample.
+    pub fn write_tick(&mut self, r: &TickRecord) {
+        // Without a file nothing can fail: the tap takes every message.
+        let tap = &mut *self.tap;
+        for e in r.events.iter() {
+            let _ = self.ch.put::<_, File>(
+                None,
+                Some(&mut *tap),
+                EVENT,
+                r.t_s,
+                &EventMsg::new(r.tick, r.t_s, &e),
+            );
+        }
+        if let Some(m) = r.model {
+            let _ = self.ch.put::<_, File>(
+                None,
+                Some(&mut *tap),
+                MODEL,
+                r.t_s,
+                &TakenModel { tick: r.tick, model: m },
+            );
+        }
+        let _ = self.ch.put::<_, File>(None, Some(&mut *tap), TICK, r.t_s, r);
+        let _ = self.ch.put::<_, File>(None, Some(&mut *tap), SAMPLE, r.t_s, &r.sample);
     }
 }
 
@@ -418,7 +434,8 @@ pub struct RecorderThread {
     tx: Option<Sender<Vec<TickRecord>>>,
     batch: Vec<TickRecord>,
     dropped: u64,
-    handle: Option<JoinHandle<Recorder>>,
+    to_file: bool,
+    handle: Option<JoinHandle<Option<Recorder>>>,
 }
 
 impl std::fmt::Debug for RecorderThread {
@@ -429,14 +446,26 @@ impl std::fmt::Debug for RecorderThread {
 
 impl RecorderThread {
     pub fn spawn(rec: Recorder) -> Result<RecorderThread, RecordError> {
+        Self::spawn_with(Some(rec), None)
+    }
+
+    /// A thread writing every tick into `rec` (None: no file) and handing it to `live` (a live
+    /// Foxglove server of the rig's channels).
+    pub fn spawn_with(rec: Option<Recorder>, live: Option<LiveRig>) -> Result<RecorderThread, RecordError> {
         let (tx, rx) = bounded::<Vec<TickRecord>>(QUEUE_BATCHES);
+        let to_file = rec.is_some();
         let handle = std::thread::Builder::new()
             .name("spidar-recorder".into())
             .spawn(move || {
-                let mut rec = rec;
+                let (mut rec, mut live) = (rec, live);
                 for batch in rx {
                     for r in &batch {
-                        rec.write_tick(r);
+                        if let Some(rec) = rec.as_mut() {
+                            rec.write_tick(r);
+                        }
+                        if let Some(l) = live.as_mut() {
+                            l.write_tick(r);
+                        }
                     }
                 }
                 rec
@@ -449,6 +478,7 @@ impl RecorderThread {
             tx: Some(tx),
             batch: Vec::with_capacity(BATCH),
             dropped: 0,
+            to_file,
             handle: Some(handle),
         })
     }
@@ -478,7 +508,13 @@ impl RecorderThread {
         }
     }
 
-    /// Writes what is queued and ends the recording.
+    /// True when it writes a file (not only a live server).
+    pub fn records_to_file(&self) -> bool {
+        self.to_file
+    }
+
+    /// Writes what is queued and ends the recording (a thread without a file reports nothing
+    /// written).
     pub fn finish(mut self, end: &EndInfo) -> Result<RecordingReport, RecordError> {
         self.send(true);
         drop(self.tx.take());
@@ -486,7 +522,7 @@ impl RecorderThread {
             path: PathBuf::new(),
             why: "the recorder thread panicked".into(),
         })?;
-        let mut rec = rec;
+        let Some(mut rec) = rec else { return Ok(RecordingReport::default()) };
         rec.report.queue_dropped = self.dropped;
         Ok(rec.finish(end))
     }

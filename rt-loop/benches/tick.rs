@@ -1,5 +1,7 @@
-//! The tick's compute cost (both hands, no device I/O) and each of its phases.
-//! Budget (DESIGN.md section 8): the whole tick under 2 us on this machine.
+//! The tick's compute cost (both hands, no device I/O) and each of its phases: the phases as
+//! the tick runs them (`TickCore::run_phase`, both hands, on an active rig pressing a wall) and
+//! the modules' functions alone. Budget (DESIGN.md section 8): the whole tick under 2 us on this
+//! machine.
 //!
 //! `cargo bench -p spidar-rt --bench tick`
 
@@ -13,7 +15,7 @@ use spidar_rt::kinematics::Kinematics;
 use spidar_rt::render::render_hand;
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::tension::{Allocator, TensionLimits};
-use spidar_rt::tick::HOMING_SETTLE_S;
+use spidar_rt::tick::{Phase, HOMING_SETTLE_S};
 use spidar_rt::{Command, Lifecycle, Rig, TickCore};
 
 /// Counts that put each grip at `pos` for a rig homed with counts 0 at the home points.
@@ -74,6 +76,20 @@ fn bench(c: &mut Criterion) {
         })
     });
     assert!(rec.hands[0].contacts > 0, "the benchmark must render a contact");
+
+    // The tick's phases one by one, both hands, from the state the whole tick above left: an
+    // active rig, a fresh model, both grips 1.4 mm into the wall.
+    core.step(0.001, Ok(()), &inp, &mut out, &mut s, &mut rec);
+    for (name, phase) in [
+        ("step_phase/read_kinematics_velocity", Phase::Read),
+        ("step_phase/render", Phase::Render),
+        ("step_phase/safety", Phase::Safety),
+        ("step_phase/allocate", Phase::Allocate),
+    ] {
+        c.bench_function(name, |b| b.iter(|| black_box(core.run_phase(phase, 0.001, black_box(&inp)))));
+    }
+    assert_eq!(core.state(), Lifecycle::Active, "the phases must run on an active rig");
+    assert!(core.run_phase(Phase::Render, 0.001, &inp) > 0.0, "the wall pushes back along +z");
 
     let free = counts_at(&rig, [rig.hands[0].home_m, rig.hands[1].home_m]);
     c.bench_function("tick/both_hands_free", |b| {

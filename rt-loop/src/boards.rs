@@ -10,8 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ConfigError;
-use crate::rig::HandRig;
+use crate::config::{At, Checker, ConfigError};
 use spidar_device::uart::protocol::{CURRENT_MAX, HOST_DIGITS_PER_VOLT, MAGNET_COUNTS_PER_REV, PWM_FULL};
 use spidar_device::usb::protocol::DEFAULT_DIGITS_PER_VOLT as USB_DIGITS_PER_VOLT;
 
@@ -133,120 +132,41 @@ impl BoardScales {
     }
 }
 
-/// The volts the rig's strings need at their highest tension.
-pub fn volts_needed(hands: &[HandRig]) -> f64 {
-    hands
-        .iter()
-        .flat_map(|h| h.volts_per_newton.iter().map(move |v| h.tension_max_n * v.abs()))
-        .fold(0.0, f64::max)
-}
-
-/// Checks the section against `hands`; `bad(field, key, message)` locates an error.
-pub fn validate(
-    f: &BoardsFile,
-    hands: &[HandRig],
-    bad: impl Fn(String, &str, String) -> ConfigError,
-) -> Result<BoardScales, ConfigError> {
+/// Checks the section for a rig whose strings need `volts_needed_v` at their highest tension
+/// (`rig::volts_needed`: the DA limit when the file leaves it out), every error located by `c`.
+pub fn validate(f: &BoardsFile, volts_needed_v: f64, c: &Checker) -> Result<BoardScales, ConfigError> {
+    let at = |field: String, key: &'static str| At::new(field, key, 0);
     let positive = |v: f64, hi: f64| v.is_finite() && v > 0.0 && v <= hi;
     let usb = &f.usb_da;
-    if !positive(usb.digits_per_volt, f64::from(i16::MAX)) {
-        return Err(bad(
-            "boards.usb_da.digits_per_volt".into(),
-            "digits_per_volt",
-            format!("{}: must be > 0", usb.digits_per_volt),
-        ));
-    }
-    let limit = usb.limit_v.unwrap_or_else(|| volts_needed(hands));
-    let da_max = f64::from(i16::MAX) / usb.digits_per_volt;
-    if !positive(limit, da_max) {
-        return Err(bad(
-            "boards.usb_da.limit_v".into(),
-            "limit_v",
-            format!("{limit} V: must be > 0 and at most {da_max:.2} V (the DA's 16 bits at this scale)"),
-        ));
-    }
+    let per_volt = usb.digits_per_volt;
+    c.ensure(
+        positive(per_volt, f64::from(i16::MAX)),
+        &at("boards.usb_da.digits_per_volt".into(), "digits_per_volt"),
+        || format!("{per_volt}: must be > 0 and at most {} (the DA's 16 bits)", i16::MAX),
+    )?;
+    let limit = usb.limit_v.unwrap_or(volts_needed_v);
+    let da_max = f64::from(i16::MAX) / per_volt;
+    c.ensure(positive(limit, da_max), &at("boards.usb_da.limit_v".into(), "limit_v"), || {
+        format!("{limit} V: must be > 0 and at most {da_max:.2} V (the DA's 16 bits at this scale)")
+    })?;
     let full = |part: &FullScaleFile, digits: f64, name: &str| {
         let v = part.full_scale_v;
-        if positive(v, 1000.0) {
-            Ok(digits / v)
-        } else {
-            Err(bad(format!("boards.{name}.full_scale_v"), "full_scale_v", format!("{v} V: must be > 0")))
-        }
+        let at = at(format!("boards.{name}.full_scale_v"), "full_scale_v");
+        c.ensure(positive(v, 1000.0), &at, || format!("{v} V: must be > 0 and at most 1000 V"))?;
+        Ok::<f64, ConfigError>(digits / v)
     };
     let pwm = full(&f.uart_pwm_duty, f64::from(PWM_FULL), "uart_pwm_duty")?;
     let current = full(&f.uart_current_target, f64::from(CURRENT_MAX), "uart_current_target")?;
     let counts = f.uart_counts;
-    if let UartCounts::Encoder { counts_per_rev: 0 } = counts {
-        return Err(bad("boards.uart_counts".into(), "counts_per_rev", "0: must be > 0".into()));
-    }
+    let encoder_without_counts = matches!(counts, UartCounts::Encoder { counts_per_rev: 0 });
+    c.ensure(!encoder_without_counts, &at("boards.uart_counts".into(), "counts_per_rev"), || {
+        "0: must be > 0".into()
+    })?;
     Ok(BoardScales {
-        usb_digits_per_volt: usb.digits_per_volt,
+        usb_digits_per_volt: per_volt,
         usb_limit_v: limit,
         uart_pwm_digits_per_volt: pwm,
         uart_current_digits_per_volt: current,
         uart_counts: counts,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::rig::{Rig, DEFAULT_RIG_RON};
-
-    /// The default rig file without its `boards:` section.
-    fn without_section() -> String {
-        let start = DEFAULT_RIG_RON.find("    // The boards' commands").unwrap();
-        let end = DEFAULT_RIG_RON[start..].find("\n    ),\n").unwrap() + start + "\n    ),\n".len();
-        format!("{}{}", &DEFAULT_RIG_RON[..start], &DEFAULT_RIG_RON[end..])
-    }
-
-    #[test]
-    fn the_default_rig_file_says_each_boards_command_range() {
-        let b = Rig::default_rig().boards;
-        assert_eq!(b.usb_digits_per_volt, 415.0);
-        assert_eq!(b.usb_limit_v, 4.0);
-        assert!((b.uart_pwm_full_scale_v() - 4.0).abs() < 1e-12);
-        assert!((b.uart_current_full_scale_v() - 4.0).abs() < 1e-12);
-        assert_eq!(b.uart_pwm_digits_per_volt, 256.0);
-        assert_eq!(b.uart_counts_per_rev(), 1024);
-    }
-
-    #[test]
-    fn left_out_the_da_limit_is_what_the_rig_needs_and_uart_takes_the_lab_scale() {
-        let text = without_section();
-        assert!(!text.contains("boards:"));
-        let rig = Rig::from_str(&text, "test").unwrap();
-        let b = rig.boards;
-        // 20 N x 0.2 V/N: not the 10 V the DA could give.
-        assert!((b.usb_limit_v - 4.0).abs() < 1e-12);
-        assert_eq!(b.usb_limit_v, volts_needed(&rig.hands));
-        // The lab host driver's scale: full PWM duty at 0.825 V, full current target at 3.3 V.
-        assert!((b.uart_pwm_full_scale_v() - 0.825).abs() < 1e-12);
-        assert!((b.uart_current_full_scale_v() - 4095.0 * 3.3 / 4096.0).abs() < 1e-12);
-        assert_eq!(b.uart_counts, UartCounts::MagnetAngle);
-    }
-
-    #[test]
-    fn bad_values_are_located_and_encoder_counts_are_read() {
-        let bad = DEFAULT_RIG_RON.replacen(
-            "uart_pwm_duty: (full_scale_v: 4.0)",
-            "uart_pwm_duty: (full_scale_v: -1.0)",
-            1,
-        );
-        let e = Rig::from_str(&bad, "test.ron").unwrap_err().to_string();
-        assert!(e.contains("boards.uart_pwm_duty.full_scale_v") && e.contains("test.ron:"), "{e}");
-        let big = DEFAULT_RIG_RON.replacen("limit_v: 4.0", "limit_v: 100.0", 1);
-        let e = Rig::from_str(&big, "test.ron").unwrap_err().to_string();
-        assert!(e.contains("boards.usb_da.limit_v") && e.contains("78.96"), "{e}");
-        let enc = DEFAULT_RIG_RON.replacen(
-            "uart_counts: MagnetAngle",
-            "uart_counts: Encoder(counts_per_rev: 2000)",
-            1,
-        );
-        assert_eq!(Rig::from_str(&enc, "test").unwrap().boards.uart_counts_per_rev(), 2000);
-        let unknown =
-            DEFAULT_RIG_RON.replacen("uart_counts: MagnetAngle", "uart_counts: MagnetAngle, dac: 1", 1);
-        let e = Rig::from_str(&unknown, "test").unwrap_err().to_string();
-        assert!(e.contains("dac"), "{e}");
-    }
 }

@@ -4,13 +4,14 @@
 //! forces against the contact proxies the scene sent, applies the safety rules and allocates
 //! string tensions, then writes DA volts. Phases live in their own modules, in the order they
 //! run: [`kinematics`], [`velocity`], [`render`] (and [`local`] for the avatar hands' contacts),
-//! [`safety`], [`tension`]; [`tick`] strings them together with the lifecycle, [`runner`] adds the
-//! device, the clock, the channels and the link to the world ([`status`]: what the rig tells the
-//! world about itself).
+//! [`safety`], [`tension`]; [`tick`] strings them together with the lifecycle (whose states,
+//! faults, commands and events are named in [`control`]), [`runner`] adds the device, the clock,
+//! the channels and the link to the world ([`status`]: what the rig tells the world about itself).
 
 pub mod boards;
 pub mod bounds;
 pub mod clock;
+pub mod control;
 pub mod display;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
@@ -22,6 +23,7 @@ pub mod rt_thread;
 pub mod runner;
 pub mod safety;
 pub mod status;
+pub mod summary;
 pub mod telemetry;
 pub mod tension;
 pub mod tick;

@@ -186,7 +186,7 @@ pub fn place_screen<D: Device + 'static>(
         let alive = s.poll(
             &mut |r: &TickRecord| {
                 let h = &r.hands[HAND];
-                if let Some(p) = holds.push(r.t_s, h.pos_m, h.valid) {
+                if let Some(p) = holds.push(r.t_s, h.pos_rig_m, h.valid) {
                     took.push(p);
                 }
             },

@@ -8,7 +8,7 @@ use spidar_record::world::{WorldInfo, WorldRecorder, WorldRecording};
 use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
 use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
 
-use crate::summary::Summary;
+use crate::summary::SessionSummary;
 
 /// What made a session, from its arguments: the rig file's text, the scene and script files.
 pub fn session_info(
@@ -63,6 +63,19 @@ pub fn start_world_recording(
     virtual_clock: bool,
     start_unix_ns: Option<u64>,
 ) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
+    start_world_recording_with(Some(path), scene_arg, scene, virtual_clock, start_unix_ns, None)
+}
+
+/// The world's recording into `path` (None: no file) and/or to a live Foxglove server `tap`:
+/// the same channels and messages either way.
+pub fn start_world_recording_with(
+    path: Option<&Path>,
+    scene_arg: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    start_unix_ns: Option<u64>,
+    tap: Option<Box<dyn spidar_record::channel::Tap>>,
+) -> anyhow::Result<(WorldRecording, WorldRecorder)> {
     let mut files = Vec::new();
     if scene_arg.ends_with(".ron") {
         let text = std::fs::read_to_string(scene_arg).with_context(|| format!("reading {scene_arg}"))?;
@@ -79,11 +92,11 @@ pub fn start_world_recording(
         start_unix_ns,
         files,
     };
-    Ok(WorldRecording::start(path, &info, &scene.look())?)
+    Ok(WorldRecording::start_with(path, &info, &scene.look(), tap)?)
 }
 
 /// How a live session ended, for the recording's `spidar.end` record.
-pub fn end_info(s: &Summary) -> EndInfo {
+pub fn end_info(s: &SessionSummary) -> EndInfo {
     EndInfo {
         ticks: s.counters.ticks,
         telemetry_dropped: s.counters.telemetry_dropped,
@@ -91,4 +104,45 @@ pub fn end_info(s: &Summary) -> EndInfo {
         clean_stop: s.clean_stop,
         faults: s.counters.faults,
     }
+}
+
+/// The rig's recorder thread of a live session: the file `rec` (if any) and, with `foxglove`
+/// (the world's `--foxglove` address), a live Foxglove server of the rig's channels on the port
+/// after it (any free port when it is 0); also the server's address.
+pub fn recorder_thread(
+    rec: Option<spidar_record::writer::Recorder>,
+    foxglove: Option<&str>,
+) -> anyhow::Result<(Option<spidar_record::writer::RecorderThread>, Option<String>)> {
+    use spidar_record::writer::{LiveRig, RecorderThread};
+    use spidar_world::foxglove::{parse_addr, FoxgloveServer};
+    let mut url = None;
+    let live = match foxglove {
+        Some(addr) => {
+            let mut at = parse_addr(addr)?;
+            if at.port() != 0 {
+                at.set_port(at.port().checked_add(1).context("--foxglove: no port after the world's")?);
+            }
+            let channels = spidar_record::channel::foxglove_channels(&spidar_record::writer::rig_channels());
+            let server = FoxgloveServer::start(
+                at,
+                "spidar run: the rig",
+                channels,
+                std::time::Duration::from_secs(2),
+            )?;
+            crate::errln!(
+                "spidar: the rig's channels live to Foxglove at {} (the world's at {addr})",
+                server.url()
+            );
+            url = Some(server.url());
+            let start =
+                rec.as_ref().map_or_else(|| spidar_link::sock::realtime_ns() as u64, |r| r.start_unix_ns());
+            // The recorder thread owns the server: it stops when the session's recording ends.
+            Some(LiveRig::new(start, Box::new(server)))
+        }
+        None => None,
+    };
+    if rec.is_none() && live.is_none() {
+        return Ok((None, url));
+    }
+    Ok((Some(RecorderThread::spawn_with(rec, live)?), url))
 }

@@ -39,7 +39,7 @@ use spidar_world::{Observer, Scene, StepView};
 use crate::child_world::{ChildWorld, ChildWorldSpec};
 use crate::scene_thread::{self, SceneCounters};
 use crate::signals::Stop;
-use crate::summary::{FaultTally, Summary, VirtualSummary};
+use crate::summary::{FaultTally, SessionSummary, VirtualSummary};
 use crate::supervisor::Shared;
 use crate::term::StatusOut;
 
@@ -375,6 +375,16 @@ pub struct VirtualOptions {
     pub observers: Vec<Box<dyn Observer>>,
 }
 
+/// The world of a virtual run.
+pub enum VirtualWorld {
+    /// Stepped in this process, interleaved with the loop.
+    Scene(Box<dyn Scene>),
+    /// A world process already listening at `at` (`spidar run --virtual --world ADDR`: a
+    /// `spidar world --lockstep` or a world of one's own, such as a Python one), answered in
+    /// lockstep; `scene`: the scene to insist on. Waits at most `timeout` for its welcome.
+    Process { at: Endpoint, scene: Option<String>, timeout: Duration },
+}
+
 /// `spidar run --virtual`: the loop and the scene interleaved on the virtual clock for `seconds` of
 /// rig time, as fast as the machine computes; a stop signal ramps out early (a second one stops
 /// at once with the outputs zeroed). The device is switched off at the end either way.
@@ -382,9 +392,25 @@ pub fn run_virtual<D: Device>(
     dev: D,
     rig: &Rig,
     scene: Box<dyn Scene>,
-    mut opts: VirtualOptions,
+    opts: VirtualOptions,
 ) -> anyhow::Result<VirtualSummary> {
-    let mut v = VirtualRun::new(dev, rig, Some(scene))?;
+    run_virtual_with(dev, rig, VirtualWorld::Scene(scene), opts).map(|(s, _)| s)
+}
+
+/// [`run_virtual`] with its world in this process or in a world process; with a world process,
+/// also the link's counters at the end.
+pub fn run_virtual_with<D: Device>(
+    dev: D,
+    rig: &Rig,
+    world: VirtualWorld,
+    mut opts: VirtualOptions,
+) -> anyhow::Result<(VirtualSummary, Option<Arc<LinkStats>>)> {
+    let mut v = match world {
+        VirtualWorld::Scene(scene) => VirtualRun::new(dev, rig, Some(scene))?,
+        VirtualWorld::Process { at, scene, timeout } => {
+            VirtualRun::with_world_process(dev, rig, &at, scene.as_deref(), timeout)?
+        }
+    };
     v.observers.append(&mut opts.observers);
     let mut recorder = opts.recorder.take();
     let lifeline: &'static Lifeline = match opts.supervisor {
@@ -459,7 +485,7 @@ pub fn run_virtual<D: Device>(
             faults: c.faults,
         })
     });
-    Ok(VirtualSummary {
+    let summary = VirtualSummary {
         device: opts.device,
         scene: opts.scene_name,
         script: opts.script_name,
@@ -468,7 +494,7 @@ pub fn run_virtual<D: Device>(
         wall_s,
         period_s: rig.period_s,
         counters: *v.counters(),
-        scene_status: v.scene.as_ref().map(|s| s.status()).unwrap_or_default(),
+        scene_status: v.scene.as_ref().map_or_else(|| "stepped by the world process".into(), |s| s.status()),
         final_state: v.rt.state(),
         faults_seen: faults,
         clean_stop: v.rt.is_finished(),
@@ -476,7 +502,8 @@ pub fn run_virtual<D: Device>(
         signals: opts.stop.count(),
         stats: std::mem::replace(&mut v.stats, Stats::new()),
         recording,
-    })
+    };
+    Ok((summary, v.link_stats()))
 }
 
 /// A line for each change of the rig's state, so a log (and an operator) sees when the rig
@@ -891,7 +918,7 @@ impl<D: Device + 'static> LiveSession<D> {
 
     /// Waits for the loop to end (after a stop), ends the world, and reports. `signals`: the stop
     /// signals that ended it, for the summary.
-    pub fn finish(mut self, signals: u32, say: &mut dyn FnMut(String)) -> anyhow::Result<Summary> {
+    pub fn finish(mut self, signals: u32, say: &mut dyn FnMut(String)) -> anyhow::Result<SessionSummary> {
         let handle = self.rt_handle.take().context("the loop was already finished")?;
         let (report, rt) = handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
         for r in self.telemetry.try_iter() {
@@ -942,7 +969,7 @@ impl<D: Device + 'static> LiveSession<D> {
                     (steps, None, 0, status, world, Some(stats.summary()), report)
                 }
             };
-        Ok(Summary {
+        Ok(SessionSummary {
             scene_status,
             device: self.device.clone(),
             scene: self.scene_name.clone(),
@@ -977,7 +1004,7 @@ pub fn run_live<D: Device + 'static>(
     rig: &Rig,
     world: WorldChoice,
     mut opts: LiveOptions,
-) -> anyhow::Result<Summary> {
+) -> anyhow::Result<SessionSummary> {
     let mut s = LiveSession::start(dev, rig, world, &opts)?;
     let mut recorder = opts.recorder.take();
     let mut out = StatusOut::new(opts.status_every.unwrap_or(Duration::from_millis(500)));
@@ -1032,7 +1059,11 @@ pub fn run_live<D: Device + 'static>(
     let mut summary = summary?;
     summary.overrides = rig.overrides.clone();
     if let Some(r) = recorder {
-        summary.recording = Some(r.finish(&crate::recording::end_info(&summary))?);
+        let to_file = r.records_to_file();
+        let rep = r.finish(&crate::recording::end_info(&summary))?;
+        if to_file {
+            summary.recording = Some(rep);
+        }
     }
     Ok(summary)
 }

@@ -24,9 +24,9 @@ use crate::signals::Stop;
 /// The world process's options (`spidar world --help`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct WorldArgs {
-    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, a boxer file like
-    /// configs/boxer.ron, `crowd` or a crowd scene file (*crowd*.ron), `walls` (the rig check) or
-    /// a walls scene file (.ron).
+    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, `crowd`, `walls` (the rig
+    /// check), or a file of any name that says what it is in its `kind`: a boxer file like
+    /// configs/boxer.ron, a crowd scene like configs/scene-crowd.ron or a walls scene.
     #[arg(long, default_value = "boxing")]
     pub scene: String,
     /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host
@@ -75,16 +75,25 @@ pub struct ViewArgs {
     /// No live view.
     #[arg(long, conflicts_with = "view")]
     pub no_view: bool,
+    /// Serve the world's channels live to Foxglove or Lichtblick (the Foxglove WebSocket
+    /// protocol) at this address, e.g. 127.0.0.1:8765 (open ws://127.0.0.1:8765 there): the same
+    /// channels and messages as the world's recording. See docs/foxglove.md.
+    #[arg(long, value_name = "ADDR")]
+    pub foxglove: Option<String>,
 }
 
 impl ViewArgs {
     /// The same choice as arguments of a child `spidar world`.
     pub fn child_args(&self) -> Vec<std::ffi::OsString> {
-        match (&self.view, self.no_view) {
+        let mut args: Vec<std::ffi::OsString> = match (&self.view, self.no_view) {
             (_, true) => vec!["--no-view".into()],
             (Some(a), false) => vec!["--view".into(), a.into()],
             (None, false) => Vec::new(),
+        };
+        if let Some(f) = &self.foxglove {
+            args.extend(["--foxglove".into(), f.into()]);
         }
+        args
     }
 }
 
@@ -112,6 +121,15 @@ pub fn start_view(
     Ok(Some(view))
 }
 
+/// Starts a live Foxglove server of the world's channels at `addr` and says where on stderr.
+pub fn start_foxglove(addr: &str, name: &str) -> anyhow::Result<spidar_world::foxglove::FoxgloveServer> {
+    use spidar_world::foxglove::{parse_addr, FoxgloveServer};
+    let channels = spidar_record::channel::foxglove_channels(&spidar_record::world::channels());
+    let server = FoxgloveServer::start(parse_addr(addr)?, name, channels, Duration::from_secs(2))?;
+    crate::errln!("spidar world: Foxglove live at {} (open it in Foxglove: Open connection)", server.url());
+    Ok(server)
+}
+
 /// Where an echo world puts what it measured in the model it answers with: the sample's tick
 /// in `seq`, its `t_s` in `stamp_s`, and the rig-to-world trip (kernel arrival time minus the
 /// send time the sample carried in `ECHO_SENT_AT`) in seconds in `extra_force_n[0].x`.
@@ -121,7 +139,7 @@ pub const ECHO_MODULO_NS: i64 = 1_000_000_000_000;
 /// sent at travel in `hands[0].pos_m.x`.
 pub fn echo_sample(tick: u64, t_s: f64) -> spidar_msg::HandSample {
     let mut s = spidar_msg::HandSample { tick, t_s, ..Default::default() };
-    s.hands[0].pos_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
+    s.hands[0].pos_world_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
     s
 }
 
@@ -133,7 +151,7 @@ fn run_echo(link: &mut WorldLink, stop: &Stop) {
         events.clear();
         for a in arrived.drain(..) {
             let s = a.sample;
-            let sent = s.hands[0].pos_m.x as i64;
+            let sent = s.hands[0].pos_world_m.x as i64;
             let trip = (a.arrived_ns % ECHO_MODULO_NS - sent).rem_euclid(ECHO_MODULO_NS);
             let mut m = spidar_msg::ContactModel { seq: s.tick, stamp_s: s.t_s, ..Default::default() };
             m.extra_force_n[0].x = trip as f64 * 1e-9;
@@ -180,15 +198,20 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let scene_label = format!("{} ({})", a.scene, scene.name());
     // Created before the world listens: a path that cannot be written is refused before any rig
     // connects.
-    let recording = match &a.record {
-        Some(p) => Some(crate::recording::start_world_recording(
-            p,
+    let foxglove = match &a.view.foxglove {
+        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {scene_label}"))?),
+        None => None,
+    };
+    let recording = match (&a.record, &foxglove) {
+        (None, None) => None,
+        (path, live) => Some(crate::recording::start_world_recording_with(
+            path.as_deref(),
             &a.scene,
             &*scene,
             a.lockstep,
-            a.record_start_unix_ns,
+            a.record_start_unix_ns.or_else(|| live.as_ref().map(|_| spidar_link::sock::realtime_ns() as u64)),
+            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
         )?),
-        None => None,
     };
     // The default directory lives as long as the world.
     let mut _dir = None;
@@ -234,7 +257,22 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         crate::errln!("spidar world: {line}")
     });
     if let Some(r) = recording {
-        crate::errln!("spidar world: recording {}", r.finish());
+        let rep = r.finish();
+        if a.record.is_some() {
+            crate::errln!("spidar world: recording {rep}");
+        }
+    }
+    if let Some(mut f) = foxglove {
+        f.stop();
+        let c = f.counters();
+        let g = |x: &std::sync::atomic::AtomicU64| x.load(std::sync::atomic::Ordering::Relaxed);
+        crate::errln!(
+            "spidar world: Foxglove: {} clients ({} dropped for not reading), {} messages sent, {} dropped",
+            g(&c.clients_total),
+            g(&c.clients_dropped),
+            g(&c.messages_sent),
+            g(&c.messages_dropped)
+        );
     }
     if a.report_status {
         crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());

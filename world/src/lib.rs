@@ -13,9 +13,9 @@
 pub mod boxing;
 pub mod crowd;
 pub mod decisions;
+pub mod foxglove;
 pub mod host;
 pub mod look;
-mod looks;
 pub mod view;
 pub mod walls;
 

@@ -304,3 +304,9 @@ fn put_quat(s: &mut [f32], q: DQuat) {
     s[2] = q.z as f32;
     s[3] = q.w as f32;
 }
+
+/// A rotation matrix as a unit quaternion (tolerant of rounding in the matrix).
+#[inline]
+pub(crate) fn quat(m: &glam::DMat3) -> glam::DQuat {
+    glam::DQuat::from_mat3(m).normalize()
+}

@@ -25,18 +25,18 @@ use super::*;
 
 const WORLD_BIN: &str = env!("CARGO_BIN_EXE_spidar-hil-world");
 /// Generous: a loaded 2-core machine may take seconds to start a process.
-const WAIT: Duration = Duration::from_secs(30);
+pub(super) const WAIT: Duration = Duration::from_secs(30);
 
 /// A world process of this test.
-struct WorldProcess {
-    child: Child,
-    at: Endpoint,
-    said: Arc<Mutex<Vec<String>>>,
+pub(super) struct WorldProcess {
+    pub(super) child: Child,
+    pub(super) at: Endpoint,
+    pub(super) said: Arc<Mutex<Vec<String>>>,
 }
 
 impl WorldProcess {
     /// Starts `spidar-hil-world` with `args` and waits for the line that says where it listens.
-    fn start(args: &[&str]) -> WorldProcess {
+    pub(super) fn start(args: &[&str]) -> WorldProcess {
         let mut child = Command::new(WORLD_BIN)
             .args(args)
             .stdin(Stdio::null())
@@ -67,7 +67,7 @@ impl WorldProcess {
     }
 
     /// Waits (up to `WAIT`) until the world has said something containing `what`.
-    fn wait_for_line(&self, what: &str) -> bool {
+    pub(super) fn wait_for_line(&self, what: &str) -> bool {
         let until = Instant::now() + WAIT;
         while Instant::now() < until {
             if self.said.lock().unwrap().iter().any(|l| l.contains(what)) {
@@ -126,7 +126,7 @@ fn same_tick(a: &TickRecord, b: &TickRecord) -> bool {
         && a.contact_age_s == b.contact_age_s
         && a.state == b.state
         && a.hands.iter().zip(b.hands.iter()).all(|(x, y)| {
-            x.pos_m == y.pos_m
+            x.pos_rig_m == y.pos_rig_m
                 && x.commanded_n == y.commanded_n
                 && x.tensions_n == y.tensions_n
                 && x.contacts == y.contacts
@@ -303,7 +303,7 @@ fn hostile_world(
                     seq += 1;
                     let mut m = spidar_msg::ContactModel { seq, stamp_s: s.t_s, ..Default::default() };
                     for hand in 0..2 {
-                        let p = s.hands[hand].pos_m;
+                        let p = s.hands[hand].pos_world_m;
                         m.push(Proxy {
                             id: ProxyId { body: 1, part: hand as u16 },
                             shape: ProxyShape::Sphere {

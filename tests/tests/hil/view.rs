@@ -24,7 +24,7 @@ use spidar_rt::{Clock, MonotonicClock};
 use spidar_runtime::scene_thread::{self, SceneCounters};
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::drawn::world_joints;
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;
@@ -203,7 +203,7 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
     let r = rig();
     let w = r.rig_to_world;
     let home = [w.point(r.hands[0].home_m), w.point(r.hands[1].home_m)];
-    let mut h = home.map(|p| HandState { pos_m: p, valid: true, ..Default::default() });
+    let mut h = home.map(|p| HandState { pos_world_m: p, valid: true, ..Default::default() });
     let (out_s, hold_s) = (0.2, 0.3);
     let s = t - punch_at;
     if punch_at > 0.0 && s > 0.0 && s < out_s + hold_s + out_s {
@@ -217,8 +217,8 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
         };
         let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
         let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / out_s;
-        h[1].pos_m = from + (to - from) * p;
-        h[1].vel_m_per_s = (to - from) * v;
+        h[1].pos_world_m = from + (to - from) * p;
+        h[1].vel_world_m_per_s = (to - from) * v;
     }
     h
 }
@@ -268,7 +268,7 @@ fn host<S: Scene + 'static>(
                 let mut s =
                     HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
                 if let Some((at, to)) = *ctl.jab.lock().unwrap() {
-                    s.hands[1] = jab(s.hands[1].pos_m, t - at, to);
+                    s.hands[1] = jab(s.hands[1].pos_world_m, t - at, to);
                 }
                 let _ = samples_tx.try_send(s);
                 tick += 1;
@@ -296,8 +296,8 @@ fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
     let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
     let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
     HandState {
-        pos_m: home + (to - home) * p,
-        vel_m_per_s: (to - home) * v,
+        pos_world_m: home + (to - home) * p,
+        vel_world_m_per_s: (to - home) * v,
         valid: true,
         ..Default::default()
     }
@@ -359,57 +359,12 @@ impl Hosting {
         self.log.lock().unwrap().last().cloned().expect("no step recorded")
     }
 
+    /// The page's question `q` answered (a check of what it drew against the world, or an
+    /// action on the world), each kind by its own method.
     fn answer(&self, q: &Value) -> Value {
-        let f = |v: &Value| v.as_f64().unwrap();
-        let close = |a: DVec3, b: &[Value], what: &str| {
-            let d = (a - DVec3::new(f(&b[0]), f(&b[1]), f(&b[2]))).length();
-            assert!(d < 1e-4, "{what}: the frame is {d} m from the world");
-        };
-        let same_rot = |a: DQuat, b: &[Value], what: &str| {
-            let q = DQuat::from_xyzw(f(&b[0]), f(&b[1]), f(&b[2]), f(&b[3]));
-            assert!(a.dot(q).abs() > 1.0 - 1e-5, "{what}: the frame's rotation {q} is not the world's {a}");
-        };
         match q["ask"].as_str().unwrap() {
-            "check_shapes" => {
-                let rec = self.at(f(&q["t"]));
-                let shapes = q["shapes"].as_object().unwrap();
-                for (name, v) in shapes {
-                    let k =
-                        self.look.shapes.iter().position(|s| &s.name == name).expect("a shape of the look");
-                    let v = v.as_array().unwrap();
-                    close(rec.parts[k].0, &v[0..3], name);
-                    same_rot(rec.parts[k].1, &v[3..7], name);
-                }
-                json!({"ok": shapes.len()})
-            }
-            "check_characters" => {
-                let rec = self.at(f(&q["t"]));
-                let states = &self.look.crowd.as_ref().unwrap().states;
-                for (i, c) in q["characters"].as_array().unwrap().iter().enumerate() {
-                    let c = c.as_array().unwrap();
-                    let what = format!("character {i}");
-                    close(rec.parts[i].0, &c[0..3], &what);
-                    same_rot(rec.parts[i].1, &c[3..7], &what);
-                    let (joints, policy) = &rec.skeletons[i];
-                    assert_eq!(
-                        states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
-                        policy.name(),
-                        "{what}'s state"
-                    );
-                    // The frame carries the world's drawn figure, joint by joint.
-                    assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
-                    assert_eq!(
-                        c.len(),
-                        CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(),
-                        "{what}'s numbers"
-                    );
-                    for (j, p) in joints.iter().enumerate() {
-                        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
-                        close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
-                    }
-                }
-                json!({"ok": true})
-            }
+            "check_shapes" => self.check_shapes(q),
+            "check_characters" => self.check_characters(q),
             "punch" => {
                 // The world is held with the fist out (0.45 s after the punch starts), so a slow
                 // browser still shows the virtual human's reaction.
@@ -421,28 +376,10 @@ impl Hosting {
                 self.ctl.hold.store(true, Ordering::Relaxed);
                 json!({"t_punch": at})
             }
-            "push" => {
-                // Pushed (again every 3 s while it stands), and held still once it is down.
-                let i = q["i"].as_u64().unwrap() as usize;
-                let until = Instant::now() + Duration::from_secs(15);
-                let mut next_push = Instant::now();
-                loop {
-                    if Instant::now() >= next_push {
-                        *self.ctl.push.lock().unwrap() = Some(i);
-                        next_push += Duration::from_secs(3);
-                    }
-                    let r = self.latest();
-                    if r.skeletons[i].1 == Policy::Down {
-                        return json!({"t_down": self.hold()});
-                    }
-                    if Instant::now() > until {
-                        return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
-                    }
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-            }
+            "push" => self.push_until_down(q["i"].as_u64().unwrap() as usize),
             "hold" => json!({"t_hold": self.hold()}),
             "check_person_joints" => {
+                let f = |v: &Value| v.as_f64().unwrap();
                 // Every joint of the body drawn as a person, as each of its two pieces draws it,
                 // within 1 cm of where the simulation has it at the frame's step.
                 let rec = self.at(f(&q["t"]));
@@ -485,42 +422,121 @@ impl Hosting {
                 *self.ctl.jab.lock().unwrap() = None;
                 json!({"ok": true})
             }
-            "check_hud" => {
-                let hud = q["hud"].as_object().unwrap();
-                let text = |k: &str| {
-                    hud.get(k).and_then(|v| v.as_str()).unwrap_or_else(|| panic!("no {k} in the HUD"))
-                };
-                let r = known_rig_status();
-                let want = [
-                    ("rig_state", "active".to_string()),
-                    ("rate_hz", format!("{:.1}", r.rate_hz)),
-                    ("lateness_p99", format!("{:.1} us", r.lateness_p99_s * 1e6)),
-                    ("force_l", format!("{:.2}", r.force_n[0].length())),
-                    ("force_r", format!("{:.2}", r.force_n[1].length())),
-                    ("faults", r.faults.to_string()),
-                    ("device_errors", r.device_errors.to_string()),
-                    ("stale_ticks", r.stale_ticks.to_string()),
-                    ("misses", r.misses.to_string()),
-                    ("link", "up".to_string()),
-                ];
-                for (k, v) in want {
-                    assert_eq!(text(k), v, "the HUD's {k} in the {} browser", q["browser"]);
-                }
-                let world = self.latest();
-                for (name, v) in self.look.counters.iter().zip(world.counters.iter()) {
-                    let shown = if v.fract() == 0.0 { format!("{}", *v as i64) } else { format!("{v:.1}") };
-                    assert_eq!(
-                        text(&format!("counter:{name}")),
-                        shown,
-                        "the HUD's {name} in the {} browser",
-                        q["browser"]
-                    );
-                }
-                json!({"ok": true})
-            }
+            "check_hud" => self.check_hud(q),
             other => json!({"error": format!("unknown question {other}")}),
         }
     }
+
+    /// Every shape the page drew at time `t` is where the world had it.
+    fn check_shapes(&self, q: &Value) -> Value {
+        let rec = self.at(num(&q["t"]));
+        let shapes = q["shapes"].as_object().unwrap();
+        for (name, v) in shapes {
+            let k = self.look.shapes.iter().position(|s| &s.name == name).expect("a shape of the look");
+            let v = v.as_array().unwrap();
+            close(rec.parts[k].0, &v[0..3], name);
+            same_rot(rec.parts[k].1, &v[3..7], name);
+        }
+        json!({"ok": shapes.len()})
+    }
+
+    /// Every character the page drew at time `t` is where the world had it, in its state, with
+    /// the world's drawn figure joint by joint.
+    fn check_characters(&self, q: &Value) -> Value {
+        let rec = self.at(num(&q["t"]));
+        let states = &self.look.crowd.as_ref().unwrap().states;
+        for (i, c) in q["characters"].as_array().unwrap().iter().enumerate() {
+            let c = c.as_array().unwrap();
+            let what = format!("character {i}");
+            close(rec.parts[i].0, &c[0..3], &what);
+            same_rot(rec.parts[i].1, &c[3..7], &what);
+            let (joints, policy) = &rec.skeletons[i];
+            assert_eq!(
+                states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
+                policy.name(),
+                "{what}'s state"
+            );
+            assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
+            assert_eq!(c.len(), CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(), "{what}'s numbers");
+            for (j, p) in joints.iter().enumerate() {
+                let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+                close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
+            }
+        }
+        json!({"ok": true})
+    }
+
+    /// Character `i` pushed (again every 3 s while it stands), and the world held still once it
+    /// is down.
+    fn push_until_down(&self, i: usize) -> Value {
+        let until = Instant::now() + Duration::from_secs(15);
+        let mut next_push = Instant::now();
+        loop {
+            if Instant::now() >= next_push {
+                *self.ctl.push.lock().unwrap() = Some(i);
+                next_push += Duration::from_secs(3);
+            }
+            let r = self.latest();
+            if r.skeletons[i].1 == Policy::Down {
+                return json!({"t_down": self.hold()});
+            }
+            if Instant::now() > until {
+                return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The page's HUD shows the rig's status and the world's counters as they are.
+    fn check_hud(&self, q: &Value) -> Value {
+        let hud = q["hud"].as_object().unwrap();
+        let text =
+            |k: &str| hud.get(k).and_then(|v| v.as_str()).unwrap_or_else(|| panic!("no {k} in the HUD"));
+        let r = known_rig_status();
+        let want = [
+            ("rig_state", "active".to_string()),
+            ("rate_hz", format!("{:.1}", r.rate_hz)),
+            ("lateness_p99", format!("{:.1} us", r.lateness_p99_s * 1e6)),
+            ("force_l", format!("{:.2}", r.force_n[0].length())),
+            ("force_r", format!("{:.2}", r.force_n[1].length())),
+            ("faults", r.faults.to_string()),
+            ("device_errors", r.device_errors.to_string()),
+            ("stale_ticks", r.stale_ticks.to_string()),
+            ("misses", r.misses.to_string()),
+            ("link", "up".to_string()),
+        ];
+        for (k, v) in want {
+            assert_eq!(text(k), v, "the HUD's {k} in the {} browser", q["browser"]);
+        }
+        let world = self.latest();
+        for (name, v) in self.look.counters.iter().zip(world.counters.iter()) {
+            let shown = if v.fract() == 0.0 { format!("{}", *v as i64) } else { format!("{v:.1}") };
+            assert_eq!(
+                text(&format!("counter:{name}")),
+                shown,
+                "the HUD's {name} in the {} browser",
+                q["browser"]
+            );
+        }
+        json!({"ok": true})
+    }
+}
+
+/// A number of the page's answer.
+fn num(v: &Value) -> f64 {
+    v.as_f64().unwrap()
+}
+
+/// The page's position `b` (three numbers) is the world's `a`, to 0.1 mm.
+fn close(a: DVec3, b: &[Value], what: &str) {
+    let d = (a - DVec3::new(num(&b[0]), num(&b[1]), num(&b[2]))).length();
+    assert!(d < 1e-4, "{what}: the frame is {d} m from the world");
+}
+
+/// The page's rotation `b` (x, y, z, w) is the world's `a`.
+fn same_rot(a: DQuat, b: &[Value], what: &str) {
+    let q = DQuat::from_xyzw(num(&b[0]), num(&b[1]), num(&b[2]), num(&b[3]));
+    assert!(a.dot(q).abs() > 1.0 - 1e-5, "{what}: the frame's rotation {q} is not the world's {a}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -952,7 +968,7 @@ pub(super) struct RunPath {
     /// The view's address, as the world printed it.
     pub(super) url: String,
     stop: spidar_runtime::signals::Stop,
-    run: Option<JoinHandle<spidar_runtime::summary::Summary>>,
+    run: Option<JoinHandle<spidar_runtime::summary::SessionSummary>>,
     pub(super) said: Arc<Mutex<Vec<String>>>,
 }
 
@@ -1021,7 +1037,7 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    pub(super) fn finish(mut self) -> spidar_runtime::summary::Summary {
+    pub(super) fn finish(mut self) -> spidar_runtime::summary::SessionSummary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }

@@ -173,7 +173,7 @@ pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
             valid |= 1 << h;
         }
         let o = HANDS_AT + h * HAND_FLOATS;
-        put3(&mut buf[o..o + 3], hs.pos_m + offset);
+        put3(&mut buf[o..o + 3], hs.pos_world_m + offset);
         put3(&mut buf[o + 3..o + 6], hs.force_n);
     }
     buf[GLOBALS_AT + 3] = valid as f32;

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyId, HANDS, MAX_PROXIES};
 use spidar_sim::character::drawn::{FigureState, Figures};
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_sim::impulse::{nearest_on_surface, touching_hand};
 
 use super::frame::{self, Layout};
@@ -143,7 +143,7 @@ impl FrameMaker {
                 }
                 let Some(h) = touching_hand(&p.shape, s) else { continue };
                 let c = DrawnContact {
-                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_m) + self.offset,
+                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_world_m) + self.offset,
                     force_n: *imp / period,
                 };
                 let slot = self.rendered[..self.rendered_count].iter().position(|r| r.id == p.id);

@@ -436,7 +436,7 @@ mod tests {
         let l = Layout::of(&look, 7);
         let mut buf = vec![f32::NAN; l.max_words];
         let hands =
-            [HandState { pos_m: DVec3::new(0.1, 1.1, 0.0), valid: true, ..Default::default() }; HANDS];
+            [HandState { pos_world_m: DVec3::new(0.1, 1.1, 0.0), valid: true, ..Default::default() }; HANDS];
         let model = ContactModel::default();
         let common = frame::Common {
             seq: 3,

@@ -6,10 +6,9 @@ use glam::DVec3;
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, AVATAR, BOXER};
 use spidar_sim::impulse::proxy_id;
 
-use super::quat;
-use crate::boxing::BoxingScene;
+use super::BoxingScene;
 use crate::look::{
-    DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
+    quat, DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
 };
 
 const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
@@ -182,8 +181,8 @@ mod tests {
         for k in 0..600 {
             // The user's right hand jabs out and back, so the avatar's arm moves.
             let s = (k as f64 * 0.02).sin().abs();
-            hands[1].pos_m = DVec3::new(0.15, 1.4, -0.3 - 0.3 * s);
-            hands[0].pos_m = DVec3::new(-0.15, 1.4, -0.3);
+            hands[1].pos_world_m = DVec3::new(0.15, 1.4, -0.3 - 0.3 * s);
+            hands[0].pos_world_m = DVec3::new(-0.15, 1.4, -0.3);
             let sample = HandSample { hands, t_s: k as f64 * 0.003, ..Default::default() };
             scene.step(k as f64 * 0.003, std::slice::from_ref(&sample));
             let w = &scene.world;
