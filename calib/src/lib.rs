@@ -17,6 +17,7 @@
 //! [`safefile`] says) -> [`verify`] at check points.
 
 pub mod console;
+pub mod display;
 pub mod fit;
 pub mod jig;
 pub mod link;

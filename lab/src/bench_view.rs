@@ -67,6 +67,9 @@ pub struct ViewBenchOptions {
     pub viewers: usize,
     /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
     pub fifo: Option<u8>,
+    /// The viewers' block has one real browser (headless chromium drawing the page from the user's
+    /// eye) instead of WebSocket clients.
+    pub browser: bool,
 }
 
 #[derive(Default)]
@@ -81,6 +84,8 @@ pub struct Phase {
     pub frames_read: u64,
     pub viewer_seconds: f64,
     pub min_viewer_hz: f64,
+    /// A browser's picture ages per block (p50, p99 ms).
+    pub ages: Vec<(f64, f64)>,
 }
 
 pub struct ViewBenchReport {
@@ -234,7 +239,10 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     let mut phases: [(String, Phase); 3] = [
         ("view off".into(), Phase::default()),
         ("view, no viewer".into(), Phase::default()),
-        (format!("view, {} viewers", o.viewers), Phase::default()),
+        (
+            if o.browser { "view, a browser".to_string() } else { format!("view, {} viewers", o.viewers) },
+            Phase::default(),
+        ),
     ];
     let mut clock = MonotonicClock::new();
     let mut samples = Vec::with_capacity(64);
@@ -243,16 +251,53 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     for _ in 0..o.rounds {
         for (p, (_, phase)) in phases.iter_mut().enumerate() {
             let stop = Arc::new(AtomicBool::new(false));
-            let want = if p == 2 { o.viewers } else { 0 };
-            let counts: Vec<Arc<AtomicU64>> = (0..want).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            let want = if p == 2 && o.browser {
+                1
+            } else if p == 2 {
+                o.viewers
+            } else {
+                0
+            };
+            let counts: Vec<Arc<AtomicU64>> =
+                (0..if o.browser { 0 } else { want }).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            // A real browser draws the page (its frames drawn, from the ages it reports).
+            let browser = if p == 2 && o.browser {
+                Some(crate::browser::Browser::open(&format!("{}/?camera=eye", handle.url()), 960, 540)?)
+            } else {
+                None
+            };
             for c in &counts {
                 spawn_tx.send((handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))?;
             }
             let threads: Vec<_> = counts.iter().filter_map(|_| joined_rx.recv().ok()).collect();
-            let until = Instant::now() + Duration::from_secs(5);
+            let until = Instant::now() + Duration::from_secs(if browser.is_some() { 60 } else { 5 });
             while handle.counters().viewers.load(Ordering::Relaxed) != want && Instant::now() < until {
-                std::thread::sleep(Duration::from_millis(10));
+                // The world steps on while a browser starts (its page needs frames to draw).
+                if browser.is_some() {
+                    for _ in 0..ticks_per_step {
+                        v.rt.tick();
+                    }
+                    for _ in v.far.telemetry.try_iter() {}
+                    samples.clear();
+                    samples.extend(v.far.samples.try_iter());
+                    let t = v.clock.now_ns() as f64 * 1e-9;
+                    let m = scene.step(t, &samples);
+                    let sv = StepView {
+                        t_s: t,
+                        scene: &*scene,
+                        samples: &samples,
+                        model: &m,
+                        rig_info: Some(&info),
+                        rig_status: None,
+                    };
+                    view.after_step(&sv);
+                    let _ = v.far.models.try_send(m);
+                    std::thread::sleep(Duration::from_millis(3));
+                } else {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
             }
+            handle.clear_picture_ages();
             let started = Instant::now();
             let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
             let observer: Option<&mut dyn Observer> = if p > 0 { Some(&mut view) } else { None };
@@ -261,6 +306,16 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             let secs = started.elapsed().as_secs_f64();
             for (c, s) in counts.iter().zip(at_start) {
                 phase.viewer_read(c.load(Ordering::Relaxed) - s, secs);
+            }
+            if let Some(b) = browser {
+                let (screen, _) = handle.picture_ages().summaries();
+                if let Some(a) = screen {
+                    phase.frames_read += a.frames as u64;
+                    phase.viewer_seconds += secs;
+                    phase.min_viewer_hz = a.frames as f64 / secs;
+                    phase.ages.push((a.p50_ms, a.p99_ms));
+                }
+                drop(b);
             }
             stop.store(true, Ordering::Relaxed);
             for t in threads {
@@ -303,6 +358,10 @@ impl std::fmt::Display for ViewBenchReport {
             "", "steps", "p50", "p99", "p99.9", "max", "late"
         )?;
         for (name, p) in &self.phases {
+            if !p.ages.is_empty() {
+                let worst = p.ages.iter().fold((0.0f64, 0.0f64), |a, b| (a.0.max(b.0), a.1.max(b.1)));
+                writeln!(f, "  {name}: picture age per block, worst p50 {:.1} ms, worst p99 {:.1} ms (frames drawn a second as 'frames/s')", worst.0, worst.1)?;
+            }
             let rate = if p.viewer_seconds > 0.0 {
                 format!(
                     "{:.1} (min {:.1}), {} kB a frame",

@@ -12,6 +12,7 @@ pub mod boards;
 pub mod bounds;
 pub mod clock;
 pub mod control;
+pub mod display;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
 pub mod kinematics;

@@ -54,6 +54,10 @@ pub struct RigFile {
     /// built-in [`DEFAULT_EYE_M`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub eye_m: Option<[f64; 3]>,
+    /// The rig's screen, for the live view's off-axis user's-eye camera ([`crate::display`]);
+    /// absent: the view's camera is a plain perspective from `eye_m`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub display: Option<crate::display::DisplayFile>,
 }
 
 /// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
@@ -215,6 +219,8 @@ pub struct Rig {
     pub boards: crate::boards::BoardScales,
     /// The user's eye point (rig frame).
     pub eye_m: DVec3,
+    /// The rig's screen (rig frame), if the file places one.
+    pub display: Option<crate::display::Display>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -312,6 +318,13 @@ impl Rig {
         check_header(&c, &f)?;
         let eye = f.eye_m.unwrap_or(DEFAULT_EYE_M);
         c.finite_within(&At::key("eye_m"), &eye, bounds::EYE_M, "m of the rig origin")?;
+        let display = match &f.display {
+            Some(d) => Some(
+                crate::display::validate(d, DVec3::from_array(eye))
+                    .map_err(|r| c.error(&At::new(r.field, r.key, 0), r.message))?,
+            ),
+            None => None,
+        };
         c.count(&At::key("hands"), f.hands.len(), 2, 2, "hands (a SPIDAR-H has two)")?;
         let mut seen = Seen { channels: [false; spidar_device::MAX_CHANNELS], zeros: 0 };
         let left = check_hand(&c, 0, &f.hands[0], f.period_s, &mut seen)?;
@@ -331,6 +344,7 @@ impl Rig {
             overrides: f.overrides,
             boards,
             eye_m: DVec3::from_array(eye),
+            display,
         })
     }
 

@@ -21,6 +21,7 @@
 
 pub mod child_world;
 pub mod hardware;
+pub mod placement;
 pub mod plan;
 pub mod recording;
 pub mod replay;

@@ -397,7 +397,7 @@ async function rate1(browser) {
 
 async function shot(browser) {
   const [camera, file, seconds] = rest;
-  const p = await open(browser, url, `camera=${camera}`, { width: 960, height: 600 });
+  const p = await open(browser, url, `camera=${camera}&bodies=people`, { width: 960, height: 600 });
   await sleep(1000 * Number(seconds || 2));
   await pause(p);
   await screenshot(p, file);

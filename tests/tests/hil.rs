@@ -18,6 +18,8 @@ use spidar_world::Scene;
 
 #[path = "hil/crowd.rs"]
 mod crowd;
+#[path = "hil/display.rs"]
+mod display;
 #[path = "hil/replay.rs"]
 mod replay;
 #[path = "hil/view.rs"]

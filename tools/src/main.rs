@@ -212,6 +212,16 @@ enum BenchCmd {
         /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=99))]
         fifo: Option<u8>,
+        /// Instead: how late the drawn picture is, on `spidar run`'s path with headless chromium
+        /// drawing the page for --seconds (p50/p99 of the age, rig tick to browser frame).
+        #[arg(long)]
+        age: bool,
+        /// The viewers' block has one headless chromium drawing the page instead of WebSocket clients.
+        #[arg(long, conflicts_with = "age")]
+        browser: bool,
+        /// With --age: the browser window's size, WIDTHxHEIGHT (px).
+        #[arg(long, default_value = "960x540", requires = "age")]
+        size: String,
     },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
@@ -473,18 +483,40 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                 LinkBenchOptions { seconds_each: seconds, blocks, rt, scene, echoes, world, world_priority };
             bench_link(&r, &o)?.to_string()
         }
-        BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo } => {
+        BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo, age, size, browser } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
             let r = match &rig {
                 Some(p) => Rig::load(p)?,
                 None => Rig::default_rig(),
             };
-            errln!(
-                "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
-            );
-            let o = ViewBenchOptions { scene, characters, seconds_per_block: seconds, rounds, viewers, fifo };
-            bench_view(&r, &o)?.to_string()
+            if age {
+                use spidar_lab::bench_age::{bench_age, AgeBenchOptions};
+                errln!("drawing the live view in headless chromium for {seconds} s on spidar run's path ...");
+                let (width, height) = size
+                    .split_once('x')
+                    .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+                    .filter(|(w, h): &(u32, u32)| (64..=8192).contains(w) && (64..=8192).contains(h))
+                    .ok_or_else(|| {
+                        anyhow::anyhow!("--size {size}: give WIDTHxHEIGHT in pixels, e.g. 960x540")
+                    })?;
+                let o = AgeBenchOptions { scene, seconds, width, height, world: None };
+                bench_age(&r, &o)?.to_string()
+            } else {
+                errln!(
+                    "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+                );
+                let o = ViewBenchOptions {
+                    scene,
+                    characters,
+                    seconds_per_block: seconds,
+                    rounds,
+                    viewers,
+                    fifo,
+                    browser,
+                };
+                bench_view(&r, &o)?.to_string()
+            }
         }
         BenchCmd::Rt { rig, seconds, blocks } => {
             let r = rig.load()?;

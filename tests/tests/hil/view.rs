@@ -61,6 +61,9 @@ struct Rec {
     /// `spidar_sim::character::drawn::world_joints` gives them) and policy.
     skeletons: Vec<(Vec<DVec3>, Policy)>,
     counters: Vec<f64>,
+    /// Boxing: each articulated body's joints in the world (actor, joint, where the simulation has
+    /// it: the child solid's origin).
+    body_joints: Vec<(&'static str, String, DVec3)>,
 }
 
 /// The scene behind the view, recording itself after every step and obeying the test.
@@ -107,6 +110,16 @@ fn record_boxing(s: &BoxingScene, t: f64) -> Rec {
         t,
         parts: w.ws.shape_pose.iter().map(|p| (p.pos_m, DQuat::from_mat3(&p.rot).normalize())).collect(),
         skeletons: Vec::new(),
+        body_joints: [(spidar_sim::boxer::BOXER, "virtual human"), (spidar_sim::boxer::AVATAR, "avatar")]
+            .into_iter()
+            .flat_map(|(a, name)| {
+                w.model.articulations[a]
+                    .bodies
+                    .clone()
+                    .filter(|&b| w.model.bodies[b].parent.is_some())
+                    .map(move |b| (name, w.model.bodies[b].name.clone(), w.ws.point_world(b, DVec3::ZERO)))
+            })
+            .collect(),
         counters: [m.hits_taken, m.hits_given, m.attacks, m.avoidances, m.blocks, m.predictions]
             .iter()
             .map(|c| *c as f64)
@@ -128,6 +141,7 @@ fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
             })
             .collect(),
         counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
+        body_joints: Vec::new(),
     }
 }
 
@@ -364,6 +378,33 @@ impl Hosting {
             }
             "push" => self.push_until_down(q["i"].as_u64().unwrap() as usize),
             "hold" => json!({"t_hold": self.hold()}),
+            "check_person_joints" => {
+                let f = |v: &Value| v.as_f64().unwrap();
+                // Every joint of the body drawn as a person, as each of its two pieces draws it,
+                // within 1 cm of where the simulation has it at the frame's step.
+                let rec = self.at(f(&q["t"]));
+                let name = q["name"].as_str().unwrap();
+                let drawn = q["joints"].as_object().unwrap();
+                let mut worst: f64 = 0.0;
+                let mut n = 0;
+                for (actor, joint, truth) in rec.body_joints.iter().filter(|j| j.0 == name) {
+                    let d = drawn.get(joint).unwrap_or_else(|| panic!("{actor}: joint {joint} is not drawn"));
+                    for side in ["parent", "child"] {
+                        let p = d[side]
+                            .as_array()
+                            .unwrap_or_else(|| panic!("{actor}'s {joint}: no {side} piece"));
+                        let e = (DVec3::new(f(&p[0]), f(&p[1]), f(&p[2])) - *truth).length();
+                        assert!(
+                            e < 0.01,
+                            "{actor}'s {joint} as its {side} piece draws it is {e} m from the simulation's"
+                        );
+                        worst = worst.max(e);
+                        n += 1;
+                    }
+                }
+                assert!(n >= 16, "{name}: {n} joint ends compared");
+                json!({"worst_m": worst, "ends": n})
+            }
             "jab" => {
                 // The right fist jabs at the virtual human's head (hit) or out to the right, clear
                 // of every body (miss), and stays there.
@@ -532,9 +573,14 @@ pub(super) fn browser_here(test: &str) -> bool {
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
 /// unless it ends with `RESULT ok`.
-pub(super) fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+pub(super) fn node(args: &[&str], answer: impl FnMut(&Value) -> Value) {
+    node_script("view.mjs", args, answer)
+}
+
+/// Runs `node SCRIPT ARGS` in `tests/browser` (see [`node`]).
+pub(super) fn node_script(script: &str, args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
     let mut child = Command::new("node")
-        .arg("view.mjs")
+        .arg(script)
         .args(args)
         .current_dir(browser_dir())
         .stdin(Stdio::piped())
@@ -601,6 +647,19 @@ fn view_a_hit_flashes_the_part_hit_in_a_browser() {
         BoxingScene::new(spidar_sim::boxer::BoxerParams { active: false, ..Default::default() }).unwrap();
     let w = host(scene, record_boxing, |_, _| {}, DVec3::ZERO, &any_port());
     node(&["flash", w.view.url()], |q| w.answer(q));
+}
+
+/// The virtual human and the avatar drawn as people: every joint of each, as both pieces that meet
+/// there draw it, within 1 cm of the simulated body's, before and after a punch moves them; the
+/// collision shapes come back with the toggle.
+#[test]
+fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser") {
+        return;
+    }
+    let w = boxing_world(&any_port());
+    node_script("display.mjs", &["people", w.view.url()], |q| w.answer(q));
 }
 
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
@@ -808,6 +867,18 @@ fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
             // The viewer gets it before the next frame is due (the test waits, by counts).
             let got = got_rx.recv_timeout(Duration::from_secs(60)).expect("the frame reached the viewer");
             assert_eq!(u32::from_le_bytes(got[8..12].try_into().unwrap()), seq, "the frame published last");
+            // The live view stamps its frames with the tick's wall-clock time (the reference, like
+            // a recording, does not): within a minute of now, and otherwise the same frame.
+            let wall_ms = f64::from_le_bytes(got[32..40].try_into().unwrap());
+            let now_ms =
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64()
+                    * 1e3;
+            assert!(
+                (now_ms - wall_ms).abs() < 60e3,
+                "the tick's wall-clock time {wall_ms} ms, now {now_ms} ms"
+            );
+            let mut want = want;
+            want[32..40].copy_from_slice(&got[32..40]);
             assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);
             compared += 1;
             most_down = most_down.max(down);
@@ -893,16 +964,21 @@ fn recorder_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
 /// rt-loop, and the child world process (this package's `spidar world`) started, watched and
 /// linked by the session as `spidar run` does, with the view option passed through. The session
 /// is polled on its own thread until `stop`.
-struct RunPath {
+pub(super) struct RunPath {
     /// The view's address, as the world printed it.
-    url: String,
+    pub(super) url: String,
     stop: spidar_runtime::signals::Stop,
     run: Option<JoinHandle<spidar_runtime::summary::SessionSummary>>,
-    said: Arc<Mutex<Vec<String>>>,
+    pub(super) said: Arc<Mutex<Vec<String>>>,
 }
 
 impl RunPath {
-    fn start(scene: &str, script: &str) -> RunPath {
+    pub(super) fn start(scene: &str, script: &str) -> RunPath {
+        RunPath::start_on(scene, script, rig())
+    }
+
+    /// The same on a rig of the test's (a rig file with a screen, say).
+    pub(super) fn start_on(scene: &str, script: &str, r: spidar_rt::Rig) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
         use spidar_runtime::child_world::ChildWorldSpec;
         use spidar_runtime::session::{
@@ -933,7 +1009,6 @@ impl RunPath {
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {
-            let r = rig();
             let dev = sim_device(&r, load_scripts(&script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
             let mut s = LiveSession::start(dev, &r, WorldChoice::Child(spec), &opts).unwrap();
             let mut url_tx = Some(url_tx);
@@ -962,13 +1037,13 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    fn finish(mut self) -> spidar_runtime::summary::SessionSummary {
+    pub(super) fn finish(mut self) -> spidar_runtime::summary::SessionSummary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }
 
     /// `GET path` from the world process's view server: the JSON it answers.
-    fn get(&self, path: &str) -> Value {
+    pub(super) fn get(&self, path: &str) -> Value {
         use std::io::Read;
         let host = self.url.trim_start_matches("http://");
         let mut c = std::net::TcpStream::connect(host).unwrap();
