@@ -1,6 +1,7 @@
 // The rig's screen, the headset and the bodies as people, run by tests/tests/hil/display.rs (which
 // runs `spidar run`'s path and answers ASK lines): `node display.mjs screen|headset|bodies|... URL`.
-import { ask, check, open, pause, run, screenshot } from './harness.mjs';
+import fs from 'node:fs';
+import { ask, check, log, open, pause, run, screenshot } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
@@ -12,7 +13,8 @@ const dist2 = (a, b) => Math.hypot(a.x - b.x, a.y - b.y);
 // blue: the right eye's cyan grip).
 export function classPixels(page, cls, rect) {
   return page.evaluate((cls, rect) => {
-    const src = document.querySelector('#view canvas');
+    // The page's WebGL canvas (in a headset session the emulated runtime moves it out of #view).
+    const src = document.querySelector('canvas[data-engine]');
     const c = document.createElement('canvas');
     c.width = src.width; c.height = src.height;
     const g = c.getContext('2d', { willReadFrequently: true });
@@ -200,7 +202,147 @@ async function people(browser) {
   if (rest[0]) await screenshot(page, rest[0]);
 }
 
-const modes = { screen, people };
+// ---- the headset: an emulated WebXR headset (the `iwer` runtime) inside the page ----
+
+const IWER_JS = fs.readFileSync(new URL('./node_modules/iwer/build/iwer.min.js', import.meta.url), 'utf8');
+
+// The headset's geometry, computed here (never by the page): a point of the headset's floor frame
+// seen by one eye of a headset at `pos` turned by `quat` (xyzw), whose eyes are `ipd` apart and
+// whose views are perspectives of vertical field `fovy` (rad) on each eye's half of the canvas:
+// the pixel of the point's own ray, and of the centre of a sphere's image (radius r).
+const v3 = { sub: (a, b) => a.map((x, i) => x - b[i]), add: (a, b) => a.map((x, i) => x + b[i]), scale: (a, k) => a.map((x) => x * k),
+  dot: (a, b) => a.reduce((s, x, i) => s + x * b[i], 0), len: (a) => Math.hypot(...a) };
+function rotate(q, p, inverse = false) {
+  const [x, y, z, w0] = q;
+  const w = inverse ? -w0 : w0;
+  // p' = p + 2w (u x p) + 2 u x (u x p), u = (x, y, z) (the inverse: w negated)
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const u = [x, y, z];
+  const t = v3.scale(cross(u, p), 2);
+  return v3.add(v3.add(p, v3.scale(t, w)), cross(u, t));
+}
+function eyePixel(head, eye, p, r, view) {
+  const eyePos = v3.add(head.pos, rotate(head.quat, [(eye === 0 ? -0.5 : 0.5) * head.ipd, 0, 0]));
+  const pe = rotate(head.quat, v3.sub(p, eyePos), true); // in the eye's frame: x right, y up, -z ahead
+  const f = 1 / Math.tan(head.fovy / 2);
+  const aspect = view.w / view.h;
+  const toPx = (X, Y) => ({ x: view.x + ((f / aspect) * X + 1) / 2 * view.w, y: view.y + (1 - f * Y) / 2 * view.h });
+  const centre = toPx(pe[0] / -pe[2], pe[1] / -pe[2]);
+  // The sphere's silhouette cone cut by the image plane (z = -1): the midpoint of the two
+  // generators in the plane of its axis and the view direction.
+  const d = v3.len(pe);
+  const a = v3.scale(pe, 1 / d);
+  const alpha = Math.asin(r / d);
+  const n = [0, 0, -1];
+  let w = v3.sub(n, v3.scale(a, v3.dot(n, a)));
+  let image = centre;
+  if (v3.len(w) > 1e-9) {
+    w = v3.scale(w, 1 / v3.len(w));
+    const g1 = v3.add(v3.scale(a, Math.cos(alpha)), v3.scale(w, Math.sin(alpha)));
+    const g2 = v3.sub(v3.scale(a, Math.cos(alpha)), v3.scale(w, Math.sin(alpha)));
+    const p1 = toPx(g1[0] / -g1[2], g1[1] / -g1[2]);
+    const p2 = toPx(g2[0] / -g2[2], g2[1] / -g2[2]);
+    image = { x: (p1.x + p2.x) / 2, y: (p1.y + p2.y) / 2 };
+  }
+  return { centre, image, radiusPx: (r / -pe[2]) * f * view.h / 2 };
+}
+
+async function headset(browser) {
+  const emulate = async (page) => {
+    await page.evaluateOnNewDocument(IWER_JS);
+    await page.evaluateOnNewDocument(() => {
+      const d = new IWER.XRDevice(IWER.metaQuest3);
+      d.installRuntime();
+      window.emulatedHeadset = d;
+    });
+  };
+  const shots = process.env.SPIDAR_SHOTS;
+  const query = shots ? 'bodies=people&hud=0&labels=0' : 'avatar=0&strings=0&hud=0&labels=0&xrmarkers=0';
+  const page = await open(browser, url, query, { width: 800, height: 450 }, emulate);
+  await page.waitForFunction(() => spidarView.xr.state().supported && spidarView.state().hasRig, { timeout: 60000 });
+  // The headset where the user's eyes are, before the session starts (the floor frame's origin
+  // is under them).
+  const eyeM = (await page.evaluate(() => spidarView.rigInfo())).eye_m;
+  await page.evaluate(() => { emulatedHeadset.position.set(0, 1.5, 0); emulatedHeadset.quaternion.set(0, 0, 0, 1); });
+  await page.click('#xr-button');
+  await page.waitForFunction(() => spidarView.xr.state().presenting, { timeout: 30000 });
+  check(true, 'the page entered an immersive session in the emulated headset');
+  const grips = await pauseStill(page);
+  const G = grips.map((g) => g.pos);
+  // The controllers held on the grips, in the headset's floor frame: the grips turned 20 degrees
+  // about the vertical and moved (the floor frame is not the scene's until registered).
+  const c = v3.scale(v3.add(G[0], G[1]), 0.5);
+  const turn = [0, Math.sin(0.5 * 0.349), 0, Math.cos(0.5 * 0.349)];
+  const P = G.map((g) => v3.add(rotate(turn, v3.sub(g, c)), [0.05, 1.2, -0.5]));
+  await page.evaluate((P) => {
+    for (const [k, side] of ['left', 'right'].entries()) {
+      const off = IWER.metaQuest3.controllerConfig.layout[side].gripOffsetMatrix;
+      const ctl = emulatedHeadset.controllers[side];
+      ctl.quaternion.set(0, 0, 0, 1);
+      ctl.position.set(P[k][0] - off[12], P[k][1] - off[13], P[k][2] - off[14]);
+    }
+  }, P);
+  await page.waitForFunction(() => spidarView.xr.controllers() !== null, { timeout: 10000 });
+  const tracked = await page.evaluate(() => spidarView.xr.controllers());
+  for (const k of [0, 1]) check(v3.len(v3.sub(tracked[k], P[k])) < 1e-4, `the page tracks the ${k ? 'right' : 'left'} controller at its grip`);
+  // A trigger pressed: the registration.
+  await page.evaluate(async () => {
+    emulatedHeadset.controllers.right.updateButtonValue('trigger', 1);
+    await spidarView.rendered();
+    emulatedHeadset.controllers.right.updateButtonValue('trigger', 0);
+    await spidarView.rendered();
+  });
+  const st = await page.evaluate(() => spidarView.xr.state());
+  check(st.registered, `a trigger press registers the headset to the rig (${st.message})`);
+  const gripR = (await page.evaluate(() => spidarView.rigInfo())).grip_radius_m[0];
+  const { ipd, fovy } = await page.evaluate(() => ({ ipd: emulatedHeadset.ipd, fovy: emulatedHeadset.fovy }));
+  const size = await page.evaluate(() => { const c = document.querySelector('canvas[data-engine]'); return { w: c.width, h: c.height, cw: c.clientWidth }; });
+  check(size.w === size.cw, `the canvas is drawn at one pixel per CSS pixel (${size.w} x ${size.h})`);
+  const views = [{ x: 0, y: 0, w: size.w / 2, h: size.h }, { x: size.w / 2, y: 0, w: size.w / 2, h: size.h }];
+  const poses = [
+    { pos: [0, 1.5, 0], quat: [0, 0, 0, 1], what: 'the headset where it started' },
+    { pos: [0.08, 1.42, -0.04], quat: [0, Math.sin(-0.5 * 0.175), 0, Math.cos(-0.5 * 0.175)], what: 'the headset 8 cm right, 8 cm lower, turned 10 degrees right' },
+  ];
+  let before = null;
+  for (const pose of poses) {
+    await page.evaluate((p) => { emulatedHeadset.position.set(...p.pos); emulatedHeadset.quaternion.set(...p.quat); }, pose);
+    await page.evaluate(async () => { await spidarView.rendered(); await spidarView.rendered(); });
+    const head = { ...pose, ipd, fovy };
+    const seen = [];
+    for (const e of [0, 1]) {
+      const red = await classPixels(page, 'red', views[e]);
+      check(red.n > 800, `${pose.what}: the ${e ? 'right' : 'left'} eye draws the virtual human (${red.n} red pixels)`);
+      seen.push(red);
+      for (const [k, cls] of ['yellow', 'cyan'].entries()) {
+        const want = eyePixel(head, e, P[k], gripR, views[e]);
+        const half = want.radiusPx * 1.6 + 10;
+        const rect = clip({ x: want.image.x - half, y: want.image.y - half, w: 2 * half, h: 2 * half }, views[e]);
+        const px = await classPixels(page, cls, rect);
+        const area = Math.PI * want.radiusPx ** 2;
+        check(px.n > 0.5 * area, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip drawn where its controller is (${px.n} ${cls} pixels, its image about ${area.toFixed(0)})`);
+        const off = dist2(px, want.image);
+        check(off < 3, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip's pixels centre at (${px.x.toFixed(1)}, ${px.y.toFixed(1)}), the controller's image at (${want.image.x.toFixed(1)}, ${want.image.y.toFixed(1)}): ${off.toFixed(2)} px`);
+        if (before) {
+          const moved = dist2(want.image, before[e][k]);
+          check(moved > 15, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip's picture moved ${moved.toFixed(1)} px`);
+        }
+        (seen.images = seen.images || [[], []])[e][k] = want.image;
+      }
+    }
+    // The two eyes see the virtual human from 6 cm apart: further right in the left eye's picture.
+    const disparity = (seen[0].x - views[0].x) - (seen[1].x - views[1].x);
+    check(disparity > 0.5, `${pose.what}: the virtual human is ${disparity.toFixed(1)} px further right in the left eye (stereo)`);
+    before = seen.images;
+  }
+  // The frames are drawn at the headset's rate, interpolated, and reported as the headset's.
+  await page.evaluate(() => spidarView.resume());
+  await page.waitForFunction(() => spidarView.state().drawnReport && spidarView.state().drawnReport.xr, { timeout: 10000 });
+  if (shots) await screenshot(page, `${shots}/headset.png`);
+  await page.close();
+  log(`eye point ${JSON.stringify(eyeM)}`);
+}
+
+const modes = { screen, people, headset };
 if (!modes[mode]) {
   process.stdout.write(`RESULT failed: unknown mode ${mode}\n`);
   process.exit(1);

@@ -48,11 +48,13 @@ export async function launch() {
 
 const pages = [];
 
-export async function open(browser, url, query, size = { width: W, height: H }) {
+// `before(page)`: run before the page loads (a script to add to every document, say).
+export async function open(browser, url, query, size = { width: W, height: H }, before = null) {
   const page = await browser.newPage();
   pages.push(page);
   page.on('pageerror', (e) => log(`page error: ${e.message}`));
   await page.setViewport(size);
+  if (before) await before(page);
   // 15 drawings a second: software WebGL shares the machine with the other tests. The bodies as
   // their collision shapes, whose colours the checks look for, unless the query says otherwise.
   const bodies = query.includes('bodies=') ? '' : 'bodies=shapes&';

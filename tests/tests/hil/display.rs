@@ -133,6 +133,39 @@ fn display_draws_the_rig_frame_through_the_screen_from_the_eye() {
     assert!(sum.clean_stop, "{sum}");
 }
 
+/// The headset: in Debian's chromium with a WebXR headset emulated inside the page (npm `iwer`),
+/// on `spidar run`'s path, the page enters an immersive session; with the emulated controllers
+/// held on the grips (in the headset's floor frame, turned and moved from the scene's) a trigger
+/// press registers the headset to the rig; then, for the headset where it started and moved and
+/// turned, each eye draws the virtual human (further right in the left eye: stereo) and draws each
+/// grip centred within 3 px of where the headset's geometry (its pose, eye separation and field of
+/// view, computed by the test) images the controller on it: the grips are where the hands are.
+#[test]
+fn display_headset_enters_registers_and_draws_the_grips_at_the_hands() {
+    let _one = one_at_a_time();
+    if !browser_here("display_headset_enters_registers_and_draws_the_grips_at_the_hands") {
+        return;
+    }
+    let run = RunPath::start_on("boxing", "hold", screen_rig());
+    node_script("display.mjs", &["headset", &run.url], |q| json!({"error": format!("unexpected question {q}")}));
+    // The pictures the headset drew were reported as the headset's (the status comes once a second).
+    let mut status = run.get("/status.json");
+    for _ in 0..30 {
+        if status["picture_age"]["headset"]["total"].as_u64().unwrap_or(0) > 0 {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        status = run.get("/status.json");
+    }
+    assert!(
+        status["picture_age"]["headset"]["total"].as_u64().unwrap_or(0) > 0,
+        "the world kept the headset's age reports: {}",
+        status["picture_age"]
+    );
+    let sum = run.finish();
+    assert!(sum.clean_stop, "{sum}");
+}
+
 #[test]
 fn the_sphere_image_centre_is_the_crossing_face_on_and_off_it_at_an_angle() {
     let d = Display::from_corners(
