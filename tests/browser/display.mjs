@@ -334,15 +334,82 @@ async function headset(browser) {
     check(disparity > 0.5, `${pose.what}: the virtual human is ${disparity.toFixed(1)} px further right in the left eye (stereo)`);
     before = seen.images;
   }
-  // The frames are drawn at the headset's rate, interpolated, and reported as the headset's.
+  // The frames are drawn at the headset's rate, interpolated, and reported as the headset's: the
+  // world keeps them apart (its status, fetched by the page over the same HTTPS).
   await page.evaluate(() => spidarView.resume());
   await page.waitForFunction(() => spidarView.state().drawnReport && spidarView.state().drawnReport.xr, { timeout: 10000 });
+  const proto = await page.evaluate(() => location.protocol);
+  await page.waitForFunction(async () => {
+    const s = await (await fetch('/status.json')).json();
+    return s && s.picture_age.headset && s.picture_age.headset.total > 0;
+  }, { timeout: 10000, polling: 200 });
+  check(true, `the world keeps the headset's pictures' ages apart (page served over ${proto})`);
   if (shots) await screenshot(page, `${shots}/headset.png`);
   await page.close();
   log(`eye point ${JSON.stringify(eyeM)}`);
 }
 
-const modes = { screen, people, headset };
+// ---- the crowd drawn as people ----
+
+async function crowdPeople(browser) {
+  const page = await open(browser, url, 'camera=orbit&bodies=people&labels=0&hud=0');
+  const desc = await page.evaluate(() => spidarView.desc());
+  const joints = desc.crowd.joints;
+  const n = desc.crowd.characters;
+  const skeleton = (c) => joints.map((_, k) => c.slice(9 + 3 * k, 9 + 3 * k + 3));
+  const d3 = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+  // Every joint of every character, as each piece meeting there draws it, against the drawn
+  // figure (the frame's joints, and the figure's bones as the page draws them).
+  const jointForJoint = async (what) => {
+    await pause(page);
+    const all = await page.evaluate((n) => Array.from({ length: n }, (_, i) => ({
+      f: spidarView.character(i), bones: spidarView.characterJoints(i).map((j) => j.pos), person: spidarView.characterPerson(i) })), n);
+    let worst = 0;
+    let count = 0;
+    for (const c of all) {
+      const sk = skeleton(c.f);
+      c.person.joints.forEach((ends, j) => ends.forEach((p) => {
+        worst = Math.max(worst, d3(p, sk[j]), d3(p, c.bones[j]));
+        count++;
+      }));
+    }
+    check(count >= n * (joints.length - 1) * 2 && worst < 0.01, `${what}: the ${count} piece ends of ${n} people meet the drawn figures' joints (worst ${(worst * 1000).toFixed(2)} mm)`);
+    return all;
+  };
+  const all = await jointForJoint('standing and walking');
+  check(all.every((c) => c.person.visible), 'the crowd is drawn as people');
+  const w = all.findIndex((c) => desc.crowd.states[c.f[7]] !== 'down');
+  check(w >= 0, `character ${w} is up`);
+  const standing = all[w].person;
+  check(standing.high > 1.5, `standing, its person reaches ${standing.high.toFixed(2)} m high`);
+  // Pushed over: its person lies on the floor.
+  const { t_down } = await ask({ ask: 'push', i: w });
+  await page.evaluate(() => spidarView.resume());
+  await page.waitForFunction((t) => spidarView.state().t >= t, { timeout: 60000, polling: 50 }, t_down + 0.2);
+  const down = await jointForJoint('one down');
+  check(desc.crowd.states[down[w].f[7]] === 'down', `the frame says character ${w} is down`);
+  const lying = down[w].person;
+  check(lying.high < 0.5 && lying.low > -0.03, `its person lies on the floor: every piece between ${lying.low.toFixed(3)} and ${lying.high.toFixed(2)} m high`);
+  // Seen from the side with the eye 0.55 m up looking level: the red (down) person is all below
+  // the horizon.
+  const sk = skeleton(down[w].f);
+  const mid = sk[0];
+  const EYE = 0.55;
+  await page.evaluate((p, t) => spidarView.orbitTo(p, t), [mid[0] + 3, EYE, mid[2] + 0.01], [mid[0], EYE, mid[2]]);
+  await page.evaluate(() => spidarView.rendered());
+  const [floor, horizon, above] = await page.evaluate((ps) => ps.map((p) => spidarView.project(p)),
+    [[mid[0], 0, mid[2]], [mid[0], EYE, mid[2]], [mid[0], 1.4, mid[2]]]);
+  const band = (y0, y1) => ({ x: 0, y: y0, w: 800, h: y1 - y0 });
+  const [onFloor, over] = [await classPixels(page, 'red', band(horizon.y + 2, floor.y + 40)), await classPixels(page, 'red', band(above.y, horizon.y - 2))];
+  check(onFloor.n > 200 && over.n < onFloor.n * 0.02, `seen from the side the person lies on the floor: ${onFloor.n} red pixels below ${EYE} m, ${over.n} above`);
+  if (rest[0]) await screenshot(page, rest[0]);
+  // The toggle: the figure's bones instead.
+  await page.evaluate(() => spidarView.setBodies(false));
+  check(!(await page.evaluate((w) => spidarView.characterPerson(w).visible, w)), 'the toggle draws the figures\' bones instead of people');
+  await page.close();
+}
+
+const modes = { screen, people, headset, crowd: crowdPeople };
 if (!modes[mode]) {
   process.stdout.write(`RESULT failed: unknown mode ${mode}\n`);
   process.exit(1);

@@ -112,6 +112,7 @@ function setBodies(asP) {
   asPeople = asP;
   if (world) world.people = asP;
   if (people) people.setShown(asP);
+  if (crowd) crowd.setPeople(asP);
 }
 
 function onRig(r) {
@@ -302,6 +303,8 @@ window.spidarView = {
   personEyes: (name) => people && people.eyeDirections(name),
   setBodies,
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
+  // Character i drawn as a person: each joint as the pieces meeting there draw it, its extent.
+  characterPerson: (i) => crowd.people.drawn(i),
   character: (i) => {
     const L = desc.layout;
     const o = L.characters_at + i * L.character_floats;

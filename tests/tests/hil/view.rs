@@ -662,6 +662,20 @@ fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
     node_script("display.mjs", &["people", w.view.url()], |q| w.answer(q));
 }
 
+/// The crowd drawn as people: every piece of every character's person meets the drawn figure's
+/// joints within 1 cm (standing, walking, and with one pushed down), the pushed one's person lies
+/// on the floor (every piece under 0.5 m, none through it; from the side, all below a level eye
+/// at 0.55 m), and the toggle draws the figures' bones instead.
+#[test]
+fn display_crowd_drawn_as_people_joint_for_joint_and_lying_when_down() {
+    let _one = one_at_a_time();
+    if !browser_here("display_crowd_drawn_as_people_joint_for_joint_and_lying_when_down") {
+        return;
+    }
+    let w = crowd_world(&any_port());
+    node_script("display.mjs", &["crowd", w.view.url()], |q| w.answer(q));
+}
+
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
 #[test]
 fn view_crowd_in_a_browser() {
@@ -979,6 +993,11 @@ impl RunPath {
 
     /// The same on a rig of the test's (a rig file with a screen, say).
     pub(super) fn start_on(scene: &str, script: &str, r: spidar_rt::Rig) -> RunPath {
+        RunPath::start_with(scene, script, r, &[])
+    }
+
+    /// The same with more arguments for the world's view (`--view-tls CERT,KEY`, say).
+    pub(super) fn start_with(scene: &str, script: &str, r: spidar_rt::Rig, view_args: &[String]) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
         use spidar_runtime::child_world::ChildWorldSpec;
         use spidar_runtime::session::{
@@ -1005,7 +1024,7 @@ impl RunPath {
             prefix: Vec::new(),
             scene: scene.into(),
             restarts: 0,
-            extra: vec!["--view".into(), "127.0.0.1:0".into()],
+            extra: ["--view".into(), "127.0.0.1:0".into()].into_iter().chain(view_args.iter().cloned()).collect(),
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {
