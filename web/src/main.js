@@ -218,7 +218,7 @@ function frameLoop() {
   }
   if (applied && applied !== reported && !playback) {
     reported = applied;
-    ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, performance.now() - drawStart);
+    ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, performance.now() - drawStart, applied.arrivedMs, drawStart);
   }
   renders++;
   while (renderWaiters.length) renderWaiters.shift()();
