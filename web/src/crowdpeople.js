@@ -67,7 +67,8 @@ function piece(name, len) {
   if (/knee/.test(name)) return { g: limb(len, 0.075, 0.058) };
   if (/ankle/.test(name)) {
     // The shin, and a shoe past the ankle pointing forward.
-    const shoe = new THREE.BoxGeometry(0.095, 0.07, 0.24).translate(0, len + 0.045, 0.06);
+    // (Its sole at the ankle's height below it: the keyframe set's 4 cm.)
+    const shoe = new THREE.BoxGeometry(0.095, 0.06, 0.22).translate(0, len + 0.01, 0.05);
     return { g: limb(len, 0.058, 0.046), shoe };
   }
   return { g: limb(len, 0.045, 0.04) };
@@ -98,7 +99,10 @@ export class CrowdPeople {
       const p = piece(j.name, len);
       const meshes = [mesh(p.g, p.skin ? SKIN : null)];
       if (p.hair) meshes.push(mesh(p.hair, HAIR));
-      if (p.shoe) meshes.push(mesh(p.shoe, SHOE));
+      if (p.shoe) {
+        meshes.push(mesh(p.shoe, SHOE));
+        meshes[meshes.length - 1].userData.shoe = true;
+      }
       this.pieces.push({ joint: k, parent: j.parent, len, meshes });
     });
     this.meshes = this.pieces.flatMap((p) => p.meshes);
@@ -163,13 +167,16 @@ export class CrowdPeople {
   }
 
   // For tests: character i's joints as its pieces draw them (scene frame), each joint from the
-  // pieces that start and end there; and the lowest and highest point of all its pieces.
+  // pieces that start and end there; and the lowest and highest point of all its pieces but the
+  // shoes, and of its shoes (the drawn figure has no foot joint: a shoe points the body's forward
+  // way, into the floor when the figure lies face down).
   drawn(i) {
     const ends = this.joints.map(() => []);
     const m = new THREE.Matrix4();
     const v = new THREE.Vector3();
     let low = Infinity;
     let high = -Infinity;
+    let shoeLow = Infinity;
     for (const p of this.pieces) {
       p.meshes[0].getMatrixAt(i, m);
       ends[p.parent].push(new THREE.Vector3().setFromMatrixPosition(m).toArray());
@@ -179,11 +186,12 @@ export class CrowdPeople {
         const pos = mesh.geometry.attributes.position;
         for (let k = 0; k < pos.count; k++) {
           v.fromBufferAttribute(pos, k).applyMatrix4(m);
+          if (mesh.userData.shoe) { shoeLow = Math.min(shoeLow, v.y); continue; }
           low = Math.min(low, v.y);
           high = Math.max(high, v.y);
         }
       }
     }
-    return { joints: ends, low, high, visible: this.visible };
+    return { joints: ends, low, high, shoeLow, visible: this.visible };
   }
 }
