@@ -123,10 +123,12 @@ pub fn start_view(
             &ViewOptions { addr: parse_addr(addr)?, tls: tls.clone(), ..Default::default() },
         )?,
         // The default port may be taken (another spidar): then any free one.
-        None => View::start(scene.name(), &look, &ViewOptions { tls: tls.clone(), ..Default::default() }).or_else(|_| {
-            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), tls: tls.clone(), ..Default::default() };
-            View::start(scene.name(), &look, &any)
-        })?,
+        None => View::start(scene.name(), &look, &ViewOptions { tls: tls.clone(), ..Default::default() })
+            .or_else(|_| {
+                let any =
+                    ViewOptions { addr: ([127, 0, 0, 1], 0).into(), tls: tls.clone(), ..Default::default() };
+                View::start(scene.name(), &look, &any)
+            })?,
     };
     crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))

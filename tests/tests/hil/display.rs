@@ -158,7 +158,11 @@ fn display_headset_enters_registers_and_draws_the_grips_at_the_hands() {
     let tls = format!("{},{}", cert_pem.display(), key_pem.display());
     let run = RunPath::start_with("boxing", "hold", screen_rig(), &["--view-tls".into(), tls]);
     assert!(run.url.starts_with("https://"), "the view is served over HTTPS: {}", run.url);
-    node_script("display.mjs", &["headset", &run.url], |q| json!({"error": format!("unexpected question {q}")}));
+    node_script(
+        "display.mjs",
+        &["headset", &run.url],
+        |q| json!({"error": format!("unexpected question {q}")}),
+    );
     let _ = std::fs::remove_dir_all(&dir);
     let sum = run.finish();
     assert!(sum.clean_stop, "{sum}");

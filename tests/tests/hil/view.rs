@@ -1024,7 +1024,10 @@ impl RunPath {
             prefix: Vec::new(),
             scene: scene.into(),
             restarts: 0,
-            extra: ["--view".into(), "127.0.0.1:0".into()].into_iter().chain(view_args.iter().cloned()).collect(),
+            extra: ["--view".into(), "127.0.0.1:0".into()]
+                .into_iter()
+                .chain(view_args.iter().cloned())
+                .collect(),
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {

@@ -49,7 +49,8 @@ impl TlsIdentity {
         if chain.is_empty() {
             return Err(bad("the certificate", cert, "no CERTIFICATE block in it".into()));
         }
-        let key_der = PrivateKeyDer::from_pem_file(key).map_err(|e| bad("the private key", key, e.to_string()))?;
+        let key_der =
+            PrivateKeyDer::from_pem_file(key).map_err(|e| bad("the private key", key, e.to_string()))?;
         let provider = Arc::new(rustls::crypto::ring::default_provider());
         let config = ServerConfig::builder_with_provider(provider)
             .with_safe_default_protocol_versions()
@@ -61,7 +62,9 @@ impl TlsIdentity {
     /// `--view-tls`'s value: `CERT.pem,KEY.pem`.
     pub fn from_arg(arg: &str) -> Result<TlsIdentity, ViewError> {
         let (cert, key) = arg.split_once(',').ok_or_else(|| {
-            ViewError::Tls(format!("--view-tls '{arg}': give the certificate and the key file as CERT.pem,KEY.pem"))
+            ViewError::Tls(format!(
+                "--view-tls '{arg}': give the certificate and the key file as CERT.pem,KEY.pem"
+            ))
         })?;
         TlsIdentity::from_pem_files(Path::new(cert.trim()), Path::new(key.trim()))
     }
@@ -77,11 +80,9 @@ pub(super) fn front(listener: TcpListener, backend: SocketAddr, id: TlsIdentity,
         match listener.accept() {
             Ok((client, _)) => {
                 let config = id.config.clone();
-                let _ = std::thread::Builder::new()
-                    .name("spidar-view-tls".into())
-                    .spawn(move || {
-                        let _ = relay(client, backend, config);
-                    });
+                let _ = std::thread::Builder::new().name("spidar-view-tls".into()).spawn(move || {
+                    let _ = relay(client, backend, config);
+                });
             }
             Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(20)),
             Err(_) => std::thread::sleep(Duration::from_millis(20)),
