@@ -1026,7 +1026,7 @@ impl RunPath {
             restarts: 0,
             extra: ["--view".into(), "127.0.0.1:0".into()]
                 .into_iter()
-                .chain(view_args.iter().cloned())
+                .chain(view_args.iter().map(std::ffi::OsString::from))
                 .collect(),
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
