@@ -12,7 +12,7 @@ use spidar_rt::display::Display;
 use spidar_rt::rig::DEFAULT_RIG_RON;
 use spidar_rt::Rig;
 
-use super::view::{browser_here, node_script, one_at_a_time, RunPath};
+use super::view::{browser_here, node_script, one_at_a_time, test_certificate, RunPath};
 
 /// The default rig with the eye lower and closer than its default, and a screen off-centre and
 /// turned on all three axes: the grips and the virtual human's head fall well inside it.
@@ -149,12 +149,7 @@ fn display_headset_enters_registers_and_draws_the_grips_at_the_hands() {
         return;
     }
     // Served over HTTPS as for a headset on the network, with a certificate made for the test.
-    let dir = std::env::temp_dir().join(format!("spidar-headset-tls-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let cert = rcgen::generate_simple_self_signed(vec!["127.0.0.1".into(), "localhost".into()]).unwrap();
-    let (cert_pem, key_pem) = (dir.join("cert.pem"), dir.join("key.pem"));
-    std::fs::write(&cert_pem, cert.cert.pem()).unwrap();
-    std::fs::write(&key_pem, cert.signing_key.serialize_pem()).unwrap();
+    let (dir, cert_pem, key_pem, _) = test_certificate("headset-tls");
     let tls = format!("{},{}", cert_pem.display(), key_pem.display());
     let run = RunPath::start_with("boxing", "hold", screen_rig(), &["--view-tls".into(), tls]);
     assert!(run.url.starts_with("https://"), "the view is served over HTTPS: {}", run.url);

@@ -690,6 +690,99 @@ fn view_crowd_in_a_browser() {
 // ---------------------------------------------------------------------------------------------
 // Without a browser.
 
+/// A certificate and key for 127.0.0.1 made for a test, in a folder of its own (removed by the
+/// caller), and the certificate's DER.
+pub(super) fn test_certificate(name: &str) -> (PathBuf, PathBuf, PathBuf, Vec<u8>) {
+    let dir = std::env::temp_dir().join(format!("spidar-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let c = rcgen::generate_simple_self_signed(vec!["127.0.0.1".into(), "localhost".into()]).unwrap();
+    let (cert, key) = (dir.join("cert.pem"), dir.join("key.pem"));
+    std::fs::write(&cert, c.cert.pem()).unwrap();
+    std::fs::write(&key, c.signing_key.serialize_pem()).unwrap();
+    (dir, cert, key, c.cert.der().to_vec())
+}
+
+/// The view over HTTPS (`--view-tls`): a TLS client that trusts the view's certificate gets the
+/// page (its request sent with the handshake's last flight, as a browser may), the status, and
+/// over a secure WebSocket the scene and frames; a client that does not trust it gets nothing;
+/// certificate files that do not read are refused naming the file and saying what to do.
+#[test]
+fn view_over_https_serves_the_page_and_frames_and_refuses_a_bad_certificate() {
+    use rustls::pki_types::{CertificateDer, ServerName};
+    use spidar_world::view::TlsIdentity;
+    use std::io::Read;
+    use std::net::TcpStream;
+    let _one = one_at_a_time();
+    let (dir, cert, key, der) = test_certificate("view-tls");
+    let id = TlsIdentity::from_pem_files(&cert, &key).unwrap();
+    let w = boxing_world(&ViewOptions { tls: Some(id), ..any_port() });
+    assert!(
+        w.view.url().starts_with("https://") && w.view.ws_url().starts_with("wss://"),
+        "{}",
+        w.view.url()
+    );
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let client = |trusted: bool| {
+        let mut roots = rustls::RootCertStore::empty();
+        if trusted {
+            roots.add(CertificateDer::from(der.clone())).unwrap();
+        }
+        Arc::new(
+            rustls::ClientConfig::builder_with_provider(provider.clone())
+                .with_safe_default_protocol_versions()
+                .unwrap()
+                .with_root_certificates(roots)
+                .with_no_client_auth(),
+        )
+    };
+    let connect = |url: &str, cfg: Arc<rustls::ClientConfig>| {
+        let addr = url.split("://").nth(1).unwrap().trim_end_matches('/');
+        let tcp = TcpStream::connect(addr).unwrap();
+        tcp.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let conn = rustls::ClientConnection::new(cfg, ServerName::try_from("127.0.0.1").unwrap()).unwrap();
+        rustls::StreamOwned::new(conn, tcp)
+    };
+    let get = |path: &str, cfg: Arc<rustls::ClientConfig>| -> std::io::Result<String> {
+        let mut s = connect(w.view.url(), cfg);
+        // Written before the handshake ends: it leaves with the client's Finished.
+        write!(s, "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")?;
+        let mut text = String::new();
+        s.read_to_string(&mut text)?;
+        Ok(text)
+    };
+    let page = get("/", client(true)).unwrap();
+    let ws_port = w.view.ws_url().rsplit(':').next().unwrap().trim_end_matches('/').to_string();
+    assert!(page.starts_with("HTTP/1.") && page.contains(" 200 "), "{page}");
+    assert!(page.contains(&format!("content=\"{ws_port}\"")), "the page names the frames' port {ws_port}");
+    let status = get("/scene.json", client(true)).unwrap();
+    assert!(status.contains("\"type\":\"scene\""), "{status}");
+    assert!(get("/", client(false)).is_err(), "a client that does not trust the certificate gets no page");
+    // The frames over TLS.
+    let stream = connect(w.view.ws_url(), client(true));
+    let (mut ws, _) = tungstenite::client(format!("ws://127.0.0.1:{ws_port}/"), stream).unwrap();
+    let mut scene = false;
+    let mut frames = 0;
+    let until = Instant::now() + Duration::from_secs(20);
+    while frames < 3 && Instant::now() < until {
+        match ws.read().unwrap() {
+            tungstenite::Message::Text(t) if t.as_str().contains("\"type\":\"scene\"") => scene = true,
+            tungstenite::Message::Binary(_) => frames += 1,
+            _ => {}
+        }
+    }
+    assert!(scene && frames == 3, "over wss: the scene ({scene}) and frames ({frames})");
+    drop(ws);
+    // Files that do not read.
+    let missing = dir.join("missing.pem");
+    let e = TlsIdentity::from_pem_files(&missing, &key).unwrap_err().to_string();
+    assert!(e.contains("missing.pem") && e.contains("docs/display.md"), "{e}");
+    let e = TlsIdentity::from_pem_files(&key, &key).unwrap_err().to_string();
+    assert!(e.contains("key.pem") && e.contains("no CERTIFICATE"), "{e}");
+    let e = TlsIdentity::from_arg("only-one.pem").unwrap_err().to_string();
+    assert!(e.contains("CERT.pem,KEY.pem"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A WebSocket viewer on the view's frames port; `read` says whether it reads.
 fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) -> JoinHandle<()> {
     let url = url.to_string();

@@ -148,20 +148,20 @@ fn relay(client: TcpStream, backend: SocketAddr, config: Arc<ServerConfig>) -> s
             let _ = from.shutdown(Shutdown::Both);
         })?
     };
-    // The client's bytes to the backend.
+    // The client's bytes to the backend. The handshake's last read may already have brought the
+    // first request: what the connection holds is passed on before the socket is read again.
     let result = (|| -> std::io::Result<()> {
         let mut raw = vec![0u8; 64 * 1024];
         let mut clear = vec![0u8; 64 * 1024];
         let (mut from, mut to, mut reply) = (client.try_clone()?, plain.try_clone()?, client.try_clone()?);
+        let mut n = 0;
         loop {
-            let n = from.read(&mut raw)?;
-            if n == 0 {
-                return Ok(());
-            }
             let mut rest = &raw[..n];
-            while !rest.is_empty() {
+            loop {
                 let mut c = conn.lock().map_err(|_| std::io::Error::other("lock"))?;
-                c.read_tls(&mut rest)?;
+                if !rest.is_empty() {
+                    c.read_tls(&mut rest)?;
+                }
                 let state = c.process_new_packets().map_err(tls_err);
                 // An alert, or an answer the protocol owes (a key update), goes out at once.
                 while c.wants_write() {
@@ -176,6 +176,13 @@ fn relay(client: TcpStream, backend: SocketAddr, config: Arc<ServerConfig>) -> s
                         Err(e) => return Err(e),
                     }
                 }
+                if rest.is_empty() {
+                    break;
+                }
+            }
+            n = from.read(&mut raw)?;
+            if n == 0 {
+                return Ok(());
             }
         }
     })();
