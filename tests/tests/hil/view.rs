@@ -744,8 +744,12 @@ fn view_over_https_serves_the_page_and_frames_and_refuses_a_bad_certificate() {
     };
     let get = |path: &str, cfg: Arc<rustls::ClientConfig>| -> std::io::Result<String> {
         let mut s = connect(w.view.url(), cfg);
-        // Written before the handshake ends: it leaves with the client's Finished.
-        write!(s, "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")?;
+        // Queued before the handshake: it leaves in one write with the client's Finished, so the
+        // server's last handshake read brings the request too.
+        write!(s.conn.writer(), "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")?;
+        while s.conn.is_handshaking() || s.conn.wants_write() {
+            s.conn.complete_io(&mut s.sock)?;
+        }
         let mut text = String::new();
         s.read_to_string(&mut text)?;
         Ok(text)
