@@ -7,10 +7,8 @@
 //! once for all viewers and hands the buffer back. Every viewer has a slot holding the newest
 //! frame and the newest text of each kind; the broadcaster overwrites it (a slow viewer gets fewer
 //! frames, never a queue), the viewer's thread sends it. A viewer's socket has a write timeout: a
-//! viewer that takes no data for that long is dropped and counted. A page that reports the frames
-//! it draws is paced: its next frame goes out once it has drawn the last (at most one in flight),
-//! so frames never queue in its socket and browser. Nothing here ever holds the mailbox for longer
-//! than a copy.
+//! viewer that takes no data for that long is dropped and counted. Nothing here ever holds the
+//! mailbox for longer than a copy.
 
 use std::io::ErrorKind;
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -66,40 +64,6 @@ type Viewers = Arc<Mutex<Vec<Arc<Viewer>>>>;
 
 /// How often the broadcaster looks at the mailbox.
 const POLL: Duration = Duration::from_millis(2);
-
-/// A page that reports the frames it draws gets the next frame only once it has drawn the last
-/// one sent, or after this long without a report (a paused page): frames then never queue in the
-/// socket and the browser, where a slow page's newest frame was seen ~140 ms old (docs/view.md).
-const ACK_TIMEOUT: Duration = Duration::from_millis(250);
-
-/// The pacing of one viewer's frames: at most one unreported frame in flight to a page that
-/// reports (clients that never report, a replay's pages or a benchmark's sockets, are not paced).
-#[derive(Default)]
-struct Pacing {
-    reporting: bool,
-    unacked: Option<(u32, Instant)>,
-}
-
-impl Pacing {
-    /// Whether the next frame waits for the page's report of the last one.
-    fn held(&self) -> bool {
-        self.reporting && self.unacked.is_some_and(|(_, at)| at.elapsed() < ACK_TIMEOUT)
-    }
-
-    fn sent(&mut self, frame: &[u8]) {
-        if let Some(seq) = frame.get(8..12) {
-            self.unacked = Some((u32::from_le_bytes([seq[0], seq[1], seq[2], seq[3]]), Instant::now()));
-        }
-    }
-
-    /// The page drew frame `seq`: the frame in flight, or a later one, is done with.
-    fn drawn(&mut self, seq: u32) {
-        self.reporting = true;
-        if self.unacked.is_some_and(|(s, _)| seq.wrapping_sub(s) as i32 >= 0) {
-            self.unacked = None;
-        }
-    }
-}
 
 pub(super) struct Server {
     pub http_addr: SocketAddr,
@@ -321,9 +285,7 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
             return timed_out(&e);
         }
     }
-    let mut pacing = Pacing::default();
     if let Some(f) = frame {
-        pacing.sent(&f);
         if let Err(e) = ws.send(Message::Binary(f)) {
             return timed_out(&e);
         }
@@ -337,19 +299,15 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
         let stopping = shared.done.load(Ordering::Relaxed);
         let slot = {
             let Ok(mut s) = me.slot.lock() else { return false };
-            let held = pacing.held();
-            let frame_due = s.frame.is_some() && !held;
-            if !frame_due && s.rig.is_none() && s.status.is_none() && s.playback.is_none() && !stopping {
-                // Not long: the viewer's messages (its reports) are read in between.
-                let wait = if held { POLL } else { Duration::from_millis(50) };
-                s = match me.wake.wait_timeout(s, wait) {
+            if s.frame.is_none() && s.rig.is_none() && s.status.is_none() && s.playback.is_none() && !stopping
+            {
+                // Not long: the viewer's messages are read in between.
+                s = match me.wake.wait_timeout(s, Duration::from_millis(50)) {
                     Ok((s, _)) => s,
                     Err(_) => return false,
                 };
             }
-            // A held frame stays in the slot (a newer one replaces it there).
-            let frame = if pacing.held() { None } else { s.frame.take() };
-            Slot { frame, rig: s.rig.take(), status: s.status.take(), playback: s.playback.take() }
+            std::mem::take(&mut *s)
         };
         let texts = [slot.rig, slot.status, slot.playback].into_iter().flatten();
         for t in texts {
@@ -358,7 +316,6 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
             }
         }
         if let Some(f) = slot.frame {
-            pacing.sent(&f);
             if let Err(e) = ws.send(Message::Binary(f)) {
                 return timed_out(&e);
             }
@@ -374,7 +331,6 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
                     // A picture drawn, with its age; else a replay's controls (a full queue drops
                     // the command: the page resends).
                     if let Some(d) = super::Drawn::parse(t.as_str()) {
-                        pacing.drawn(d.seq);
                         if let Ok(mut a) = shared.ages.lock() {
                             a.record(&d);
                         }
@@ -517,41 +473,5 @@ fn broadcast(
             }
             return;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn frame(seq: u32) -> Vec<u8> {
-        [0x3156_5053u32, 7, seq, 0].iter().flat_map(|w| w.to_le_bytes()).collect()
-    }
-
-    #[test]
-    fn a_reporting_page_has_one_frame_in_flight_and_others_are_not_paced() {
-        let mut p = Pacing::default();
-        // A client that never reports is never held.
-        p.sent(&frame(5));
-        assert!(!p.held());
-        // Once it reports, a frame sent waits for the report of it (or a later one).
-        p.drawn(5);
-        assert!(!p.held());
-        p.sent(&frame(6));
-        assert!(p.held());
-        p.drawn(5);
-        assert!(p.held(), "an older frame's report is not the one in flight");
-        p.drawn(7);
-        assert!(!p.held());
-        // Sequence numbers wrap.
-        p.sent(&frame(u32::MAX));
-        assert!(p.held());
-        p.drawn(0);
-        assert!(!p.held());
-        // A page that stops reporting (paused) gets a frame after the timeout.
-        p.sent(&frame(1));
-        assert!(p.held());
-        std::thread::sleep(ACK_TIMEOUT + Duration::from_millis(10));
-        assert!(!p.held());
     }
 }
