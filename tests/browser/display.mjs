@@ -335,6 +335,25 @@ async function headset(browser) {
     check(disparity > 0.5, `${pose.what}: the virtual human is ${disparity.toFixed(1)} px further right in the left eye (stereo)`);
     before = seen.images;
   }
+  // Between the world's frames the headset draws blends: a body halfway (position and turn) half
+  // an interval after a frame came, a grip carried forward along its last motion.
+  const L = (await page.evaluate(() => spidarView.desc())).layout;
+  const a = await page.evaluate(() => spidarView.frameWords());
+  const b = a.slice();
+  const s0 = L.shapes_at; const h0 = L.hands_at;
+  b[s0] += 0.1; // the first body 10 cm along x
+  const half = Math.SQRT1_2; // and turned 90 degrees about y
+  [b[s0 + 3], b[s0 + 4], b[s0 + 5], b[s0 + 6]] = [0, half, 0, half];
+  [a[s0 + 3], a[s0 + 4], a[s0 + 5], a[s0 + 6]] = [0, 0, 0, 1];
+  b[h0] += 0.02; // the left grip 2 cm along x
+  const gap = 1000 / 60;
+  const mid = await page.evaluate((a, b, gap) => spidarView.xr.blend(a, b, gap, gap / 2), a, b, gap);
+  const q = mid.f.slice(s0 + 3, s0 + 7);
+  const turned = 2 * Math.atan2(q[1], q[3]) * 180 / Math.PI;
+  check(Math.abs(mid.f[s0] - (a[s0] + 0.05)) < 1e-5 && Math.abs(turned - 45) < 0.01,
+    `half an interval after a frame, a body is drawn halfway: ${((mid.f[s0] - a[s0]) * 100).toFixed(2)} of 10 cm, turned ${turned.toFixed(2)} of 90 degrees`);
+  check(Math.abs(mid.f[h0] - (b[h0] + 0.01)) < 1e-5 && Math.abs(mid.leadMs - gap / 2) < 1e-6,
+    `a grip is carried ${((mid.f[h0] - b[h0]) * 100).toFixed(2)} cm ahead of its newest frame along its last motion (${mid.leadMs.toFixed(2)} ms ahead)`);
   // The frames are drawn at the headset's rate, interpolated, and reported as the headset's: the
   // world keeps them apart (its status, fetched by the page over the same HTTPS).
   await page.evaluate(() => spidarView.resume());

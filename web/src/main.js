@@ -14,7 +14,7 @@ import { Hud } from './hud.js';
 import { Playback } from './playback.js';
 import { AgeReporter, stamp } from './age.js';
 import { showTargets } from './place.js';
-import { Headset } from './xr.js';
+import { Headset, Interpolator } from './xr.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -275,6 +275,14 @@ window.spidarView = {
   rigInfo: () => rigInfo,
   // The headset: its state, entering a session, registering with the controllers on the grips.
   xr: { state: () => headset.state(), enter: () => headset.enter(), register: () => headset.register(),
+    // The headset's blend of two frames (words) that came `gapMs` apart, `sinceMs` after the second.
+    blend: (a, b, gapMs, sinceMs) => {
+      const x = new Interpolator();
+      x.push({ f: new Float32Array(a) }, 0);
+      x.push({ f: new Float32Array(b) }, gapMs);
+      const r = x.at(gapMs + sinceMs, desc);
+      return { f: Array.from(r.f), leadMs: r.leadMs };
+    },
     controllers: () => headset.controllers()?.map((p) => p.toArray()) ?? null },
   screen: () => ({ on: cameras.onScreen, format: cameras.screen.format, display: rigInfo && rigInfo.display }),
   // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
