@@ -664,8 +664,8 @@ fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
 
 /// The crowd drawn as people: every piece of every character's person meets the drawn figure's
 /// joints within 1 cm (standing, walking, and with one pushed down), the pushed one's person lies
-/// on the floor (every piece under 0.5 m, none through it; from the side, all below a level eye
-/// at 0.55 m), and the toggle draws the figures' bones instead.
+/// on the floor (every piece under 0.5 m and none deeper in it than a limb is thick; from the side,
+/// all below a level eye at 0.55 m), and the toggle draws the figures' bones instead.
 #[test]
 fn display_crowd_drawn_as_people_joint_for_joint_and_lying_when_down() {
     let _one = one_at_a_time();
