@@ -556,21 +556,19 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
             geometry = &geometry * (DMatrix::identity(p, p) - jg.transpose() * inv * &jg);
         }
     }
-    // Geometry, residual, one column per reading and one drift per string side by side, so the
-    // free poses are projected out of all of them at once.
-    let (c_res, c_single, c_drift) = (p, p + 1, p + 1 + 4 * n);
-    let mut m = DMatrix::zeros(4 * n, c_drift + 4);
+    // Geometry, residual and one column per reading side by side, so the free poses are
+    // projected out of all of them at once (every cause the quality check tests is a sum of
+    // reading columns).
+    let (c_res, c_single) = (p, p + 1);
+    let mut m = DMatrix::zeros(4 * n, c_single + 4 * n);
     m.columns_mut(0, p).copy_from(&geometry);
     let mut singles_raw = vec![0.0; 4 * n];
-    let mut drifts_raw = vec![0.0; 4];
     for k in 0..n {
         for i in 0..4 {
             let (row, w) = (4 * k + i, whiten[k][i]);
             m[(row, c_res)] = residuals[k][i] * w;
             m[(row, c_single + i * n + k)] = w;
             singles_raw[i * n + k] = w * w;
-            m[(row, c_drift + i)] = k as f64 * w;
-            drifts_raw[i] += (k as f64 * w).powi(2);
         }
     }
     problem.project_poses(&mut m, &whiten);
@@ -581,8 +579,6 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
             residual: m.column(c_res).into_owned(),
             singles: m.columns(c_single, 4 * n).into_owned(),
             singles_raw,
-            drifts: m.columns(c_drift, 4).into_owned(),
-            drifts_raw,
             n,
             rows_dof: 4 * n - 3 * problem.layout.n_free(),
             noise_rms_m,
