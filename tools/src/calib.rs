@@ -93,6 +93,18 @@ pub struct DeviceArgs {
     pub verbose: bool,
 }
 
+impl DeviceArgs {
+    /// The simulated rig's options as the command line defaults them (what a hint may leave out).
+    fn sim_defaults() -> DeviceArgs {
+        #[derive(clap::Parser)]
+        struct Only {
+            #[command(flatten)]
+            dev: DeviceArgs,
+        }
+        <Only as clap::Parser>::parse_from(["spidar"]).dev
+    }
+}
+
 #[derive(Subcommand, Debug)]
 pub enum CalibCmd {
     /// Hold each grip at its home point and preset the lengths at counter zero from the
@@ -251,11 +263,20 @@ fn record_options(d: &DeviceArgs, board: bool) -> RecordOptions {
 fn device_hint(d: &DeviceArgs) -> String {
     let mut s = String::new();
     match d.device {
+        // Every option that makes the simulated rig what it is: a hint without one of them
+        // would verify against another simulated rig.
         DeviceKind::Sim => {
-            if d.seed != 7 {
+            let d0 = DeviceArgs::sim_defaults();
+            if d.seed != d0.seed {
                 s += &format!(" --seed {}", d.seed);
             }
-            if d.noise_counts != 0.5 {
+            if d.sim_anchor_error_m != d0.sim_anchor_error_m {
+                s += &format!(" --sim-anchor-error-m {}", d.sim_anchor_error_m);
+            }
+            if d.sim_mpc_error != d0.sim_mpc_error {
+                s += &format!(" --sim-mpc-error {}", d.sim_mpc_error);
+            }
+            if d.noise_counts != d0.noise_counts {
                 s += &format!(" --noise-counts {}", d.noise_counts);
             }
         }

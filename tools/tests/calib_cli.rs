@@ -102,6 +102,33 @@ fn the_first_home_creates_the_users_rig_file_and_calib_and_run_use_it() {
     assert!(out.contains("  rig file     the built-in template"), "{out}");
 }
 
+/// Regression (issue 26): the hints printed after `calib home` on the simulated rig dropped
+/// `--sim-anchor-error-m` and `--sim-mpc-error`, so the pasted hint verified against another
+/// simulated rig (10.9 mm off instead of 0.001 mm). A rig homed on a simulated rig that is exactly
+/// as configured verifies within a micrometre when the hint is pasted as printed.
+#[test]
+fn the_hint_after_home_on_the_simulated_rig_verifies_the_same_simulated_rig() {
+    let dir = folder("sim-hint");
+    let (ok, out, err) = run(
+        &dir,
+        &["calib", "home", "--sim-anchor-error-m", "0", "--sim-mpc-error", "0", "--seed", "3", "--write"],
+    );
+    assert!(ok, "{out}\n{err}");
+    let hint = out.lines().find_map(|l| l.strip_prefix("next: spidar ")).expect("a next: hint").to_string();
+    for opt in ["--sim-anchor-error-m 0", "--sim-mpc-error 0", "--seed 3"] {
+        assert!(hint.contains(opt), "the hint drops {opt}: {hint}");
+    }
+    // Pasted as printed (no quoting needed: the folder's path has no spaces).
+    let args: Vec<&str> = hint.split_whitespace().collect();
+    let (ok, out, err) = run(&dir, &[&args[..], &["--jig", JIG]].concat());
+    assert!(ok, "the pasted hint verified against another rig:\n{out}\n{err}");
+    let max_mm: f64 = out
+        .lines()
+        .find_map(|l| l.split("max ").nth(1)?.strip_suffix(" mm")?.parse().ok())
+        .expect("the check points' max error");
+    assert!(max_mm < 0.01, "{out}");
+}
+
 #[test]
 fn a_bad_out_is_refused_before_the_first_pose() {
     let dir = folder("bad-out");
