@@ -33,7 +33,7 @@ use nalgebra::{DMatrix, DVector};
 /// A cause after the first must explain at least this share of the residual above the noise.
 const MIN_SHARE: f64 = 0.01;
 
-/// Thresholds of the data-quality check (part of [`crate::fit::FitOptions`]).
+/// Thresholds of the data-quality check (the fit options carry one).
 #[derive(Clone, Debug, PartialEq)]
 pub struct QualityOptions {
     /// The residual is "well above the noise" when its RMS, in units of the noise measured at
