@@ -105,7 +105,8 @@ fn the_first_home_creates_the_users_rig_file_and_calib_and_run_use_it() {
 /// Regression (issue 26): the hints printed after `calib home` on the simulated rig dropped
 /// `--sim-anchor-error-m` and `--sim-mpc-error`, so the pasted hint verified against another
 /// simulated rig (10.9 mm off instead of 0.001 mm). A rig homed on a simulated rig that is exactly
-/// as configured verifies within a micrometre when the hint is pasted as printed.
+/// as configured verifies within a few micrometres when the hint is pasted as printed (the
+/// holding tensions push the stiffly held grip by that much).
 #[test]
 fn the_hint_after_home_on_the_simulated_rig_verifies_the_same_simulated_rig() {
     let dir = folder("sim-hint");
@@ -126,7 +127,7 @@ fn the_hint_after_home_on_the_simulated_rig_verifies_the_same_simulated_rig() {
         .lines()
         .find_map(|l| l.split("max ").nth(1)?.strip_suffix(" mm")?.parse().ok())
         .expect("the check points' max error");
-    assert!(max_mm < 0.01, "{out}");
+    assert!(max_mm < 0.05, "{out}");
 }
 
 #[test]
