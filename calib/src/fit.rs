@@ -1144,13 +1144,13 @@ fn param_reports(
         });
     }
     if fit_mpc {
-        for i in 0..4 {
+        for (i, &m0) in mpc0.iter().enumerate() {
             let col = Layout::S + i;
-            let s = std(col) * mpc0[i].abs();
+            let s = std(col) * m0.abs();
             params.push(ParamReport {
                 name: format!("metres_per_count[{i}]"),
                 value: geometry.metres_per_count[i],
-                configured: mpc0[i],
+                configured: m0,
                 std: s,
                 unit: "m/count",
                 status: status(col, std(col), 1e-4),

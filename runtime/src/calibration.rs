@@ -126,7 +126,8 @@ impl LiveLoop {
     /// Joins the ended loop's thread and keeps what it said.
     fn join(&mut self) -> Result<(), CalibError> {
         let Some(h) = self.handle.take() else { return Ok(()) };
-        let (report, rt) = h.join().map_err(|_| CalibError::Recording("the real-time thread panicked".into()))?;
+        let (report, rt) =
+            h.join().map_err(|_| CalibError::Recording("the real-time thread panicked".into()))?;
         self.report = Some(report);
         self.counters = Some(*rt.core().counters());
         self.off_error = rt.off_error();

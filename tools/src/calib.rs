@@ -355,9 +355,12 @@ fn rig_hint(src: &RigSource) -> String {
 pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
     // On boards the same supervisor as `spidar run` watches this process: in the supervisor the
     // command ends here, with the status it gives.
-    if let CalibCmd::Home { dev: d, .. } | CalibCmd::Record { dev: d, .. } | CalibCmd::Verify { dev: d, .. } = &cmd {
+    if let CalibCmd::Home { dev: d, .. } | CalibCmd::Record { dev: d, .. } | CalibCmd::Verify { dev: d, .. } =
+        &cmd
+    {
         check_device_args(d)?;
-        if let Some(code) = calibration::supervise_boards(d.device, &d.hw, d.rig.as_deref(), &rt_options(d))? {
+        if let Some(code) = calibration::supervise_boards(d.device, &d.hw, d.rig.as_deref(), &rt_options(d))?
+        {
             return Ok(code);
         }
     }
@@ -386,7 +389,8 @@ fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
     let src = rigpath::calibration_target(d.rig.as_deref(), true)?;
     let (rig, text) = src.load()?;
     let rig_line = format!("rig file {}", src.describe());
-    let (geometry, _, stats) = with_recorder(d, &rig, "home", &rig_line, |rec, op, _| home_hands(rec, op, &rig, hands))?;
+    let (geometry, _, stats) =
+        with_recorder(d, &rig, "home", &rig_line, |rec, op, _| home_hands(rec, op, &rig, hands))?;
     eprintln!("{stats}");
     let path = src.path().context("homing needs a rig file")?;
     if write {

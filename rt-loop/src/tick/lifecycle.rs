@@ -184,7 +184,10 @@ impl TickCore {
     pub fn command(&mut self, c: Command) {
         let refuse = |s: &mut Self, why| s.emit(Event::Refused { command: c, why });
         if self.calibrating && matches!(c, Command::Home | Command::Activate) {
-            return refuse(self, "calibrating: the strings stay at minimum tension, unhomed, until the loop ends");
+            return refuse(
+                self,
+                "calibrating: the strings stay at minimum tension, unhomed, until the loop ends",
+            );
         }
         match c {
             Command::Home => {

@@ -34,8 +34,8 @@ fn calibrating_refuses_home_and_activate_and_holds_the_strings_at_minimum_tensio
         assert!(t.iter().all(|&t| t >= hr.tension_min_n - 1e-9), "hand {h}: {t:?}");
         assert!(t.iter().any(|&t| (t - hr.tension_min_n).abs() < 1e-9), "hand {h}: {t:?}");
         assert!(rec.hands[h].output_n.length() < 1e-9, "zero net force at home");
-        for s in 0..4 {
-            assert_eq!(out.volts[hr.channels[s]], t[s] * hr.volts_per_newton[s]);
+        for (s, &ch) in hr.channels.iter().enumerate() {
+            assert_eq!(out.volts[ch], t[s] * hr.volts_per_newton[s]);
         }
     }
     // Held still at home for longer than `rehome_still_s`: still no homing.
