@@ -19,6 +19,7 @@
 //! (written as [`safefile`] says) -> [`verify`] at check points.
 
 pub mod console;
+pub mod display;
 pub mod fit;
 pub mod jig;
 pub mod model;
@@ -88,7 +89,7 @@ pub enum CalibError {
     #[error("{0}")]
     Options(String),
     #[error("simulated rig: {0}")]
-    Sim(#[from] spidar_device::sim::SimError),
+    Sim(#[from] spidar_device::sim::SimRigError),
     #[error("rig file {file}: {message}")]
     RigFile { file: String, message: String },
     #[error("plot {file}: {message}")]

@@ -34,7 +34,7 @@ pub struct Stamp {
 
 /// The text with `//` comments blanked and string contents masked (same byte offsets), so that
 /// searches for keys and brackets see only RON structure.
-fn code_mask(text: &str) -> Vec<u8> {
+pub(crate) fn code_mask(text: &str) -> Vec<u8> {
     let mut out = text.as_bytes().to_vec();
     let b = text.as_bytes();
     let mut i = 0;
@@ -73,7 +73,7 @@ fn is_ident(c: u8) -> bool {
 }
 
 /// Byte offsets of `key:` (as a whole identifier) in `mask[from..to]`.
-fn find_keys(mask: &[u8], key: &str, from: usize, to: usize) -> Vec<usize> {
+pub(crate) fn find_keys(mask: &[u8], key: &str, from: usize, to: usize) -> Vec<usize> {
     let k = key.as_bytes();
     let mut hits = Vec::new();
     let mut i = from;
@@ -94,7 +94,7 @@ fn find_keys(mask: &[u8], key: &str, from: usize, to: usize) -> Vec<usize> {
 
 /// The value after `key:` at `at`: (start, end) bytes of the value, up to the `,` or closing
 /// bracket that ends it (a parenthesised value is taken whole).
-fn value_span(mask: &[u8], at: usize, to: usize) -> Option<(usize, usize)> {
+pub(crate) fn value_span(mask: &[u8], at: usize, to: usize) -> Option<(usize, usize)> {
     let mut i = at;
     while i < to && mask[i] != b':' {
         i += 1;

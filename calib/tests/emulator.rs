@@ -78,7 +78,7 @@ fn emulated(opts: SimTruthOptions, name: &str) -> (Emulator, UartDevice<SerialPa
     let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
     let eo = EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() };
     let emu = Emulator::spawn(sim, eo, &link(name)).unwrap();
-    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), UartOptions::default()).unwrap();
+    let mut dev = UartDevice::on_port(emu.symlink().to_str().unwrap(), UartOptions::default()).unwrap();
     dev.open().unwrap();
     (emu, dev, truth)
 }

@@ -15,54 +15,11 @@ use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
 use spidar_calib::ticks::{Ticks, VirtualLoop};
 use spidar_calib::CalibError;
 use spidar_device::sim::{Script, Segment, SimRig};
-use spidar_device::{Device, DeviceError, DeviceInfo, Input, Output};
 use spidar_rt::Rig;
 
-/// The simulated rig with a fraction of its replies garbled as a UART reply is: one count changed
-/// by 64 .. 4096 either way, silently. Deterministic for its seed.
-struct Garbling {
-    inner: SimRig,
-    rate: f64,
-    rng: u64,
-    /// Replies garbled on a channel of the rig's strings.
-    garbled: u64,
-}
-
-impl Garbling {
-    fn next(&mut self) -> u64 {
-        // xorshift64*: enough for picking replies and offsets.
-        self.rng ^= self.rng >> 12;
-        self.rng ^= self.rng << 25;
-        self.rng ^= self.rng >> 27;
-        self.rng.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-}
-
-impl Device for Garbling {
-    fn open(&mut self) -> Result<(), DeviceError> {
-        self.inner.open()
-    }
-    fn activate(&mut self) -> Result<(), DeviceError> {
-        self.inner.activate()
-    }
-    fn deactivate(&mut self) -> Result<(), DeviceError> {
-        self.inner.deactivate()
-    }
-    fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
-        self.inner.exchange(out, inp)?;
-        if ((self.next() >> 11) as f64 / (1u64 << 53) as f64) < self.rate {
-            // Channels 0 .. 7 are the rig's eight strings.
-            let ch = (self.next() % 8) as usize;
-            let mag = 64 + (self.next() % 4033) as i64;
-            inp.counts[ch] += if self.next().is_multiple_of(2) { mag } else { -mag };
-            self.garbled += 1;
-        }
-        Ok(())
-    }
-    fn info(&self) -> &DeviceInfo {
-        self.inner.info()
-    }
-}
+/// The simulated rig with 2 % of its replies garbled as a UART reply is: one count changed by
+/// 64 .. 4096 either way, silently.
+type Garbling = spidar_testkit::Garbling<SimRig>;
 
 /// Moves the simulated hand to each requested point (a reach at arm speed, then holds it).
 struct Hand;
@@ -99,12 +56,7 @@ impl Operator<VirtualLoop<Garbling>> for Hand {
 fn garbled_session(rig: &Rig) -> (f64, bool, u64, u64) {
     let opts = SimTruthOptions { seed: 21, anchor_error_m: 0.03, mpc_error: 0.05, noise_counts: 0.5 };
     let truth = truth_geometry(rig, &opts);
-    let dev = Garbling {
-        inner: sim_rig(rig, &truth, opts.noise_counts, opts.seed).unwrap(),
-        rate: 0.02,
-        rng: 99,
-        garbled: 0,
-    };
+    let dev = Garbling::new(sim_rig(rig, &truth, opts.noise_counts, opts.seed).unwrap(), 0.02, 64, 99);
     let mut rec = Recorder::on_virtual_loop(dev, rig, RecordOptions::default(), false).unwrap();
     let jig = JigFile::load(std::path::Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),

@@ -2,14 +2,17 @@
 //! the line and column, and the field, whether the file does not parse or a value is out of range.
 //!
 //! Parsing (serde + ron) gives positions for syntax and type errors; semantic checks done after
-//! parsing find their field's position again with [`locate`].
+//! parsing go through one [`Checker`] (finite, positive, counts, [`Bound`]s with their reasons),
+//! which finds the field's position again with [`locate`].
 
+mod check;
 mod kind;
 
 use std::path::Path;
 
 use serde::de::DeserializeOwned;
 
+pub use check::{At, Bound, Checker, Limit};
 pub use kind::{
     expect_kind, find_kind, load_file_kind, parse_kind, peek_kind, with_kind, FileKind, KindEntry,
 };
@@ -106,17 +109,7 @@ pub fn invalid(
 /// Checks a file's `version` field against the one version this build reads, locating the
 /// field in errors.
 pub fn check_version(text: &str, origin: &str, found: u32, supported: u32) -> Result<(), ConfigError> {
-    if found == supported {
-        return Ok(());
-    }
-    Err(invalid(
-        text,
-        origin,
-        "version",
-        "version",
-        0,
-        format!("version {found} is not supported; this build reads version {supported}"),
-    ))
+    Checker::new(text, origin).version(found, supported)
 }
 
 /// 1-based line and column of the `occurrence`-th `key:` (outside comments) in RON text.

@@ -7,9 +7,9 @@
 
 use std::time::Duration;
 
-use crate::link::PortSetting;
+use crate::transport::PortSetting;
 use crate::uart::{UartDevice, UartOptions};
-use crate::usb::rusb_link::{list_usb, UsbSeen};
+use crate::usb::rusb_transport::{list_usb, UsbSeen};
 use crate::usb::UsbKind;
 
 /// One serial port.
@@ -62,7 +62,7 @@ pub fn serial_ports(extra: &[String], probe: bool) -> (Vec<SerialSeen>, Option<S
 fn check_serial(path: &str, probe: bool) -> Result<String, String> {
     let c = std::ffi::CString::new(path).map_err(|_| "bad path".to_string())?;
     if !probe {
-        return crate::link::open_serial(&c, crate::uart::protocol::BAUD)
+        return crate::transport::open_serial(&c, crate::uart::protocol::BAUD)
             .map(|_| "opens (not probed: add --probe to ask for UART boards)".to_string())
             .map_err(|e| e.to_string());
     }

@@ -7,13 +7,17 @@
 //! errors are plain `Copy` data (formatted only later, on a non-real-time thread).
 
 #[cfg(test)]
+mod convert_props;
+#[cfg(test)]
 mod decoder_props;
 pub mod discover;
 pub mod emulator;
 pub mod frame;
-pub mod link;
 pub mod sim;
+pub mod transport;
 pub mod uart;
+#[cfg(test)]
+mod uart_tests;
 pub mod usb;
 
 use thiserror::Error;
@@ -195,6 +199,17 @@ impl OpenError {
             OpenError::WrongBoard { .. } => DeviceError::Protocol { what: "wrong board" },
         }
     }
+}
+
+/// `v` clamped to `-max ..= max`, for any `f64`s without panicking (`f64::clamp` panics on NaN or
+/// crossed bounds): a NaN `v` is 0, and a range that is NaN or negative (a board whose range is
+/// unknown or nonsense) allows only 0, the safe command.
+#[inline]
+pub fn clamp_symmetric(v: f64, max: f64) -> f64 {
+    if v.is_nan() || max.is_nan() || max < 0.0 {
+        return 0.0;
+    }
+    v.clamp(-max, max)
 }
 
 /// Fills a `heapless::String`, cutting at capacity on a char boundary (set-up time only).

@@ -250,7 +250,7 @@ fn echo_round_trips(
 /// age at the rig with the world as a process and as a thread, in alternating blocks on one
 /// real-time thread: `spidar run`'s path (simulated rig, rt-loop, the same world code).
 pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenchReport> {
-    use spidar_link::{channel, Endpoint, PrivateDir};
+    use spidar_link::{channel, PrivateDir};
     let script = if opts.scene.starts_with("boxing") { "box" } else { "tour" };
     let scripts = load_scripts(script, rig, 1)?;
     let dev = sim_device(rig, scripts, &SimOptions::default())?;
@@ -270,19 +270,7 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
         move || -> anyhow::Result<LinkBenchReport> {
             let report = rt_thread::setup_current_thread(&rt_opts);
             let dir = PrivateDir::for_process()?;
-            let mut echo = Vec::new();
-            if echoes > 0 {
-                echo.push(echo_round_trips(
-                    &rig,
-                    &world_spec,
-                    &Endpoint::unix(&dir.join("echo.sock")),
-                    &dir,
-                    echoes,
-                )?);
-                let port = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?.port();
-                let udp = Endpoint::Udp(([127, 0, 0, 1], port).into());
-                echo.push(echo_round_trips(&rig, &world_spec, &udp, &dir, echoes)?);
-            }
+            let echo = if echoes > 0 { echo_both(&rig, &world_spec, &dir, echoes)? } else { Vec::new() };
 
             let clock = MonotonicClock::new();
             let mut spec = world_spec.clone();
@@ -322,37 +310,13 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
                         rt.replace_link(process_link.take());
                     } else {
                         let (rig_end, world_end) = channel::pair();
-                        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-                        let counters =
-                            std::sync::Arc::new(spidar_runtime::scene_thread::SceneCounters::default());
-                        let h = spidar_runtime::scene_thread::spawn(
-                            stepper.take().expect("the thread's scene"),
-                            clock,
-                            world_end,
-                            info,
-                            stop.clone(),
-                            counters,
-                            world_priority,
-                        )?;
-                        thread = Some((h, stop));
+                        let scene = stepper.take().expect("the thread's scene");
+                        thread = Some(spawn_scene_thread(scene, clock, world_end, info, world_priority)?);
                         rt.replace_link(Some(Box::new(rig_end)));
                     }
-                    // Settle: the world connects again and its models are fresh.
-                    for _ in 0..300 {
-                        rt.tick();
-                    }
-                    rt.resync();
-                    let (m0, s0) = (rt.core().counters().models, rt.core().counters().stale);
-                    for _ in 0..per_block {
-                        rt.tick();
-                        let r = rt.last_record();
-                        late[mode].record(r.lateness_s);
-                        if r.state == spidar_rt::Lifecycle::Active && r.contact_age_s.is_finite() {
-                            age[mode].record(r.contact_age_s.max(0.0));
-                        }
-                    }
-                    models[mode] += rt.core().counters().models - m0;
-                    stale[mode] += rt.core().counters().stale - s0;
+                    let (m, s) = measure_block(&mut rt, per_block, &mut late[mode], &mut age[mode]);
+                    models[mode] += m;
+                    stale[mode] += s;
                     let link = rt.replace_link(None);
                     if let Some((h, stop)) = thread {
                         stop.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -384,6 +348,70 @@ pub fn bench_link(rig: &Rig, opts: &LinkBenchOptions) -> anyhow::Result<LinkBenc
         },
     )?;
     handle.join().map_err(|_| anyhow::anyhow!("the benchmark thread panicked"))?
+}
+
+/// The round trips through an echo world on a Unix socket, then on UDP on localhost.
+fn echo_both(
+    rig: &Rig,
+    world: &spidar_runtime::child_world::ChildWorldSpec,
+    dir: &spidar_link::PrivateDir,
+    echoes: u64,
+) -> anyhow::Result<Vec<EchoResult>> {
+    use spidar_link::Endpoint;
+    let unix = echo_round_trips(rig, world, &Endpoint::unix(&dir.join("echo.sock")), dir, echoes)?;
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")?.local_addr()?.port();
+    let udp = echo_round_trips(rig, world, &Endpoint::Udp(([127, 0, 0, 1], port).into()), dir, echoes)?;
+    Ok(vec![unix, udp])
+}
+
+/// A world thread stepping `scene` behind the channel's world end, with its stop flag.
+type SceneThread =
+    (std::thread::JoinHandle<spidar_world::host::Stepper>, std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+fn spawn_scene_thread(
+    scene: spidar_world::host::Stepper,
+    clock: MonotonicClock,
+    world_end: spidar_link::channel::ChannelWorldEnd,
+    info: spidar_msg::RigInfo,
+    world_priority: Option<u8>,
+) -> anyhow::Result<SceneThread> {
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let counters = std::sync::Arc::new(spidar_runtime::scene_thread::SceneCounters::default());
+    let h = spidar_runtime::scene_thread::spawn(
+        scene,
+        clock,
+        world_end,
+        info,
+        stop.clone(),
+        counters,
+        world_priority,
+    )?;
+    Ok((h, stop))
+}
+
+/// One block of the loop with the world connected: 300 ticks to settle (the world connects again
+/// and its models are fresh), then `ticks` measured into `late` and `age`. Returns the models
+/// received and the stale ticks during the measured ticks.
+fn measure_block<D: spidar_device::Device, C: spidar_rt::Clock>(
+    rt: &mut RtLoop<D, C>,
+    ticks: u64,
+    late: &mut DurationHist,
+    age: &mut DurationHist,
+) -> (u64, u64) {
+    for _ in 0..300 {
+        rt.tick();
+    }
+    rt.resync();
+    let (m0, s0) = (rt.core().counters().models, rt.core().counters().stale);
+    for _ in 0..ticks {
+        rt.tick();
+        let r = rt.last_record();
+        late.record(r.lateness_s);
+        if r.state == spidar_rt::Lifecycle::Active && r.contact_age_s.is_finite() {
+            age.record(r.contact_age_s.max(0.0));
+        }
+    }
+    (rt.core().counters().models - m0, rt.core().counters().stale - s0)
 }
 
 impl std::fmt::Display for LinkBenchReport {

@@ -67,6 +67,9 @@ pub struct ViewBenchOptions {
     pub viewers: usize,
     /// Step the world under SCHED_FIFO at this priority (the viewers stay at normal priority).
     pub fifo: Option<u8>,
+    /// The viewers' block has one real browser (headless chromium drawing the page from the user's
+    /// eye) instead of WebSocket clients.
+    pub browser: bool,
 }
 
 #[derive(Default)]
@@ -81,6 +84,8 @@ pub struct Phase {
     pub frames_read: u64,
     pub viewer_seconds: f64,
     pub min_viewer_hz: f64,
+    /// A browser's picture ages per block (p50, p99 ms).
+    pub ages: Vec<(f64, f64)>,
 }
 
 pub struct ViewBenchReport {
@@ -118,6 +123,77 @@ fn viewer(
             }
         }
     })
+}
+
+impl Phase {
+    /// A viewer read `frames` in `secs`.
+    fn viewer_read(&mut self, frames: u64, secs: f64) {
+        self.frames_read += frames;
+        self.viewer_seconds += secs;
+        let hz = frames as f64 / secs;
+        self.min_viewer_hz = if self.min_viewer_hz == 0.0 { hz } else { self.min_viewer_hz.min(hz) };
+    }
+}
+
+/// The world a block steps: the rig on the virtual clock, the scene, and the view when it watches.
+struct World<'a> {
+    v: &'a mut VirtualRun<spidar_device::sim::SimRig>,
+    scene: &'a mut dyn Scene,
+    info: &'a spidar_msg::RigInfo,
+    observer: Option<&'a mut dyn Observer>,
+}
+
+impl World<'_> {
+    /// `steps` world steps paced by `clock` at the scene's rate, each after the rig's ticks of its
+    /// span, timed into `phase` (the whole step, the scene's part, the observer's part).
+    fn step_block(
+        self,
+        clock: &mut MonotonicClock,
+        samples: &mut Vec<spidar_msg::HandSample>,
+        phase: &mut Phase,
+        steps: u64,
+        ticks_per_step: u64,
+    ) {
+        let World { v, scene, info, mut observer } = self;
+        let step_ns = (scene.step_s() * 1e9).round() as u64;
+        let mut deadline = clock.now_ns();
+        for _ in 0..steps {
+            let wake = clock.sleep_until(deadline);
+            if wake > deadline + step_ns {
+                phase.late += 1;
+            }
+            for _ in 0..ticks_per_step {
+                v.rt.tick();
+            }
+            for _ in v.far.telemetry.try_iter() {}
+            samples.clear();
+            samples.extend(v.far.samples.try_iter());
+            let t = v.clock.now_ns() as f64 * 1e-9;
+            let t0 = Instant::now();
+            let m = scene.step(t, samples);
+            let t1 = Instant::now();
+            if let Some(o) = observer.as_mut() {
+                let sv = StepView {
+                    t_s: t,
+                    scene: &*scene,
+                    samples,
+                    model: &m,
+                    rig_info: Some(info),
+                    rig_status: None,
+                };
+                o.after_step(&sv);
+            }
+            let t2 = Instant::now();
+            let _ = v.far.models.try_send(m);
+            phase.step.record((t2 - t0).as_secs_f64());
+            phase.scene.record((t1 - t0).as_secs_f64());
+            phase.observer.record((t2 - t1).as_secs_f64());
+            deadline += step_ns;
+            if clock.now_ns() > deadline + 10 * step_ns {
+                deadline = clock.now_ns();
+            }
+        }
+    }
 }
 
 pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchReport> {
@@ -159,12 +235,14 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         .to_string(),
         None => "normal priority".to_string(),
     };
-    let step_ns = (scene.step_s() * 1e9).round() as u64;
     let ticks_per_step = (scene.step_s() / rig.period_s).round().max(1.0) as u64;
     let mut phases: [(String, Phase); 3] = [
         ("view off".into(), Phase::default()),
         ("view, no viewer".into(), Phase::default()),
-        (format!("view, {} viewers", o.viewers), Phase::default()),
+        (
+            if o.browser { "view, a browser".to_string() } else { format!("view, {} viewers", o.viewers) },
+            Phase::default(),
+        ),
     ];
     let mut clock = MonotonicClock::new();
     let mut samples = Vec::with_capacity(64);
@@ -173,35 +251,37 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     for _ in 0..o.rounds {
         for (p, (_, phase)) in phases.iter_mut().enumerate() {
             let stop = Arc::new(AtomicBool::new(false));
-            let want = if p == 2 { o.viewers } else { 0 };
-            let counts: Vec<Arc<AtomicU64>> = (0..want).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            let want = if p == 2 && o.browser {
+                1
+            } else if p == 2 {
+                o.viewers
+            } else {
+                0
+            };
+            let counts: Vec<Arc<AtomicU64>> =
+                (0..if o.browser { 0 } else { want }).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            // A real browser draws the page (its frames drawn, from the ages it reports).
+            let browser = if p == 2 && o.browser {
+                Some(crate::browser::Browser::open(&format!("{}/?camera=eye", handle.url()), 960, 540)?)
+            } else {
+                None
+            };
             for c in &counts {
                 spawn_tx.send((handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))?;
             }
             let threads: Vec<_> = counts.iter().filter_map(|_| joined_rx.recv().ok()).collect();
-            let until = Instant::now() + Duration::from_secs(5);
+            let until = Instant::now() + Duration::from_secs(if browser.is_some() { 60 } else { 5 });
             while handle.counters().viewers.load(Ordering::Relaxed) != want && Instant::now() < until {
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            let started = Instant::now();
-            let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
-            let mut deadline = clock.now_ns();
-            for _ in 0..steps_per_block {
-                let wake = clock.sleep_until(deadline);
-                if wake > deadline + step_ns {
-                    phase.late += 1;
-                }
-                for _ in 0..ticks_per_step {
-                    v.rt.tick();
-                }
-                for _ in v.far.telemetry.try_iter() {}
-                samples.clear();
-                samples.extend(v.far.samples.try_iter());
-                let t = v.clock.now_ns() as f64 * 1e-9;
-                let t0 = Instant::now();
-                let m = scene.step(t, &samples);
-                let t1 = Instant::now();
-                if p > 0 {
+                // The world steps on while a browser starts (its page needs frames to draw).
+                if browser.is_some() {
+                    for _ in 0..ticks_per_step {
+                        v.rt.tick();
+                    }
+                    for _ in v.far.telemetry.try_iter() {}
+                    samples.clear();
+                    samples.extend(v.far.samples.try_iter());
+                    let t = v.clock.now_ns() as f64 * 1e-9;
+                    let m = scene.step(t, &samples);
                     let sv = StepView {
                         t_s: t,
                         scene: &*scene,
@@ -211,25 +291,31 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
                         rig_status: None,
                     };
                     view.after_step(&sv);
-                }
-                let t2 = Instant::now();
-                let _ = v.far.models.try_send(m);
-                phase.step.record((t2 - t0).as_secs_f64());
-                phase.scene.record((t1 - t0).as_secs_f64());
-                phase.observer.record((t2 - t1).as_secs_f64());
-                deadline += step_ns;
-                if clock.now_ns() > deadline + 10 * step_ns {
-                    deadline = clock.now_ns();
+                    let _ = v.far.models.try_send(m);
+                    std::thread::sleep(Duration::from_millis(3));
+                } else {
+                    std::thread::sleep(Duration::from_millis(10));
                 }
             }
+            handle.clear_picture_ages();
+            let started = Instant::now();
+            let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
+            let observer: Option<&mut dyn Observer> = if p > 0 { Some(&mut view) } else { None };
+            let world = World { v: &mut v, scene: &mut *scene, info: &info, observer };
+            world.step_block(&mut clock, &mut samples, phase, steps_per_block, ticks_per_step);
             let secs = started.elapsed().as_secs_f64();
             for (c, s) in counts.iter().zip(at_start) {
-                let n = c.load(Ordering::Relaxed) - s;
-                phase.frames_read += n;
-                phase.viewer_seconds += secs;
-                let hz = n as f64 / secs;
-                phase.min_viewer_hz =
-                    if phase.min_viewer_hz == 0.0 { hz } else { phase.min_viewer_hz.min(hz) };
+                phase.viewer_read(c.load(Ordering::Relaxed) - s, secs);
+            }
+            if let Some(b) = browser {
+                let (screen, _) = handle.picture_ages().summaries();
+                if let Some(a) = screen {
+                    phase.frames_read += a.frames as u64;
+                    phase.viewer_seconds += secs;
+                    phase.min_viewer_hz = a.frames as f64 / secs;
+                    phase.ages.push((a.p50_ms, a.p99_ms));
+                }
+                drop(b);
             }
             stop.store(true, Ordering::Relaxed);
             for t in threads {
@@ -272,6 +358,10 @@ impl std::fmt::Display for ViewBenchReport {
             "", "steps", "p50", "p99", "p99.9", "max", "late"
         )?;
         for (name, p) in &self.phases {
+            if !p.ages.is_empty() {
+                let worst = p.ages.iter().fold((0.0f64, 0.0f64), |a, b| (a.0.max(b.0), a.1.max(b.1)));
+                writeln!(f, "  {name}: picture age per block, worst p50 {:.1} ms, worst p99 {:.1} ms (frames drawn a second as 'frames/s')", worst.0, worst.1)?;
+            }
             let rate = if p.viewer_seconds > 0.0 {
                 format!(
                     "{:.1} (min {:.1}), {} kB a frame",

@@ -172,6 +172,19 @@ pub struct BoutTiming {
     pub status: String,
 }
 
+impl fmt::Display for BoutTiming {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        writeln!(f, "bout of {} s (box script, active virtual human), per 3 ms step:", self.seconds)?;
+        writeln!(f, "  world step   {}", self.step)?;
+        writeln!(f, "  prediction   {}", self.prediction)?;
+        writeln!(f, "  step+predict {}", self.step_with_prediction)?;
+        let [med, p99, max] = self.prediction_steps;
+        writeln!(f, "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", self.horizon_steps)?;
+        writeln!(f, "  rt misses    {}", self.misses)?;
+        write!(f, "  scene        {}", self.status)
+    }
+}
+
 /// A bout of `seconds` of the `box` script against an active virtual human, timed per step.
 pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
     let rig = Rig::default_rig();
@@ -409,8 +422,8 @@ fn punch_outcomes_with(
         // The force felt on the first tick that rendered the previous step's model.
         let first = b.consumed.iter().find(|s| s.model_seq == prev_seq);
         let felt = [0, 1].map(|h| first.map_or(0.0, |s| s.hands[h].force_n.length()));
-        let speed =
-            [0, 1].map(|h| b.consumed.iter().map(|s| s.hands[h].vel_m_per_s.length()).fold(0.0, f64::max));
+        let speed = [0, 1]
+            .map(|h| b.consumed.iter().map(|s| s.hands[h].vel_world_m_per_s.length()).fold(0.0, f64::max));
         let vh = w.vh;
         frames.push(Frame {
             t_s: b.script_t_s(),

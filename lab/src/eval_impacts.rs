@@ -33,8 +33,8 @@ use glam::DVec3;
 use spidar_rt::Rig;
 use spidar_sim::character::ai::Goal;
 use spidar_sim::character::crowd::Crowd;
-use spidar_sim::character::keyframe::Pose;
 use spidar_sim::character::scene::builtin_crowd;
+use spidar_sim::character::skeleton::SkeletonPose;
 
 use crate::crowd_run::{first_touch, shove_scripts, CrowdRun, Shove, SETTLED_S};
 
@@ -164,7 +164,7 @@ struct Watcher {
     fell: bool,
     peak_speed: f64,
     pose_travel: f64,
-    prev_pose: Pose,
+    prev_pose: SkeletonPose,
     turn_early: f64,
     disp_1s: (f64, f64),
     pos_prev: DVec3,

@@ -21,8 +21,8 @@ use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::drawn::{world_joints, FigureStats};
-use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_sim::character::scene::builtin_crowd;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_sim::collide::Shape;
 
 use crate::crowd_run::{first_touch, shove_scripts, CrowdRun, Shove, SETTLED_S};

@@ -5,9 +5,11 @@
 //! rig, the rt-loop and the world a person meets, never a side path.
 
 pub mod bench;
+pub mod bench_age;
 pub mod bench_record;
 pub mod bench_replay;
 pub mod bench_view;
+pub mod browser;
 pub mod crowd_run;
 pub mod eval;
 pub mod eval_impacts;

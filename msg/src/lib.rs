@@ -14,6 +14,7 @@
 //! own clock; it stamps a model with the rig time it estimates from the newest sample (see
 //! `docs/link.md`).
 
+pub mod digest;
 pub mod handshake;
 pub mod wire;
 
@@ -170,8 +171,9 @@ impl ContactModel {
 /// One hand as the rt-loop measured it on one tick (world frame).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HandState {
-    pub pos_m: DVec3,
-    pub vel_m_per_s: DVec3,
+    /// Grip position in the world frame; `HandRecord::pos_rig_m` (rt-loop) is the same point in the rig.
+    pub pos_world_m: DVec3,
+    pub vel_world_m_per_s: DVec3,
     /// Force the rig commanded on the user's hand this tick, after safety.
     pub force_n: DVec3,
     /// False when the pose is not trustworthy (not homed, faulted, residual too large).
@@ -243,6 +245,23 @@ pub struct RigInfo {
     pub grip_radius_m: [f64; HANDS],
     /// The user's eye point (world frame), for a first-person view.
     pub eye_m: DVec3,
+    /// The rig's screen, if its rig file places one (world frame).
+    pub display: DisplayInfo,
+}
+
+/// The rig's screen (world frame): the rectangle the user's-eye view is drawn through from
+/// `RigInfo::eye_m` (an off-axis perspective), the eyes' separation and the stereo format.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DisplayInfo {
+    /// False: the rig file places no screen (the rest is zero).
+    pub present: bool,
+    /// The picture's corners as seen from the eye.
+    pub lower_left_m: DVec3,
+    pub lower_right_m: DVec3,
+    pub upper_left_m: DVec3,
+    pub eye_separation_m: f64,
+    /// 0 mono, 1 side by side, 2 top and bottom, 3 anaglyph.
+    pub stereo: u8,
 }
 
 impl Default for RigInfo {
@@ -256,6 +275,7 @@ impl Default for RigInfo {
             force_limit_n: [0.0; HANDS],
             grip_radius_m: [0.0; HANDS],
             eye_m: DVec3::ZERO,
+            display: DisplayInfo::default(),
         }
     }
 }

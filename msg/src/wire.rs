@@ -25,13 +25,13 @@ use glam::DVec3;
 
 use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
 use crate::{
-    ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo, RigState,
-    RigStatus, HANDS, MAX_PROXIES, STRINGS,
+    ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo,
+    RigState, RigStatus, HANDS, MAX_PROXIES, STRINGS,
 };
 
 pub const MAGIC: [u8; 4] = *b"SPDR";
 /// Raised whenever any message's layout changes; both ends must speak the same one.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 pub const HEADER_LEN: usize = 20;
 
 /// What a datagram carries.
@@ -477,15 +477,15 @@ impl Field for ContactModel {
 impl Field for HandState {
     const SIZE: usize = 3 * DVec3::SIZE + 1;
     fn put(&self, w: &mut Put<'_>) {
-        self.pos_m.put(w);
-        self.vel_m_per_s.put(w);
+        self.pos_world_m.put(w);
+        self.vel_world_m_per_s.put(w);
         self.force_n.put(w);
         self.valid.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         HandState {
-            pos_m: DVec3::get(r),
-            vel_m_per_s: DVec3::get(r),
+            pos_world_m: DVec3::get(r),
+            vel_world_m_per_s: DVec3::get(r),
             force_n: DVec3::get(r),
             valid: bool::get(r),
         }
@@ -514,9 +514,35 @@ impl Field for HandSample {
     }
 }
 
+impl Field for DisplayInfo {
+    const SIZE: usize = 1 + 3 * DVec3::SIZE + 8 + 1;
+    fn put(&self, w: &mut Put<'_>) {
+        self.present.put(w);
+        self.lower_left_m.put(w);
+        self.lower_right_m.put(w);
+        self.upper_left_m.put(w);
+        self.eye_separation_m.put(w);
+        self.stereo.put(w);
+    }
+    fn get(r: &mut Get<'_>) -> Self {
+        DisplayInfo {
+            present: bool::get(r),
+            lower_left_m: Field::get(r),
+            lower_right_m: Field::get(r),
+            upper_left_m: Field::get(r),
+            eye_separation_m: f64::get(r),
+            stereo: u8::get(r),
+        }
+    }
+}
+
 impl Field for RigInfo {
-    const SIZE: usize =
-        8 + <[[DVec3; STRINGS]; HANDS]>::SIZE + <[DVec3; HANDS]>::SIZE + 4 * 8 * HANDS + DVec3::SIZE;
+    const SIZE: usize = 8
+        + <[[DVec3; STRINGS]; HANDS]>::SIZE
+        + <[DVec3; HANDS]>::SIZE
+        + 4 * 8 * HANDS
+        + DVec3::SIZE
+        + DisplayInfo::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.period_s.put(w);
         self.anchors_m.put(w);
@@ -526,6 +552,7 @@ impl Field for RigInfo {
         self.force_limit_n.put(w);
         self.grip_radius_m.put(w);
         self.eye_m.put(w);
+        self.display.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         RigInfo {
@@ -537,6 +564,7 @@ impl Field for RigInfo {
             force_limit_n: Field::get(r),
             grip_radius_m: Field::get(r),
             eye_m: Field::get(r),
+            display: Field::get(r),
         }
     }
 }

@@ -73,9 +73,9 @@ fn model() -> impl Strategy<Value = ContactModel> {
 }
 
 fn hand_state() -> impl Strategy<Value = HandState> {
-    (v3(), v3(), v3(), any::<bool>()).prop_map(|(pos_m, vel_m_per_s, force_n, valid)| HandState {
-        pos_m,
-        vel_m_per_s,
+    (v3(), v3(), v3(), any::<bool>()).prop_map(|(pos_world_m, vel_world_m_per_s, force_n, valid)| HandState {
+        pos_world_m,
+        vel_world_m_per_s,
         force_n,
         valid,
     })
@@ -100,12 +100,14 @@ fn rig_info() -> impl Strategy<Value = RigInfo> {
         (num(), arr::<_, HANDS>(arr::<_, STRINGS>(v3())), arr::<_, HANDS>(v3())),
         (arr::<_, HANDS>(num()), arr::<_, HANDS>(num()), arr::<_, HANDS>(num())),
         (arr::<_, HANDS>(num()), v3()),
+        (any::<bool>(), v3(), v3(), v3(), num(), any::<u8>()),
     )
         .prop_map(
             |(
                 (period_s, anchors_m, home_m),
                 (tension_min_n, tension_max_n, force_limit_n),
                 (grip_radius_m, eye_m),
+                (present, lower_left_m, lower_right_m, upper_left_m, eye_separation_m, stereo),
             )| {
                 RigInfo {
                     period_s,
@@ -116,6 +118,14 @@ fn rig_info() -> impl Strategy<Value = RigInfo> {
                     force_limit_n,
                     grip_radius_m,
                     eye_m,
+                    display: DisplayInfo {
+                        present,
+                        lower_left_m,
+                        lower_right_m,
+                        upper_left_m,
+                        eye_separation_m,
+                        stereo,
+                    },
                 }
             },
         )
@@ -276,9 +286,9 @@ fn sizes_follow_the_layout() {
     assert_eq!(HandContact::SIZE, 88);
     assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 2 * 88 + 48);
     assert_eq!(HandSample::SIZE, 8 + 8 + 2 * 73 + 8 + 2 * 16 * 24);
-    assert_eq!(RigInfo::SIZE, 336);
+    assert_eq!(RigInfo::SIZE, 336 + 82);
     assert_eq!(RigStatus::SIZE, 185);
-    assert_eq!(Hello::SIZE, 411);
+    assert_eq!(Hello::SIZE, 411 + 82);
     assert_eq!(Welcome::SIZE, 91);
     assert_eq!(Refuse::SIZE, 169);
     assert_eq!(Bye::SIZE, 8);
@@ -323,9 +333,9 @@ fn a_message_struct_that_grows_must_grow_its_wire_form_too() {
         ("ContactModel", size_of::<ContactModel>(), 2040),
         ("HandContact", size_of::<HandContact>(), 88),
         ("Proxy", size_of::<Proxy>(), 112),
-        ("RigInfo", size_of::<RigInfo>(), 336),
+        ("RigInfo", size_of::<RigInfo>(), 424),
         ("RigStatus", size_of::<RigStatus>(), 192),
-        ("Hello", size_of::<Hello>(), 416),
+        ("Hello", size_of::<Hello>(), 504),
         ("Welcome", size_of::<Welcome>(), 96),
     ];
     for (name, now, was) in pinned {
@@ -444,7 +454,7 @@ fn encoding_needs_a_big_enough_buffer_and_allocates_nothing_else() {
 #[test]
 fn the_documented_bye_datagram_is_what_encode_writes() {
     let hex: String = bye_datagram().iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
-    assert_eq!(hex, "53 50 44 52 03 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
+    assert_eq!(hex, "53 50 44 52 04 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
 }
 
 #[test]

@@ -23,7 +23,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 
 MAGIC = b"SPDR"
 #: Raised on the Rust side whenever a message's layout changes; both ends must speak the same.
-PROTOCOL_VERSION = 3
+PROTOCOL_VERSION = 4
 HEADER_LEN = 20
 HANDS = 2
 STRINGS = 4
@@ -68,6 +68,7 @@ _VEC16 = struct.Struct("<48d")
 _PROXY = struct.Struct("<HHB7d2d3dB")
 _HAND_CONTACT = struct.Struct("<3d3dd3dd")
 _RIG_INFO = struct.Struct("<d24d6d2d2d2d2d3d")
+_DISPLAY = struct.Struct("<B3d3d3ddB")  # present, lower left, lower right, upper left, eye separation, stereo
 _STATUS = struct.Struct("<QdBdd6d8d5Q")
 
 
@@ -198,6 +199,26 @@ class RigInfo:
     force_limit_n: List[float] = field(default_factory=lambda: [0.0, 0.0])
     grip_radius_m: List[float] = field(default_factory=lambda: [0.0, 0.0])
     eye_m: Vec3 = ZERO
+    #: The rig's screen, if its rig file places one.
+    display: "DisplayInfo" = field(default_factory=lambda: DisplayInfo())
+
+
+#: The stereo formats of a rig's screen, by their number on the wire.
+STEREO = ("mono", "side-by-side", "top-bottom", "anaglyph")
+
+
+@dataclass
+class DisplayInfo:
+    """The rig's screen (world frame): the rectangle the user's-eye view is drawn through from
+    ``RigInfo.eye_m``, the eyes' separation and the stereo format (an index into ``STEREO``)."""
+
+    #: False: the rig file places no screen (the rest is zero).
+    present: bool = False
+    lower_left_m: Vec3 = ZERO
+    lower_right_m: Vec3 = ZERO
+    upper_left_m: Vec3 = ZERO
+    eye_separation_m: float = 0.0
+    stereo: int = 0
 
 
 @dataclass
@@ -256,7 +277,7 @@ class Bye:
 Message = Union[Hello, Welcome, Refuse, Bye, HandSample, ContactModel, RigStatus]
 
 _SIZES = {
-    KIND_HELLO: 8 + 3 + NAME_BYTES + _RIG_INFO.size,
+    KIND_HELLO: 8 + 3 + NAME_BYTES + _RIG_INFO.size + _DISPLAY.size,
     KIND_WELCOME: 8 + 8 + 3 + 8 + NAME_BYTES,
     KIND_REFUSE: 8 + 1 + REASON_BYTES,
     KIND_BYE: 8,
@@ -364,6 +385,15 @@ def _payload(m: Message) -> Tuple[int, bytes]:
             *r.force_limit_n,
             *r.grip_radius_m,
             *_vec(r.eye_m),
+        )
+        d = r.display
+        info += _DISPLAY.pack(
+            int(bool(d.present)),
+            *_vec(d.lower_left_m),
+            *_vec(d.lower_right_m),
+            *_vec(d.upper_left_m),
+            d.eye_separation_m,
+            d.stereo,
         )
         return KIND_HELLO, (
             struct.pack("<QBBB", m.rig_session, m.hands, m.strings, m.max_proxies) + _text(m.scene, NAME_BYTES) + info
@@ -502,6 +532,8 @@ def decode(d: bytes) -> Tuple[Header, Message]:
             grip_radius_m=list(v[37:39]),
             eye_m=(v[39], v[40], v[41]),
         )
+        d = _DISPLAY.unpack_from(p, 11 + NAME_BYTES + _RIG_INFO.size)
+        info.display = DisplayInfo(_bool(d[0], k), (d[1], d[2], d[3]), (d[4], d[5], d[6]), (d[7], d[8], d[9]), d[10], d[11])
         return h, Hello(session, hands_n, strings, max_proxies, scene, info)
     if k == KIND_STATUS:
         v = _STATUS.unpack_from(p, 0)

@@ -446,12 +446,14 @@ impl<T: Field> Field for Vec<T> {
 /// Implements [`Field`] for a struct as a `ros2msg` message of the listed fields, in order. Doc
 /// comments on the fields become the schema's comments. Fields of the struct that the message
 /// does not carry (filled from other channels) are listed after `skip` and decode as their
-/// default, so every field of the struct is named here (the compiler checks it).
+/// default, so every field of the struct is named here (the compiler checks it). A field written
+/// `name as "wire"` keeps the name `wire` in the schema and the CSV columns (a Rust field renamed
+/// after recordings were made with the old name).
 #[macro_export]
 macro_rules! message {
     (
         $ty:ty = $name:literal {
-            $( $(#[doc = $doc:literal])* $field:ident : $fty:ty ),* $(,)?
+            $( $(#[doc = $doc:literal])* $field:ident $(as $wire:literal)? : $fty:ty ),* $(,)?
         }
         $( skip { $($skip:ident),* $(,)? } )?
     ) => {
@@ -465,7 +467,7 @@ macro_rules! message {
                     $( d.push('#'); d.push_str($doc.trim_end()); d.push('\n'); )*
                     d.push_str(&<$fty as $crate::cdr::Field>::ros_type());
                     d.push(' ');
-                    d.push_str(stringify!($field).trim_start_matches("r#"));
+                    d.push_str($crate::wire_name!($field $(, $wire)?));
                     d.push('\n');
                 )*
                 Some(d)
@@ -485,12 +487,23 @@ macro_rules! message {
                 })
             }
             fn columns(prefix: &str, out: &mut Vec<String>) {
-                $( <$fty as $crate::cdr::Field>::columns(&$crate::cdr::join(prefix, stringify!($field).trim_start_matches("r#")), out); )*
+                $( <$fty as $crate::cdr::Field>::columns(&$crate::cdr::join(prefix, $crate::wire_name!($field $(, $wire)?)), out); )*
             }
             fn csv(&self, out: &mut String) {
                 $( $crate::cdr::Field::csv(&self.$field, out); )*
             }
         }
+    };
+}
+
+/// The name of a message field in the schema: its `as "wire"` name, else the Rust field's.
+#[macro_export]
+macro_rules! wire_name {
+    ($field:ident) => {
+        stringify!($field).trim_start_matches("r#")
+    };
+    ($field:ident, $wire:literal) => {
+        $wire
     };
 }
 
@@ -532,6 +545,23 @@ mod tests {
         let mut cols = Vec::new();
         Pair::columns("", &mut cols);
         assert_eq!(cols, ["a", "b", "c[0]", "c[1]", "c[2]", "s"]);
+    }
+
+    #[derive(Debug, PartialEq)]
+    struct Renamed {
+        pos_rig_m: f64,
+    }
+    crate::message!(Renamed = "test/Renamed" { pos_rig_m as "pos_m": f64 });
+
+    #[test]
+    fn a_renamed_field_keeps_its_old_name_in_the_schema_and_the_columns() {
+        assert_eq!(schema_text::<Renamed>(), "float64 pos_m\n");
+        let mut cols = Vec::new();
+        Renamed::columns("hand", &mut cols);
+        assert_eq!(cols, ["hand.pos_m"]);
+        let mut buf = Vec::new();
+        encode(&Renamed { pos_rig_m: 2.5 }, &mut buf);
+        assert_eq!(decode::<Renamed>(&buf).unwrap(), Renamed { pos_rig_m: 2.5 });
     }
 
     #[test]

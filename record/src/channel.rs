@@ -49,6 +49,10 @@ pub trait Tap: Send {
     fn message(&mut self, ch: usize, log_ns: u64, data: &[u8]);
 }
 
+/// zstd level: 3 is zstd's default; higher levels cost the recorder thread more for a few
+/// per cent (see docs/recording.md for the measurement).
+pub const ZSTD_LEVEL: u32 = 3;
+
 /// The writer options every spidar recording uses: zstd chunks, no seeking (a chunk is written
 /// whole when it ends, so a process killed outright leaves every finished chunk intact).
 /// `chunk_bytes`: None when the recorder ends chunks itself.
@@ -58,7 +62,7 @@ pub fn options(chunk_bytes: Option<u64>) -> WriteOptions {
         .profile(PROFILE)
         .library(format!("spidar {SPIDAR_VERSION}"))
         .compression(Some(mcap::Compression::Zstd))
-        .compression_level(crate::writer::ZSTD_LEVEL)
+        .compression_level(ZSTD_LEVEL)
         .compression_threads(0)
         .chunk_size(chunk_bytes)
 }

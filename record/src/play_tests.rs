@@ -73,10 +73,11 @@ fn a_world_recording_keeps_the_frames_the_live_view_drew() {
         assert!((w[1].t_s - w[0].t_s - 0.018).abs() < 1e-9, "{} then {}", w[0].t_s, w[1].t_s);
         assert_eq!(w[1].frame[2].to_bits(), w[0].frame[2].to_bits() + 1, "consecutive frame numbers");
     }
+    let globals_at = d["layout"]["globals_at"].as_u64().unwrap() as usize;
     for f in &truth.frames {
         assert_eq!(f.frame[0].to_bits(), spidar_world::view::MAGIC);
         assert_eq!(f.frame[1].to_bits(), layout.id);
-        assert_eq!(f.frame[4], f.t_s as f32, "the frame's time");
+        assert_eq!(f.frame[globals_at], f.t_s as f32, "the frame's time");
         // Every moving shape where the step's own transforms put it.
         let (_, tf) = truth.tf.iter().find(|(t, _)| *t == f.t_s).expect("the frame's step");
         for k in 0..layout.shapes {

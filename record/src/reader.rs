@@ -226,188 +226,261 @@ pub fn read(
         .with_prevalidate_chunk_crcs(true)
         .with_record_length_limit(RECORD_LIMIT);
     let mut lr = LinearReader::new_with_options(opts);
-    let mut rec = Recording { path: path.to_path_buf(), ..Default::default() };
-    let mut schemas: HashMap<u16, (String, String, Vec<u8>)> = HashMap::new();
-    let mut kinds: HashMap<u16, (usize, Option<Known>)> = HashMap::new();
-    let mut seen_header = false;
-    let bad = |what: String| RecordError::NotSpidar { path: path.to_path_buf(), what };
+    let mut r = Reading::new(path);
     while let Some(ev) = lr.next_event() {
         let ev = match ev {
             Ok(ev) => ev,
             Err(e) => {
-                if !seen_header {
-                    return Err(match e {
-                        McapError::BadMagic | McapError::UnexpectedEof => {
-                            bad(format!("it is not an MCAP file ({})", looks_like(path)))
-                        }
-                        e => bad(format!("its MCAP header does not read ({e})")),
-                    });
-                }
-                rec.ending = Some(match e {
-                    McapError::UnexpectedEof => Ending::CutShort { at_byte: rec.bytes_read },
-                    e => Ending::Damaged { at_byte: rec.bytes_read, why: e.to_string() },
-                });
+                r.stopped_by(e)?;
                 break;
             }
         };
         match ev {
             LinearReadEvent::ReadRequest(need) => {
                 let buf = lr.insert(need.clamp(1, READ_SIZE));
-                let n = loop {
-                    match file.read(buf) {
-                        Ok(n) => break n,
-                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                        Err(e) => return Err(RecordError::Open { path: path.to_path_buf(), cause: e }),
-                    }
-                };
-                rec.bytes_read += n as u64;
+                let n = read_some(&mut file, buf)
+                    .map_err(|e| RecordError::Open { path: path.to_path_buf(), cause: e })?;
+                r.rec.bytes_read += n as u64;
                 lr.notify_read(n);
             }
-            LinearReadEvent::Record { opcode, data } => {
-                let r = match mcap::parse_record(opcode, data) {
-                    Ok(r) => r,
-                    Err(e) if seen_header => {
-                        rec.ending = Some(Ending::Damaged { at_byte: rec.bytes_read, why: e.to_string() });
-                        break;
-                    }
-                    Err(e) => return Err(bad(format!("its first record does not read ({e})"))),
-                };
-                use mcap::records::Record;
-                match r {
-                    Record::Header(h) => {
-                        if h.profile != PROFILE {
-                            return Err(bad(format!(
-                                "it is an MCAP file of profile '{}' written by '{}', not a spidar recording",
-                                h.profile, h.library
-                            )));
-                        }
-                        rec.library = h.library;
-                        seen_header = true;
-                    }
-                    Record::Metadata(m) => {
-                        if m.name == META_SESSION {
-                            let v = m.metadata.get("format_version").map(|s| s.as_str()).unwrap_or("none");
-                            if v != FORMAT_VERSION.to_string() {
-                                let by = m.metadata.get("spidar_version").map_or("?", |s| s.as_str());
-                                return Err(RecordError::OtherVersion {
-                                    path: path.to_path_buf(),
-                                    found: format!("format {v}, written by spidar {by}"),
-                                });
-                            }
-                            rec.session = m.metadata;
-                        } else if m.name == META_END {
-                            rec.end_meta = Some(m.metadata);
-                        } else {
-                            rec.other_meta.push((m.name, m.metadata));
-                        }
-                    }
-                    Record::Attachment { header, data, .. } => {
-                        rec.attachments.push((header.name, data.into_owned()))
-                    }
-                    Record::Schema { header, data } => {
-                        schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
-                    }
-                    Record::Channel(c) => {
-                        if kinds.contains_key(&c.id) {
-                            continue; // repeated in the summary section
-                        }
-                        let (sname, senc, sdata) = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                        let kind = match known(&c.topic) {
-                            Some((k, name, text)) => {
-                                if rec.session.is_empty() {
-                                    return Err(bad(
-                                        "its channels come before the spidar metadata record".into()
-                                    ));
-                                }
-                                if sname != name
-                                    || senc != "ros2msg"
-                                    || c.message_encoding != "cdr"
-                                    || sdata != text.as_bytes()
-                                {
-                                    return Err(RecordError::OtherVersion {
-                                        path: path.to_path_buf(),
-                                        found: format!(
-                                            "channel {} has schema '{sname}' ({senc}, {}) unlike this spidar's '{name}', written by spidar {}",
-                                            c.topic,
-                                            c.message_encoding,
-                                            rec.meta("spidar_version")
-                                        ),
-                                    });
-                                }
-                                Some(k)
-                            }
-                            None => None,
-                        };
-                        kinds.insert(c.id, (rec.channels.len(), kind));
-                        rec.channels.push(ChannelInfo {
-                            id: c.id,
-                            topic: c.topic,
-                            schema: sname,
-                            schema_encoding: senc,
-                            message_encoding: c.message_encoding,
-                            messages: 0,
-                        });
-                    }
-                    Record::Message { header, data } => {
-                        let Some(&(idx, kind)) = kinds.get(&header.channel_id) else {
-                            rec.ending = Some(Ending::Damaged {
-                                at_byte: rec.bytes_read,
-                                why: format!("a message on unknown channel {}", header.channel_id),
-                            });
-                            break;
-                        };
-                        rec.channels[idx].messages += 1;
-                        let corrupt = |e: cdr::DecodeError| RecordError::Corrupt {
-                            path: path.to_path_buf(),
-                            what: format!("message {} on {}: {e}", header.sequence, rec.channels[idx].topic),
-                        };
-                        let msg = match kind {
-                            Some(Known::Tick) => {
-                                let t: TickRecord = cdr::decode(&data).map_err(corrupt)?;
-                                if let Some(_first) = rec.first_tick {
-                                    rec.missing_ticks += t.tick.saturating_sub(rec.last_tick + 1);
-                                } else {
-                                    rec.first_tick = Some(t.tick);
-                                }
-                                rec.ticks += 1;
-                                rec.last_tick = t.tick;
-                                rec.last_t_s = t.t_s;
-                                Msg::Tick(Box::new(t))
-                            }
-                            Some(Known::Sample) => {
-                                Msg::Sample(Box::new(cdr::decode(&data).map_err(corrupt)?))
-                            }
-                            Some(Known::Model) => Msg::Model(Box::new(cdr::decode(&data).map_err(corrupt)?)),
-                            Some(Known::Event) => Msg::Event(cdr::decode(&data).map_err(corrupt)?),
-                            None => {
-                                let ch = rec.channels[idx].clone();
-                                if let Flow::Stop = visit(
-                                    &rec,
-                                    Msg::Other { channel: &ch, log_time_ns: header.log_time, data: &data },
-                                )? {
-                                    return Ok(rec);
-                                }
-                                continue;
-                            }
-                        };
-                        if let Flow::Stop = visit(&rec, msg)? {
-                            return Ok(rec);
-                        }
-                    }
-                    Record::Footer(_) => rec.ending = Some(Ending::Complete),
-                    _ => {}
+            LinearReadEvent::Record { opcode, data } => match r.record(opcode, data, &mut visit)? {
+                Flow::Continue
+                    if r.rec.ending.is_some() && !matches!(r.rec.ending, Some(Ending::Complete)) =>
+                {
+                    break
                 }
-            }
+                Flow::Continue => {}
+                Flow::Stop => return Ok(r.rec),
+            },
         }
     }
-    if !seen_header {
-        return Err(bad(format!("it is not an MCAP file ({})", looks_like(path))));
+    r.finish()
+}
+
+/// Reads what the file has into `buf` (retrying an interrupted read).
+fn read_some(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+    loop {
+        match file.read(buf) {
+            Ok(n) => return Ok(n),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        }
     }
-    if rec.session.is_empty() {
-        return Err(bad("it has no spidar metadata record (cut short before the session started?)".into()));
+}
+
+/// What [`read`] knows while it reads: the recording so far, the schemas and the channels' kinds.
+struct Reading<'p> {
+    path: &'p Path,
+    rec: Recording,
+    schemas: HashMap<u16, (String, String, Vec<u8>)>,
+    /// Per channel id: its index in `rec.channels` and what spidar knows it as.
+    kinds: HashMap<u16, (usize, Option<Known>)>,
+    seen_header: bool,
+}
+
+impl<'p> Reading<'p> {
+    fn new(path: &'p Path) -> Reading<'p> {
+        Reading {
+            path,
+            rec: Recording { path: path.to_path_buf(), ..Default::default() },
+            schemas: HashMap::new(),
+            kinds: HashMap::new(),
+            seen_header: false,
+        }
     }
-    if rec.ending.is_none() {
-        rec.ending = Some(Ending::CutShort { at_byte: rec.bytes_read });
+
+    fn not_spidar(&self, what: String) -> RecordError {
+        RecordError::NotSpidar { path: self.path.to_path_buf(), what }
     }
-    Ok(rec)
+
+    /// The reader stopped on `e`: before the header the file is not a recording; after it, the
+    /// recording ends there (cut short or damaged).
+    fn stopped_by(&mut self, e: McapError) -> Result<(), RecordError> {
+        if !self.seen_header {
+            return Err(match e {
+                McapError::BadMagic | McapError::UnexpectedEof => {
+                    self.not_spidar(format!("it is not an MCAP file ({})", looks_like(self.path)))
+                }
+                e => self.not_spidar(format!("its MCAP header does not read ({e})")),
+            });
+        }
+        let at_byte = self.rec.bytes_read;
+        self.rec.ending = Some(match e {
+            McapError::UnexpectedEof => Ending::CutShort { at_byte },
+            e => Ending::Damaged { at_byte, why: e.to_string() },
+        });
+        Ok(())
+    }
+
+    /// One record: the header, metadata, attachments, schemas, channels, messages (handed to
+    /// `visit`) and the footer. A record that does not read ends the recording there (after the
+    /// header) and the reading stops: `rec.ending` then says where.
+    fn record(
+        &mut self,
+        opcode: u8,
+        data: &[u8],
+        visit: &mut impl FnMut(&Recording, Msg<'_>) -> Result<Flow, RecordError>,
+    ) -> Result<Flow, RecordError> {
+        use mcap::records::Record;
+        let r = match mcap::parse_record(opcode, data) {
+            Ok(r) => r,
+            Err(e) if self.seen_header => {
+                self.rec.ending = Some(Ending::Damaged { at_byte: self.rec.bytes_read, why: e.to_string() });
+                return Ok(Flow::Continue);
+            }
+            Err(e) => return Err(self.not_spidar(format!("its first record does not read ({e})"))),
+        };
+        match r {
+            Record::Header(h) => self.header(h)?,
+            Record::Metadata(m) => self.metadata(m)?,
+            Record::Attachment { header, data, .. } => {
+                self.rec.attachments.push((header.name, data.into_owned()))
+            }
+            Record::Schema { header, data } => {
+                self.schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
+            }
+            Record::Channel(c) => self.channel(c)?,
+            Record::Message { header, data } => return self.message(&header, &data, visit),
+            Record::Footer(_) => self.rec.ending = Some(Ending::Complete),
+            _ => {}
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn header(&mut self, h: mcap::records::Header) -> Result<(), RecordError> {
+        if h.profile != PROFILE {
+            return Err(self.not_spidar(format!(
+                "it is an MCAP file of profile '{}' written by '{}', not a spidar recording",
+                h.profile, h.library
+            )));
+        }
+        self.rec.library = h.library;
+        self.seen_header = true;
+        Ok(())
+    }
+
+    /// The session's metadata (which must be of this format's version), the end's, or another.
+    fn metadata(&mut self, m: mcap::records::Metadata) -> Result<(), RecordError> {
+        if m.name == META_SESSION {
+            let v = m.metadata.get("format_version").map(|s| s.as_str()).unwrap_or("none");
+            if v != FORMAT_VERSION.to_string() {
+                let by = m.metadata.get("spidar_version").map_or("?", |s| s.as_str());
+                return Err(RecordError::OtherVersion {
+                    path: self.path.to_path_buf(),
+                    found: format!("format {v}, written by spidar {by}"),
+                });
+            }
+            self.rec.session = m.metadata;
+        } else if m.name == META_END {
+            self.rec.end_meta = Some(m.metadata);
+        } else {
+            self.rec.other_meta.push((m.name, m.metadata));
+        }
+        Ok(())
+    }
+
+    /// A channel (once: the summary section repeats them): a spidar channel must carry this
+    /// spidar's schema, after the session's metadata.
+    fn channel(&mut self, c: mcap::records::Channel) -> Result<(), RecordError> {
+        if self.kinds.contains_key(&c.id) {
+            return Ok(());
+        }
+        let (sname, senc, sdata) = self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
+        let kind = match known(&c.topic) {
+            Some((k, name, text)) => {
+                if self.rec.session.is_empty() {
+                    return Err(self.not_spidar("its channels come before the spidar metadata record".into()));
+                }
+                if sname != name
+                    || senc != "ros2msg"
+                    || c.message_encoding != "cdr"
+                    || sdata != text.as_bytes()
+                {
+                    return Err(RecordError::OtherVersion {
+                        path: self.path.to_path_buf(),
+                        found: format!(
+                            "channel {} has schema '{sname}' ({senc}, {}) unlike this spidar's '{name}', written by spidar {}",
+                            c.topic,
+                            c.message_encoding,
+                            self.rec.meta("spidar_version")
+                        ),
+                    });
+                }
+                Some(k)
+            }
+            None => None,
+        };
+        self.kinds.insert(c.id, (self.rec.channels.len(), kind));
+        self.rec.channels.push(ChannelInfo {
+            id: c.id,
+            topic: c.topic,
+            schema: sname,
+            schema_encoding: senc,
+            message_encoding: c.message_encoding,
+            messages: 0,
+        });
+        Ok(())
+    }
+
+    /// A message: decoded when spidar knows its channel (a tick also counts the ticks missing
+    /// before it), handed to `visit` as it is otherwise.
+    fn message(
+        &mut self,
+        header: &mcap::records::MessageHeader,
+        data: &[u8],
+        visit: &mut impl FnMut(&Recording, Msg<'_>) -> Result<Flow, RecordError>,
+    ) -> Result<Flow, RecordError> {
+        let Some(&(idx, kind)) = self.kinds.get(&header.channel_id) else {
+            self.rec.ending = Some(Ending::Damaged {
+                at_byte: self.rec.bytes_read,
+                why: format!("a message on unknown channel {}", header.channel_id),
+            });
+            return Ok(Flow::Continue);
+        };
+        let rec = &mut self.rec;
+        rec.channels[idx].messages += 1;
+        let corrupt = |e: cdr::DecodeError| RecordError::Corrupt {
+            path: self.path.to_path_buf(),
+            what: format!("message {} on {}: {e}", header.sequence, rec.channels[idx].topic),
+        };
+        let msg = match kind {
+            Some(Known::Tick) => {
+                let t: TickRecord = cdr::decode(data).map_err(corrupt)?;
+                if rec.first_tick.is_some() {
+                    rec.missing_ticks += t.tick.saturating_sub(rec.last_tick + 1);
+                } else {
+                    rec.first_tick = Some(t.tick);
+                }
+                rec.ticks += 1;
+                rec.last_tick = t.tick;
+                rec.last_t_s = t.t_s;
+                Msg::Tick(Box::new(t))
+            }
+            Some(Known::Sample) => Msg::Sample(Box::new(cdr::decode(data).map_err(corrupt)?)),
+            Some(Known::Model) => Msg::Model(Box::new(cdr::decode(data).map_err(corrupt)?)),
+            Some(Known::Event) => Msg::Event(cdr::decode(data).map_err(corrupt)?),
+            None => {
+                let ch = rec.channels[idx].clone();
+                return visit(rec, Msg::Other { channel: &ch, log_time_ns: header.log_time, data });
+            }
+        };
+        visit(rec, msg)
+    }
+
+    /// The recording, once the file is read to its end: a file without a header or a session is
+    /// not a recording; one without a footer was cut short.
+    fn finish(mut self) -> Result<Recording, RecordError> {
+        if !self.seen_header {
+            return Err(self.not_spidar(format!("it is not an MCAP file ({})", looks_like(self.path))));
+        }
+        if self.rec.session.is_empty() {
+            return Err(self.not_spidar(
+                "it has no spidar metadata record (cut short before the session started?)".into(),
+            ));
+        }
+        if self.rec.ending.is_none() {
+            self.rec.ending = Some(Ending::CutShort { at_byte: self.rec.bytes_read });
+        }
+        Ok(self.rec)
+    }
 }

@@ -342,8 +342,8 @@ message!(TakenModel = "spidar/TakenModel" {
 });
 
 message!(HandState = "spidar/HandState" {
-    pos_m: DVec3,
-    vel_m_per_s: DVec3,
+    pos_world_m as "pos_m": DVec3,
+    vel_world_m_per_s as "vel_m_per_s": DVec3,
     force_n: DVec3,
     valid: bool,
 });
@@ -371,8 +371,8 @@ message!(Output = "spidar/DeviceOutput" {
 
 message!(HandRecord = "spidar/HandTick" {
     /// rig frame
-    pos_m: DVec3,
-    vel_m_per_s: DVec3,
+    pos_rig_m as "pos_m": DVec3,
+    vel_rig_m_per_s as "vel_m_per_s": DVec3,
     residual_m: f64,
     valid: bool,
     /// force asked by rendering (and the scene's extra force), before safety
@@ -520,7 +520,7 @@ mod tests {
         };
         r.hands[1].tensions_n = [1.0, f64::MIN_POSITIVE, -0.0, 9.75];
         r.hands[0].method = Method::Fallback;
-        r.hands[0].pos_m = DVec3::new(0.1, -0.2, 1e-300);
+        r.hands[0].pos_rig_m = DVec3::new(0.1, -0.2, 1e-300);
         r.commands.push(Command::Home);
         r.commands.push(Command::Stop);
         r.input.counts[3] = -123_456_789_012;

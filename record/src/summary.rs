@@ -1,12 +1,15 @@
 //! `spidar replay FILE`: what a recording holds, in a few lines: what made it, how long, the
-//! rt-loop's figures recomputed from its ticks, the forces, the events, and where it ends.
+//! rt-loop's figures recomputed from its ticks, the forces, the events, and where it ends. Built
+//! once as a `spidar_rt::summary::Summary`, printed as text or as JSON (`--json`).
 
 use std::path::Path;
 
+use serde_json::json;
+use spidar_rt::summary::{self as lines, Summary};
 use spidar_rt::telemetry::Stats;
 use spidar_rt::Lifecycle;
 
-use crate::reader::{self, Flow, Msg, Recording};
+use crate::reader::{self, Ending, Flow, Msg, Recording};
 use crate::schema::EventMsg;
 use crate::RecordError;
 
@@ -14,7 +17,7 @@ use crate::RecordError;
 const EVENTS_LISTED: usize = 20;
 
 /// A recording's summary.
-pub struct Summary {
+pub struct RecordingSummary {
     pub recording: Recording,
     /// The rt-loop's statistics over the recorded ticks.
     pub stats: Stats,
@@ -30,7 +33,7 @@ pub struct Summary {
     pub final_state: Option<Lifecycle>,
 }
 
-pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
+pub fn summarize(path: &Path) -> Result<RecordingSummary, RecordError> {
     let mut stats = Stats::new();
     let (mut active, mut samples, mut models, mut faults, mut n_events) = (0, 0, 0, 0, 0);
     let mut events = Vec::new();
@@ -64,7 +67,7 @@ pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
         }
         Ok(Flow::Continue)
     })?;
-    Ok(Summary {
+    Ok(RecordingSummary {
         recording,
         stats,
         active_ticks: active,
@@ -79,83 +82,124 @@ pub fn summarize(path: &Path) -> Result<Summary, RecordError> {
     })
 }
 
-impl std::fmt::Display for Summary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl RecordingSummary {
+    /// The summary: the text `spidar replay FILE` prints and the JSON of `--json`, built once.
+    pub fn summary(&self) -> Summary {
         let r = &self.recording;
         let s = &self.stats;
         let span = s.first_t_s.map_or(0.0, |t0| s.last_t_s - t0);
-        writeln!(f, "recording {}: {:.2} s of rig time, {}", r.path.display(), span, r.library)?;
-        writeln!(
-            f,
-            "  session      rig {}, scene {}, script {}, device {}, seed {}, {} clock",
-            r.meta("rig"),
-            r.meta("scene"),
-            r.meta("script"),
-            r.meta("device"),
-            r.meta("seed"),
-            r.meta("clock")
-        )?;
-        writeln!(f, "  command      {}", r.meta("command_line"))?;
-        let names: Vec<&str> = r.attachments.iter().map(|(n, _)| n.as_str()).collect();
-        writeln!(f, "  attached     {}", names.join(", "))?;
-        for c in &r.channels {
-            writeln!(
-                f,
-                "  channel      {:<20} {:>9} messages  {} ({} / {})",
-                c.topic, c.messages, c.schema, c.schema_encoding, c.message_encoding
-            )?;
-        }
-        writeln!(
-            f,
-            "  ticks        {} ({:.1} Hz), {} active, {} missing (dropped while recording)",
-            r.ticks,
-            s.rate_hz(),
-            self.active_ticks,
-            r.missing_ticks
-        )?;
-        let lat = s.lateness.percentiles();
-        writeln!(f, "  lateness     {lat}")?;
-        writeln!(f, "  misses       {} ticks woke > 1 ms late", s.late_over_1ms)?;
-        writeln!(f, "  compute      {}", s.compute.percentiles())?;
-        writeln!(f, "  max force    left {:.2} N, right {:.2} N", s.max_force_n[0], s.max_force_n[1])?;
-        writeln!(
-            f,
-            "  tensions     {:.2} .. {:.2} N commanded",
-            if s.min_tension_n.is_finite() { s.min_tension_n } else { 0.0 },
-            s.max_tension_n
-        )?;
-        writeln!(
-            f,
-            "  contacts     {} / {} hits (left/right), clamped {}/{} ticks",
-            self.hits[0], self.hits[1], self.clamped[0], self.clamped[1]
-        )?;
-        writeln!(
-            f,
-            "  link         {} hand samples sent, {} contact models taken",
-            self.samples, self.models
-        )?;
-        writeln!(f, "  events       {} ({} faults)", self.event_count, self.faults)?;
+        let mut out =
+            Summary::new(format!("recording {}: {:.2} s of rig time, {}", r.path.display(), span, r.library));
+        out.field("command", "replay").field("file", r.path.display().to_string());
+        self.what_made_it(&mut out);
+        out.line(
+            "ticks",
+            format!(
+                "{} ({:.1} Hz), {} active, {} missing (dropped while recording)",
+                r.ticks,
+                s.rate_hz(),
+                self.active_ticks,
+                r.missing_ticks
+            ),
+        );
+        out.field("ticks", r.ticks)
+            .field("missing_ticks", r.missing_ticks)
+            .field("active_ticks", self.active_ticks);
+        lines::lateness(&mut out, s, s.late_over_1ms);
+        lines::compute(&mut out, s, "");
+        lines::forces(&mut out, s, true);
+        out.field("max_force_n", json!(s.max_force_n));
+        out.row(
+            "contacts",
+            format!(
+                "{} / {} hits (left/right), clamped {}/{} ticks",
+                self.hits[0], self.hits[1], self.clamped[0], self.clamped[1]
+            ),
+            "hits",
+            json!(self.hits),
+        );
+        out.line("link", format!("{} hand samples sent, {} contact models taken", self.samples, self.models));
+        out.row(
+            "events",
+            format!("{} ({} faults)", self.event_count, self.faults),
+            "events",
+            self.event_count,
+        );
+        out.field("faults", self.faults);
         for e in &self.events {
-            writeln!(f, "    t {:8.3} s  tick {:>8}  {}", e.t_s, e.tick, e.text)?;
+            out.raw_line(format!("    t {:8.3} s  tick {:>8}  {}", e.t_s, e.tick, e.text));
         }
         if self.event_count > self.events.len() as u64 {
-            writeln!(f, "    ... {} more", self.event_count - self.events.len() as u64)?;
+            out.raw_line(format!("    ... {} more", self.event_count - self.events.len() as u64));
         }
+        self.ending(&mut out);
+        out
+    }
+
+    /// `session`, `command`, `attached`, `channel`: what made the recording and what it holds.
+    fn what_made_it(&self, out: &mut Summary) {
+        let r = &self.recording;
+        out.line(
+            "session",
+            format!(
+                "rig {}, scene {}, script {}, device {}, seed {}, {} clock",
+                r.meta("rig"),
+                r.meta("scene"),
+                r.meta("script"),
+                r.meta("device"),
+                r.meta("seed"),
+                r.meta("clock")
+            ),
+        );
+        out.field("session", json!(r.session));
+        out.line("command", r.meta("command_line"));
+        let names: Vec<&str> = r.attachments.iter().map(|(n, _)| n.as_str()).collect();
+        out.row("attached", names.join(", "), "attachments", json!(names));
+        let mut channels = Vec::new();
+        for c in &r.channels {
+            out.line(
+                "channel",
+                format!(
+                    "{:<20} {:>9} messages  {} ({} / {})",
+                    c.topic, c.messages, c.schema, c.schema_encoding, c.message_encoding
+                ),
+            );
+            channels.push(json!({
+                "topic": c.topic, "schema": c.schema, "schema_encoding": c.schema_encoding,
+                "message_encoding": c.message_encoding, "messages": c.messages,
+            }));
+        }
+        out.field("channels", channels);
+    }
+
+    /// `session end` and `file`: how the session ended and where the readable file ends.
+    fn ending(&self, out: &mut Summary) {
+        let r = &self.recording;
         if let Some(end) = &r.end_meta {
             let g = |k: &str| end.get(k).map_or("?", |s| s.as_str());
-            writeln!(
-                f,
-                "  session end  {} after {} ticks ({} recorded, {} dropped by telemetry, {} by the recorder), clean stop {}",
-                g("final_state"),
-                g("ticks"),
-                g("ticks_recorded"),
-                g("telemetry_dropped"),
-                g("queue_dropped"),
-                g("clean_stop")
-            )?;
+            out.line(
+                "session end",
+                format!(
+                    "{} after {} ticks ({} recorded, {} dropped by telemetry, {} by the recorder), clean stop {}",
+                    g("final_state"),
+                    g("ticks"),
+                    g("ticks_recorded"),
+                    g("telemetry_dropped"),
+                    g("queue_dropped"),
+                    g("clean_stop")
+                ),
+            );
         } else if let Some(st) = self.final_state {
-            writeln!(f, "  session end  not recorded; the last tick was {}", st.name())?;
+            out.line("session end", format!("not recorded; the last tick was {}", st.name()));
         }
-        write!(f, "  file         {}", r.ends())
+        out.field("end", json!(r.end_meta));
+        out.row("file", r.ends(), "ends", r.ends());
+        out.field("complete", r.ending == Some(Ending::Complete));
+    }
+}
+
+impl std::fmt::Display for RecordingSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.summary())
     }
 }

@@ -39,7 +39,7 @@ fn record(i: u64) -> TickRecord {
         TickRecord { tick: i, t_s: t, lateness_s: 1e-5 * (i % 7) as f64, gain: 1.0, ..Default::default() };
     r.state = if i < 100 { Lifecycle::Inactive } else { Lifecycle::Active };
     for h in 0..2 {
-        r.hands[h].pos_m = DVec3::new((t * 3.0).sin(), 0.1 * h as f64, (t * 2.0).cos());
+        r.hands[h].pos_rig_m = DVec3::new((t * 3.0).sin(), 0.1 * h as f64, (t * 2.0).cos());
         r.hands[h].output_n = DVec3::new(0.0, (t * 5.0).sin() * 3.0, 0.0);
         r.hands[h].tensions_n = [1.0 + t, 2.0, 3.0 - (t * 0.1).sin(), 4.0];
         r.hands[h].contacts = ((i / 200) % 2) as u8;
@@ -128,12 +128,10 @@ fn a_recording_reads_back_exactly_with_what_made_it() {
     assert_eq!((rec.first_tick, rec.last_tick, rec.missing_ticks), (Some(0), 2999, 0));
 }
 
-#[test]
-fn the_mcap_crates_own_reader_lists_the_channels_schemas_and_messages() {
-    let p = temp("independent.mcap");
-    write(&p, 2000);
-    let bytes = std::fs::read(&p).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
+/// What the mcap crate's own reader finds in a file's summary: the summary, and every channel's
+/// (topic, schema name, schema encoding, message encoding), sorted.
+pub(crate) fn mcap_topics(bytes: &[u8]) -> (mcap::Summary, Vec<(String, String, String, String)>) {
+    let summary = mcap::Summary::read(bytes).unwrap().expect("a summary section");
     let mut topics: Vec<(String, String, String, String)> = summary
         .channels
         .values()
@@ -143,6 +141,15 @@ fn the_mcap_crates_own_reader_lists_the_channels_schemas_and_messages() {
         })
         .collect();
     topics.sort();
+    (summary, topics)
+}
+
+#[test]
+fn the_mcap_crates_own_reader_lists_the_channels_schemas_and_messages() {
+    let p = temp("independent.mcap");
+    write(&p, 2000);
+    let bytes = std::fs::read(&p).unwrap();
+    let (summary, topics) = mcap_topics(&bytes);
     let want = |t: &str, s: &str| (t.to_string(), s.to_string(), "ros2msg".to_string(), "cdr".to_string());
     assert_eq!(
         topics,

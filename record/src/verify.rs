@@ -107,6 +107,76 @@ pub fn first_field_difference<T: Field>(recorded: &T, replayed: &T) -> Option<St
     })
 }
 
+/// The tick core for the first recorded tick `t`: built from `rig` (origin, text) or the rig file
+/// attached to the recording, its counters taken from the tick's input.
+fn first_core(
+    rec: &crate::reader::Recording,
+    path: &Path,
+    rig: Option<(String, String)>,
+    t: &TickRecord,
+) -> Result<(TickCore, String), String> {
+    let (origin, text) = match rig {
+        Some(r) => r,
+        None => match rec.rig_text() {
+            Some(text) => (format!("rig.ron attached to {}", path.display()), text),
+            None => return Err("the recording has no rig file attached: pass one with --rig".into()),
+        },
+    };
+    let mut c = Rig::from_str(&text, &origin)
+        .map_err(|e| e.to_string())
+        .and_then(|r| TickCore::new(&r).map_err(|e| e.to_string()))
+        .map_err(|e| format!("the rig file does not load: {e}"))?;
+    c.observe_counts(&t.input);
+    Ok((c, origin))
+}
+
+/// Re-runs recorded tick `t` on `c` with what went into it (commands, the contact model taken,
+/// a reopen, a device error) and compares what came out with the recording: every field of the
+/// tick's record, then its events (taken from `events`). The replayed hand sample, or the first
+/// difference.
+fn replay_tick(
+    c: &mut TickCore,
+    t: &TickRecord,
+    model: Option<TakenModel>,
+    events: &mut Vec<EventMsg>,
+) -> Result<HandSample, Difference> {
+    for cmd in t.commands.iter() {
+        c.command(cmd);
+    }
+    if let Some(m) = model {
+        c.set_contact_model(m.model);
+    }
+    if t.reopened {
+        c.device_reopened();
+    }
+    let io = t.io_error.map_or(Ok(()), |k| Err(device_error(k)));
+    let (mut out, mut sample, mut r) = (Output::default(), HandSample::default(), TickRecord::default());
+    c.step(t.t_s, io, &t.input, &mut out, &mut sample, &mut r);
+    // What is not the core's to compute comes from the recording.
+    r.lateness_s = t.lateness_s;
+    r.compute_s = t.compute_s;
+    r.io_s = t.io_s;
+    r.commands = t.commands;
+    r.reopened = t.reopened;
+    r.io_error = t.io_error;
+    r.input = t.input;
+    r.output = out;
+    let fail = |what: String| Difference { tick: t.tick, t_s: t.t_s, what };
+    if let Some(d) = first_field_difference(t, &r) {
+        return Err(fail(d));
+    }
+    let mine: Vec<EventMsg> = std::iter::from_fn(|| c.pop_event())
+        .filter(|e| !matches!(e, Event::Stopped))
+        .map(|e| EventMsg::new(t.tick, t.t_s, &e))
+        .collect();
+    let theirs: Vec<EventMsg> = events.drain(..).filter(|e| e.tick == t.tick).collect();
+    if mine != theirs {
+        let names = |v: &[EventMsg]| v.iter().map(|e| e.text.clone()).collect::<Vec<_>>().join("; ");
+        return Err(fail(format!("events: recorded [{}], replayed [{}]", names(&theirs), names(&mine))));
+    }
+    Ok(sample)
+}
+
 /// Re-runs the tick core over the recording at `path`. `rig`: (origin, text) of another rig file
 /// to use instead of the attached one.
 pub fn verify(path: &Path, rig: Option<(String, String)>) -> Result<VerifyReport, RecordError> {
@@ -136,78 +206,26 @@ pub fn verify(path: &Path, rig: Option<(String, String)>) -> Result<VerifyReport
                 }
                 next_tick = Some(t.tick + 1);
                 if core.is_none() {
-                    let (origin, text) = match rig.clone() {
-                        Some(r) => r,
-                        None => match rec.rig_text() {
-                            Some(text) => (format!("rig.ron attached to {}", path.display()), text),
-                            None => {
-                                setup_err = Some(
-                                    "the recording has no rig file attached: pass one with --rig".into(),
-                                );
-                                return Ok(Flow::Stop);
-                            }
-                        },
-                    };
-                    let built = Rig::from_str(&text, &origin)
-                        .map_err(|e| e.to_string())
-                        .and_then(|r| TickCore::new(&r).map_err(|e| e.to_string()));
-                    match built {
-                        Ok(mut c) => {
-                            c.observe_counts(&t.input);
-                            core = Some(c);
-                        }
-                        Err(e) => {
-                            setup_err = Some(format!("the rig file does not load: {e}"));
+                    match first_core(rec, path, rig.clone(), &t) {
+                        Ok((c, origin)) => (core, rig_origin) = (Some(c), origin),
+                        Err(why) => {
+                            setup_err = Some(why);
                             return Ok(Flow::Stop);
                         }
                     }
-                    rig_origin = origin;
                 }
                 let Some(c) = core.as_mut() else { return Ok(Flow::Stop) };
-                for cmd in t.commands.iter() {
-                    c.command(cmd);
+                let m = model.take().filter(|m| m.tick == t.tick);
+                match replay_tick(c, &t, m, &mut events) {
+                    Ok(sample) => {
+                        ticks_ok += 1;
+                        replayed_sample = Some((t.tick, sample));
+                    }
+                    Err(d) => {
+                        diff = Some(d);
+                        return Ok(Flow::Stop);
+                    }
                 }
-                if let Some(m) = model.take().filter(|m| m.tick == t.tick) {
-                    c.set_contact_model(m.model);
-                }
-                if t.reopened {
-                    c.device_reopened();
-                }
-                let io = t.io_error.map_or(Ok(()), |k| Err(device_error(k)));
-                let (mut out, mut sample, mut r) =
-                    (Output::default(), HandSample::default(), TickRecord::default());
-                c.step(t.t_s, io, &t.input, &mut out, &mut sample, &mut r);
-                // What is not the core's to compute comes from the recording.
-                r.lateness_s = t.lateness_s;
-                r.compute_s = t.compute_s;
-                r.io_s = t.io_s;
-                r.commands = t.commands;
-                r.reopened = t.reopened;
-                r.io_error = t.io_error;
-                r.input = t.input;
-                r.output = out;
-                let fail = |what: String| Difference { tick: t.tick, t_s: t.t_s, what };
-                if let Some(d) = first_field_difference(t.as_ref(), &r) {
-                    diff = Some(fail(d));
-                    return Ok(Flow::Stop);
-                }
-                let mine: Vec<EventMsg> = std::iter::from_fn(|| c.pop_event())
-                    .filter(|e| !matches!(e, Event::Stopped))
-                    .map(|e| EventMsg::new(t.tick, t.t_s, &e))
-                    .collect();
-                let theirs: Vec<EventMsg> = events.drain(..).filter(|e| e.tick == t.tick).collect();
-                if mine != theirs {
-                    let names =
-                        |v: &[EventMsg]| v.iter().map(|e| e.text.clone()).collect::<Vec<_>>().join("; ");
-                    diff = Some(fail(format!(
-                        "events: recorded [{}], replayed [{}]",
-                        names(&theirs),
-                        names(&mine)
-                    )));
-                    return Ok(Flow::Stop);
-                }
-                ticks_ok += 1;
-                replayed_sample = Some((t.tick, sample));
             }
             Msg::Sample(s) => {
                 if let Some((tick, mine)) = replayed_sample.take().filter(|(tick, _)| *tick == s.tick) {

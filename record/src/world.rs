@@ -399,6 +399,8 @@ impl ViewFrameMsg {
                 force_limit_n: g.force_limit_n,
                 grip_radius_m: g.grip_radius_m,
                 eye_m: g.eye_m,
+                // The recording keeps no screen: a replay draws the user's eye without one.
+                display: Default::default(),
             }
         })
     }

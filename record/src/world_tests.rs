@@ -23,8 +23,8 @@ pub(crate) fn temp(name: &str) -> PathBuf {
 pub(crate) fn sample(k: u64, t_s: f64) -> HandSample {
     let mut s = HandSample { tick: k, t_s, ..Default::default() };
     let jab = ((k % 300) as f64 / 300.0 * std::f64::consts::TAU).sin().max(0.0);
-    s.hands[0].pos_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
-    s.hands[1].pos_m = DVec3::new(0.15, 0.0, 0.0);
+    s.hands[0].pos_world_m = DVec3::new(-0.15, 0.0, -0.45 * jab);
+    s.hands[1].pos_world_m = DVec3::new(0.15, 0.0, 0.0);
     for h in &mut s.hands {
         h.valid = true;
     }
@@ -83,16 +83,7 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     let (shapes, labels, rep) = record_scene("boxing", &p, 600);
     assert_eq!((rep.steps, rep.dropped, rep.write_failed, rep.error.clone()), (600, 0, 0, None), "{rep}");
     let bytes = std::fs::read(&p).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
-    let mut topics: Vec<(String, String, String, String)> = summary
-        .channels
-        .values()
-        .map(|c| {
-            let s = c.schema.as_ref().expect("every channel has a schema");
-            (c.topic.clone(), s.name.clone(), s.encoding.clone(), c.message_encoding.clone())
-        })
-        .collect();
-    topics.sort();
+    let (summary, topics) = crate::tests::mcap_topics(&bytes);
     let want = |t: &str, s: &str| (t.to_string(), s.to_string(), "ros2msg".to_string(), "cdr".to_string());
     assert_eq!(
         topics,
@@ -387,28 +378,18 @@ fn child_records_a_world_until_killed() {
 fn a_killed_world_leaves_a_recording_read_up_to_its_last_chunk() {
     let path = temp("killed.world.mcap");
     let _ = std::fs::remove_file(&path);
-    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "world_tests::child_records_a_world_until_killed", "--ignored", "--nocapture"])
-        .env("SPIDAR_WORLD_RECORD_CHILD", &path)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spidar_testkit::spawn_test_child(
+        "world_tests::child_records_a_world_until_killed",
+        "SPIDAR_WORLD_RECORD_CHILD",
+        Path::new(&path),
+    );
     // Wait until two or more chunks are on disk, then SIGKILL.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(100);
-    loop {
-        let len = std::fs::metadata(&path).map_or(0, |m| m.len());
-        if len > 400_000 {
-            break;
-        }
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("the recording child ended by itself ({status}) at {len} bytes");
-        }
-        assert!(std::time::Instant::now() < deadline, "the recording child wrote only {len} bytes");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean-up of any kind
-    child.wait().unwrap();
+    spidar_testkit::kill_once_written(
+        &mut child,
+        Path::new(&path),
+        400_000,
+        std::time::Duration::from_secs(100),
+    );
     let mut steps = Vec::new();
     let rec = reader::read(&path, |_, m| {
         if let reader::Msg::Other { channel, data, .. } = m {

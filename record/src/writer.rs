@@ -34,9 +34,6 @@ use crate::{RecordError, FORMAT_VERSION, SPIDAR_VERSION};
 /// Uncompressed size of a chunk. A session killed outright loses at most the chunk being filled
 /// (about half a second of ticks at 1 kHz).
 pub const CHUNK_BYTES: u64 = 1 << 20;
-/// zstd level: 3 is zstd's default; higher levels cost the recorder thread more for a few
-/// per cent (see docs/recording.md for the measurement).
-pub const ZSTD_LEVEL: u32 = 3;
 /// Name of the metadata record that says what made the recording.
 pub const META_SESSION: &str = "spidar";
 /// Name of the metadata record written when a recording ends normally.

@@ -10,7 +10,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ConfigError;
+use crate::config::{At, Checker, ConfigError};
 use spidar_device::uart::protocol::{CURRENT_MAX, HOST_DIGITS_PER_VOLT, MAGNET_COUNTS_PER_REV, PWM_FULL};
 use spidar_device::usb::protocol::DEFAULT_DIGITS_PER_VOLT as USB_DIGITS_PER_VOLT;
 
@@ -133,47 +133,37 @@ impl BoardScales {
 }
 
 /// Checks the section for a rig whose strings need `volts_needed_v` at their highest tension
-/// (`rig::volts_needed`: the DA limit when the file leaves it out); `bad(field, key, message)`
-/// locates an error.
-pub fn validate(
-    f: &BoardsFile,
-    volts_needed_v: f64,
-    bad: impl Fn(String, &str, String) -> ConfigError,
-) -> Result<BoardScales, ConfigError> {
+/// (`rig::volts_needed`: the DA limit when the file leaves it out), every error located by `c`.
+pub fn validate(f: &BoardsFile, volts_needed_v: f64, c: &Checker) -> Result<BoardScales, ConfigError> {
+    let at = |field: String, key: &'static str| At::new(field, key, 0);
     let positive = |v: f64, hi: f64| v.is_finite() && v > 0.0 && v <= hi;
     let usb = &f.usb_da;
-    if !positive(usb.digits_per_volt, f64::from(i16::MAX)) {
-        return Err(bad(
-            "boards.usb_da.digits_per_volt".into(),
-            "digits_per_volt",
-            format!("{}: must be > 0", usb.digits_per_volt),
-        ));
-    }
+    let per_volt = usb.digits_per_volt;
+    c.ensure(
+        positive(per_volt, f64::from(i16::MAX)),
+        &at("boards.usb_da.digits_per_volt".into(), "digits_per_volt"),
+        || format!("{per_volt}: must be > 0 and at most {} (the DA's 16 bits)", i16::MAX),
+    )?;
     let limit = usb.limit_v.unwrap_or(volts_needed_v);
-    let da_max = f64::from(i16::MAX) / usb.digits_per_volt;
-    if !positive(limit, da_max) {
-        return Err(bad(
-            "boards.usb_da.limit_v".into(),
-            "limit_v",
-            format!("{limit} V: must be > 0 and at most {da_max:.2} V (the DA's 16 bits at this scale)"),
-        ));
-    }
+    let da_max = f64::from(i16::MAX) / per_volt;
+    c.ensure(positive(limit, da_max), &at("boards.usb_da.limit_v".into(), "limit_v"), || {
+        format!("{limit} V: must be > 0 and at most {da_max:.2} V (the DA's 16 bits at this scale)")
+    })?;
     let full = |part: &FullScaleFile, digits: f64, name: &str| {
         let v = part.full_scale_v;
-        if positive(v, 1000.0) {
-            Ok(digits / v)
-        } else {
-            Err(bad(format!("boards.{name}.full_scale_v"), "full_scale_v", format!("{v} V: must be > 0")))
-        }
+        let at = at(format!("boards.{name}.full_scale_v"), "full_scale_v");
+        c.ensure(positive(v, 1000.0), &at, || format!("{v} V: must be > 0 and at most 1000 V"))?;
+        Ok::<f64, ConfigError>(digits / v)
     };
     let pwm = full(&f.uart_pwm_duty, f64::from(PWM_FULL), "uart_pwm_duty")?;
     let current = full(&f.uart_current_target, f64::from(CURRENT_MAX), "uart_current_target")?;
     let counts = f.uart_counts;
-    if let UartCounts::Encoder { counts_per_rev: 0 } = counts {
-        return Err(bad("boards.uart_counts".into(), "counts_per_rev", "0: must be > 0".into()));
-    }
+    let encoder_without_counts = matches!(counts, UartCounts::Encoder { counts_per_rev: 0 });
+    c.ensure(!encoder_without_counts, &at("boards.uart_counts".into(), "counts_per_rev"), || {
+        "0: must be > 0".into()
+    })?;
     Ok(BoardScales {
-        usb_digits_per_volt: usb.digits_per_volt,
+        usb_digits_per_volt: per_volt,
         usb_limit_v: limit,
         uart_pwm_digits_per_volt: pwm,
         uart_current_digits_per_volt: current,

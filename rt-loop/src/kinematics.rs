@@ -2,12 +2,12 @@
 //! that the tension allocator needs.
 //!
 //! Why it exists: every 1 kHz tick turns encoder lengths into the grip position (closed form seed
-//! from `reference/spidar.md` section 2, then damped Gauss-Newton over all four strings) and
+//! from `docs/reference.md` section 2, then damped Gauss-Newton over all four strings) and
 //! reports the least-squares residual as a free health signal (slack string, encoder slip, wrong
 //! anchor).
 //!
 //! What it must never do: allocate, lock, format, or panic. Everything here is fixed-size `f64`
-//! arithmetic on `glam` values; bad input (NaN, infinity, negative lengths) gives a `Pose` with
+//! arithmetic on `glam` values; bad input (NaN, infinity, negative lengths) gives a `GripSolution` with
 //! `valid == false` instead of a panic, and degenerate geometry (grip on an anchor) degrades to a
 //! zero direction rather than a division by zero.
 
@@ -69,7 +69,7 @@ impl std::error::Error for KinematicsError {}
 
 /// Result of one position solve.
 #[derive(Clone, Copy, Debug)]
-pub struct Pose {
+pub struct GripSolution {
     /// Grip position in the rig frame, metres. NaN when `valid` is false, so that any accidental
     /// use trips a NaN guard instead of silently rendering at a made-up point.
     pub pos_m: DVec3,
@@ -81,8 +81,8 @@ pub struct Pose {
     pub valid: bool,
 }
 
-impl Pose {
-    const INVALID: Pose = Pose { pos_m: DVec3::NAN, residual_m: f64::INFINITY, valid: false };
+impl GripSolution {
+    const INVALID: GripSolution = GripSolution { pos_m: DVec3::NAN, residual_m: f64::INFINITY, valid: false };
 }
 
 /// Anchor geometry of one hand with the closed-form inverse precomputed.
@@ -162,14 +162,14 @@ impl Kinematics {
     /// Negative, NaN or infinite lengths give `valid == false` (a negative length is an encoder or
     /// homing fault, never a geometry). A step that would produce a non-finite position is
     /// skipped, so a finite seed always yields a finite pose.
-    pub fn solve(&self, lengths_m: &[f64; 4], iterations: u32) -> Pose {
+    pub fn solve(&self, lengths_m: &[f64; 4], iterations: u32) -> GripSolution {
         // `!(l >= 0)` also catches NaN; `is_finite` catches +inf.
         if lengths_m.iter().any(|&l| !(l >= 0.0 && l.is_finite())) {
-            return Pose::INVALID;
+            return GripSolution::INVALID;
         }
         let mut p = self.closed_form(lengths_m);
         if !p.is_finite() {
-            return Pose::INVALID;
+            return GripSolution::INVALID;
         }
         for _ in 0..iterations {
             let mut jtj = DMat3::from_diagonal(DVec3::splat(GN_DAMPING));
@@ -198,9 +198,9 @@ impl Kinematics {
         }
         let residual_m = (sum_sq * 0.25).sqrt();
         if !(p.is_finite() && residual_m.is_finite()) {
-            return Pose::INVALID;
+            return GripSolution::INVALID;
         }
-        Pose { pos_m: p, residual_m, valid: true }
+        GripSolution { pos_m: p, residual_m, valid: true }
     }
 
     /// Unit vectors from a grip at `p` toward each anchor: the direction in which each string's
@@ -239,14 +239,7 @@ mod tests {
 
     /// Deterministic runs (fixed seed, nothing written to disk); set PROPTEST_RNG_SEED to explore.
     fn cfg(cases: u32) -> ProptestConfig {
-        let base = ProptestConfig::default();
-        let rng_seed = if std::env::var_os("PROPTEST_RNG_SEED").is_some() {
-            base.rng_seed
-        } else {
-            proptest::test_runner::RngSeed::Fixed(SEED)
-        };
-        let cases = if std::env::var_os("PROPTEST_CASES").is_some() { base.cases } else { cases };
-        ProptestConfig { cases, failure_persistence: None, rng_seed, max_local_rejects: u32::MAX, ..base }
+        spidar_testkit::proptest_config(SEED, cases)
     }
 
     fn spidar_h() -> [[DVec3; 4]; 2] {

@@ -12,6 +12,7 @@ pub mod boards;
 pub mod bounds;
 pub mod clock;
 pub mod control;
+pub mod display;
 /// Configuration loading lives in its own crate so `sim` can share it without depending on the rt-loop.
 pub use spidar_config as config;
 pub mod kinematics;
@@ -22,6 +23,7 @@ pub mod rt_thread;
 pub mod runner;
 pub mod safety;
 pub mod status;
+pub mod summary;
 pub mod telemetry;
 pub mod tension;
 pub mod tick;

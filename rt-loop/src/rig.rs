@@ -11,7 +11,7 @@ use glam::{DQuat, DVec3};
 use serde::{Deserialize, Serialize};
 
 use crate::bounds;
-use crate::config::{self, ConfigError};
+use crate::config::{self, At, Checker, ConfigError};
 
 /// Rig file format version this build reads.
 pub const RIG_FILE_VERSION: u32 = 1;
@@ -54,6 +54,10 @@ pub struct RigFile {
     /// built-in [`DEFAULT_EYE_M`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub eye_m: Option<[f64; 3]>,
+    /// The rig's screen, for the live view's off-axis user's-eye camera ([`crate::display`]);
+    /// absent: the view's camera is a plain perspective from `eye_m`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub display: Option<crate::display::DisplayFile>,
 }
 
 /// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
@@ -215,6 +219,8 @@ pub struct Rig {
     pub boards: crate::boards::BoardScales,
     /// The user's eye point (rig frame).
     pub eye_m: DVec3,
+    /// The rig's screen (rig frame), if the file places one.
+    pub display: Option<crate::display::Display>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -305,432 +311,40 @@ impl Rig {
         Rig::validate(file, text, origin)
     }
 
-    /// Checks every value and builds the plain parameters.
+    /// Checks every value and builds the plain parameters: each section of the file by its own
+    /// function below, every check through the one located [`Checker`] with its bound's reason.
     pub fn validate(f: RigFile, text: &str, origin: &str) -> Result<Rig, ConfigError> {
-        let bad = |field: String, key: &str, occ: usize, msg: String| {
-            config::invalid(text, origin, &field, key, occ, msg)
-        };
-        if f.version != RIG_FILE_VERSION {
-            return Err(bad(
-                "version".into(),
-                "version",
-                0,
-                format!(
-                    "this build reads rig files of version {RIG_FILE_VERSION}, the file says {}",
-                    f.version
-                ),
-            ));
-        }
+        let c = Checker::new(text, origin).with_overrides(&f.overrides);
+        check_header(&c, &f)?;
         let eye = f.eye_m.unwrap_or(DEFAULT_EYE_M);
-        if !eye.iter().all(|v| v.is_finite() && v.abs() < 10.0) {
-            return Err(bad(
-                "eye_m".into(),
-                "eye_m",
-                0,
-                "must be finite, within 10 m of the rig origin".into(),
-            ));
-        }
-        for (i, o) in f.overrides.iter().enumerate() {
-            if !bounds::OVERRIDABLE.contains(&o.as_str()) {
-                return Err(bad(
-                    format!("overrides[{i}]"),
-                    "overrides",
-                    0,
-                    format!(
-                        "\"{o}\" is not a bound that can be overridden; known: {}",
-                        bounds::OVERRIDABLE.join(", ")
-                    ),
-                ));
-            }
-        }
-        let overridden = |key: &str| f.overrides.iter().any(|o| o == key);
-        // A physical bound: `v` must lie in `b` unless the file overrides `key`. Hard limits
-        // (finite, sign) are checked by the caller first and are never overridable.
-        let phys = |b: &bounds::Bound, key: &str, v: f64, field: String, occ: usize| {
-            if b.holds(v) || overridden(key) {
-                return Ok(());
-            }
-            Err(bad(
-                field,
-                key,
-                occ,
-                format!(
-                    "{v}: outside the safe range {} .. {} because {}; fix the value, or list \"{key}\" in \
-                     overrides to accept it (the run summary will show it)",
-                    b.lo, b.hi, b.why
-                ),
-            ))
+        c.finite_within(&At::key("eye_m"), &eye, bounds::EYE_M, "m of the rig origin")?;
+        let display = match &f.display {
+            Some(d) => Some(
+                crate::display::validate(d, DVec3::from_array(eye))
+                    .map_err(|r| c.error(&At::new(r.field, r.key, 0), r.message))?,
+            ),
+            None => None,
         };
-        if !(f.period_s.is_finite() && (1e-4..=1e-2).contains(&f.period_s)) {
-            return Err(bad(
-                "period_s".into(),
-                "period_s",
-                0,
-                format!("{} s is outside 0.1 .. 10 ms", f.period_s),
-            ));
-        }
-        if f.hands.len() != 2 {
-            return Err(bad(
-                "hands".into(),
-                "hands",
-                0,
-                format!("a SPIDAR-H has two hands; the file lists {}", f.hands.len()),
-            ));
-        }
-        let mut channels_seen = [false; spidar_device::MAX_CHANNELS];
-        // How many length_at_zero_m fields came before: locates a bad one in the text.
-        let mut zeros_seen = 0;
-        let mut hands = Vec::with_capacity(2);
-        for (h, hf) in f.hands.iter().enumerate() {
-            let field = |name: &str| format!("hands[{h}].{name}");
-            let fin = |v: f64| v.is_finite();
-            if !(fin(hf.tension_min_n) && hf.tension_min_n > 0.0) {
-                return Err(bad(
-                    field("tension_min_n"),
-                    "tension_min_n",
-                    h,
-                    format!("{} N: must be > 0 so strings stay taut", hf.tension_min_n),
-                ));
-            }
-            phys(&bounds::TENSION_MIN_N, "tension_min_n", hf.tension_min_n, field("tension_min_n"), h)?;
-            if !(fin(hf.tension_max_n) && hf.tension_max_n >= 2.0 * hf.tension_min_n) {
-                return Err(bad(
-                    field("tension_max_n"),
-                    "tension_max_n",
-                    h,
-                    format!(
-                        "{} N: must be at least twice tension_min_n ({} N), or no force is left to render",
-                        hf.tension_max_n, hf.tension_min_n
-                    ),
-                ));
-            }
-            phys(&bounds::TENSION_MAX_N, "tension_max_n", hf.tension_max_n, field("tension_max_n"), h)?;
-            if !(fin(hf.force_limit_n) && hf.force_limit_n > 0.0) {
-                return Err(bad(
-                    field("force_limit_n"),
-                    "force_limit_n",
-                    h,
-                    format!("{} N: must be a positive number of newtons", hf.force_limit_n),
-                ));
-            }
-            if !(fin(hf.grip_radius_m) && hf.grip_radius_m > 0.0) {
-                return Err(bad(
-                    field("grip_radius_m"),
-                    "grip_radius_m",
-                    h,
-                    format!("{} m: must be a positive number of metres", hf.grip_radius_m),
-                ));
-            }
-            phys(&bounds::GRIP_RADIUS_M, "grip_radius_m", hf.grip_radius_m, field("grip_radius_m"), h)?;
-            if !(fin(hf.grip_damping_n_s_per_m) && hf.grip_damping_n_s_per_m > 0.0) {
-                return Err(bad(
-                    field("grip_damping_n_s_per_m"),
-                    "grip_damping_n_s_per_m",
-                    h,
-                    format!("{}: must be a positive number", hf.grip_damping_n_s_per_m),
-                ));
-            }
-            phys(
-                &bounds::GRIP_DAMPING_N_S_PER_M,
-                "grip_damping_n_s_per_m",
-                hf.grip_damping_n_s_per_m,
-                field("grip_damping_n_s_per_m"),
-                h,
-            )?;
-            if !(fin(hf.stiffness_limit_n_per_m) && hf.stiffness_limit_n_per_m > 0.0) {
-                return Err(bad(
-                    field("stiffness_limit_n_per_m"),
-                    "stiffness_limit_n_per_m",
-                    h,
-                    format!("{}: must be a positive number", hf.stiffness_limit_n_per_m),
-                ));
-            }
-            let k_max = bounds::stiffness_limit_n_per_m(hf.grip_damping_n_s_per_m, f.period_s);
-            if hf.stiffness_limit_n_per_m > k_max && !overridden("stiffness_limit_n_per_m") {
-                return Err(bad(
-                    field("stiffness_limit_n_per_m"),
-                    "stiffness_limit_n_per_m",
-                    h,
-                    format!(
-                        "{} N/m: above {k_max:.0} N/m, the stiffest contact that stays stable at this rig's \
-                         period ({} s) on a grip damped by {} N s/m: K_max = 2 b / (3 T) (one tick of delay \
-                         plus the hold act as negative damping 1.5 K T; see docs/safety.md). Lower it, or \
-                         list \"stiffness_limit_n_per_m\" in overrides",
-                        hf.stiffness_limit_n_per_m, f.period_s, hf.grip_damping_n_s_per_m
-                    ),
-                ));
-            }
-            if !hf.home_m.iter().all(|v| v.is_finite()) {
-                return Err(bad(field("home_m"), "home_m", h, "must be three finite numbers".into()));
-            }
-            if hf.strings.len() != 4 {
-                return Err(bad(
-                    field("strings"),
-                    "strings",
-                    h,
-                    format!("each hand has four strings; this one lists {}", hf.strings.len()),
-                ));
-            }
-            let mut anchors = [DVec3::ZERO; 4];
-            let mut mpc = [0.0; 4];
-            let mut vpn = [0.0; 4];
-            let mut chans = [0; 4];
-            let mut zero = [0.0; 4];
-            let mut zero_count = 0;
-            for (s, sf) in hf.strings.iter().enumerate() {
-                let occ = h * 4 + s;
-                let sfield = |name: &str| format!("hands[{h}].strings[{s}].{name}");
-                if sf.channel >= spidar_device::MAX_CHANNELS || channels_seen[sf.channel] {
-                    return Err(bad(
-                        sfield("channel"),
-                        "channel",
-                        occ,
-                        format!(
-                            "channel {} is {}: each string needs its own channel below {}",
-                            sf.channel,
-                            if sf.channel >= spidar_device::MAX_CHANNELS {
-                                "out of range"
-                            } else {
-                                "used twice"
-                            },
-                            spidar_device::MAX_CHANNELS
-                        ),
-                    ));
-                }
-                channels_seen[sf.channel] = true;
-                if !sf.anchor_m.iter().all(|v| v.is_finite() && v.abs() < 20.0) {
-                    return Err(bad(
-                        sfield("anchor_m"),
-                        "anchor_m",
-                        occ,
-                        "must be three finite numbers within 20 m".into(),
-                    ));
-                }
-                if !(fin(sf.metres_per_count) && sf.metres_per_count != 0.0) {
-                    return Err(bad(
-                        sfield("metres_per_count"),
-                        "metres_per_count",
-                        occ,
-                        format!("{}: must be finite and non-zero", sf.metres_per_count),
-                    ));
-                }
-                let key = "metres_per_count";
-                phys(&bounds::METRES_PER_COUNT, key, sf.metres_per_count.abs(), sfield(key), occ)?;
-                if !(fin(sf.volts_per_newton) && sf.volts_per_newton != 0.0) {
-                    return Err(bad(
-                        sfield("volts_per_newton"),
-                        "volts_per_newton",
-                        occ,
-                        format!("{}: must be finite and non-zero", sf.volts_per_newton),
-                    ));
-                }
-                let key = "volts_per_newton";
-                phys(&bounds::VOLTS_PER_NEWTON, key, sf.volts_per_newton.abs(), sfield(key), occ)?;
-                if let Some(l) = sf.length_at_zero_m {
-                    if !l.is_finite() {
-                        return Err(bad(
-                            sfield("length_at_zero_m"),
-                            "length_at_zero_m",
-                            zeros_seen,
-                            "must be finite".into(),
-                        ));
-                    }
-                    let key = "length_at_zero_m";
-                    phys(&bounds::LENGTH_AT_ZERO_M, key, l, sfield(key), zeros_seen)?;
-                    zero[s] = l;
-                    zero_count += 1;
-                    zeros_seen += 1;
-                }
-                anchors[s] = DVec3::from_array(sf.anchor_m);
-                mpc[s] = sf.metres_per_count;
-                vpn[s] = sf.volts_per_newton;
-                chans[s] = sf.channel;
-            }
-            if zero_count != 0 && zero_count != 4 {
-                return Err(bad(
-                    field("strings"),
-                    "strings",
-                    h,
-                    "length_at_zero_m is given for some strings of this hand but not all: give all four or none \
-                     (then home the rig)"
-                        .into(),
-                ));
-            }
-            // The closed-form kinematics need the anchors to span space.
-            let vol =
-                (anchors[1] - anchors[0]).cross(anchors[2] - anchors[0]).dot(anchors[3] - anchors[0]) / 6.0;
-            if vol.abs() < 1e-3 {
-                return Err(bad(
-                    field("strings"),
-                    "strings",
-                    h,
-                    format!(
-                        "the four anchors are (nearly) coplanar (tetrahedron volume {:.2e} m^3): \
-                         check anchor_m; position cannot be computed",
-                        vol.abs()
-                    ),
-                ));
-            }
-            let home = DVec3::from_array(hf.home_m);
-            let inside = bounds::inside_margin(&anchors, home);
-            if inside < bounds::HOME_INSIDE_MARGIN && !overridden("home_m") {
-                return Err(bad(
-                    field("home_m"),
-                    "home_m",
-                    h,
-                    format!(
-                        "({}, {}, {}) is not inside this hand's frame (the tetrahedron of its four anchors, \
-                         with a margin of {:.0} % of its size): there the strings cannot hold zero net force, \
-                         so neither the safe output nor homing works. Move the home point inside the frame, \
-                         or list \"home_m\" in overrides",
-                        hf.home_m[0],
-                        hf.home_m[1],
-                        hf.home_m[2],
-                        bounds::HOME_INSIDE_MARGIN * 100.0
-                    ),
-                ));
-            }
-            // What the strings can produce at home: the largest force over 26 directions that the
-            // allocator renders within the tension range.
-            let capacity = bounds::force_capacity_n(&anchors, home, hf.tension_min_n, hf.tension_max_n);
-            if hf.force_limit_n > capacity && !overridden("force_limit_n") {
-                return Err(bad(
-                    field("force_limit_n"),
-                    "force_limit_n",
-                    h,
-                    format!(
-                        "{} N: the strings can produce at most {capacity:.1} N at the home point with tensions \
-                         {} .. {} N, so this limit can never bind and hides a typo; lower it (the lab clipped \
-                         at 4 N), or list \"force_limit_n\" in overrides",
-                        hf.force_limit_n, hf.tension_min_n, hf.tension_max_n
-                    ),
-                ));
-            }
-            hands.push(HandRig {
-                label: hf.label.clone(),
-                channels: chans,
-                anchors_m: anchors,
-                metres_per_count: mpc,
-                length_at_zero_m: (zero_count == 4).then_some(zero),
-                volts_per_newton: vpn,
-                tension_min_n: hf.tension_min_n,
-                tension_max_n: hf.tension_max_n,
-                force_limit_n: hf.force_limit_n,
-                home_m: home,
-                grip_radius_m: hf.grip_radius_m,
-                stiffness_limit_n_per_m: hf.stiffness_limit_n_per_m,
-                grip_damping_n_s_per_m: hf.grip_damping_n_s_per_m,
-            });
-        }
-        let [w, x, y, z] = f.rig_to_world.rotation_wxyz;
-        let q = DQuat::from_xyzw(x, y, z, w);
-        if !(q.is_finite() && (q.length() - 1.0).abs() < 1e-6) {
-            return Err(bad(
-                "rig_to_world.rotation_wxyz".into(),
-                "rotation_wxyz",
-                0,
-                format!("({w}, {x}, {y}, {z}) is not a unit quaternion (length {})", q.length()),
-            ));
-        }
-        if !f.rig_to_world.translation_m.iter().all(|v| v.is_finite()) {
-            return Err(bad(
-                "rig_to_world.translation_m".into(),
-                "translation_m",
-                0,
-                "must be finite".into(),
-            ));
-        }
-        let s = &f.safety;
-        // Hard ranges: outside them the rule itself breaks (a fade of 0 or -0.0 never fades).
-        let hard: [(&str, f64, f64, f64); 8] = [
-            ("device_reopen_s", s.device_reopen_s, 0.0, 60.0),
-            ("ramp_in_s", s.ramp_in_s, 0.0, 10.0),
-            ("ramp_out_s", s.ramp_out_s, 0.0, 10.0),
-            ("contact_stale_after_s", s.contact_stale_after_s, f.period_s, 1.0),
-            ("contact_fade_s", s.contact_fade_s, f.period_s, 5.0),
-            ("residual_fault_m", s.residual_fault_m, 1e-5, 1.0),
-            ("reply_jump_m", s.reply_jump_m, 1e-5, 1.0),
-            ("rehome_still_s", s.rehome_still_s, f.period_s, 60.0),
-        ];
-        for (key, v, lo, hi) in hard {
-            if !(v.is_finite() && v >= lo && v <= hi) {
-                return Err(bad(format!("safety.{key}"), key, 0, format!("{v}: must be in {lo} .. {hi}")));
-            }
-        }
-        let sf = |k: &str| format!("safety.{k}");
-        phys(&bounds::RAMP_S, "ramp_in_s", s.ramp_in_s, sf("ramp_in_s"), 0)?;
-        phys(&bounds::RAMP_S, "ramp_out_s", s.ramp_out_s, sf("ramp_out_s"), 0)?;
-        phys(&bounds::CONTACT_FADE_S, "contact_fade_s", s.contact_fade_s, sf("contact_fade_s"), 0)?;
-        phys(&bounds::RESIDUAL_FAULT_M, "residual_fault_m", s.residual_fault_m, sf("residual_fault_m"), 0)?;
-        phys(&bounds::REPLY_JUMP_M, "reply_jump_m", s.reply_jump_m, sf("reply_jump_m"), 0)?;
-        let counts: [(&str, u32, &bounds::Bound); 3] = [
-            ("residual_fault_ticks", s.residual_fault_ticks, &bounds::RESIDUAL_FAULT_TICKS),
-            ("reply_fault_ticks", s.reply_fault_ticks, &bounds::REPLY_FAULT_TICKS),
-            ("fault_recovery_ticks", s.fault_recovery_ticks, &bounds::FAULT_RECOVERY_TICKS),
-        ];
-        for (key, v, b) in counts {
-            let never_recover = key == "fault_recovery_ticks" && v == 0;
-            if v == 0 && !never_recover {
-                return Err(bad(sf(key), key, 0, "0: must be at least 1".into()));
-            }
-            if !never_recover {
-                phys(b, key, v as f64, sf(key), 0)?;
-            }
-        }
-        // Stillness must be judged well above the encoder's resolution (10 counts of the
-        // coarsest string), or the noise alone would keep the rig from homing itself.
-        let coarsest = hands.iter().flat_map(|h| h.metres_per_count).fold(0.0_f64, |a, m| a.max(m.abs()));
-        if !(s.rehome_still_m.is_finite() && s.rehome_still_m >= 10.0 * coarsest) {
-            return Err(bad(
-                sf("rehome_still_m"),
-                "rehome_still_m",
-                0,
-                format!(
-                    "{} m: must be at least 10 encoder counts ({:.2e} m), or encoder noise alone keeps the rig \
-                     from homing itself",
-                    s.rehome_still_m,
-                    10.0 * coarsest
-                ),
-            ));
-        }
-        phys(&bounds::REHOME_STILL_M, "rehome_still", s.rehome_still_m, sf("rehome_still_m"), 0)?;
-        phys(&bounds::REHOME_STILL_S, "rehome_still", s.rehome_still_s, sf("rehome_still_s"), 0)?;
-        let e = &f.estimation;
-        if !(1..=10).contains(&e.gauss_newton_iterations) {
-            return Err(bad(
-                "estimation.gauss_newton_iterations".into(),
-                "gauss_newton_iterations",
-                0,
-                format!("{}: must be 1 .. 10", e.gauss_newton_iterations),
-            ));
-        }
-        let nyquist = 0.5 / f.period_s;
-        if !(e.velocity_cutoff_hz.is_finite() && e.velocity_cutoff_hz > 0.0 && e.velocity_cutoff_hz < nyquist)
-        {
-            return Err(bad(
-                "estimation.velocity_cutoff_hz".into(),
-                "velocity_cutoff_hz",
-                0,
-                format!("{} Hz: must be in 0 .. {nyquist} Hz (half the tick rate)", e.velocity_cutoff_hz),
-            ));
-        }
-        let boards = crate::boards::validate(&f.boards, volts_needed(&hands), |field, key, msg| {
-            bad(field, key, 0, msg)
-        })?;
-        let hands: [HandRig; 2] = hands.try_into().expect("two hands");
+        c.count(&At::key("hands"), f.hands.len(), 2, 2, "hands (a SPIDAR-H has two)")?;
+        let mut seen = Seen { channels: [false; spidar_device::MAX_CHANNELS], zeros: 0 };
+        let left = check_hand(&c, 0, &f.hands[0], f.period_s, &mut seen)?;
+        let right = check_hand(&c, 1, &f.hands[1], f.period_s, &mut seen)?;
+        let hands = [left, right];
+        let rig_to_world = check_transform(&c, &f.rig_to_world)?;
+        check_safety(&c, &f.safety, f.period_s, &hands)?;
+        check_estimation(&c, &f.estimation, f.period_s)?;
+        let boards = crate::boards::validate(&f.boards, volts_needed(&hands), &c)?;
         Ok(Rig {
             name: f.name,
             period_s: f.period_s,
             hands,
-            rig_to_world: RigToWorld {
-                rotation: q,
-                translation_m: DVec3::from_array(f.rig_to_world.translation_m),
-            },
+            rig_to_world,
             safety: f.safety,
             estimation: f.estimation,
             overrides: f.overrides,
             boards,
             eye_m: DVec3::from_array(eye),
+            display,
         })
     }
 
@@ -786,6 +400,266 @@ impl Rig {
     pub fn is_homed(&self) -> bool {
         self.hands.iter().all(|h| h.length_at_zero_m.is_some())
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The rig file's checks, one function per section (called by `Rig::validate`).
+
+/// What earlier hands used, for checks across hands: channels taken, and how many
+/// `length_at_zero_m` entries came before (an optional key: it locates the n-th one in the text).
+struct Seen {
+    channels: [bool; spidar_device::MAX_CHANNELS],
+    zeros: usize,
+}
+
+/// The version, the overrides' names and the tick period.
+fn check_header(c: &Checker, f: &RigFile) -> Result<(), ConfigError> {
+    c.ensure(f.version == RIG_FILE_VERSION, &At::key("version"), || {
+        format!("this build reads rig files of version {RIG_FILE_VERSION}, the file says {}", f.version)
+    })?;
+    for (i, o) in f.overrides.iter().enumerate() {
+        c.ensure(
+            bounds::OVERRIDABLE.contains(&o.as_str()),
+            &At::new(format!("overrides[{i}]"), "overrides", 0),
+            || {
+                format!(
+                    "\"{o}\" is not a bound that can be overridden; known: {}",
+                    bounds::OVERRIDABLE.join(", ")
+                )
+            },
+        )?;
+    }
+    c.within(&At::key("period_s"), f.period_s, &bounds::PERIOD_S)?;
+    Ok(())
+}
+
+/// One hand: its force and tension limits, its grip, its four strings and where its home point
+/// sits in their frame.
+fn check_hand(
+    c: &Checker,
+    h: usize,
+    hf: &HandFile,
+    period_s: f64,
+    seen: &mut Seen,
+) -> Result<HandRig, ConfigError> {
+    let at = |key: &'static str| At::new(format!("hands[{h}].{key}"), key, h);
+    let min_n = c.positive(&at("tension_min_n"), hf.tension_min_n, "N", "so strings stay taut")?;
+    c.within(&at("tension_min_n"), min_n, &bounds::TENSION_MIN_N)?;
+    let max_n = hf.tension_max_n;
+    c.ensure(max_n.is_finite() && max_n >= 2.0 * min_n, &at("tension_max_n"), || {
+        format!("{max_n} N: must be at least twice tension_min_n ({min_n} N), or no force is left to render")
+    })?;
+    c.within(&at("tension_max_n"), max_n, &bounds::TENSION_MAX_N)?;
+    c.positive(&at("force_limit_n"), hf.force_limit_n, "N", "the force is scaled down to it")?;
+    c.positive(&at("grip_radius_m"), hf.grip_radius_m, "m", "the hand's sphere has a size")?;
+    c.within(&at("grip_radius_m"), hf.grip_radius_m, &bounds::GRIP_RADIUS_M)?;
+    let b = c.positive(&at("grip_damping_n_s_per_m"), hf.grip_damping_n_s_per_m, "N s/m", "an arm damps")?;
+    c.within(&at("grip_damping_n_s_per_m"), b, &bounds::GRIP_DAMPING_N_S_PER_M)?;
+    let k = c.positive(&at("stiffness_limit_n_per_m"), hf.stiffness_limit_n_per_m, "N/m", "a stiffness")?;
+    let k_max = bounds::stiffness_limit_n_per_m(b, period_s);
+    c.ensure(k <= k_max || c.overridden("stiffness_limit_n_per_m"), &at("stiffness_limit_n_per_m"), || {
+        format!(
+            "{k} N/m: above {k_max:.0} N/m, the stiffest contact that stays stable at this rig's period \
+             ({period_s} s) on a grip damped by {b} N s/m: K_max = 2 b / (3 T) (one tick of delay plus the hold \
+             act as negative damping 1.5 K T; see docs/safety.md). Lower it, or list \"stiffness_limit_n_per_m\" \
+             in overrides"
+        )
+    })?;
+    c.finite_within(&at("home_m"), &hf.home_m, bounds::COORDINATE_M, "m")?;
+    c.count(&at("strings"), hf.strings.len(), 4, 4, "strings (each hand has four)")?;
+    let mut hand = HandRig {
+        label: hf.label.clone(),
+        channels: [0; 4],
+        anchors_m: [DVec3::ZERO; 4],
+        metres_per_count: [0.0; 4],
+        length_at_zero_m: None,
+        volts_per_newton: [0.0; 4],
+        tension_min_n: min_n,
+        tension_max_n: max_n,
+        force_limit_n: hf.force_limit_n,
+        home_m: DVec3::from_array(hf.home_m),
+        grip_radius_m: hf.grip_radius_m,
+        stiffness_limit_n_per_m: k,
+        grip_damping_n_s_per_m: b,
+    };
+    let mut zeros = [None; 4];
+    for (s, sf) in hf.strings.iter().enumerate() {
+        zeros[s] = check_string(c, h, s, sf, &mut hand, seen)?;
+    }
+    hand.length_at_zero_m =
+        match zeros.iter().flatten().count() {
+            0 => None,
+            4 => Some(zeros.map(|z| z.unwrap_or(0.0))),
+            _ => return Err(c.error(
+                &at("strings"),
+                "length_at_zero_m is given for some strings of this hand but not all: give all four or none \
+                 (then home the rig)",
+            )),
+        };
+    check_hand_geometry(c, h, hf, &hand)?;
+    Ok(hand)
+}
+
+/// One string: its own channel, an anchor in reach of the frame's centre, the counter and DA
+/// scales. Fills string `s` of `hand`; returns its length at counter zero when the file gives it.
+fn check_string(
+    c: &Checker,
+    h: usize,
+    s: usize,
+    sf: &StringFile,
+    hand: &mut HandRig,
+    seen: &mut Seen,
+) -> Result<Option<f64>, ConfigError> {
+    let at = |key: &'static str, occ: usize| At::new(format!("hands[{h}].strings[{s}].{key}"), key, occ);
+    let occ = h * 4 + s;
+    let max = spidar_device::MAX_CHANNELS;
+    let taken = sf.channel < max && seen.channels[sf.channel];
+    c.ensure(sf.channel < max && !taken, &at("channel", occ), || {
+        let what = if taken { "used twice" } else { "out of range" };
+        format!("channel {} is {what}: each string needs its own channel below {max}", sf.channel)
+    })?;
+    seen.channels[sf.channel] = true;
+    c.finite_within(&at("anchor_m", occ), &sf.anchor_m, bounds::COORDINATE_M, "m")?;
+    let anchor = DVec3::from_array(sf.anchor_m);
+    c.within(&at("anchor_m", occ), anchor.length(), &bounds::ANCHOR_FROM_CENTRE_M)?;
+    let non_zero = |v: f64| v.is_finite() && v != 0.0;
+    let mpc = sf.metres_per_count;
+    c.ensure(non_zero(mpc), &at("metres_per_count", occ), || format!("{mpc}: must be finite and non-zero"))?;
+    c.within(&at("metres_per_count", occ), mpc.abs(), &bounds::METRES_PER_COUNT)?;
+    let vpn = sf.volts_per_newton;
+    c.ensure(non_zero(vpn), &at("volts_per_newton", occ), || format!("{vpn}: must be finite and non-zero"))?;
+    c.within(&at("volts_per_newton", occ), vpn.abs(), &bounds::VOLTS_PER_NEWTON)?;
+    let zero = match sf.length_at_zero_m {
+        None => None,
+        Some(l) => {
+            let at = at("length_at_zero_m", seen.zeros);
+            seen.zeros += 1;
+            c.finite(&at, l)?;
+            Some(c.within(&at, l, &bounds::LENGTH_AT_ZERO_M)?)
+        }
+    };
+    hand.channels[s] = sf.channel;
+    hand.anchors_m[s] = anchor;
+    hand.metres_per_count[s] = mpc;
+    hand.volts_per_newton[s] = vpn;
+    Ok(zero)
+}
+
+/// The hand's frame as a whole: anchors that span space, a home point inside them, and a force
+/// limit the strings can reach there.
+fn check_hand_geometry(c: &Checker, h: usize, hf: &HandFile, hand: &HandRig) -> Result<(), ConfigError> {
+    let at = |key: &'static str| At::new(format!("hands[{h}].{key}"), key, h);
+    let a = &hand.anchors_m;
+    // The closed-form kinematics need the anchors to span space.
+    let vol = ((a[1] - a[0]).cross(a[2] - a[0]).dot(a[3] - a[0]) / 6.0).abs();
+    c.ensure(vol >= 1e-3, &at("strings"), || {
+        format!(
+            "the four anchors are (nearly) coplanar (tetrahedron volume {vol:.2e} m^3): check anchor_m; position \
+             cannot be computed"
+        )
+    })?;
+    let inside = bounds::inside_margin(a, hand.home_m);
+    c.ensure(inside >= bounds::HOME_INSIDE_MARGIN || c.overridden("home_m"), &at("home_m"), || {
+        let [x, y, z] = hf.home_m;
+        format!(
+            "({x}, {y}, {z}) is not inside this hand's frame (the tetrahedron of its four anchors, with a margin \
+             of {:.0} % of its size): there the strings cannot hold zero net force, so neither the safe output \
+             nor homing works. Move the home point inside the frame, or list \"home_m\" in overrides",
+            bounds::HOME_INSIDE_MARGIN * 100.0
+        )
+    })?;
+    // What the strings can produce at home: the largest force over 26 directions that the
+    // allocator renders within the tension range.
+    let (min_n, max_n) = (hand.tension_min_n, hand.tension_max_n);
+    let capacity = bounds::force_capacity_n(a, hand.home_m, min_n, max_n);
+    c.ensure(hand.force_limit_n <= capacity || c.overridden("force_limit_n"), &at("force_limit_n"), || {
+        format!(
+            "{} N: the strings can produce at most {capacity:.1} N at the home point with tensions {min_n} .. \
+             {max_n} N, so this limit can never bind and hides a typo; lower it (the lab clipped at 4 N), or list \
+             \"force_limit_n\" in overrides",
+            hand.force_limit_n
+        )
+    })
+}
+
+/// The rig-to-world transform: a unit quaternion and a finite translation.
+fn check_transform(c: &Checker, t: &TransformFile) -> Result<RigToWorld, ConfigError> {
+    let [w, x, y, z] = t.rotation_wxyz;
+    let q = DQuat::from_xyzw(x, y, z, w);
+    let at = At::new("rig_to_world.rotation_wxyz", "rotation_wxyz", 0);
+    c.ensure(q.is_finite() && (q.length() - 1.0).abs() < 1e-6, &at, || {
+        format!("({w}, {x}, {y}, {z}) is not a unit quaternion (length {})", q.length())
+    })?;
+    let at = At::new("rig_to_world.translation_m", "translation_m", 0);
+    c.finite_within(&at, &t.translation_m, f64::MAX, "m")?;
+    Ok(RigToWorld { rotation: q, translation_m: DVec3::from_array(t.translation_m) })
+}
+
+/// The safety section: ramps, the stale model's fade, the pose and reply checks, recovery and
+/// rehoming. `hands` are the checked hands (the stillness tolerance depends on their encoders).
+fn check_safety(c: &Checker, s: &SafetyFile, period_s: f64, hands: &[HandRig; 2]) -> Result<(), ConfigError> {
+    let at = |key: &'static str| At::new(format!("safety.{key}"), key, 0);
+    c.within(&at("device_reopen_s"), s.device_reopen_s, &bounds::DEVICE_REOPEN_S)?;
+    c.within(&at("ramp_in_s"), s.ramp_in_s, &bounds::RAMP_HARD_S)?;
+    c.within(&at("ramp_in_s"), s.ramp_in_s, &bounds::RAMP_IN_S)?;
+    c.within(&at("ramp_out_s"), s.ramp_out_s, &bounds::RAMP_HARD_S)?;
+    c.within(&at("ramp_out_s"), s.ramp_out_s, &bounds::RAMP_OUT_S)?;
+    let stale = &at("contact_stale_after_s");
+    c.within(stale, s.contact_stale_after_s, &bounds::contact_stale_after_s_hard(period_s))?;
+    c.within(stale, s.contact_stale_after_s, &bounds::CONTACT_STALE_AFTER_S)?;
+    c.within(&at("contact_fade_s"), s.contact_fade_s, &bounds::contact_fade_s_hard(period_s))?;
+    c.within(&at("contact_fade_s"), s.contact_fade_s, &bounds::CONTACT_FADE_S)?;
+    c.within(stale, s.contact_stale_after_s + s.contact_fade_s, &bounds::CONTACT_FELT_S)?;
+    c.within(&at("residual_fault_m"), s.residual_fault_m, &bounds::RESIDUAL_HARD_M)?;
+    c.within(&at("residual_fault_m"), s.residual_fault_m, &bounds::RESIDUAL_FAULT_M)?;
+    c.within(&at("reply_jump_m"), s.reply_jump_m, &bounds::REPLY_JUMP_HARD_M)?;
+    c.within(&at("reply_jump_m"), s.reply_jump_m, &bounds::REPLY_JUMP_M)?;
+    let counts = [
+        ("residual_fault_ticks", s.residual_fault_ticks, &bounds::RESIDUAL_FAULT_TICKS),
+        ("reply_fault_ticks", s.reply_fault_ticks, &bounds::REPLY_FAULT_TICKS),
+        ("fault_recovery_ticks", s.fault_recovery_ticks, &bounds::FAULT_RECOVERY_TICKS),
+    ];
+    for (key, v, b) in counts {
+        // 0 recovery ticks means "never recover", always allowed.
+        if key == "fault_recovery_ticks" && v == 0 {
+            continue;
+        }
+        c.ensure(v != 0, &at(key), || "0: must be at least 1".into())?;
+        c.within(&at(key), f64::from(v), b)?;
+    }
+    // Stillness must be judged well above the encoder's resolution (10 counts of the coarsest
+    // string), or the noise alone would keep the rig from homing itself.
+    let coarsest = hands.iter().flat_map(|h| h.metres_per_count).fold(0.0_f64, |a, m| a.max(m.abs()));
+    let still_m = s.rehome_still_m;
+    c.ensure(still_m.is_finite() && still_m >= 10.0 * coarsest, &at("rehome_still_m"), || {
+        format!(
+            "{still_m} m: must be at least 10 encoder counts ({:.2e} m), or encoder noise alone keeps the rig \
+             from homing itself",
+            10.0 * coarsest
+        )
+    })?;
+    c.within(&at("rehome_still_m"), still_m, &bounds::REHOME_STILL_M)?;
+    c.within(&at("rehome_still_s"), s.rehome_still_s, &bounds::rehome_still_s_hard(period_s))?;
+    c.within(&at("rehome_still_s"), s.rehome_still_s, &bounds::REHOME_STILL_S)?;
+    Ok(())
+}
+
+/// The estimation section: solver iterations and the velocity filter against the tick rate.
+fn check_estimation(c: &Checker, e: &EstimationFile, period_s: f64) -> Result<(), ConfigError> {
+    let at = |key: &'static str| At::new(format!("estimation.{key}"), key, 0);
+    let iterations = f64::from(e.gauss_newton_iterations);
+    c.within(&at("gauss_newton_iterations"), iterations, &bounds::GAUSS_NEWTON_ITERATIONS)?;
+    let cutoff = &at("velocity_cutoff_hz");
+    let hz = c.positive(cutoff, e.velocity_cutoff_hz, "Hz", "a filter's cut-off")?;
+    let nyquist = 0.5 / period_s;
+    c.ensure(hz < nyquist, cutoff, || {
+        format!(
+            "{hz} Hz: must be below {nyquist} Hz, half the tick rate (Nyquist): a sampled filter cannot pass or \
+             stop anything above it"
+        )
+    })?;
+    c.within(cutoff, hz, &bounds::velocity_cutoff_hz(period_s))?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -849,149 +723,225 @@ mod tests {
         assert_eq!(e.field, "version");
     }
 
-    /// The default rig file with the first `replace` changed to `by`: must be refused on `field`,
-    /// located at the changed line, with a reason containing `why`.
-    fn refused(replace: &str, by: &str, field: &str, why: &str) -> ConfigError {
-        let text = with(replace, by);
-        let e = Rig::from_str(&text, "rig.ron").unwrap_err();
-        assert_eq!(e.field, field, "{e}");
-        let line = text.lines().position(|l| l.contains(by.trim_end_matches(','))).unwrap() + 1;
-        assert_eq!(e.line, line, "{e}");
-        assert!(e.column > 0);
-        assert!(e.message.contains(why), "{e}");
-        assert!(e.to_string().starts_with(&format!("rig.ron:{line}:")), "{e}");
-        e
+    /// Why `edits` (each: the first `replace` changed to `by`) applied to the default rig file must
+    /// be refused: on `field`, located on the line of the first edit, with a reason containing `why`.
+    struct Dangerous {
+        edits: &'static [(&'static str, &'static str)],
+        field: &'static str,
+        why: &'static str,
     }
 
-    // One test per dangerous value an operator could write (issue 17's list), each refused with
-    // its reason.
-    macro_rules! refuses {
-        ($name:ident, $replace:expr, $by:expr, $field:expr, $why:expr) => {
-            #[test]
-            fn $name() {
-                refused($replace, $by, $field, $why);
-            }
+    macro_rules! danger {
+        ($field:expr, $why:expr, $(($replace:expr, $by:expr)),+) => {
+            Dangerous { edits: &[$(($replace, $by)),+], field: $field, why: $why }
         };
     }
-    refuses!(
-        refuses_tension_max_beyond_the_motors,
-        "tension_max_n: 20.0",
-        "tension_max_n: 1e6",
-        "hands[0].tension_max_n",
-        "motors"
-    );
-    refuses!(
-        refuses_a_force_limit_the_strings_cannot_produce,
-        "force_limit_n: 4.0",
-        "force_limit_n: 400.0",
-        "hands[0].force_limit_n",
-        "strings can produce at most"
-    );
-    refuses!(
-        refuses_a_zero_force_limit,
-        "force_limit_n: 4.0",
-        "force_limit_n: 0.0",
-        "hands[0].force_limit_n",
-        "positive"
-    );
-    refuses!(
-        refuses_a_stiffness_beyond_the_stability_bound,
-        "stiffness_limit_n_per_m: 5000.0",
-        "stiffness_limit_n_per_m: 1e9",
-        "hands[0].stiffness_limit_n_per_m",
-        "K_max = 2 b / (3 T)"
-    );
-    refuses!(
-        refuses_a_minimum_tension_that_pulls_in_the_safe_output,
-        "tension_min_n: 1.0",
-        "tension_min_n: 9.0",
-        "hands[0].tension_min_n",
-        "safe output"
-    );
-    refuses!(
-        refuses_a_zero_minimum_tension,
-        "tension_min_n: 1.0",
-        "tension_min_n: 0.0",
-        "hands[0].tension_min_n",
-        "taut"
-    );
-    refuses!(
-        refuses_a_ramp_in_of_zero,
-        "ramp_in_s: 0.5",
-        "ramp_in_s: 0.0",
-        "safety.ramp_in_s",
-        "step of full force"
-    );
-    refuses!(
-        refuses_a_ramp_out_of_zero,
-        "ramp_out_s: 0.3",
-        "ramp_out_s: 0.0",
-        "safety.ramp_out_s",
-        "step of full force"
-    );
-    refuses!(
-        refuses_a_residual_check_switched_off,
-        "residual_fault_ticks: 20",
-        "residual_fault_ticks: 4294967295",
-        "safety.residual_fault_ticks",
-        "switches the pose check off"
-    );
-    refuses!(
-        refuses_recovery_after_a_single_good_tick,
-        "fault_recovery_ticks: 30",
-        "fault_recovery_ticks: 1",
-        "safety.fault_recovery_ticks",
-        "at least 10 times"
-    );
-    refuses!(
-        refuses_holding_the_output_for_long,
-        "reply_fault_ticks: 5",
-        "reply_fault_ticks: 1000",
-        "safety.reply_fault_ticks",
-        "20 ms"
-    );
-    refuses!(
-        refuses_metres_per_count_of_1e_300,
-        "metres_per_count: 2.924062107079e-5",
-        "metres_per_count: 1e-300",
-        "hands[0].strings[0].metres_per_count",
-        "pulley"
-    );
-    refuses!(
-        refuses_volts_per_newton_of_1000,
-        "volts_per_newton: 0.2",
-        "volts_per_newton: 1000.0",
-        "hands[0].strings[0].volts_per_newton",
-        "amplifiers"
-    );
-    refuses!(
-        refuses_a_home_point_15_m_outside_the_frame,
-        "home_m: (-0.15, 0.0, 0.0)",
-        "home_m: (15.0, 0.0, 0.0)",
-        "hands[0].home_m",
-        "not inside this hand's frame"
-    );
-    refuses!(
-        refuses_a_negative_length_at_zero,
-        "volts_per_newton: 0.2)",
-        "volts_per_newton: 0.2, length_at_zero_m: Some(-1.0))",
-        "hands[0].strings[0].length_at_zero_m",
-        "never negative"
-    );
-    refuses!(
-        refuses_a_contact_fade_of_minus_zero,
-        "contact_fade_s: 0.1",
-        "contact_fade_s: -0.0",
-        "safety.contact_fade_s",
-        "must be in"
-    );
-    refuses!(
-        refuses_a_stillness_tolerance_below_the_encoder_noise,
-        "rehome_still_m: 0.003",
-        "rehome_still_m: 0.0001",
-        "safety.rehome_still_m",
-        "encoder"
-    );
+
+    /// What a bad edit did instead of being refused as it should, or `None` when it was.
+    fn not_refused(d: &Dangerous) -> Option<String> {
+        let mut text = DEFAULT_RIG_RON.to_string();
+        for (replace, by) in d.edits {
+            assert!(text.contains(replace), "{replace}");
+            text = text.replacen(replace, by, 1);
+        }
+        let by = d.edits[0].1;
+        let line = text.lines().position(|l| l.contains(by.trim_end_matches(','))).unwrap() + 1;
+        match Rig::from_str(&text, "rig.ron") {
+            Ok(_) => Some(format!("{by}: accepted")),
+            Err(e) if e.field != d.field || e.line != line || e.column == 0 => {
+                Some(format!("{by}: refused elsewhere, want {} on line {line}: {e}", d.field))
+            }
+            Err(e)
+                if !e.message.contains(d.why) || !e.to_string().starts_with(&format!("rig.ron:{line}:")) =>
+            {
+                Some(format!("{by}: refused without the reason \"{}\": {e}", d.why))
+            }
+            Err(_) => None,
+        }
+    }
+
+    /// Every kind of dangerous value an operator could write (issue 17's list and issue 26's audit:
+    /// beyond the motors, zero, -0.0, NaN, a unit slip, a check switched off, a model felt for
+    /// seconds, an anchor in the next room, a filter at the Nyquist frequency), each refused on its
+    /// field with its reason. Before issue 26, 25 of the first 30 were refused.
+    const DANGEROUS: [Dangerous; 36] = [
+        danger!("hands[0].tension_max_n", "motors", ("tension_max_n: 20.0", "tension_max_n: 1e6")),
+        danger!(
+            "hands[0].force_limit_n",
+            "strings can produce at most",
+            ("force_limit_n: 4.0", "force_limit_n: 400.0")
+        ),
+        danger!("hands[0].force_limit_n", "positive", ("force_limit_n: 4.0", "force_limit_n: 0.0")),
+        danger!(
+            "hands[0].stiffness_limit_n_per_m",
+            "K_max = 2 b / (3 T)",
+            ("stiffness_limit_n_per_m: 5000.0", "stiffness_limit_n_per_m: 1e9")
+        ),
+        danger!("hands[0].tension_min_n", "safe output", ("tension_min_n: 1.0", "tension_min_n: 9.0")),
+        danger!("hands[0].tension_min_n", "taut", ("tension_min_n: 1.0", "tension_min_n: 0.0")),
+        danger!("safety.ramp_in_s", "step of full force", ("ramp_in_s: 0.5", "ramp_in_s: 0.0")),
+        danger!("safety.ramp_out_s", "step of full force", ("ramp_out_s: 0.3", "ramp_out_s: 0.0")),
+        danger!(
+            "safety.residual_fault_ticks",
+            "switches the pose check off",
+            ("residual_fault_ticks: 20", "residual_fault_ticks: 4294967295")
+        ),
+        danger!(
+            "safety.fault_recovery_ticks",
+            "at least 10 times",
+            ("fault_recovery_ticks: 30", "fault_recovery_ticks: 1")
+        ),
+        danger!("safety.reply_fault_ticks", "20 ms", ("reply_fault_ticks: 5", "reply_fault_ticks: 1000")),
+        danger!(
+            "hands[0].strings[0].metres_per_count",
+            "pulley",
+            ("metres_per_count: 2.924062107079e-5", "metres_per_count: 1e-300")
+        ),
+        danger!(
+            "hands[0].strings[0].volts_per_newton",
+            "amplifiers",
+            ("volts_per_newton: 0.2", "volts_per_newton: 1000.0")
+        ),
+        danger!(
+            "hands[0].home_m",
+            "not inside this hand's frame",
+            ("home_m: (-0.15, 0.0, 0.0)", "home_m: (15.0, 0.0, 0.0)")
+        ),
+        danger!(
+            "hands[0].strings[0].length_at_zero_m",
+            "never negative",
+            ("volts_per_newton: 0.2)", "volts_per_newton: 0.2, length_at_zero_m: Some(-1.0))")
+        ),
+        danger!("safety.contact_fade_s", "must be in", ("contact_fade_s: 0.1", "contact_fade_s: -0.0")),
+        danger!("safety.rehome_still_m", "encoder", ("rehome_still_m: 0.003", "rehome_still_m: 0.0001")),
+        danger!("hands[0].force_limit_n", "positive", ("force_limit_n: 4.0", "force_limit_n: NaN")),
+        danger!("hands[0].grip_radius_m", "fist", ("grip_radius_m: 0.04", "grip_radius_m: 5.0")),
+        danger!(
+            "hands[0].grip_damping_n_s_per_m",
+            "buzz",
+            ("grip_damping_n_s_per_m: 8.0", "grip_damping_n_s_per_m: 1000.0")
+        ),
+        danger!(
+            "safety.residual_fault_m",
+            "centimetres off",
+            ("residual_fault_m: 0.002", "residual_fault_m: 1.0")
+        ),
+        danger!("safety.reply_jump_m", "corrupt counts", ("reply_jump_m: 0.002", "reply_jump_m: 1.0")),
+        danger!("safety.rehome_still_s", "one tick", ("rehome_still_s: 1.0", "rehome_still_s: 0.0")),
+        danger!("period_s", "10 kHz", ("period_s: 0.001", "period_s: 1.0")),
+        danger!("safety.device_reopen_s", "never reopens", ("device_reopen_s: 0.2", "device_reopen_s: -1.0")),
+        danger!(
+            "hands[0].strings[0].metres_per_count",
+            "non-zero",
+            ("metres_per_count: 2.924062107079e-5", "metres_per_count: 0.0")
+        ),
+        // Issue 26's audit: the five values that were accepted.
+        danger!(
+            "safety.contact_stale_after_s",
+            "a tenth of a second",
+            ("contact_stale_after_s: 0.03", "contact_stale_after_s: 1.0")
+        ),
+        danger!(
+            "safety.contact_stale_after_s",
+            "a second old",
+            ("contact_stale_after_s: 0.03", "contact_stale_after_s: 1.0"),
+            ("contact_fade_s: 0.1", "contact_fade_s: 5.0"),
+            ("overrides: [],", "overrides: [\"contact_stale_after_s\", \"contact_fade_s\"],")
+        ),
+        danger!(
+            "hands[0].strings[0].anchor_m",
+            "unit slip",
+            ("anchor_m: (-1.75, 2.00, 1.12)", "anchor_m: (-19.0, 2.00, 1.12)")
+        ),
+        danger!(
+            "estimation.velocity_cutoff_hz",
+            "count steps",
+            ("velocity_cutoff_hz: 60.0", "velocity_cutoff_hz: 499.0")
+        ),
+        danger!(
+            "estimation.velocity_cutoff_hz",
+            "Nyquist",
+            ("velocity_cutoff_hz: 60.0", "velocity_cutoff_hz: 500.0")
+        ),
+        // And their neighbours.
+        danger!(
+            "hands[0].strings[0].anchor_m",
+            "no room for a hand",
+            ("anchor_m: (-1.75, 2.00, 1.12)", "anchor_m: (0.0, 0.0, 0.0)")
+        ),
+        danger!(
+            "estimation.velocity_cutoff_hz",
+            "lags",
+            ("velocity_cutoff_hz: 60.0", "velocity_cutoff_hz: 0.1")
+        ),
+        danger!(
+            "estimation.gauss_newton_iterations",
+            "at least one iteration",
+            ("gauss_newton_iterations: 2", "gauss_newton_iterations: 0")
+        ),
+        danger!("eye_m", "within 10 m", ("eye_m: Some((0.0, 0.35, 0.4))", "eye_m: Some((0.0, 1000.0, 0.4))")),
+        danger!(
+            "rig_to_world.rotation_wxyz",
+            "unit quaternion",
+            ("rotation_wxyz: (1.0, 0.0, 0.0, 0.0)", "rotation_wxyz: (2.0, 0.0, 0.0, 0.0)")
+        ),
+    ];
+
+    #[test]
+    fn every_dangerous_value_of_the_audit_is_refused_with_its_reason() {
+        let failures: Vec<String> = DANGEROUS.iter().filter_map(not_refused).collect();
+        assert!(
+            failures.is_empty(),
+            "{} of {} refused:\n{}",
+            DANGEROUS.len() - failures.len(),
+            DANGEROUS.len(),
+            failures.join("\n")
+        );
+    }
+
+    #[test]
+    fn no_number_of_the_rig_file_accepts_nan_an_infinity_or_1e300() {
+        // Every floating-point value of the default file, as written there.
+        let numbers = [
+            "period_s: 0.001",
+            "tension_min_n: 1.0",
+            "tension_max_n: 20.0",
+            "force_limit_n: 4.0",
+            "grip_radius_m: 0.04",
+            "stiffness_limit_n_per_m: 5000.0",
+            "grip_damping_n_s_per_m: 8.0",
+            "metres_per_count: 2.924062107079e-5",
+            "volts_per_newton: 0.2",
+            "ramp_in_s: 0.5",
+            "ramp_out_s: 0.3",
+            "contact_stale_after_s: 0.03",
+            "contact_fade_s: 0.1",
+            "residual_fault_m: 0.002",
+            "reply_jump_m: 0.002",
+            "rehome_still_m: 0.003",
+            "rehome_still_s: 1.0",
+            "device_reopen_s: 0.2",
+            "velocity_cutoff_hz: 60.0",
+            "digits_per_volt: 415.0",
+            "limit_v: 4.0",
+        ];
+        let mut accepted = Vec::new();
+        for n in numbers {
+            let key = n.split(':').next().unwrap();
+            for v in ["NaN", "inf", "-inf", "1e300", "-1e300"] {
+                let by = format!("{key}: {v}");
+                let e = match Rig::from_str(&with(n, &by), "rig.ron") {
+                    Ok(_) => {
+                        accepted.push(by);
+                        continue;
+                    }
+                    Err(e) => e,
+                };
+                assert!(e.field.ends_with(key), "{by}: refused on {}: {e}", e.field);
+            }
+        }
+        assert!(accepted.is_empty(), "accepted: {accepted:?}");
+    }
 
     #[test]
     fn an_override_accepts_a_value_beyond_its_bound_and_is_kept_for_the_summary() {

@@ -31,6 +31,16 @@ pub fn rig_info(rig: &Rig) -> RigInfo {
         info.force_limit_n[h] = hr.force_limit_n;
         info.grip_radius_m[h] = hr.grip_radius_m;
     }
+    if let Some(d) = &rig.display {
+        info.display = spidar_msg::DisplayInfo {
+            present: true,
+            lower_left_m: xf.point(d.lower_left_m),
+            lower_right_m: xf.point(d.lower_right_m()),
+            upper_left_m: xf.point(d.upper_left_m()),
+            eye_separation_m: d.eye_separation_m,
+            stereo: d.stereo.code(),
+        };
+    }
     info
 }
 

@@ -20,8 +20,9 @@ use crate::tension::Method;
 /// One hand in one tick (rig frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HandRecord {
-    pub pos_m: DVec3,
-    pub vel_m_per_s: DVec3,
+    /// Grip position in the rig frame; `HandState::pos_world_m` is the same point in the world.
+    pub pos_rig_m: DVec3,
+    pub vel_rig_m_per_s: DVec3,
     pub residual_m: f64,
     pub valid: bool,
     /// Force asked by rendering (plus the scene's extra force), before safety.
@@ -52,8 +53,8 @@ pub struct HandRecord {
 impl Default for HandRecord {
     fn default() -> Self {
         HandRecord {
-            pos_m: DVec3::ZERO,
-            vel_m_per_s: DVec3::ZERO,
+            pos_rig_m: DVec3::ZERO,
+            vel_rig_m_per_s: DVec3::ZERO,
             residual_m: 0.0,
             valid: false,
             rendered_n: DVec3::ZERO,

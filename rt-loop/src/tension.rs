@@ -10,7 +10,7 @@
 //! own direction instead and reports the fraction), jump between ticks when its inputs do not,
 //! allocate, lock, format or panic.
 //!
-//! Method (`reference/spidar.md` section 3). With `W = [u_1 .. u_4]` (3x4, unit string directions)
+//! Method (`docs/reference.md` section 3). With `W = [u_1 .. u_4]` (3x4, unit string directions)
 //! every exact solution of `W t = s F` is `t = s t0 + lambda n`, where `t0 = W^T (W W^T)^-1 F` and
 //! `n` spans the null space of `W` (from signed 3x3 minors). For the pair `(s, lambda)` the box
 //! `min <= t_i <= max` is 8 half-planes, so:
@@ -645,14 +645,7 @@ mod tests {
 
     /// Deterministic runs (fixed seed, nothing written to disk); set PROPTEST_RNG_SEED to explore.
     fn cfg(cases: u32) -> ProptestConfig {
-        let base = ProptestConfig::default();
-        let rng_seed = if std::env::var_os("PROPTEST_RNG_SEED").is_some() {
-            base.rng_seed
-        } else {
-            proptest::test_runner::RngSeed::Fixed(SEED)
-        };
-        let cases = if std::env::var_os("PROPTEST_CASES").is_some() { base.cases } else { cases };
-        ProptestConfig { cases, failure_persistence: None, rng_seed, max_local_rejects: u32::MAX, ..base }
+        spidar_testkit::proptest_config(SEED, cases)
     }
 
     /// Anchors of the human-scale rig's two hands and of the desktop cube preset (reference section 1).

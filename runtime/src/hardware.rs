@@ -13,11 +13,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use spidar_device::emulator::{link, Control, Emulator, EmulatorOptions, PlantClock};
+use spidar_device::emulator::{symlink, Control, Emulator, EmulatorOptions, PlantClock};
 use spidar_device::sim::Script;
 use spidar_device::uart::protocol::ReplyLayout;
 use spidar_device::uart::{UartDevice, UartOptions};
-use spidar_device::usb::rusb_link::RusbOpener;
+use spidar_device::usb::rusb_transport::RusbOpener;
 use spidar_device::usb::{UsbBoard, UsbKind, UsbOptions};
 use spidar_device::{Device, DeviceInfo, Input, Output};
 use spidar_rt::rt_thread::{self, RtOptions, RtReport};
@@ -29,8 +29,8 @@ use crate::supervisor::Shared;
 
 /// The default link of `spidar emulate` (a symlink to its pty in a directory private to the
 /// user: `$XDG_RUNTIME_DIR/spidar/uart`, or `/tmp/spidar-<uid>/uart`).
-pub fn default_link() -> anyhow::Result<PathBuf> {
-    Ok(link::default_link()?)
+pub fn default_symlink() -> anyhow::Result<PathBuf> {
+    Ok(symlink::default_symlink()?)
 }
 
 /// Which real board, with its options.
@@ -88,7 +88,7 @@ impl HardwareArgs {
                 let port = match self.port.clone() {
                     Some(p) => p,
                     None => {
-                        let l = default_link()?;
+                        let l = default_symlink()?;
                         if std::fs::symlink_metadata(&l).is_err() {
                             bail!(
                                 "--device uart needs --port PATH (see `spidar devices`), or a running `spidar emulate` \
@@ -220,7 +220,7 @@ pub fn check_rig_against(rig: &Rig, info: &DeviceInfo) -> anyhow::Result<()> {
 
 /// Options of `spidar emulate`.
 pub struct EmulateOptions {
-    pub link: PathBuf,
+    pub symlink: PathBuf,
     pub emulator: EmulatorOptions,
     pub sim: SimOptions,
 }
@@ -241,7 +241,7 @@ pub fn start_emulator(rig: &Rig, scripts: [Script; 2], opts: &EmulateOptions) ->
             rig.channels()
         );
     }
-    Ok(Emulator::spawn(sim, opts.emulator.clone(), &opts.link)?)
+    Ok(Emulator::spawn(sim, opts.emulator.clone(), &opts.symlink)?)
 }
 
 pub const EMULATE_HELP: &str =
@@ -358,7 +358,7 @@ pub fn run_emulator(emu: Emulator, stop: &crate::signals::Stop, seconds: Option<
         std::thread::sleep(Duration::from_millis(20));
     };
     crate::outln!("{}", status(&c));
-    let link = emu.link().display().to_string();
+    let link = emu.symlink().display().to_string();
     emu.stop();
     crate::outln!("spidar emulate: stopped ({why}); link {link} removed");
     Ok(())
@@ -373,7 +373,7 @@ pub fn devices_report(extra_ports: &[String], probe: bool) -> String {
     let mut s = String::new();
     // A running emulator's link is not listed by the OS: check it too.
     let mut extra = extra_ports.to_vec();
-    let emulator = default_link().ok().map(|l| l.display().to_string());
+    let emulator = default_symlink().ok().map(|l| l.display().to_string());
     if let Some(l) = emulator.as_ref() {
         if std::fs::symlink_metadata(l).is_ok() && !extra.contains(l) {
             extra.push(l.clone());
@@ -510,9 +510,9 @@ pub fn bench_uart(
     rt: &RtOptions,
     reply_timeout: Duration,
 ) -> anyhow::Result<UartBenchReport> {
-    let link = link::private_dir()?.join(format!("bench-uart-{}", std::process::id()));
+    let link = symlink::private_dir()?.join(format!("bench-uart-{}", std::process::id()));
     let opts = EmulateOptions {
-        link: link.clone(),
+        symlink: link.clone(),
         emulator: EmulatorOptions {
             // Both ends real-time when the loop is, as a board answers at once.
             fifo_priority: rt.fifo_priority.map(|p| i32::from(p.saturating_sub(10).max(1))),

@@ -13,6 +13,7 @@
 //!   tension), on the real-time thread under the supervisor on real boards.
 //! - Safety around the process: `supervisor` (the parent that writes zero to the boards when the
 //!   rig process dies or hangs), `signals` (stop requests), `term` (output that never panics).
+//! - `plan`: `spidar run`'s options checked into a plain plan; `run`: runs it.
 //! - Devices: `hardware` (board drivers from options, the emulator, discovery); `scripts` (the
 //!   simulated user's boxing scripts); `rigpath` (which rig file a command uses).
 //! - Playback: `replay` and `replay_view` (`spidar replay`, `export`, `plot`).
@@ -23,11 +24,14 @@
 pub mod calibration;
 pub mod child_world;
 pub mod hardware;
+pub mod placement;
+pub mod plan;
 pub mod recording;
 pub mod replay;
 pub mod replay_view;
 pub mod report;
 pub mod rigpath;
+pub mod run;
 pub mod scene_thread;
 pub mod scripts;
 pub mod session;

@@ -8,7 +8,7 @@ use spidar_record::world::{WorldInfo, WorldRecorder, WorldRecording};
 use spidar_record::writer::{EndInfo, Recorder, SessionInfo};
 use spidar_rt::rig::{DEFAULT_RIG_NAME, DEFAULT_RIG_RON};
 
-use crate::summary::Summary;
+use crate::summary::SessionSummary;
 
 /// What made a session, from its arguments: the rig file's text, the scene and script files.
 pub fn session_info(
@@ -96,7 +96,7 @@ pub fn start_world_recording_with(
 }
 
 /// How a live session ended, for the recording's `spidar.end` record.
-pub fn end_info(s: &Summary) -> EndInfo {
+pub fn end_info(s: &SessionSummary) -> EndInfo {
     EndInfo {
         ticks: s.counters.ticks,
         telemetry_dropped: s.counters.telemetry_dropped,

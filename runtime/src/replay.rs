@@ -132,7 +132,7 @@ pub fn replay(a: &ReplayArgs) -> anyhow::Result<()> {
     if a.json {
         let j = match &rig {
             Some(s) => {
-                let mut j = rig_json(s);
+                let mut j = s.summary().json();
                 j["world"] = world.as_ref().map_or(serde_json::Value::Null, world_json);
                 j
             }
@@ -175,32 +175,6 @@ fn start_replay(world: &std::path::Path, a: &ReplayArgs) -> anyhow::Result<crate
     crate::errln!("spidar replay: {}", r.describe());
     crate::errln!("spidar replay: live view at {} (frames on {})", r.url(), r.ws_url());
     Ok(r)
-}
-
-fn rig_json(s: &spidar_record::summary::Summary) -> serde_json::Value {
-    let r = &s.recording;
-    let lat = s.stats.lateness.percentiles();
-    serde_json::json!({
-        "command": "replay",
-        "file": r.path.display().to_string(),
-        "session": r.session,
-        "end": r.end_meta,
-        "attachments": r.attachments.iter().map(|(n, _)| n).collect::<Vec<_>>(),
-        "channels": r.channels.iter().map(|c| serde_json::json!({
-            "topic": c.topic, "schema": c.schema, "schema_encoding": c.schema_encoding,
-            "message_encoding": c.message_encoding, "messages": c.messages,
-        })).collect::<Vec<_>>(),
-        "ticks": r.ticks,
-        "missing_ticks": r.missing_ticks,
-        "active_ticks": s.active_ticks,
-        "lateness_s": { "p50": lat.p50_s, "p99": lat.p99_s, "p999": lat.p999_s, "max": lat.max_s },
-        "max_force_n": s.stats.max_force_n,
-        "hits": s.hits,
-        "events": s.event_count,
-        "faults": s.faults,
-        "ends": r.ends(),
-        "complete": r.ending == Some(spidar_record::reader::Ending::Complete),
-    })
 }
 
 fn world_json(w: &spidar_record::world::WorldSummary) -> serde_json::Value {

@@ -39,7 +39,7 @@ use spidar_world::{Observer, Scene, StepView};
 use crate::child_world::{ChildWorld, ChildWorldSpec};
 use crate::scene_thread::{self, SceneCounters};
 use crate::signals::Stop;
-use crate::summary::{FaultTally, Summary, VirtualSummary};
+use crate::summary::{FaultTally, SessionSummary, VirtualSummary};
 use crate::supervisor::Shared;
 use crate::term::StatusOut;
 
@@ -918,7 +918,7 @@ impl<D: Device + 'static> LiveSession<D> {
 
     /// Waits for the loop to end (after a stop), ends the world, and reports. `signals`: the stop
     /// signals that ended it, for the summary.
-    pub fn finish(mut self, signals: u32, say: &mut dyn FnMut(String)) -> anyhow::Result<Summary> {
+    pub fn finish(mut self, signals: u32, say: &mut dyn FnMut(String)) -> anyhow::Result<SessionSummary> {
         let handle = self.rt_handle.take().context("the loop was already finished")?;
         let (report, rt) = handle.join().map_err(|_| anyhow::anyhow!("the real-time thread panicked"))?;
         for r in self.telemetry.try_iter() {
@@ -969,7 +969,7 @@ impl<D: Device + 'static> LiveSession<D> {
                     (steps, None, 0, status, world, Some(stats.summary()), report)
                 }
             };
-        Ok(Summary {
+        Ok(SessionSummary {
             scene_status,
             device: self.device.clone(),
             scene: self.scene_name.clone(),
@@ -1004,7 +1004,7 @@ pub fn run_live<D: Device + 'static>(
     rig: &Rig,
     world: WorldChoice,
     mut opts: LiveOptions,
-) -> anyhow::Result<Summary> {
+) -> anyhow::Result<SessionSummary> {
     let mut s = LiveSession::start(dev, rig, world, &opts)?;
     let mut recorder = opts.recorder.take();
     let mut out = StatusOut::new(opts.status_every.unwrap_or(Duration::from_millis(500)));

@@ -1,9 +1,14 @@
-//! What a session reports when it ends: the live run's [`Summary`], the virtual run's
-//! [`VirtualSummary`] and the faults counted per kind ([`FaultTally`]), as the text printed on exit.
-//! (`report` turns the same structs into JSON and an exit status; `recording` into the recording's
-//! end record.)
+//! What a session reports when it ends: the live run's [`SessionSummary`], the virtual run's
+//! [`VirtualSummary`] and the faults counted per kind ([`FaultTally`]). Each is rendered once, into
+//! a [`Summary`] that prints as the text shown on exit and as the JSON of `--json`; the lines all
+//! summaries share are `spidar_rt::summary`'s. (`report` turns a session into an exit status;
+//! `recording` into the recording's end record.)
 
+use serde_json::{json, Value};
+use spidar_record::world::WorldRecordingReport;
+use spidar_record::writer::RecordingReport;
 use spidar_rt::rt_thread::RtReport;
+use spidar_rt::summary::{self as lines, Summary};
 use spidar_rt::telemetry::Stats;
 use spidar_rt::{Counters, Lifecycle};
 
@@ -32,72 +37,125 @@ pub struct VirtualSummary {
     pub recording: Option<spidar_record::writer::RecordingReport>,
 }
 
-impl std::fmt::Display for VirtualSummary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl VirtualSummary {
+    /// The summary of a virtual run, with the world's recording when there is one.
+    pub fn summary(&self, world_recording: Option<&WorldRecordingReport>) -> Summary {
         let c = &self.counters;
         let rig_s = c.ticks as f64 * self.period_s;
-        writeln!(
-            f,
+        let mut out = Summary::new(format!(
             "spidar run --virtual: {} ticks ({rig_s:.3} s of rig time, {} s asked) in {:.2} s wall ({:.0}x real time)",
             c.ticks,
             self.seconds,
             self.wall_s,
             rig_s / self.wall_s.max(1e-9)
-        )?;
-        writeln!(f, "  on           {}, scene {}, script {}", self.device, self.scene, self.script)?;
-        if !self.rig_file.is_empty() {
-            writeln!(f, "  rig file     {}", self.rig_file)?;
-        }
-        writeln!(f, "  ticks        {} active", c.active_ticks)?;
-        writeln!(f, "  compute      {}", self.stats.compute.percentiles())?;
-        if !self.scene_status.is_empty() {
-            writeln!(f, "  scene        {}", self.scene_status)?;
-        }
-        writeln!(
-            f,
-            "  max force    left {:.2} N, right {:.2} N",
-            self.stats.max_force_n[0], self.stats.max_force_n[1]
-        )?;
-        writeln!(
-            f,
-            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, faults {}, device errors {}",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
-            c.faults,
-            c.device_errors
-        )?;
-        write_held(f, c)?;
-        write!(f, "{}", self.faults_seen)?;
-        if let Some(r) = &self.recording {
-            writeln!(f, "  recording    {r}")?;
-        }
-        write_end(f, self.final_state, self.clean_stop, self.halted, self.signals)
+        ));
+        out.field("command", "run")
+            .field("measured", "the virtual clock: device, rt-loop and scene interleaved on one thread")
+            .field("ticks", c.ticks)
+            .field("rig_seconds", rig_s)
+            .field("seconds_asked", self.seconds)
+            .field("wall_s", self.wall_s);
+        out.line("on", format!("{}, scene {}, script {}", self.device, self.scene, self.script));
+        out.field("device", self.device.as_str())
+            .field("scene", self.scene.as_str())
+            .field("script", self.script.as_str());
+        rig_file(&mut out, &self.rig_file);
+        out.row("ticks", format!("{} active", c.active_ticks), "active_ticks", c.active_ticks);
+        lines::compute(&mut out, &self.stats, "");
+        scene_status(&mut out, "scene", &self.scene_status);
+        lines::forces(&mut out, &self.stats, false);
+        out.row(
+            "safety",
+            format!("{}, faults {}, device errors {}", lines::clamped_counts(c), c.faults, c.device_errors),
+            "safety",
+            lines::safety_json(c),
+        );
+        lines::held(&mut out, c);
+        self.faults_seen.lines(&mut out);
+        recording_line(&mut out, self.recording.as_ref());
+        lines::end(&mut out, self.final_state, self.clean_stop, self.halted, self.signals);
+        world_recording_line(&mut out, world_recording);
+        out
     }
 }
 
-/// The ticks that held the last safe output (a late, missing or rejected reply) and why.
-fn write_held(f: &mut std::fmt::Formatter<'_>, c: &Counters) -> std::fmt::Result {
-    writeln!(
-        f,
-        "               held ticks {}/{} (late replies {}, count jumps {}/{}, residual high {}/{}), rehomes {}",
-        c.held[0],
-        c.held[1],
-        c.late_replies,
-        c.count_jumps[0],
-        c.count_jumps[1],
-        c.residual_high[0],
-        c.residual_high[1],
-        c.rehomes
-    )
+impl std::fmt::Display for VirtualSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.summary(None))
+    }
+}
+
+/// `rig file`: the rig file the run used (always in the JSON, in the text when known).
+fn rig_file(out: &mut Summary, rig_file: &str) {
+    if !rig_file.is_empty() {
+        out.line("rig file", rig_file);
+    }
+    out.field("rig_file", rig_file);
+}
+
+/// The scene's own status at the end, under `label` (in the text when it says something).
+fn scene_status(out: &mut Summary, label: &'static str, status: &str) {
+    if !status.is_empty() {
+        out.line(label, status);
+    }
+    out.field("scene_status", status);
+}
+
+/// `recording`: what the rig's recording kept (`null` in the JSON without one).
+fn recording_line(out: &mut Summary, r: Option<&RecordingReport>) {
+    match r {
+        Some(r) => out.row("recording", r.to_string(), "recording", recording_json(r)),
+        None => out.field("recording", Value::Null),
+    };
+}
+
+/// `world rec.`: what the world's recording kept (`null` in the JSON without one).
+fn world_recording_line(out: &mut Summary, r: Option<&WorldRecordingReport>) {
+    match r {
+        Some(r) => out.row("world rec.", r.to_string(), "world_recording", world_recording_json(r)),
+        None => out.field("world_recording", Value::Null),
+    };
+}
+
+/// The rig's recording for scripts: what it kept and what it could not.
+pub fn recording_json(r: &RecordingReport) -> Value {
+    json!({
+        "path": r.path.display().to_string(),
+        "ticks": r.ticks,
+        "samples": r.samples,
+        "models": r.models,
+        "events": r.events,
+        "bytes": r.bytes,
+        "not_kept": {
+            "total": r.lost(),
+            "telemetry_dropped": r.telemetry_dropped,
+            "queue_dropped": r.queue_dropped,
+            "write_failed": r.write_failed,
+        },
+        "error": r.error,
+    })
+}
+
+/// The world's recording (`FILE.world.mcap`) for scripts: what it kept and what it could not.
+pub fn world_recording_json(r: &WorldRecordingReport) -> Value {
+    json!({
+        "path": r.path.display().to_string(),
+        "steps": r.steps,
+        "messages": r.messages,
+        "events": r.events,
+        "bytes": r.bytes,
+        "not_kept": {
+            "total": r.dropped + r.write_failed,
+            "queue_dropped": r.dropped,
+            "write_failed": r.write_failed,
+        },
+        "error": r.error,
+    })
 }
 
 /// What a live run reports at the end.
 #[derive(Debug)]
-pub struct Summary {
+pub struct SessionSummary {
     pub device: String,
     pub scene: String,
     pub script: String,
@@ -170,120 +228,147 @@ impl FaultTally {
     }
 }
 
-impl std::fmt::Display for FaultTally {
-    /// One line per kind: `  fault        12 x device error (Timeout)`.
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl FaultTally {
+    /// One `fault` line per kind (`12 x device error (Timeout)`), and the counts for scripts.
+    pub fn lines(&self, out: &mut Summary) {
         for (what, n) in self.iter() {
-            writeln!(f, "  fault        {n} x {what}")?;
+            out.line("fault", format!("{n} x {what}"));
         }
-        Ok(())
+        let counts: Value =
+            self.iter().map(|(kind, count)| json!({ "fault": kind, "count": count })).collect();
+        out.field("faults", counts);
     }
 }
 
-impl std::fmt::Display for Summary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl SessionSummary {
+    /// The summary of a live run, with what its recordings kept.
+    pub fn summary(
+        &self,
+        recording: Option<&RecordingReport>,
+        world_recording: Option<&WorldRecordingReport>,
+    ) -> Summary {
         let c = &self.counters;
         let s = &self.stats;
-        let lat = s.lateness.percentiles();
-        let comp = s.compute.percentiles();
-        let io = s.io.percentiles();
-        writeln!(
-            f,
+        let mut out = Summary::new(format!(
             "spidar run: {:.2} s on {}, scene {}, script {}",
             self.wall_s, self.device, self.scene, self.script
-        )?;
-        if !self.rig_file.is_empty() {
-            writeln!(f, "  rig file     {}", self.rig_file)?;
-        }
-        writeln!(f, "  real time    {}", self.rt)?;
+        ));
+        out.field("command", "run")
+            .field("measured", "the live path: device, rt-loop on the real clock, scene thread")
+            .field("device", self.device.as_str())
+            .field("scene", self.scene.as_str())
+            .field("script", self.script.as_str())
+            .field("wall_s", self.wall_s);
+        rig_file(&mut out, &self.rig_file);
+        self.real_time(&mut out);
+        out.row(
+            "ticks",
+            format!("{} ({:.1} Hz), {} active", c.ticks, s.rate_hz(), c.active_ticks),
+            "ticks",
+            c.ticks,
+        );
+        out.field("rate_hz", s.rate_hz()).field("active_ticks", c.active_ticks);
+        lines::lateness(&mut out, s, c.misses);
+        lines::compute(&mut out, s, "  (per tick, both hands, excluding device I/O)");
+        let io = s.io.percentiles();
+        out.row("device I/O", io.to_string(), "device_io_s", lines::percentiles_json(&io));
+        lines::forces(&mut out, s, true);
+        safety(&mut out, c);
+        self.faults_seen.lines(&mut out);
+        self.world(&mut out);
+        out.row(
+            "dropped",
+            format!(
+                "telemetry {}, samples {} (their impulses went with the next), impulses {}, events {}",
+                c.telemetry_dropped, c.samples_dropped, c.impulses_lost, c.events_dropped
+            ),
+            "dropped",
+            json!({ "telemetry": c.telemetry_dropped, "samples": c.samples_dropped, "events": c.events_dropped }),
+        );
+        lines::end(&mut out, self.final_state, self.clean_stop, self.halted, self.signals);
+        recording_line(&mut out, recording);
+        world_recording_line(&mut out, world_recording);
+        out
+    }
+
+    /// `real time`: the loop thread's scheduling, the overrides in effect and the warnings.
+    fn real_time(&self, out: &mut Summary) {
+        let rt = &self.rt;
+        let figures = json!({
+            "policy": rt.policy,
+            "fifo": rt.fifo,
+            "memory_locked": rt.memory_locked,
+            "cpu": rt.cpu,
+            "warnings": rt.warnings,
+        });
+        out.row("real time", rt.to_string(), "real_time", figures);
         if !self.overrides.is_empty() {
-            writeln!(f, "  OVERRIDES    rig bounds exceeded on purpose: {}", self.overrides.join(", "))?;
+            out.line("OVERRIDES", format!("rig bounds exceeded on purpose: {}", self.overrides.join(", ")));
         }
-        for w in &self.rt.warnings {
-            writeln!(f, "  warning      {w}")?;
+        out.field("overrides", self.overrides.clone());
+        for w in &rt.warnings {
+            out.line("warning", w.as_str());
         }
-        writeln!(f, "  ticks        {} ({:.1} Hz), {} active", c.ticks, s.rate_hz(), c.active_ticks)?;
-        writeln!(f, "  lateness     {lat}")?;
-        writeln!(f, "  misses       {} ticks woke > 1 ms late", c.misses)?;
-        writeln!(f, "  compute      {comp}  (per tick, both hands, excluding device I/O)")?;
-        writeln!(f, "  device I/O   {io}")?;
-        writeln!(f, "  max force    left {:.2} N, right {:.2} N", s.max_force_n[0], s.max_force_n[1])?;
-        writeln!(
-            f,
-            "  tensions     {:.2} .. {:.2} N commanded",
-            if s.min_tension_n.is_finite() { s.min_tension_n } else { 0.0 },
-            s.max_tension_n
-        )?;
-        writeln!(
-            f,
-            "  safety       clamped {}/{}, infeasible {}/{}, fallback {}/{}, stiffness-limited {}/{} (left/right ticks)",
-            c.clamped[0],
-            c.clamped[1],
-            c.infeasible[0],
-            c.infeasible[1],
-            c.fallback[0],
-            c.fallback[1],
-            c.stiffness_limited[0],
-            c.stiffness_limited[1]
-        )?;
-        writeln!(
-            f,
-            "               passivity-limited {}/{} (avatar-hand contacts scaled to give back no more energy than put in)",
-            c.passivity_limited[0], c.passivity_limited[1]
-        )?;
-        writeln!(
-            f,
-            "               stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
-            c.stale, c.non_finite, c.faults, c.device_errors
-        )?;
-        write_held(f, c)?;
-        write!(f, "{}", self.faults_seen)?;
+    }
+
+    /// `scene`, `world`, `link`, `world said`: what the world did and what became of it.
+    fn world(&self, out: &mut Summary) {
+        let c = &self.counters;
         let late = self.scene_late.map_or(String::new(), |n| format!(" ({n} late)"));
-        writeln!(
-            f,
-            "  scene        {} steps{late}, {} models received, {} dropped",
-            self.scene_steps, c.models, self.models_dropped
-        )?;
-        if !self.scene_status.is_empty() {
-            writeln!(f, "               {}", self.scene_status)?;
-        }
-        writeln!(f, "  world        {}", self.world)?;
+        out.line(
+            "scene",
+            format!(
+                "{} steps{late}, {} models received, {} dropped",
+                self.scene_steps, c.models, self.models_dropped
+            ),
+        );
+        out.field("scene_steps", self.scene_steps)
+            .field("scene_late_steps", self.scene_late)
+            .field("models_received", c.models)
+            .field("models_dropped", self.models_dropped);
+        scene_status(out, "", &self.scene_status);
+        out.row("world", self.world.as_str(), "world", self.world.as_str());
         if let Some(l) = &self.link {
-            writeln!(f, "  link         {l}")?;
+            out.row("link", l.as_str(), "link", l.as_str());
         }
         if let Some(r) = &self.world_report {
-            writeln!(f, "  world said   {r}")?;
+            out.row("world said", r.as_str(), "world_said", r.as_str());
         }
-        writeln!(
-            f,
-            "  dropped      telemetry {}, samples {} (their impulses went with the next), impulses {}, events {}",
-            c.telemetry_dropped, c.samples_dropped, c.impulses_lost, c.events_dropped
-        )?;
-        write_end(f, self.final_state, self.clean_stop, self.halted, self.signals)
     }
 }
 
-/// How a loop ended, in words.
-/// The summary's last line: the final state, how the session stopped and on how many signals.
-fn write_end(
-    f: &mut std::fmt::Formatter<'_>,
-    state: Lifecycle,
-    clean_stop: bool,
-    halted: bool,
-    signals: u32,
-) -> std::fmt::Result {
-    let by = match signals {
-        0 => String::new(),
-        1 => ", on a stop signal".into(),
-        n => format!(", on {n} stop signals"),
-    };
-    write!(f, "  end          {} ({}{by})", state.name(), end_words(clean_stop, halted))
+/// A live run's `safety` lines: what the safety phase did, per hand.
+fn safety(out: &mut Summary, c: &Counters) {
+    out.row(
+        "safety",
+        format!(
+            "{}, stiffness-limited {}/{} (left/right ticks)",
+            lines::clamped_counts(c),
+            c.stiffness_limited[0],
+            c.stiffness_limited[1]
+        ),
+        "safety",
+        lines::safety_json(c),
+    );
+    out.line(
+        "",
+        format!(
+            "passivity-limited {}/{} (avatar-hand contacts scaled to give back no more energy than put in)",
+            c.passivity_limited[0], c.passivity_limited[1]
+        ),
+    );
+    out.line(
+        "",
+        format!(
+            "stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
+            c.stale, c.non_finite, c.faults, c.device_errors
+        ),
+    );
+    lines::held(out, c);
 }
 
-fn end_words(clean_stop: bool, halted: bool) -> &'static str {
-    match (clean_stop, halted) {
-        (true, false) => "forces ramped out, strings at minimum tension, device off",
-        (true, true) => "stopped at once: outputs zeroed without the ramp-out, device off",
-        (false, _) => "NOT a clean stop",
+impl std::fmt::Display for SessionSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.summary(None, None))
     }
 }

@@ -480,7 +480,7 @@ pub fn finish(
 mod tests {
     use std::sync::{Arc, Mutex};
 
-    use spidar_device::link::BulkLink;
+    use spidar_device::transport::BulkTransport;
     use spidar_device::usb::protocol::{self as p, SimpleCommand};
     use spidar_device::usb::{UsbBoard, UsbKind, UsbOpener, UsbOptions};
     use spidar_device::{DeviceError, OpenError};
@@ -496,9 +496,9 @@ mod tests {
         opens: u32,
     }
 
-    struct FakeLink(Arc<Mutex<FakeBoard>>);
+    struct FakeTransport(Arc<Mutex<FakeBoard>>);
 
-    impl BulkLink for FakeLink {
+    impl BulkTransport for FakeTransport {
         fn bulk_write(&mut self, _: u8, data: &[u8], _: Duration) -> Result<(), DeviceError> {
             let mut b = self.0.lock().unwrap();
             if b.sh4 {
@@ -538,10 +538,10 @@ mod tests {
     struct FakeBus(Arc<Mutex<FakeBoard>>);
 
     impl UsbOpener for FakeBus {
-        type Link = FakeLink;
-        fn candidates(&mut self, _: u16, _: u16) -> Result<Vec<(String, FakeLink)>, OpenError> {
+        type Link = FakeTransport;
+        fn candidates(&mut self, _: u16, _: u16) -> Result<Vec<(String, FakeTransport)>, OpenError> {
             self.0.lock().unwrap().opens += 1;
-            Ok(vec![("bus 1 addr 2".into(), FakeLink(self.0.clone()))])
+            Ok(vec![("bus 1 addr 2".into(), FakeTransport(self.0.clone()))])
         }
         fn seen(&mut self) -> String {
             String::new()

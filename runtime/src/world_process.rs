@@ -24,9 +24,9 @@ use crate::signals::Stop;
 /// The world process's options (`spidar world --help`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct WorldArgs {
-    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, a boxer file like
-    /// configs/boxer.ron, `crowd` or a crowd scene file (*crowd*.ron), `walls` (the rig check) or
-    /// a walls scene file (.ron).
+    /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, `crowd`, `walls` (the rig
+    /// check), or a file of any name that says what it is in its `kind`: a boxer file like
+    /// configs/boxer.ron, a crowd scene like configs/scene-crowd.ron or a walls scene.
     #[arg(long, default_value = "boxing")]
     pub scene: String,
     /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host
@@ -139,7 +139,7 @@ pub const ECHO_MODULO_NS: i64 = 1_000_000_000_000;
 /// sent at travel in `hands[0].pos_m.x`.
 pub fn echo_sample(tick: u64, t_s: f64) -> spidar_msg::HandSample {
     let mut s = spidar_msg::HandSample { tick, t_s, ..Default::default() };
-    s.hands[0].pos_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
+    s.hands[0].pos_world_m.x = (spidar_link::sock::realtime_ns() % ECHO_MODULO_NS) as f64;
     s
 }
 
@@ -151,7 +151,7 @@ fn run_echo(link: &mut WorldLink, stop: &Stop) {
         events.clear();
         for a in arrived.drain(..) {
             let s = a.sample;
-            let sent = s.hands[0].pos_m.x as i64;
+            let sent = s.hands[0].pos_world_m.x as i64;
             let trip = (a.arrived_ns % ECHO_MODULO_NS - sent).rem_euclid(ECHO_MODULO_NS);
             let mut m = spidar_msg::ContactModel { seq: s.tick, stamp_s: s.t_s, ..Default::default() };
             m.extra_force_n[0].x = trip as f64 * 1e-9;

@@ -15,7 +15,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use glam::DVec3;
 use rayon::prelude::*;
 use spidar_sim::character::drawn::world_joints;
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 
 mod common;
 

@@ -115,13 +115,13 @@ fn benches(c: &mut Criterion) {
 /// The narrow phase per shape pair, overlapping cases.
 fn collide_pairs(c: &mut Criterion) {
     use glam::{DMat3, DQuat};
-    use spidar_sim::collide::{collide, Hit, Pose, Shape, MAX_HITS};
-    let at = |x: f64, y: f64, z: f64| Pose { pos_m: DVec3::new(x, y, z), rot: DMat3::IDENTITY };
-    let along_x = |y: f64| Pose {
+    use spidar_sim::collide::{collide, Hit, Shape, ShapePose, MAX_HITS};
+    let at = |x: f64, y: f64, z: f64| ShapePose { pos_m: DVec3::new(x, y, z), rot: DMat3::IDENTITY };
+    let along_x = |y: f64| ShapePose {
         pos_m: DVec3::new(0.0, y, 0.0),
         rot: DMat3::from_rotation_z(std::f64::consts::FRAC_PI_2),
     };
-    let tilt = Pose {
+    let tilt = ShapePose {
         pos_m: DVec3::new(0.1, 0.6, 0.0),
         rot: DMat3::from_quat(DQuat::from_xyzw(0.1, 0.2, 0.3, 0.9).normalize()),
     };

@@ -9,7 +9,7 @@ use std::time::Instant;
 use glam::DVec3;
 use rayon::prelude::*;
 use spidar_sim::character::drawn::world_joints;
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 
 #[path = "../benches/common/mod.rs"]
 mod common;

@@ -4,9 +4,9 @@
 //! `cargo run --release -p spidar-sim --example keyframes`
 
 use glam::{DMat3, DQuat, DVec3, Vec3};
-use spidar_sim::character::keyframe::MAX_JOINTS;
 use spidar_sim::character::legs::joint_positions;
 use spidar_sim::character::scene::builtin_crowd;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_sim::collide::Shape;
 
 fn main() {

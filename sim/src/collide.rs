@@ -35,7 +35,7 @@
 
 use glam::{DMat3, DVec3};
 
-/// A collision shape in its body's frame (shape-local frame given by `Pose` below).
+/// A collision shape in its body's frame (shape-local frame given by `ShapePose` below).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
     Sphere {
@@ -56,21 +56,21 @@ pub enum Shape {
 
 /// World pose of a shape: x_world = pos_m + rot * x_local. `rot` is a proper rotation.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
+pub struct ShapePose {
     pub pos_m: DVec3,
     pub rot: DMat3,
 }
 
-impl Pose {
-    pub const IDENTITY: Pose = Pose { pos_m: DVec3::ZERO, rot: DMat3::IDENTITY };
+impl ShapePose {
+    pub const IDENTITY: ShapePose = ShapePose { pos_m: DVec3::ZERO, rot: DMat3::IDENTITY };
 
     pub fn new(pos_m: DVec3, rot: DMat3) -> Self {
-        Pose { pos_m, rot }
+        ShapePose { pos_m, rot }
     }
 
     /// Pure translation.
     pub fn at(pos_m: DVec3) -> Self {
-        Pose { pos_m, rot: DMat3::IDENTITY }
+        ShapePose { pos_m, rot: DMat3::IDENTITY }
     }
 
     #[inline]
@@ -137,7 +137,7 @@ impl Sink<'_> {
 }
 
 /// Fixed-capacity output, no allocation: returns the number of hits written into `out`.
-pub fn collide(a: &Shape, pa: &Pose, b: &Shape, pb: &Pose, out: &mut [Hit; MAX_HITS]) -> usize {
+pub fn collide(a: &Shape, pa: &ShapePose, b: &Shape, pb: &ShapePose, out: &mut [Hit; MAX_HITS]) -> usize {
     let swap = match rank(a).cmp(&rank(b)) {
         core::cmp::Ordering::Greater => true,
         core::cmp::Ordering::Less => false,
@@ -174,7 +174,7 @@ fn rank(s: &Shape) -> u8 {
 }
 
 /// Total order on (pose, shape) used to pick one evaluation order for two shapes of the same kind.
-fn key_greater(a: &Shape, pa: &Pose, b: &Shape, pb: &Pose) -> bool {
+fn key_greater(a: &Shape, pa: &ShapePose, b: &Shape, pb: &ShapePose) -> bool {
     let ka = sort_key(a, pa);
     let kb = sort_key(b, pb);
     for (x, y) in ka.iter().zip(kb.iter()) {
@@ -187,7 +187,7 @@ fn key_greater(a: &Shape, pa: &Pose, b: &Shape, pb: &Pose) -> bool {
     false
 }
 
-fn sort_key(s: &Shape, p: &Pose) -> [f64; 15] {
+fn sort_key(s: &Shape, p: &ShapePose) -> [f64; 15] {
     let (s0, s1, s2) = match *s {
         Shape::Sphere { radius_m } => (radius_m, 0.0, 0.0),
         Shape::Capsule { half_length_m, radius_m } => (half_length_m, radius_m, 0.0),
@@ -199,7 +199,7 @@ fn sort_key(s: &Shape, p: &Pose) -> [f64; 15] {
 }
 
 /// `a` has rank <= `b`'s rank.
-fn collide_ordered(a: &Shape, pa: &Pose, b: &Shape, pb: &Pose, out: &mut [Hit; MAX_HITS]) -> usize {
+fn collide_ordered(a: &Shape, pa: &ShapePose, b: &Shape, pb: &ShapePose, out: &mut [Hit; MAX_HITS]) -> usize {
     let mut sink = Sink { out, n: 0 };
     match (*a, *b) {
         (Shape::Sphere { radius_m: ra }, Shape::Sphere { radius_m: rb }) => {
@@ -318,7 +318,7 @@ fn unit_axis(i: usize) -> DVec3 {
 }
 
 /// The unit normal of a plane shape at pose `p` (its local +y; +y if that has no length).
-pub fn plane_normal(p: &Pose) -> DVec3 {
+pub fn plane_normal(p: &ShapePose) -> DVec3 {
     let n = p.rot.y_axis;
     let len = n.length();
     if len > TINY_M {
@@ -431,7 +431,7 @@ fn capsule_capsule(sink: &mut Sink, a: Seg, ra: f64, b: Seg, rb: f64) {
     }
 }
 
-fn sphere_box(sink: &mut Sink, c: DVec3, r: f64, pb: &Pose, h: DVec3) {
+fn sphere_box(sink: &mut Sink, c: DVec3, r: f64, pb: &ShapePose, h: DVec3) {
     let p = pb.local_point(c);
     let q = clamp3(p, h);
     let diff = p - q;
@@ -536,7 +536,7 @@ fn crossing(t0: f64, g0: f64, t1: f64, g1: f64, level: f64) -> f64 {
 #[allow(clippy::too_many_arguments)]
 fn capsule_face_hits(
     sink: &mut Sink,
-    pb: &Pose,
+    pb: &ShapePose,
     c: DVec3,
     d: DVec3,
     hl: f64,
@@ -593,7 +593,7 @@ fn capsule_face_hits(
     true
 }
 
-fn capsule_box(sink: &mut Sink, pa: &Pose, hl: f64, r: f64, pb: &Pose, h: DVec3) {
+fn capsule_box(sink: &mut Sink, pa: &ShapePose, hl: f64, r: f64, pb: &ShapePose, h: DVec3) {
     let c = pb.local_point(pa.pos_m);
     let d = tmul(&pb.rot, pa.rot.y_axis);
     let scale = 1.0 + h.max_element() + hl;
@@ -792,7 +792,7 @@ impl Candidates {
     }
 }
 
-fn box_box(sink: &mut Sink, pa: &Pose, ha: DVec3, pb: &Pose, hb: DVec3) {
+fn box_box(sink: &mut Sink, pa: &ShapePose, ha: DVec3, pb: &ShapePose, hb: DVec3) {
     // Everything in A's frame: A centred at the origin with identity axes.
     let rot = pa.rot.transpose() * pb.rot;
     let t = pa.local_point(pb.pos_m);
@@ -903,7 +903,7 @@ fn box_box(sink: &mut Sink, pa: &Pose, ha: DVec3, pb: &Pose, hb: DVec3) {
     }
 }
 
-fn box_plane(sink: &mut Sink, pa: &Pose, h: DVec3, pp: &Pose) {
+fn box_plane(sink: &mut Sink, pa: &ShapePose, h: DVec3, pp: &ShapePose) {
     box_plane_n(sink, pa, h, plane_normal(pp), pp.pos_m);
 }
 
@@ -912,7 +912,7 @@ fn box_plane(sink: &mut Sink, pa: &Pose, h: DVec3, pp: &Pose) {
 /// floor every step, where the normal's normalisation (a division) was most of the cost.
 pub fn box_on_plane(
     half_extents_m: DVec3,
-    pa: &Pose,
+    pa: &ShapePose,
     normal: DVec3,
     plane_m: DVec3,
     out: &mut [Hit; MAX_HITS],
@@ -923,7 +923,7 @@ pub fn box_on_plane(
 }
 
 #[inline]
-fn box_plane_n(sink: &mut Sink, pa: &Pose, h: DVec3, n: DVec3, plane_m: DVec3) {
+fn box_plane_n(sink: &mut Sink, pa: &ShapePose, h: DVec3, n: DVec3, plane_m: DVec3) {
     if h.x > 0.0 && h.y > 0.0 && h.z > 0.0 {
         // The usual box: the eight corners in the order of the general loop below, unrolled, and
         // a corner above the plane (which the sink would drop) skipped before its point is made.
@@ -963,7 +963,7 @@ mod tests {
 
     const EPS: f64 = 1e-9;
 
-    fn hits(a: &Shape, pa: &Pose, b: &Shape, pb: &Pose) -> Vec<Hit> {
+    fn hits(a: &Shape, pa: &ShapePose, b: &Shape, pb: &ShapePose) -> Vec<Hit> {
         let mut out = [Hit::ZERO; MAX_HITS];
         let n = collide(a, pa, b, pb, &mut out);
         assert!(n <= MAX_HITS);
@@ -973,20 +973,21 @@ mod tests {
     #[test]
     fn box_on_plane_gives_the_same_hits_as_collide() {
         let mut touching = 0;
-        let tilted = Pose::new(DVec3::new(0.3, -0.2, 0.1), DMat3::from_quat(DQuat::from_rotation_z(0.2)));
+        let tilted =
+            ShapePose::new(DVec3::new(0.3, -0.2, 0.1), DMat3::from_quat(DQuat::from_rotation_z(0.2)));
         for (k, pose) in [
-            Pose::at(DVec3::new(2.0, 0.24, -1.0)),
-            Pose::new(
+            ShapePose::at(DVec3::new(2.0, 0.24, -1.0)),
+            ShapePose::new(
                 DVec3::new(0.1, 0.2, 0.0),
                 DMat3::from_quat(DQuat::from_euler(glam::EulerRot::XYZ, 0.3, 0.5, 0.2)),
             ),
-            Pose::at(DVec3::new(0.0, 2.0, 0.0)),
+            ShapePose::at(DVec3::new(0.0, 2.0, 0.0)),
         ]
         .iter()
         .enumerate()
         {
             for half in [DVec3::new(0.5, 0.25, 0.3), DVec3::new(0.5, 0.0, 0.3)] {
-                for plane in [Pose::IDENTITY, tilted] {
+                for plane in [ShapePose::IDENTITY, tilted] {
                     let want = hits(&cuboid(half.x, half.y, half.z), pose, &Shape::Plane, &plane);
                     let mut out = [Hit::ZERO; MAX_HITS];
                     let n = box_on_plane(half, pose, plane_normal(&plane), plane.pos_m, &mut out);
@@ -1011,16 +1012,16 @@ mod tests {
     fn v(x: f64, y: f64, z: f64) -> DVec3 {
         DVec3::new(x, y, z)
     }
-    fn at(x: f64, y: f64, z: f64) -> Pose {
-        Pose::at(v(x, y, z))
+    fn at(x: f64, y: f64, z: f64) -> ShapePose {
+        ShapePose::at(v(x, y, z))
     }
     /// Local y (a capsule's axis) along world x.
-    fn along_x(x: f64, y: f64, z: f64) -> Pose {
-        Pose::new(v(x, y, z), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2))
+    fn along_x(x: f64, y: f64, z: f64) -> ShapePose {
+        ShapePose::new(v(x, y, z), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2))
     }
     /// Local y along world z.
-    fn along_z(x: f64, y: f64, z: f64) -> Pose {
-        Pose::new(v(x, y, z), DMat3::from_rotation_x(core::f64::consts::FRAC_PI_2))
+    fn along_z(x: f64, y: f64, z: f64) -> ShapePose {
+        ShapePose::new(v(x, y, z), DMat3::from_rotation_x(core::f64::consts::FRAC_PI_2))
     }
 
     #[track_caller]
@@ -1093,13 +1094,13 @@ mod tests {
         close(h[0].normal.length(), 1.0);
         close(h[0].normal.y, 0.0);
         close(h[0].depth_m, 0.6);
-        assert!(hits(&sphere(0.5), &at(0.0, 2.1, 0.0), &capsule(1.0, 0.5), &Pose::IDENTITY).is_empty());
+        assert!(hits(&sphere(0.5), &at(0.0, 2.1, 0.0), &capsule(1.0, 0.5), &ShapePose::IDENTITY).is_empty());
     }
 
     #[test]
     fn sphere_box_face_edge_corner_inside() {
         let b = cuboid(1.0, 1.0, 1.0);
-        let o = Pose::IDENTITY;
+        let o = ShapePose::IDENTITY;
         let h = hits(&sphere(1.0), &at(1.5, 0.0, 0.0), &b, &o);
         one(&h, v(0.75, 0.0, 0.0), DVec3::X, 0.5);
         // Edge (x = y = 1): distance 0.2 * sqrt 2.
@@ -1116,7 +1117,7 @@ mod tests {
         let h = hits(&sphere(0.1), &at(0.8, 0.1, -0.3), &b, &o);
         one(&h, v(0.85, 0.1, -0.3), DVec3::X, 0.3);
         // Rotated, translated box: 45 degrees about z, sphere straight above.
-        let pb = Pose::new(v(2.0, 0.0, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
+        let pb = ShapePose::new(v(2.0, 0.0, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
         let top = 2f64.sqrt(); // top corner edge of the rotated box
         let h = hits(&sphere(0.5), &at(2.0, top + 0.4, 0.0), &b, &pb);
         one(&h, v(2.0, top - 0.05, 0.0), DVec3::Y, 0.1);
@@ -1157,11 +1158,12 @@ mod tests {
             hits(&capsule(1.0, 0.5), &along_x(0.0, 0.9, 0.0), &capsule(1.0, 0.5), &along_x(1.5, 0.0, 0.0));
         set(&h, DVec3::Y, &[(v(0.5, 0.45, 0.0), 0.1), (v(1.0, 0.45, 0.0), 0.1)]);
         // Full overlap, antiparallel axes, different lengths.
-        let flip = Pose::new(v(0.0, 0.0, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_2));
+        let flip = ShapePose::new(v(0.0, 0.0, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_2));
         let h = hits(&capsule(0.5, 0.3), &along_x(0.2, 0.0, 0.5), &capsule(2.0, 0.3), &flip);
         set(&h, DVec3::Z, &[(v(-0.3, 0.0, 0.25), 0.1), (v(0.7, 0.0, 0.25), 0.1)]);
         // Nearly parallel (1e-4 rad) still gives two hits.
-        let tilt = Pose::new(v(0.0, 0.9, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2 + 1e-4));
+        let tilt =
+            ShapePose::new(v(0.0, 0.9, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2 + 1e-4));
         let h = hits(&capsule(1.0, 0.5), &tilt, &capsule(1.0, 0.5), &along_x(0.0, 0.0, 0.0));
         assert_eq!(h.len(), 2, "{h:?}");
         // Collinear, overlapping cores (coincident axes): finite normal perpendicular to the axis.
@@ -1178,7 +1180,7 @@ mod tests {
     #[test]
     fn capsule_box_standing_lying_edge_and_penetrating() {
         let b = cuboid(1.0, 1.0, 1.0);
-        let o = Pose::IDENTITY;
+        let o = ShapePose::IDENTITY;
         // Standing on the top face: bottom end core at y = 1.3.
         let h = hits(&capsule(1.0, 0.5), &at(0.0, 2.3, 0.0), &b, &o);
         one(&h, v(0.0, 0.9, 0.0), DVec3::Y, 0.2);
@@ -1189,7 +1191,8 @@ mod tests {
         let h = hits(&capsule(3.0, 0.5), &along_x(0.0, 1.4, 0.0), &b, &o);
         set(&h, DVec3::Y, &[(v(-1.0, 0.95, 0.0), 0.1), (v(1.0, 0.95, 0.0), 0.1)]);
         // Tilted so one end lifts clear: a single hit at the low end.
-        let tilt = Pose::new(v(0.0, 1.6, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2 + 0.5));
+        let tilt =
+            ShapePose::new(v(0.0, 1.6, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_2 + 0.5));
         let h = hits(&capsule(0.5, 0.5), &tilt, &b, &o);
         assert_eq!(h.len(), 1, "{h:?}");
         close3(h[0].normal, DVec3::Y);
@@ -1203,14 +1206,14 @@ mod tests {
         let e = |z: f64| (v(1.0, 1.0, z) + n * (0.5 * (d - 0.5)), 0.5 - d);
         set(&h, n, &[e(-1.0), e(1.0)]);
         // Across the edge at an angle: one hit.
-        let skew = Pose::new(v(1.3, 1.3, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
+        let skew = ShapePose::new(v(1.3, 1.3, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
         let h = hits(&capsule(2.0, 0.5), &skew, &b, &o);
         one(&h, v(1.0, 1.0, 0.0) + n * (0.5 * (d - 0.5)), n, 0.5 - d);
         // Core inside the box just under the top face: the face axis, two hits, depth r + 0.1.
         let h = hits(&capsule(0.5, 0.2), &along_x(0.0, 0.9, 0.0), &b, &o);
         set(&h, DVec3::Y, &[(v(-0.5, 0.85, 0.0), 0.3), (v(0.5, 0.85, 0.0), 0.3)]);
         // Core piercing an edge region diagonally: the edge-cross axis (1, 1, 0)/sqrt 2.
-        let diag = Pose::new(v(0.95, 0.95, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
+        let diag = ShapePose::new(v(0.95, 0.95, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
         let h = hits(&capsule(0.3, 0.1), &diag, &b, &o);
         assert_eq!(h.len(), 1, "{h:?}");
         close3(h[0].normal, n);
@@ -1225,8 +1228,8 @@ mod tests {
     fn capsule_lying_on_rotated_box_face_gives_two_hits() {
         // Box rotated about y by 30 degrees; capsule lies along the box's local x on its top face.
         let r = DMat3::from_rotation_y(0.5);
-        let pb = Pose::new(v(1.0, -1.0, 2.0), r);
-        let pa = Pose::new(
+        let pb = ShapePose::new(v(1.0, -1.0, 2.0), r);
+        let pa = ShapePose::new(
             pb.pos_m + r * v(0.1, 0.5 + 0.3 - 0.05, 0.0),
             r * DMat3::from_rotation_z(core::f64::consts::FRAC_PI_2),
         );
@@ -1240,11 +1243,13 @@ mod tests {
 
     #[test]
     fn box_box_stacked_gives_the_four_corners() {
-        let h = hits(&cuboid(0.5, 0.5, 0.5), &at(0.2, 1.4, 0.1), &cuboid(1.0, 1.0, 1.0), &Pose::IDENTITY);
+        let h =
+            hits(&cuboid(0.5, 0.5, 0.5), &at(0.2, 1.4, 0.1), &cuboid(1.0, 1.0, 1.0), &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (v(0.2 + x, 0.95, 0.1 + z), 0.1);
         set(&h, DVec3::Y, &[c(-0.5, -0.5), c(-0.5, 0.5), c(0.5, -0.5), c(0.5, 0.5)]);
         // Same-size boxes stacked exactly (vertices on the other's side faces).
-        let h = hits(&cuboid(1.0, 1.0, 1.0), &at(0.0, 1.95, 0.0), &cuboid(1.0, 1.0, 1.0), &Pose::IDENTITY);
+        let h =
+            hits(&cuboid(1.0, 1.0, 1.0), &at(0.0, 1.95, 0.0), &cuboid(1.0, 1.0, 1.0), &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (v(x, 0.975, z), 0.05);
         set(&h, DVec3::Y, &[c(-1.0, -1.0), c(-1.0, 1.0), c(1.0, -1.0), c(1.0, 1.0)]);
         // The small box underneath: B's top corners inside A; normal from B (below) up to A.
@@ -1256,7 +1261,8 @@ mod tests {
     #[test]
     fn box_box_crossed_bars_use_the_edge_crossings() {
         // No vertex of either bar is inside the other: the contact square is x, z in [-0.5, 0.5].
-        let h = hits(&cuboid(2.0, 0.5, 0.5), &at(0.0, 1.4, 0.0), &cuboid(0.5, 1.0, 2.0), &Pose::IDENTITY);
+        let h =
+            hits(&cuboid(2.0, 0.5, 0.5), &at(0.0, 1.4, 0.0), &cuboid(0.5, 1.0, 2.0), &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (v(x, 0.95, z), 0.1);
         set(&h, DVec3::Y, &[c(-0.5, -0.5), c(-0.5, 0.5), c(0.5, -0.5), c(0.5, 0.5)]);
     }
@@ -1264,12 +1270,13 @@ mod tests {
     #[test]
     fn box_box_overhanging_and_rotated_on_top() {
         // Half overhanging: contact rectangle x in [0.5, 1], z in [-0.5, 0.5].
-        let h = hits(&cuboid(0.5, 0.5, 0.5), &at(1.0, 1.4, 0.0), &cuboid(1.0, 1.0, 1.0), &Pose::IDENTITY);
+        let h =
+            hits(&cuboid(0.5, 0.5, 0.5), &at(1.0, 1.4, 0.0), &cuboid(1.0, 1.0, 1.0), &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (v(x, 0.95, z), 0.1);
         set(&h, DVec3::Y, &[c(0.5, -0.5), c(0.5, 0.5), c(1.0, -0.5), c(1.0, 0.5)]);
         // Same-size square rotated 45 degrees about y on top: the contact is an octagon.
-        let pa = Pose::new(v(0.0, 1.9, 0.0), DMat3::from_rotation_y(core::f64::consts::FRAC_PI_4));
-        let h = hits(&cuboid(1.0, 1.0, 1.0), &pa, &cuboid(1.0, 1.0, 1.0), &Pose::IDENTITY);
+        let pa = ShapePose::new(v(0.0, 1.9, 0.0), DMat3::from_rotation_y(core::f64::consts::FRAC_PI_4));
+        let h = hits(&cuboid(1.0, 1.0, 1.0), &pa, &cuboid(1.0, 1.0, 1.0), &ShapePose::IDENTITY);
         assert_eq!(h.len(), 8, "{h:?}");
         let k = 2f64.sqrt() - 1.0;
         for x in &h {
@@ -1293,8 +1300,9 @@ mod tests {
         // A: cube rotated 45 degrees about z (lowest edge along z); B: rotated 45 degrees about x (top
         // edge along x). The edges cross at x = z = 0 with 0.1 overlap along y.
         let s2 = 2f64.sqrt();
-        let pa = Pose::new(v(0.0, 2.0 * s2 - 0.1, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
-        let pb = Pose::new(DVec3::ZERO, DMat3::from_rotation_x(core::f64::consts::FRAC_PI_4));
+        let pa =
+            ShapePose::new(v(0.0, 2.0 * s2 - 0.1, 0.0), DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4));
+        let pb = ShapePose::new(DVec3::ZERO, DMat3::from_rotation_x(core::f64::consts::FRAC_PI_4));
         let h = hits(&cuboid(1.0, 1.0, 1.0), &pa, &cuboid(1.0, 1.0, 1.0), &pb);
         one(&h, v(0.0, s2 - 0.05, 0.0), DVec3::Y, 0.1);
     }
@@ -1302,7 +1310,7 @@ mod tests {
     #[test]
     fn identical_boxes_are_finite() {
         let b = cuboid(0.5, 0.2, 0.3);
-        let p = Pose::new(v(1.0, 2.0, 3.0), DMat3::from_rotation_y(0.3));
+        let p = ShapePose::new(v(1.0, 2.0, 3.0), DMat3::from_rotation_y(0.3));
         let h = hits(&b, &p, &b, &p);
         assert!(!h.is_empty());
         for x in &h {
@@ -1316,7 +1324,7 @@ mod tests {
 
     #[test]
     fn plane_sphere_and_capsule() {
-        let g = Pose::IDENTITY;
+        let g = ShapePose::IDENTITY;
         let h = hits(&sphere(0.5), &at(1.0, 0.4, 2.0), &Shape::Plane, &g);
         one(&h, v(1.0, -0.05, 2.0), DVec3::Y, 0.1);
         // Below the surface entirely: depth r + distance below.
@@ -1333,45 +1341,45 @@ mod tests {
         one(&h, v(1.0, -0.05, 2.0), -DVec3::Y, 0.1);
         // Tilted plane through (0, 1, 0) with normal (1, 1, 0)/sqrt 2.
         let n = v(1.0, 1.0, 0.0).normalize();
-        let tilted = Pose::new(v(0.0, 1.0, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_4));
+        let tilted = ShapePose::new(v(0.0, 1.0, 0.0), DMat3::from_rotation_z(-core::f64::consts::FRAC_PI_4));
         let c = v(0.0, 1.0, 0.0) + n * 0.4;
-        let h = hits(&sphere(0.5), &Pose::at(c), &Shape::Plane, &tilted);
+        let h = hits(&sphere(0.5), &ShapePose::at(c), &Shape::Plane, &tilted);
         one(&h, c - n * 0.45, n, 0.1);
         assert!(hits(&sphere(0.5), &at(0.0, 0.5, 0.0), &Shape::Plane, &g).is_empty());
     }
 
     #[test]
     fn box_resting_on_plane_gives_its_four_bottom_corners() {
-        let h = hits(&cuboid(0.5, 0.25, 0.3), &at(2.0, 0.24, -1.0), &Shape::Plane, &Pose::IDENTITY);
+        let h = hits(&cuboid(0.5, 0.25, 0.3), &at(2.0, 0.24, -1.0), &Shape::Plane, &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (v(2.0 + x, -0.005, -1.0 + z), 0.01);
         set(&h, DVec3::Y, &[c(-0.5, -0.3), c(-0.5, 0.3), c(0.5, -0.3), c(0.5, 0.3)]);
         // Rotated about the vertical: still four, at the rotated corners.
         let r = DMat3::from_rotation_y(0.7);
-        let pa = Pose::new(v(0.0, 0.24, 0.0), r);
-        let h = hits(&cuboid(0.5, 0.25, 0.3), &pa, &Shape::Plane, &Pose::IDENTITY);
+        let pa = ShapePose::new(v(0.0, 0.24, 0.0), r);
+        let h = hits(&cuboid(0.5, 0.25, 0.3), &pa, &Shape::Plane, &ShapePose::IDENTITY);
         let c = |x: f64, z: f64| (r * v(x, 0.0, z) + v(0.0, -0.005, 0.0), 0.01);
         set(&h, DVec3::Y, &[c(-0.5, -0.3), c(-0.5, 0.3), c(0.5, -0.3), c(0.5, 0.3)]);
         // Fully sunk: all eight vertices.
         assert_eq!(
-            hits(&cuboid(0.5, 0.25, 0.3), &at(0.0, -2.0, 0.0), &Shape::Plane, &Pose::IDENTITY).len(),
+            hits(&cuboid(0.5, 0.25, 0.3), &at(0.0, -2.0, 0.0), &Shape::Plane, &ShapePose::IDENTITY).len(),
             8
         );
         // Balanced on one edge (45 degrees about z): two hits.
-        let pa = Pose::new(
+        let pa = ShapePose::new(
             v(0.0, 0.5 * 2f64.sqrt() - 0.01, 0.0),
             DMat3::from_rotation_z(core::f64::consts::FRAC_PI_4),
         );
-        assert_eq!(hits(&cuboid(0.5, 0.5, 0.5), &pa, &Shape::Plane, &Pose::IDENTITY).len(), 2);
+        assert_eq!(hits(&cuboid(0.5, 0.5, 0.5), &pa, &Shape::Plane, &ShapePose::IDENTITY).len(), 2);
         // A flat (zero-height) box: four distinct corners, not eight.
         assert_eq!(
-            hits(&cuboid(0.5, 0.0, 0.3), &at(0.0, -0.1, 0.0), &Shape::Plane, &Pose::IDENTITY).len(),
+            hits(&cuboid(0.5, 0.0, 0.3), &at(0.0, -0.1, 0.0), &Shape::Plane, &ShapePose::IDENTITY).len(),
             4
         );
     }
 
     #[test]
     fn plane_plane_is_empty() {
-        assert!(hits(&Shape::Plane, &Pose::IDENTITY, &Shape::Plane, &at(0.0, 1.0, 0.0)).is_empty());
+        assert!(hits(&Shape::Plane, &ShapePose::IDENTITY, &Shape::Plane, &at(0.0, 1.0, 0.0)).is_empty());
     }
 
     #[test]
@@ -1389,7 +1397,7 @@ mod tests {
         let p = at(f64::NAN, 0.0, 0.0);
         for s in [sphere(1.0), capsule(1.0, 1.0), cuboid(1.0, 1.0, 1.0), Shape::Plane] {
             for t in [sphere(1.0), capsule(1.0, 1.0), cuboid(1.0, 1.0, 1.0), Shape::Plane] {
-                assert!(hits(&s, &p, &t, &Pose::IDENTITY).is_empty());
+                assert!(hits(&s, &p, &t, &ShapePose::IDENTITY).is_empty());
             }
         }
     }
@@ -1407,9 +1415,9 @@ mod tests {
         })
     }
 
-    fn any_pose() -> impl Strategy<Value = Pose> {
+    fn any_pose() -> impl Strategy<Value = ShapePose> {
         (-2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64, any_rot())
-            .prop_map(|(x, y, z, r)| Pose::new(v(x, y, z), r))
+            .prop_map(|(x, y, z, r)| ShapePose::new(v(x, y, z), r))
     }
 
     fn solid() -> impl Strategy<Value = Shape> {
@@ -1437,7 +1445,7 @@ mod tests {
         ]
     }
 
-    fn degenerate_pose() -> impl Strategy<Value = Pose> {
+    fn degenerate_pose() -> impl Strategy<Value = ShapePose> {
         let coord = prop_oneof![Just(0.0), Just(0.5), Just(1.0), -2.0..2.0f64];
         let rot = prop_oneof![
             Just(DMat3::IDENTITY),
@@ -1445,7 +1453,7 @@ mod tests {
             Just(DMat3::from_rotation_x(core::f64::consts::FRAC_PI_2)),
             any_rot(),
         ];
-        (coord.clone(), coord.clone(), coord, rot).prop_map(|(x, y, z, r)| Pose::new(v(x, y, z), r))
+        (coord.clone(), coord.clone(), coord, rot).prop_map(|(x, y, z, r)| ShapePose::new(v(x, y, z), r))
     }
 
     fn deepest(h: &[Hit]) -> Hit {
@@ -1487,7 +1495,7 @@ mod tests {
         ) {
             let dir = DVec3::from(dir).try_normalize().unwrap_or(DVec3::X);
             let gap = bounding_radius(&a) + bounding_radius(&b) + margin;
-            let pb = Pose::new(pa.pos_m + dir * gap, rb);
+            let pb = ShapePose::new(pa.pos_m + dir * gap, rb);
             prop_assert!(hits(&a, &pa, &b, &pb).is_empty());
             prop_assert!(hits(&b, &pb, &a, &pa).is_empty());
         }
@@ -1500,13 +1508,13 @@ mod tests {
                 return Ok(());
             }
             // Pull b halfway toward a so that most cases touch.
-            let pb = Pose::new((pa.pos_m + pb.pos_m) * 0.5, pb.rot);
+            let pb = ShapePose::new((pa.pos_m + pb.pos_m) * 0.5, pb.rot);
             let h = hits(&a, &pa, &b, &pb);
             if h.is_empty() {
                 return Ok(());
             }
             let top = deepest(&h);
-            let out = Pose::new(pa.pos_m + top.normal * (top.depth_m + 1e-7), pa.rot);
+            let out = ShapePose::new(pa.pos_m + top.normal * (top.depth_m + 1e-7), pa.rot);
             let after = hits(&a, &out, &b, &pb);
             prop_assert!(after.iter().all(|x| x.depth_m < 1e-9), "{:?} then {:?}", top, after);
             if top.depth_m > 1e-5 {
@@ -1514,7 +1522,7 @@ mod tests {
                 // EDGE_AXIS_REL), so its depth may be up to 5% long; everything else is exact.
                 let capsule_box = matches!((a, b), (Shape::Capsule { .. }, Shape::Box { .. }) | (Shape::Box { .. }, Shape::Capsule { .. }));
                 let f = if capsule_box { 0.94 } else { 0.99 };
-                let part = Pose::new(pa.pos_m + top.normal * (top.depth_m * f), pa.rot);
+                let part = ShapePose::new(pa.pos_m + top.normal * (top.depth_m * f), pa.rot);
                 let still = hits(&a, &part, &b, &pb);
                 prop_assert!(!still.is_empty(), "{:?}", top);
                 prop_assert!(deepest(&still).depth_m <= (1.0 - f) * top.depth_m + 1e-9, "{:?} then {:?}", top, still);
@@ -1529,7 +1537,7 @@ mod tests {
             hb in (0.05..1.5f64, 0.05..1.5f64, 0.05..1.5f64), pb in any_pose()
         ) {
             let (a, b) = (cuboid(ha.0, ha.1, ha.2), cuboid(hb.0, hb.1, hb.2));
-            let pb = Pose::new((pa.pos_m + pb.pos_m) * 0.5, pb.rot);
+            let pb = ShapePose::new((pa.pos_m + pb.pos_m) * 0.5, pb.rot);
             let h = hits(&a, &pa, &b, &pb);
             if h.is_empty() {
                 return Ok(());
@@ -1545,7 +1553,7 @@ mod tests {
             // Bisect for the translation along the normal that just separates: it must be >= depth.
             for _ in 0..60 {
                 let mid = 0.5 * (lo + hi);
-                let p = Pose::new(pa.pos_m + top.normal * mid, pa.rot);
+                let p = ShapePose::new(pa.pos_m + top.normal * mid, pa.rot);
                 if hits(&a, &p, &b, &pb).is_empty() { hi = mid } else { lo = mid }
             }
             prop_assert!(hi >= top.depth_m - 1e-9);

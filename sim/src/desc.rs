@@ -5,7 +5,7 @@
 //! each with the joint to its parent, a mass, and collision shapes. A *scene file*
 //! (`configs/scene-boxing.ron`) sets the step, gravity and contact gains, places static scenery,
 //! and instantiates body files as named actors. Gains may be absolute or "rates" (fractions of the
-//! critical gain, `reference/spidar.md` section 6): `K = 2 rate m / dt^2`, `D = rate m / dt`.
+//! critical gain, `docs/reference.md` section 4): `K = 2 rate m / dt^2`, `D = rate m / dt`.
 //!
 //! Must never: accept a file it cannot build faithfully. Every error names the file, line,
 //! column and field and says what to change.
@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
 use serde::Deserialize;
-use spidar_config as config;
+use spidar_config::{self as config, At, Bound, Checker, ConfigError};
 
-use crate::collide::{Pose, Shape};
+use crate::collide::{Shape, ShapePose};
 use crate::joint::{write_quat, JointKind, MAX_JOINT_DOF};
 use crate::model::{
     box_inertia, ellipsoid_inertia, shape_bound, Articulation, Body, ContactParams, LimitParams, Model, Part,
@@ -303,200 +303,139 @@ pub struct SceneFile {
     pub actors: Vec<ActorDesc>,
 }
 
-/// Where a description's text came from, for error messages and relative paths.
-struct Src<'a> {
-    text: &'a str,
-    origin: &'a str,
-}
-
-impl Src<'_> {
-    fn err(&self, field: &str, key: &str, occurrence: usize, message: String) -> SimError {
-        SimError::Config(config::invalid(self.text, self.origin, field, key, occurrence, message))
-    }
-}
-
-/// Parses and validates a body file.
+/// Parses and validates a body file: the step its gain rates refer to, then each link's place in
+/// the tree, its joint, its mass and its shapes, each by its own function.
 pub fn parse_body(text: &str, origin: &str) -> Result<BodyFile, SimError> {
     let f: BodyFile = config::parse_kind(text, origin, config::FileKind::Body)?;
-    let src = Src { text, origin };
-    config::check_version(text, origin, f.version, 1)?;
-    if !(f.gain_dt_s > 0.0 && f.gain_dt_s <= 1.0) {
-        return Err(src.err(
-            "gain_dt_s",
-            "gain_dt_s",
-            0,
-            format!("must be in (0, 1] s, got {}", f.gain_dt_s),
-        ));
-    }
-    if f.links.is_empty() || f.links.len() > LINKS_MAX {
-        return Err(src.err(
-            "links",
-            "links",
-            0,
-            format!("a body needs 1 to {LINKS_MAX} links, got {}", f.links.len()),
-        ));
-    }
-    let mut shape_seen = 0;
-    for (i, l) in f.links.iter().enumerate() {
-        let at = |field: &str| format!("links[{i}].{field}");
-        match (&l.parent, i) {
-            (None, 0) => {}
-            (None, _) => {
-                return Err(src.err(
-                    &at("parent"),
-                    "parent",
-                    i,
-                    "only the first link may be the root".into(),
-                ));
-            }
-            (Some(_), 0) => {
-                return Err(src.err(
-                    &at("parent"),
-                    "parent",
-                    i,
-                    "the first link is the root: parent: None".into(),
-                ))
-            }
-            (Some(p), _) => {
-                if !f.links[..i].iter().any(|o| &o.name == p) {
-                    return Err(src.err(
-                        &at("parent"),
-                        "parent",
-                        i,
-                        format!("no earlier link is named {p:?}; list parents before their children"),
-                    ));
-                }
-            }
-        }
-        if f.links[..i].iter().any(|o| o.name == l.name) {
-            return Err(src.err(&at("name"), "name", i, format!("link name {:?} is used twice", l.name)));
-        }
-        let nv = l.joint.kind.nv();
-        let want = match l.joint.kind {
-            JointKind::Free | JointKind::Ball => 3,
-            _ => nv,
-        };
-        if !l.joint.default_deg.is_empty() && l.joint.default_deg.len() != want {
-            return Err(src.err(
-                &at("joint.default_deg"),
-                "default_deg",
-                count_before(text, "default_deg", i, &f),
-                format!(
-                    "a {} joint takes {want} default values, got {}",
-                    l.joint.kind.name(),
-                    l.joint.default_deg.len()
-                ),
-            ));
-        }
-        match l.joint.kind {
-            JointKind::Universal { axis1, axis2 }
-                if (axis1.length() - 1.0).abs() > 1e-6 || (axis2.length() - 1.0).abs() > 1e-6 =>
-            {
-                return Err(src.err(&at("joint.kind"), "kind", i, "joint axes must be unit vectors".into()));
-            }
-            JointKind::Revolute { axis } if (axis.length() - 1.0).abs() > 1e-6 => {
-                return Err(src.err(&at("joint.kind"), "kind", i, "joint axis must be a unit vector".into()));
-            }
-            JointKind::Free if i != 0 => {
-                return Err(src.err(
-                    &at("joint.kind"),
-                    "kind",
-                    i,
-                    "only the root may have a free joint".into(),
-                ));
-            }
-            _ => {}
-        }
-        if !bounded(l.joint.anchor_m, POSITION_MAX_M) {
-            return Err(src.err(
-                &at("joint.anchor_m"),
-                "anchor_m",
-                i,
-                format!("must be finite and within {POSITION_MAX_M} m, got {}", l.joint.anchor_m),
-            ));
-        }
-        if l.joint.default_deg.iter().any(|v| !v.is_finite()) {
-            return Err(src.err(
-                &at("joint.default_deg"),
-                "default_deg",
-                count_before(text, "default_deg", i, &f),
-                "default angles must be finite".into(),
-            ));
-        }
-        let gain_ok = |g: Gain| g.value() >= 0.0 && g.value() <= GAIN_MAX;
-        if !(gain_ok(l.joint.stiffness) && gain_ok(l.joint.damping)) {
-            return Err(src.err(
-                &at("joint.stiffness"),
-                "stiffness",
-                i,
-                format!("gains must be >= 0 and at most {GAIN_MAX:e}"),
-            ));
-        }
-        if [l.joint.linear_stiffness, l.joint.linear_damping].iter().flatten().any(|g| !gain_ok(*g)) {
-            return Err(src.err(
-                &at("joint.linear_stiffness"),
-                "linear_stiffness",
-                count_before(text, "linear_stiffness", i, &f),
-                format!("linear gains must be >= 0 and at most {GAIN_MAX:e}"),
-            ));
-        }
-        if let Some(lims) = &l.joint.limits_deg {
-            let n = if matches!(l.joint.kind, JointKind::Free) { 0 } else { nv };
-            if lims.len() != n || lims.iter().any(|(lo, hi)| !(lo < hi && lo.is_finite() && hi.is_finite())) {
-                return Err(src.err(
-                    &at("joint.limits_deg"),
-                    "limits_deg",
-                    count_before(text, "limits_deg", i, &f),
-                    format!(
-                        "a {} joint takes {n} (min, max) pairs with min < max (free joints take no limits)",
-                        l.joint.kind.name()
-                    ),
-                ));
-            }
-        }
-        // Component by component: `min_element` passes over a NaN.
-        let positive = |v: DVec3, max: f64| [v.x, v.y, v.z].iter().all(|c| *c > 0.0 && *c <= max);
-        let (mass_ok, centre) = match &l.mass {
-            MassDesc::Ellipsoid { mass_kg, size_m, centre_m }
-            | MassDesc::Box { mass_kg, size_m, centre_m } => {
-                (*mass_kg > 0.0 && *mass_kg <= MASS_MAX_KG && positive(*size_m, SIZE_MAX_M), *centre_m)
-            }
-            MassDesc::Explicit { mass_kg, inertia_kg_m2, centre_m } => (
-                *mass_kg > 0.0 && *mass_kg <= MASS_MAX_KG && positive(*inertia_kg_m2, INERTIA_MAX_KG_M2),
-                *centre_m,
-            ),
-        };
-        if !mass_ok || !bounded(centre, POSITION_MAX_M) {
-            return Err(src.err(
-                &at("mass"),
-                "mass",
-                i,
-                format!(
-                    "mass and sizes (or inertias) must be > 0 (at most {MASS_MAX_KG} kg, {SIZE_MAX_M} m, \
-                     {INERTIA_MAX_KG_M2} kg m^2), and the centre finite"
-                ),
-            ));
-        }
-        for (j, s) in l.shapes.iter().enumerate() {
-            if let Err(m) = s.check() {
-                return Err(src.err(&format!("links[{i}].shapes[{j}].shape"), "shape", shape_seen, m));
-            }
-            if matches!(s.shape, ShapeDesc::Plane) {
-                return Err(src.err(
-                    &format!("links[{i}].shapes[{j}].shape"),
-                    "shape",
-                    shape_seen,
-                    "a plane cannot move; put it in the scene's statics".into(),
-                ));
-            }
-            shape_seen += 1;
-        }
+    let c = Checker::new(text, origin);
+    c.version(f.version, 1)?;
+    let dt = c.positive(&At::key("gain_dt_s"), f.gain_dt_s, "s", "the rates are per step")?;
+    c.within(&At::key("gain_dt_s"), dt, &GAIN_DT_S)?;
+    c.count(&At::key("links"), f.links.len(), 1, LINKS_MAX, "links (a body's)")?;
+    let mut shapes_seen = 0;
+    for i in 0..f.links.len() {
+        check_link_place(&c, &f.links, i)?;
+        check_joint(&c, &f, i)?;
+        check_mass(&c, i, &f.links[i].mass)?;
+        check_shapes(&c, i, &f.links[i].shapes, &mut shapes_seen)?;
     }
     Ok(f)
 }
 
-/// Occurrence index of `key` for link `i`: how many earlier links also set it.
-fn count_before(_text: &str, key: &str, i: usize, f: &BodyFile) -> usize {
+/// The step a body's gain rates are computed for.
+const GAIN_DT_S: Bound = Bound::hard("gain_dt_s", 0.0, 1.0, "s", "a simulation step is well under a second");
+
+/// Link `i`'s place in the tree: the first link is the root, every other names an earlier link as
+/// its parent, and names are unique.
+fn check_link_place(c: &Checker, links: &[LinkDesc], i: usize) -> Result<(), ConfigError> {
+    let l = &links[i];
+    let at = |key: &'static str| At::new(format!("links[{i}].{key}"), key, i);
+    match (&l.parent, i) {
+        (None, 0) => {}
+        (None, _) => return Err(c.error(&at("parent"), "only the first link may be the root")),
+        (Some(_), 0) => return Err(c.error(&at("parent"), "the first link is the root: parent: None")),
+        (Some(p), _) => c.ensure(links[..i].iter().any(|o| &o.name == p), &at("parent"), || {
+            format!("no earlier link is named {p:?}; list parents before their children")
+        })?,
+    }
+    c.ensure(!links[..i].iter().any(|o| o.name == l.name), &at("name"), || {
+        format!("link name {:?} is used twice", l.name)
+    })
+}
+
+/// Link `i`'s joint: its kind (unit axes, a free joint only at the root), anchor, default angles,
+/// gains and limits.
+fn check_joint(c: &Checker, f: &BodyFile, i: usize) -> Result<(), ConfigError> {
+    let j = &f.links[i].joint;
+    let at = |field: &str, key: &'static str| At::new(format!("links[{i}].joint.{field}"), key, i);
+    // Optional keys: their n-th appearance in the text is the n-th link that sets them.
+    let optional = |field: &str, key: &'static str| {
+        At::new(format!("links[{i}].joint.{field}"), key, count_before(key, i, f))
+    };
+    let unit = |v: DVec3| (v.length() - 1.0).abs() <= 1e-6;
+    match j.kind {
+        JointKind::Universal { axis1, axis2 } => {
+            c.ensure(unit(axis1) && unit(axis2), &at("kind", "kind"), || {
+                "joint axes must be unit vectors".into()
+            })?
+        }
+        JointKind::Revolute { axis } => {
+            c.ensure(unit(axis), &at("kind", "kind"), || "joint axis must be a unit vector".into())?
+        }
+        JointKind::Free => {
+            c.ensure(i == 0, &at("kind", "kind"), || "only the root may have a free joint".into())?
+        }
+        _ => {}
+    }
+    let nv = j.kind.nv();
+    let defaults = if matches!(j.kind, JointKind::Free | JointKind::Ball) { 3 } else { nv };
+    let n = j.default_deg.len();
+    c.ensure(n == 0 || n == defaults, &optional("default_deg", "default_deg"), || {
+        format!("a {} joint takes {defaults} default values, got {n}", j.kind.name())
+    })?;
+    c.finite_within(&at("anchor_m", "anchor_m"), &j.anchor_m.to_array(), POSITION_MAX_M, "m")?;
+    c.ensure(j.default_deg.iter().all(|v| v.is_finite()), &optional("default_deg", "default_deg"), || {
+        "default angles must be finite".into()
+    })?;
+    let gain_ok = |g: Gain| g.value() >= 0.0 && g.value() <= GAIN_MAX;
+    c.ensure(gain_ok(j.stiffness) && gain_ok(j.damping), &at("stiffness", "stiffness"), || {
+        format!("gains must be >= 0 and at most {GAIN_MAX:e}")
+    })?;
+    let linear = [j.linear_stiffness, j.linear_damping];
+    c.ensure(
+        linear.iter().flatten().all(|g| gain_ok(*g)),
+        &optional("linear_stiffness", "linear_stiffness"),
+        || format!("linear gains must be >= 0 and at most {GAIN_MAX:e}"),
+    )?;
+    if let Some(lims) = &j.limits_deg {
+        let n = if matches!(j.kind, JointKind::Free) { 0 } else { nv };
+        let ordered = lims.iter().all(|(lo, hi)| lo < hi && lo.is_finite() && hi.is_finite());
+        c.ensure(lims.len() == n && ordered, &optional("limits_deg", "limits_deg"), || {
+            format!(
+                "a {} joint takes {n} (min, max) pairs with min < max (free joints take no limits)",
+                j.kind.name()
+            )
+        })?;
+    }
+    Ok(())
+}
+
+/// Link `i`'s mass: positive and bounded mass and sizes (or inertias), a finite centre.
+fn check_mass(c: &Checker, i: usize, mass: &MassDesc) -> Result<(), ConfigError> {
+    // Component by component: `min_element` passes over a NaN.
+    let positive = |v: DVec3, max: f64| [v.x, v.y, v.z].iter().all(|c| *c > 0.0 && *c <= max);
+    let kg_ok = |m: f64| m > 0.0 && m <= MASS_MAX_KG;
+    let (ok, centre) = match mass {
+        MassDesc::Ellipsoid { mass_kg, size_m, centre_m } | MassDesc::Box { mass_kg, size_m, centre_m } => {
+            (kg_ok(*mass_kg) && positive(*size_m, SIZE_MAX_M), *centre_m)
+        }
+        MassDesc::Explicit { mass_kg, inertia_kg_m2, centre_m } => {
+            (kg_ok(*mass_kg) && positive(*inertia_kg_m2, INERTIA_MAX_KG_M2), *centre_m)
+        }
+    };
+    c.ensure(ok && bounded(centre, POSITION_MAX_M), &At::new(format!("links[{i}].mass"), "mass", i), || {
+        format!(
+            "mass and sizes (or inertias) must be > 0 (at most {MASS_MAX_KG} kg, {SIZE_MAX_M} m, {INERTIA_MAX_KG_M2} \
+             kg m^2), and the centre finite"
+        )
+    })
+}
+
+/// Link `i`'s collision shapes: sized, and never a plane (a plane cannot move).
+fn check_shapes(c: &Checker, i: usize, shapes: &[ShapeFile], seen: &mut usize) -> Result<(), ConfigError> {
+    for (j, s) in shapes.iter().enumerate() {
+        let at = At::new(format!("links[{i}].shapes[{j}].shape"), "shape", *seen);
+        s.check().map_err(|m| c.error(&at, m))?;
+        c.ensure(!matches!(s.shape, ShapeDesc::Plane), &at, || {
+            "a plane cannot move; put it in the scene's statics".into()
+        })?;
+        *seen += 1;
+    }
+    Ok(())
+}
+
+/// Occurrence index of the optional `key` for link `i`: how many earlier links also set it.
+fn count_before(key: &str, i: usize, f: &BodyFile) -> usize {
     f.links[..i]
         .iter()
         .filter(|l| match key {
@@ -510,60 +449,43 @@ fn count_before(_text: &str, key: &str, i: usize, f: &BodyFile) -> usize {
 /// Parses and validates a scene file (not the bodies it names).
 pub fn parse_scene(text: &str, origin: &str) -> Result<SceneFile, SimError> {
     let f: SceneFile = config::parse_kind(text, origin, config::FileKind::BodyScene)?;
-    let src = Src { text, origin };
-    config::check_version(text, origin, f.version, 1)?;
-    if !(f.dt_s > 0.0 && f.dt_s <= 0.02) {
-        return Err(src.err("dt_s", "dt_s", 0, "the step must be in (0, 0.02] seconds".into()));
-    }
-    if !bounded(f.gravity_m_per_s2, 1000.0) {
-        return Err(src.err(
-            "gravity_m_per_s2",
-            "gravity_m_per_s2",
-            0,
-            format!("must be finite and within 1000 m/s^2, got {}", f.gravity_m_per_s2),
-        ));
-    }
-    f.contact.check().map_err(|(field, m)| src.err(&format!("contact.{field}"), field, 0, m))?;
+    let c = Checker::new(text, origin);
+    c.version(f.version, 1)?;
+    c.positive(&At::key("dt_s"), f.dt_s, "s", "the world steps forward")?;
+    c.within(&At::key("dt_s"), f.dt_s, &SCENE_DT_S)?;
+    c.finite_within(&At::key("gravity_m_per_s2"), &f.gravity_m_per_s2.to_array(), 1000.0, "m/s^2")?;
+    f.contact.check().map_err(|(key, m)| c.error(&At::new(format!("contact.{key}"), key, 0), m))?;
     let lim = &f.joint_limit;
     let lim_ok = |v: f64| (0.0..=GAIN_MAX).contains(&v);
-    if !(lim_ok(lim.stiffness_n_m_per_rad) && lim_ok(lim.damping_n_m_s_per_rad)) {
-        return Err(src.err(
-            "joint_limit",
-            "joint_limit",
-            0,
-            format!("limit gains must be >= 0 and at most {GAIN_MAX:e}"),
-        ));
-    }
+    c.ensure(
+        lim_ok(lim.stiffness_n_m_per_rad) && lim_ok(lim.damping_n_m_s_per_rad),
+        &At::key("joint_limit"),
+        || format!("limit gains must be >= 0 and at most {GAIN_MAX:e}"),
+    )?;
     for (i, s) in f.statics.iter().enumerate() {
-        if let Err(m) = s.check() {
-            return Err(src.err(&format!("statics[{i}].shape"), "shape", i, m));
-        }
+        s.check().map_err(|m| c.error(&At::new(format!("statics[{i}].shape"), "shape", i), m))?;
     }
-    if f.actors.is_empty() {
-        return Err(src.err("actors", "actors", 0, "a scene needs at least one actor".into()));
-    }
+    c.ensure(!f.actors.is_empty(), &At::key("actors"), || "a scene needs at least one actor".into())?;
+    // Statics may set `pos_m` too (those that leave it out are at the origin).
+    let statics_placed = f.statics.iter().filter(|s| s.pos_m != DVec3::ZERO).count();
     for (i, a) in f.actors.iter().enumerate() {
-        if !(bounded(a.pos_m, POSITION_MAX_M) && a.yaw_deg.is_finite()) {
-            // Statics may set `pos_m` too (those that leave it out are at the origin).
-            let before = f.statics.iter().filter(|s| s.pos_m != DVec3::ZERO).count();
-            return Err(src.err(
-                &format!("actors[{i}].pos_m"),
-                "pos_m",
-                before + i,
-                format!("position (within {POSITION_MAX_M} m) and yaw must be finite"),
-            ));
-        }
-        if f.actors[..i].iter().any(|o| o.name == a.name) {
-            return Err(src.err(
-                &format!("actors[{i}].name"),
-                "name",
-                i,
-                format!("actor {:?} twice", a.name),
-            ));
-        }
+        let placed = bounded(a.pos_m, POSITION_MAX_M) && a.yaw_deg.is_finite();
+        c.ensure(placed, &At::new(format!("actors[{i}].pos_m"), "pos_m", statics_placed + i), || {
+            format!("position (within {POSITION_MAX_M} m) and yaw must be finite")
+        })?;
+        c.ensure(
+            !f.actors[..i].iter().any(|o| o.name == a.name),
+            &At::new(format!("actors[{i}].name"), "name", i),
+            || format!("actor {:?} twice", a.name),
+        )?;
     }
     Ok(f)
 }
+
+/// A scene's step: the explicit contacts and the characters' controllers are tuned for steps of a
+/// few milliseconds.
+const SCENE_DT_S: Bound =
+    Bound::hard("dt_s", 0.0, 0.02, "s", "explicit penalty contacts are stable only for short steps");
 
 fn rotvec_deg(v: DVec3) -> DQuat {
     quat_exp(v * (std::f64::consts::PI / 180.0))
@@ -625,7 +547,7 @@ pub fn build_scene(
             name: s.name.clone(),
             body: None,
             shape: s.shape.to_shape(),
-            local: Pose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
+            local: ShapePose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
             group: s.group,
             mask: s.mask,
             bound_m: shape_bound(&s.shape.to_shape()),
@@ -748,7 +670,7 @@ pub fn add_articulation(m: &mut Model, name: &str, body: &BodyFile, frame: &Xfor
                 name: format!("{name}.{}", s.name),
                 body: Some(body_index),
                 shape,
-                local: Pose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
+                local: ShapePose { pos_m: s.pos_m, rot: DMat3::from_quat(rotvec_deg(s.rot_deg)) },
                 group: s.group,
                 mask: s.mask,
                 bound_m: shape_bound(&shape),

@@ -49,7 +49,7 @@ pub fn apply_hand_impulses(
         }
         let Some(body) = body_of(model, p.id) else { continue };
         let point = match touching_hand(&p.shape, sample) {
-            Some(h) => nearest_on_surface(&p.shape, sample.hands[h].pos_m),
+            Some(h) => nearest_on_surface(&p.shape, sample.hands[h].pos_world_m),
             None => centre(&p.shape),
         };
         ws.add_impulse_at(body, point, *imp, model.dt_s);
@@ -61,7 +61,7 @@ pub fn apply_hand_impulses(
 /// The valid hand of `sample` nearest the surface of `shape`: the one whose contact with that
 /// proxy the impulse came from (on a tie, the first).
 pub fn touching_hand(shape: &ProxyShape, sample: &HandSample) -> Option<usize> {
-    let d = |h: usize| dist(shape, sample.hands[h].pos_m);
+    let d = |h: usize| dist(shape, sample.hands[h].pos_world_m);
     (0..sample.hands.len()).filter(|&h| sample.hands[h].valid).min_by(|&a, &b| d(a).total_cmp(&d(b)))
 }
 

@@ -10,7 +10,7 @@ use std::ops::Range;
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
-use crate::collide::{bounding_radius, Pose, Shape};
+use crate::collide::{bounding_radius, Shape, ShapePose};
 use crate::joint::{JointKind, MAX_JOINT_DOF};
 use crate::spatial::{SInertia, Xform};
 
@@ -83,7 +83,7 @@ pub struct ShapeInst {
     pub body: Option<usize>,
     pub shape: Shape,
     /// Pose in the body frame (in the world frame for static shapes).
-    pub local: Pose,
+    pub local: ShapePose,
     /// Collision filtering: two shapes may touch when each one's group meets the other's mask.
     pub group: u32,
     pub mask: u32,
@@ -220,9 +220,9 @@ impl Model {
 
 /// Placement of a shape in the world given its body's world transform (`x0`: world -> body).
 #[inline]
-pub fn place(local: &Pose, x0: &Xform) -> Pose {
+pub fn place(local: &ShapePose, x0: &Xform) -> ShapePose {
     let rot_body = x0.e.transpose();
-    Pose { pos_m: x0.r + rot_body * local.pos_m, rot: rot_body * local.rot }
+    ShapePose { pos_m: x0.r + rot_body * local.pos_m, rot: rot_body * local.rot }
 }
 
 /// Solid ellipsoid inertia about its centre, full sizes along x, y, z.

@@ -6,7 +6,7 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::collide::{Pose, MAX_HITS};
+use crate::collide::{ShapePose, MAX_HITS};
 use crate::joint::{joint_motion, JointMotion, MAX_JOINT_DOF};
 use crate::model::{place, Model};
 use crate::spatial::{SInertia, SVec, Xform};
@@ -43,19 +43,12 @@ impl State {
 
     /// A digest of the exact bits of the state, for determinism tests.
     pub fn digest(&self) -> u64 {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |x: u64| {
-            for b in x.to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
-        eat(self.steps);
-        eat(self.t_s.to_bits());
+        let mut d = spidar_msg::digest::Digest::new();
+        d.u64(self.steps).f64(self.t_s);
         for x in self.q.iter().chain(self.v.iter()) {
-            eat(x.to_bits());
+            d.f64(*x);
         }
-        h
+        d.value()
     }
 }
 
@@ -107,7 +100,7 @@ pub struct Workspace {
     /// Joint accelerations of the last step (`nv`).
     pub qdd: Vec<f64>,
     /// World pose of every shape (after `forward`).
-    pub shape_pose: Vec<Pose>,
+    pub shape_pose: Vec<ShapePose>,
     /// The contacts of the last step.
     pub contacts: Vec<Contact>,
     /// Contact records beyond `MAX_CONTACTS` (their forces are still applied), counted since
@@ -222,7 +215,7 @@ pub fn kinematics(model: &Model, state: &State, ws: &mut Workspace) {
                 // `place` without its product by the identity (the same bits, as above).
                 let x0 = &ws.x0[b];
                 let rot_body = x0.e.transpose();
-                Pose { pos_m: x0.r + rot_body * s.local.pos_m, rot: rot_body }
+                ShapePose { pos_m: x0.r + rot_body * s.local.pos_m, rot: rot_body }
             } else {
                 place(&s.local, &ws.x0[b])
             };

@@ -416,13 +416,7 @@ fn boxing_bout_with_the_mind_on_is_pinned() {
         w.mind.params.attack_per_step = 0.02;
         let guard = [0, 1].map(|h| w.com(w.avatar.hand[h]));
         let aims = [w.com(w.vh.head), w.com(w.vh.chest)];
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |x: u64| {
-            for b in x.to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
+        let mut h = spidar_msg::digest::Digest::new();
         let mut last = None;
         for k in 0..3334 {
             // A 0.25 s jab out and back every 0.6 s, hands and aims alternating.
@@ -443,20 +437,13 @@ fn boxing_bout_with_the_mind_on_is_pinned() {
             if w.mind.last_decision != last {
                 last = w.mind.last_decision;
                 if let Some(d) = last {
-                    eat(d.class as u64);
-                    eat(d.vh_body as u64);
-                    eat(d.av_body as u64);
-                    eat(d.at_s.to_bits());
-                    for x in [d.point_m, d.hand_start_m, d.hand_at_contact_m] {
-                        for c in x.to_array() {
-                            eat(c.to_bits());
-                        }
-                    }
+                    h.u64(d.class as u64).u64(d.vh_body as u64).u64(d.av_body as u64).f64(d.at_s);
+                    h.vec3(d.point_m).vec3(d.hand_start_m).vec3(d.hand_at_contact_m);
                 }
             }
         }
-        eat(w.state.digest());
-        (h, w.mind.predictions, w.mind.attacks)
+        h.u64(w.state.digest());
+        (h.value(), w.mind.predictions, w.mind.attacks)
     }
     let (a, predictions, attacks) = bout();
     assert_eq!(bout().0, a, "two identical bouts differ");

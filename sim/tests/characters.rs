@@ -12,8 +12,9 @@ use spidar_sim::character::ai::Goal;
 use spidar_sim::character::controller::{body_energy_j, Policy};
 use spidar_sim::character::crowd::Crowd;
 use spidar_sim::character::drawn::{self, FigureStats};
-use spidar_sim::character::keyframe::{KeyframeSet, Pose, QPoint, KEYFRAMES_HUMANOID_RON};
+use spidar_sim::character::keyframe::{KeyframeSet, QPoint, KEYFRAMES_HUMANOID_RON};
 use spidar_sim::character::scene::{build_crowd, builtin_crowd, BODY_CHARACTER_RON, SCENE_CROWD_RON};
+use spidar_sim::character::skeleton::SkeletonPose;
 use spidar_sim::desc::{build_scene, parse_body};
 use spidar_sim::state::kinematics;
 use spidar_sim::{step, State, Workspace};
@@ -351,7 +352,7 @@ fn the_drawn_figure_stays_on_the_body() {
 #[test]
 fn a_copied_figure_state_draws_the_figure_of_its_step() {
     use spidar_sim::character::drawn::{world_joints, FigureState, Figures};
-    use spidar_sim::character::keyframe::MAX_JOINTS;
+    use spidar_sim::character::skeleton::MAX_JOINTS;
     let (mut c, mut rng) = wandering_crowd(4);
     let figures = Figures::of(&c);
     let n = figures.joints();
@@ -423,9 +424,9 @@ fn a_copied_figure_state_draws_the_figure_of_its_step() {
 #[test]
 fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
     use spidar_sim::character::drawn::world_joints;
-    use spidar_sim::character::keyframe::MAX_JOINTS;
+    use spidar_sim::character::skeleton::MAX_JOINTS;
     let (mut c, mut rng) = wandering_crowd(7);
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h = spidar_msg::digest::Digest::new();
     let mut falls = 0;
     for k in 0..(10.0 / DT) as usize {
         if k % 60 == 30 {
@@ -441,17 +442,13 @@ fn the_drawn_figures_of_a_pushed_crowd_are_pinned() {
                 let mut j = [DVec3::ZERO; MAX_JOINTS];
                 let n = world_joints(&c, i, &mut j);
                 for p in &j[..n] {
-                    for x in [p.x, p.y, p.z] {
-                        for b in x.to_bits().to_le_bytes() {
-                            h ^= b as u64;
-                            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-                        }
-                    }
+                    h.vec3(*p);
                 }
             }
         }
     }
     assert!(falls > 0, "the pushes should topple someone");
+    let h = h.value();
     assert_eq!(h, 0x2247_5b35_6b54_6e2b, "figure digest changed: {h:#018x}");
 }
 
@@ -481,7 +478,7 @@ fn a_stop_settles_into_the_standing_pose() {
         "feet {side} m apart across, {front} m along"
     );
     // The walk cycle is at a standing phase: the drawn arms hang as in the standing keyframe.
-    let mut rest = Pose::default();
+    let mut rest = SkeletonPose::default();
     c.set.pose(&QPoint::default(), &mut rest);
     let arms: Vec<usize> = c
         .set
@@ -562,7 +559,7 @@ fn the_shipped_set_has_the_papers_shape() {
 fn the_interpolated_pose_equals_the_keyframe_at_each_keyframe() {
     let set = KeyframeSet::builtin();
     let n = set.joints.len();
-    let mut out = Pose::default();
+    let mut out = SkeletonPose::default();
     for k in &set.keys {
         set.pose(&k.at, &mut out);
         let err = out.max_angle_to(&k.pose, n);
@@ -581,7 +578,7 @@ fn the_pose_changes_continuously_along_a_long_random_path() {
     let mut rng = Pcg64::seed_from_u64(7);
     let mut q = QPoint::default();
     let mut anim = spidar_sim::character::Correspondence { blend: 1.0, ..Default::default() };
-    let (mut prev, mut cur) = (Pose::default(), Pose::default());
+    let (mut prev, mut cur) = (SkeletonPose::default(), SkeletonPose::default());
     set.pose(&q, &mut prev);
     let (mut worst, mut total) = (0.0f64, 0.0);
     let mut wraps = 0;
@@ -616,7 +613,7 @@ fn the_pose_changes_continuously_along_a_long_random_path() {
 fn the_pose_wraps_smoothly_at_the_walk_phase_boundary() {
     let set = KeyframeSet::builtin();
     let n = set.joints.len();
-    let (mut a, mut b) = (Pose::default(), Pose::default());
+    let (mut a, mut b) = (SkeletonPose::default(), SkeletonPose::default());
     for theta_x in [0.0, 0.3, 0.52, -0.52, 0.7] {
         for theta_z in [0.0, 0.2, -0.43] {
             let q = QPoint { theta_x, theta_z, d_x: 0.3, ..QPoint::default() };

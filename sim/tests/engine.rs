@@ -624,7 +624,7 @@ fn hand_impulses_reach_the_named_body() {
     });
     let mut sample = HandSample { model_seq: 4, ..Default::default() };
     sample.hands[0].valid = true;
-    sample.hands[0].pos_m = DVec3::new(1.0, 1.0, -0.35);
+    sample.hands[0].pos_world_m = DVec3::new(1.0, 1.0, -0.35);
     sample.proxy_impulse_n_s[0] = DVec3::new(0.0, 0.0, -0.02);
     let mut s = State::new(&m);
     let mut ws = Workspace::new(&m);

@@ -53,8 +53,10 @@ export async function open(browser, url, query, size = { width: W, height: H }) 
   pages.push(page);
   page.on('pageerror', (e) => log(`page error: ${e.message}`));
   await page.setViewport(size);
-  // 15 drawings a second: software WebGL shares the machine with the other tests.
-  await page.goto(`${url}/?fps=15&${query}`);
+  // 15 drawings a second: software WebGL shares the machine with the other tests. The bodies as
+  // their collision shapes, whose colours the checks look for, unless the query says otherwise.
+  const bodies = query.includes('bodies=') ? '' : 'bodies=shapes&';
+  await page.goto(`${url}/?fps=15&${bodies}${query}`);
   await page.waitForFunction(() => window.spidarView && spidarView.state().seq !== null, { timeout: 60000 });
   return page;
 }

@@ -12,11 +12,14 @@ use spidar_device::DeviceError;
 use spidar_msg::{ContactModel, HandSample};
 use spidar_rt::{Command, Lifecycle, Rig};
 use spidar_runtime::session::{load_scripts, sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
+use spidar_testkit::{HostileScene, Hostility};
 use spidar_world::walls::WallsScene;
 use spidar_world::Scene;
 
 #[path = "hil/crowd.rs"]
 mod crowd;
+#[path = "hil/display.rs"]
+mod display;
 #[path = "hil/replay.rs"]
 mod replay;
 #[path = "hil/view.rs"]
@@ -154,28 +157,6 @@ fn truth(v: &VirtualRun<SimRig>) -> Truth {
     *v.rt.device().truth()
 }
 
-/// FNV-1a over the bits of everything a run produced (not the wall-clock timings).
-struct Digest(u64);
-impl Digest {
-    fn new() -> Digest {
-        Digest(0xcbf2_9ce4_8422_2325)
-    }
-    fn u64(&mut self, x: u64) {
-        for b in x.to_le_bytes() {
-            self.0 ^= b as u64;
-            self.0 = self.0.wrapping_mul(0x100_0000_01b3);
-        }
-    }
-    fn f(&mut self, x: f64) {
-        self.u64(x.to_bits());
-    }
-    fn v(&mut self, x: DVec3) {
-        self.f(x.x);
-        self.f(x.y);
-        self.f(x.z);
-    }
-}
-
 // ---------------------------------------------------------------------------------------------
 // The wall: the user feels k x depth.
 
@@ -307,7 +288,7 @@ fn pose_error_is_below_a_tenth_of_a_millimetre_plus_the_encoder_resolution() {
         let rec = v.tick();
         for h in 0..2 {
             assert!(rec.hands[h].valid);
-            worst = worst.max((rec.hands[h].pos_m - before.hands[h].pos_m).length());
+            worst = worst.max((rec.hands[h].pos_rig_m - before.hands[h].pos_m).length());
             worst_residual = worst_residual.max(rec.hands[h].residual_m);
         }
     }
@@ -384,59 +365,6 @@ fn force_fades_to_zero_within_the_configured_time_when_the_contact_model_stops()
     assert!(rec.hands[0].output_n.length() < 1e-9);
 }
 
-/// A scene that sends absurd proxies: huge stiffness, NaN, infinities, at the hands.
-struct Hostile {
-    seq: u64,
-    rng: u64,
-}
-
-impl Hostile {
-    fn next(&mut self) -> f64 {
-        // xorshift: deterministic, no dependency.
-        self.rng ^= self.rng << 13;
-        self.rng ^= self.rng >> 7;
-        self.rng ^= self.rng << 17;
-        (self.rng >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-impl Scene for Hostile {
-    fn name(&self) -> &str {
-        "hostile"
-    }
-    fn step_s(&self) -> f64 {
-        0.003
-    }
-    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
-        use spidar_msg::{Proxy, ProxyId, ProxyShape};
-        self.seq += 1;
-        let mut m = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
-        let Some(s) = samples.last() else { return m };
-        for h in 0..2 {
-            let p = s.hands[h].pos_m;
-            let k = match self.seq % 5 {
-                0 => f64::NAN,
-                1 => f64::INFINITY,
-                _ => 10f64.powf(2.0 + 8.0 * self.next()),
-            };
-            let dir =
-                DVec3::new(self.next() - 0.5, self.next() - 0.5, self.next() - 0.5).normalize_or(DVec3::Y);
-            m.push(Proxy {
-                id: ProxyId { body: 9, part: h as u16 },
-                shape: ProxyShape::Sphere { centre_m: p + dir * 0.05, radius_m: 0.03 },
-                k_n_per_m: k,
-                d_n_s_per_m: 1e3 * self.next(),
-                vel_m_per_s: DVec3::new(self.next(), -self.next(), 50.0 * (self.next() - 0.5)),
-                hand_mask: Proxy::BOTH_HANDS,
-            });
-        }
-        if self.seq.is_multiple_of(7) {
-            m.extra_force_n = [DVec3::new(f64::NAN, 1.0, 0.0), DVec3::splat(1e9)];
-        }
-        m
-    }
-}
-
 #[test]
 fn clamp_holds_for_any_scene_input() {
     let r = rig();
@@ -444,7 +372,7 @@ fn clamp_holds_for_any_scene_input() {
     for seed in 1..=4u64 {
         let mut v = session(
             scripts.clone(),
-            Some(Box::new(Hostile { seq: 0, rng: seed * 0x9E37_79B9 })),
+            Some(Box::new(HostileScene::new(Hostility::Proxies, seed * 0x9E37_79B9))),
             &SimOptions::default(),
         );
         let mut clamped = 0;
@@ -594,28 +522,28 @@ fn a_stall_on_the_virtual_clock_counts_as_a_missed_deadline() {
 
 fn digest_of_run(seed: u64, ticks: usize) -> u64 {
     let mut v = sparring(seed, 0.7, true);
-    let mut d = Digest::new();
+    let mut d = spidar_msg::digest::Digest::new();
     for _ in 0..ticks {
         let rec = v.tick();
         d.u64(rec.tick);
-        d.f(rec.t_s);
-        d.f(rec.gain);
+        d.f64(rec.t_s);
+        d.f64(rec.gain);
         for h in &rec.hands {
-            d.v(h.pos_m);
-            d.v(h.vel_m_per_s);
-            d.f(h.residual_m);
-            d.v(h.commanded_n);
+            d.vec3(h.pos_rig_m);
+            d.vec3(h.vel_rig_m_per_s);
+            d.f64(h.residual_m);
+            d.vec3(h.commanded_n);
             for t in h.tensions_n {
-                d.f(t);
+                d.f64(t);
             }
         }
         let t = truth(&v);
         for h in &t.hands {
-            d.v(h.pos_m);
-            d.v(h.string_force_n);
+            d.vec3(h.pos_m);
+            d.vec3(h.string_force_n);
         }
     }
-    d.0
+    d.value()
 }
 
 /// Digest of `digest_of_run(7, 20_000)`. It changes whenever the plant, the loop or the scene
@@ -907,7 +835,7 @@ fn homing_makes_each_grip_read_its_home_point() {
     assert!(v.rt.core().is_homing(), "homing waits for the strings to settle");
     v.run_ticks((spidar_rt::tick::HOMING_SETTLE_S / r.period_s) as u64 + 2);
     for h in 0..2 {
-        let e = (v.rt.last_record().hands[h].pos_m - r.hands[h].home_m).length();
+        let e = (v.rt.last_record().hands[h].pos_rig_m - r.hands[h].home_m).length();
         assert!(e < 1e-4, "hand {h} reads {e} m from home after homing");
     }
     assert!(v.rt.core().is_homed());

@@ -115,6 +115,20 @@ impl DeviceArgs {
 
 #[derive(Subcommand, Debug)]
 pub enum CalibCmd {
+    /// Place the rig's screen: open the page it prints full screen on that screen, hold the right
+    /// grip's centre on each numbered target (the ball touching the screen) until it is taken;
+    /// --write stores the screen in the rig file (docs/display.md). On the simulated rig a scripted
+    /// person places the rig file's screen (or one 0.9 m ahead).
+    Screen {
+        #[command(flatten)]
+        dev: DeviceArgs,
+        /// Where the page with the targets is served (HOST:PORT).
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        view: String,
+        /// Write the screen into the rig file (atomically, the previous version kept as a dated backup).
+        #[arg(long)]
+        write: bool,
+    },
     /// Hold each grip at its home point and preset the lengths at counter zero from the
     /// configured anchors (what `spidar run` does at start); --write stores them and the time.
     /// The first one creates your rig file from the built-in template.
@@ -366,6 +380,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
     }
     match cmd {
         CalibCmd::Home { dev, hands, write } => home(&dev, hands, write),
+        CalibCmd::Screen { dev, view, write } => screen(&dev, &view, write),
         CalibCmd::Record { dev, hands, jig, free, free_half_extent_m, out, resume } => {
             record(&dev, hands, jig, free, free_half_extent_m, &out, resume)
         }
@@ -383,6 +398,55 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
         CalibCmd::Verify { dev, hands, jig, max_error_m } => verify(&dev, hands, &jig, max_error_m),
     }
     .map(|()| 0)
+}
+
+fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
+    use spidar_runtime::placement::{
+        demo_screen, place_screen, placement_options, placement_world, scripted_person,
+    };
+    check_device_args(d)?;
+    let src = rigpath::calibration_target(d.rig.as_deref(), true)?;
+    let (rig, text) = src.load()?;
+    let (world, url) = placement_world(Some(spidar_world::view::parse_addr(view)?))?;
+    eprintln!(
+        "spidar calib screen: rig file {}; open {} full screen on the rig's screen",
+        src.describe(),
+        url.unwrap_or_default()
+    );
+    let opts = placement_options(spidar_rt::rt_thread::RtOptions::default());
+    let (timeout, say) = (std::time::Duration::from_secs(600), &mut |l: String| eprintln!("{l}"));
+    let p = match d.hw.choice(d.device, &rig)? {
+        None => {
+            let truth = match rig.display {
+                Some(t) => t,
+                None => demo_screen(&rig)?,
+            };
+            let scripts = scripted_person(&rig, &truth, [DVec3::ZERO; 5]);
+            let dev = spidar_runtime::session::sim_device(&rig, scripts, &Default::default())?;
+            place_screen(dev, &rig, world, &opts, timeout, say)?
+        }
+        Some(choice) => place_screen(spidar_runtime::hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?,
+    };
+    let dsp = &p.display;
+    println!(
+        "screen: {:.3} x {:.3} m, lower left ({:.4}, {:.4}, {:.4}) m, facing ({:.3}, {:.3}, {:.3}); targets off the fit: rms {:.1} mm, worst {:.1} mm",
+        dsp.width_m, dsp.height_m, dsp.lower_left_m.x, dsp.lower_left_m.y, dsp.lower_left_m.z,
+        dsp.normal().x, dsp.normal().y, dsp.normal().z, p.rms_m * 1e3, p.worst_m * 1e3
+    );
+    let path = src.path().context("placing the screen needs a rig file")?;
+    if write {
+        let note =
+            format!("Placed by `spidar calib screen` (targets off the fit: rms {:.1} mm).", p.rms_m * 1e3);
+        let r = spidar_calib::display::update_display(path, &text, dsp, &note)?;
+        println!(
+            "wrote the screen into {}{}",
+            r.target.display(),
+            r.backup.map(|b| format!(" (previous: {})", b.display())).unwrap_or_default()
+        );
+    } else {
+        println!("not written: run again with --write to store it in {}", shell_quote(path));
+    }
+    Ok(())
 }
 
 fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {

@@ -290,7 +290,7 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
     let (emu, truth) = emulator(&dir);
     let rig_file = dir.join("rig.ron");
     std::fs::copy(SHIPPED, &rig_file).unwrap();
-    let port = emu.link().to_str().unwrap().to_string();
+    let port = emu.symlink().to_str().unwrap().to_string();
     let rig = rig_file.to_str().unwrap();
     // The emulator runs in this test process: on a busy machine its replies can be late by tens
     // of milliseconds, also at the enumeration (which waits as long); not what this test is about.
@@ -344,7 +344,7 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
 fn sigterm_also_switches_the_outputs_off_and_keeps_the_session() {
     let dir = folder("sigterm");
     let (emu, _) = emulator(&dir);
-    let port = emu.link().to_str().unwrap().to_string();
+    let port = emu.symlink().to_str().unwrap().to_string();
     let args = [
         "calib",
         "record",
@@ -390,7 +390,7 @@ fn sigterm_also_switches_the_outputs_off_and_keeps_the_session() {
 fn kill_9_of_the_calibration_process_zeroes_the_boards_and_resume_keeps_every_pose() {
     let dir = folder("kill-9");
     let (emu, _) = emulator(&dir);
-    let port = emu.link().to_str().unwrap().to_string();
+    let port = emu.symlink().to_str().unwrap().to_string();
     // As the supervisor tests of `spidar run` (tools/tests/process.rs): the normal scheduler, and
     // a stall limit a busy machine's scheduling of the unprivileged loop never reaches.
     let device = ["--device", "uart", "--port", &port, "--reply-timeout-us", "100000", "--no-rt"];

@@ -240,7 +240,7 @@ fn the_emulator_ends_cleanly_on_every_stop_signal_and_removes_its_link() {
     let dir = temp_dir("emulate");
     for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
         let link = dir.join("uart");
-        let mut p = Proc::start(&["emulate", "--no-rt", "--link", link.to_str().unwrap()], &[]);
+        let mut p = Proc::start(&["emulate", "--no-rt", "--symlink", link.to_str().unwrap()], &[]);
         p.wait_for("serving thread");
         assert!(std::fs::symlink_metadata(&link).is_ok());
         p.signal(sig);
@@ -261,7 +261,7 @@ fn emulator(dir: &Path) -> Emulator {
     // The hands hold their home points (the rig homes as it starts, whenever that is).
     let scripts = load_scripts("hold", &rig, 1).unwrap();
     let opts = EmulateOptions {
-        link: dir.join("uart"),
+        symlink: dir.join("uart"),
         emulator: EmulatorOptions {
             watchdog: None,
             fifo_priority: None,

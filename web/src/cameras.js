@@ -1,8 +1,11 @@
 // Two cameras: the user's eye (first person, from the rig file's eye point, looking through the
 // rig frame at what the scene puts in front of the user; for the rig's screen, full-screen
 // capable) and an orbit camera for an observer (drag to turn, wheel to zoom, right-drag to pan).
+// When the rig file places its screen, the user's eye is the off-axis view through that screen
+// (stereo.js), life-size and co-located with the grips.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { ScreenView } from './stereo.js';
 
 export class Cameras {
   constructor(canvas) {
@@ -12,6 +15,20 @@ export class Cameras {
     this.controls.enableDamping = true;
     this.active = 'orbit';
     this.focus = new THREE.Vector3(0, 1.2, -1);
+    this.screen = new ScreenView();
+    this.hasScreen = false;
+  }
+
+  // The rig's screen (the `rig` message's `display`, or null: none) seen from `eyeM`, drawn in
+  // `format` (null: the screen's own stereo format).
+  setDisplay(display, eyeM, format) {
+    this.hasScreen = !!display;
+    if (display) this.screen.set(display, eyeM, format);
+  }
+
+  // Whether the user's eye is drawn through the rig's screen now.
+  get onScreen() {
+    return this.active === 'eye' && this.hasScreen;
   }
 
   // Places both cameras for a scene: the eye at `eyeM` looking at the focus; the orbit camera to
@@ -39,7 +56,13 @@ export class Cameras {
   }
 
   get camera() {
+    if (this.onScreen) return this.screen.mono;
     return this.active === 'eye' ? this.eye : this.orbit;
+  }
+
+  render(renderer, scene) {
+    if (this.onScreen) this.screen.render(renderer, scene);
+    else renderer.render(scene, this.camera);
   }
 
   resize(w, h) {

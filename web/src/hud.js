@@ -15,7 +15,7 @@ export class Hud {
       <div class="row">world link <span data-hud="link">-</span> &middot; <span data-hud="step_rate">-</span> steps/s &middot; t <span data-hud="t">-</span> s</div>
       <div class="row" data-hud="counters"></div>
       <div class="row" id="legend"></div>
-      <div class="row">viewers <span data-hud="viewers">-</span> &middot; frames <span data-hud="frame_rate">-</span>/s</div>
+      <div class="row">viewers <span data-hud="viewers">-</span> &middot; frames <span data-hud="frame_rate">-</span>/s &middot; picture age p99 <span data-hud="picture_age">-</span></div>
       <div class="row"><button data-cam="eye">user's eye</button><button data-cam="orbit">orbit</button><button data-full>full screen</button></div>`;
     this.k = {};
     for (const e of el.querySelectorAll('[data-hud]')) this.k[e.dataset.hud] = e;
@@ -78,6 +78,8 @@ export class Hud {
     k.step_rate.textContent = s.step_rate_hz.toFixed(1);
     k.t.textContent = s.t_s.toFixed(1);
     k.viewers.textContent = String(s.viewers);
+    const age = s.picture_age && (s.picture_age.headset || s.picture_age.screen);
+    k.picture_age.textContent = age ? `${age.p99_ms.toFixed(1)} ms` : '-';
     s.counters.forEach((c, i) => {
       const e = this.counterEls[i];
       if (e) e.textContent = Number.isInteger(c.value) ? String(c.value) : c.value.toFixed(1);

@@ -7,10 +7,13 @@ import { CSS2DRenderer } from 'three/addons/renderers/CSS2DRenderer.js';
 import { connect } from './connection.js';
 import { World } from './world.js';
 import { Crowd } from './crowd.js';
+import { Humanoids } from './humanoid.js';
 import { Rig } from './rig.js';
 import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
 import { Playback } from './playback.js';
+import { AgeReporter, stamp } from './age.js';
+import { showTargets } from './place.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -34,20 +37,25 @@ scene.add(sun);
 const cameras = new Cameras(renderer.domElement);
 const rig = new Rig(scene);
 const hud = new Hud(document.getElementById('hud'), {
-  onCamera: (c) => setCamera(c),
+  onCamera: (c) => { cameraChosen = true; setCamera(c); },
   onFullScreen: toggleFullScreen,
 });
 if (params.get('hud') === '0') document.getElementById('hud').style.display = 'none';
+if (params.get('place') === '1') showTargets(document.body);
 
 let desc = null;
 let world = null;
 let crowd = null;
+let people = null;
+// Bodies as people (the default) or as their collision shapes (`?bodies=shapes`, key `b`).
+let asPeople = params.get('bodies') !== 'shapes';
 let root = null;
 let rigInfo = null;
 let status = null;
 let connection = 'connecting';
 let latest = null; // { f: Float32Array, seq, t }
 let applied = null;
+let reported = null; // the newest frame whose drawing was reported (its age)
 let paused = false;
 let framesReceived = 0;
 let rateCount = 0;
@@ -59,9 +67,16 @@ let playback = null; // the playback bar, when the page shows a replay
 // replay's own clock).
 const playbackLog = [];
 
+let cameraChosen = false;
+let avatarHidden = params.get('avatar') === '0';
+// `?hide=ACTOR,...`: actors not drawn (`avatar`, `virtual human`).
+const hiddenActors = (params.get('hide') || '').split(',').filter((a) => a);
+rig.showStrings = params.get('strings') !== '0';
 function setCamera(name) {
   cameras.use(name);
   hud.setCamera(cameras.active);
+  // Labels float over one picture: not over a stereo pair.
+  labelRenderer.domElement.style.visibility = cameras.onScreen && cameras.screen.stereo ? 'hidden' : '';
 }
 setCamera(params.get('camera') || 'orbit');
 
@@ -72,23 +87,39 @@ function onScene(d) {
   scene.add(root);
   world = new World(desc, root);
   world.proxyGroup.visible = params.get('proxies') !== '0';
+  world.hideActor('avatar', avatarHidden);
+  for (const a of hiddenActors) world.hideActor(a, true);
   crowd = desc.crowd ? new Crowd(desc, root) : null;
+  people = new Humanoids(desc, root, world.meshes);
+  setBodies(asPeople);
+  people.hideActor('avatar', avatarHidden);
+  for (const a of hiddenActors) people.hideActor(a, true);
   latest = null;
   applied = null;
   cameras.place(desc, rigInfo ? rigInfo.eye_m : null);
   hud.setScene(desc);
 }
 
+function setBodies(asP) {
+  asPeople = asP;
+  if (world) world.people = asP;
+  if (people) people.setShown(asP);
+}
+
 function onRig(r) {
   rigInfo = r;
   rig.setInfo(r);
   if (desc) cameras.place(desc, r.eye_m);
+  cameras.setDisplay(r.display, r.eye_m, params.get('stereo'));
+  // The page on the rig's screen shows the user's eye unless asked otherwise.
+  if (r.display && !params.get('camera') && !cameraChosen) setCamera('eye');
+  labelRenderer.domElement.style.visibility = cameras.onScreen && cameras.screen.stereo ? 'hidden' : '';
 }
 
 function onFrame(buffer, layoutId, seq) {
   if (!desc || layoutId !== desc.layout.id) return;
   const f = new Float32Array(buffer);
-  latest = { f, seq, t: f[desc.layout.globals_at] };
+  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout) };
   framesReceived++;
   rateCount++;
 }
@@ -107,6 +138,8 @@ const conn = connect({
   },
 });
 
+const ages = new AgeReporter((m) => conn.send(m));
+
 function resize() {
   const w = container.clientWidth;
   const h = container.clientHeight;
@@ -119,8 +152,10 @@ resize();
 
 window.addEventListener('keydown', (e) => {
   if (e.key === 'f') toggleFullScreen();
-  else if (e.key === 'c') setCamera(cameras.active === 'eye' ? 'orbit' : 'eye');
+  else if (e.key === 'c') { cameraChosen = true; setCamera(cameras.active === 'eye' ? 'orbit' : 'eye'); }
   else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
+  else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); people.hideActor('avatar', avatarHidden); }
+  else if (e.key === 'b') setBodies(!asPeople);
   else if (e.key === ' ') paused = !paused;
 });
 
@@ -136,6 +171,7 @@ function frameLoop(now) {
     const dt = applied ? Math.max(0, latest.t - applied.t) : 0;
     world.apply(latest.f, dt);
     if (crowd) crowd.apply(latest.f);
+    people.apply(latest.f);
     rig.apply(latest.f, desc.layout);
     applied = latest;
     if (playback) playback.setTime(applied.t);
@@ -148,8 +184,14 @@ function frameLoop(now) {
   cameras.update();
   // From the user's eye, their own avatar's head is in the way.
   if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
-  renderer.render(scene, cameras.camera);
+  if (people) people.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
+  const drawStart = performance.now();
+  cameras.render(renderer, scene);
   labelRenderer.render(scene, cameras.camera);
+  if (applied && applied !== reported && !playback) {
+    reported = applied;
+    ages.drawn(applied.seq, applied.stamp, false, 0, performance.now() - drawStart);
+  }
   renders++;
   while (renderWaiters.length) renderWaiters.shift()();
 }
@@ -178,6 +220,8 @@ window.spidarView = {
     status,
     renders,
     replay: !!playback,
+    stamp: applied ? applied.stamp : null,
+    drawnReport: ages.last,
   }),
   // A replay's state (its last `playback` message) and the bar's text, or null when live.
   playback: () => playback && { ...playback.state, shown: playback.k.time.textContent, button: playback.k.play.textContent },
@@ -193,6 +237,14 @@ window.spidarView = {
     cameras.controls.update();
   },
   project,
+  // Where each eye's picture of the rig's screen puts scene point p (page px), or null without one.
+  projectEyes: (p) => {
+    if (!cameras.hasScreen) return null;
+    const r = renderer.domElement.getBoundingClientRect();
+    return cameras.screen.project(p, r.width, r.height).map((e) => ({ ...e, x: e.x + r.left, y: e.y + r.top }));
+  },
+  rigInfo: () => rigInfo,
+  screen: () => ({ on: cameras.onScreen, format: cameras.screen.format, display: rigInfo && rigInfo.display }),
   // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
   shape: (name) => {
     const i = desc.shapes.findIndex((s) => s.name === name);
@@ -204,6 +256,20 @@ window.spidarView = {
     return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash,
       force: applied.f[desc.layout.shape_force_at + i] };
   },
+  // A body drawn as a person: each joint as its two pieces draw it; where its eyes look.
+  // For tests: the description and the applied frame's numbers, and a page fed a description and
+  // a frame of the test's making (the live frames of another layout are then ignored).
+  desc: () => desc,
+  frameWords: () => (applied ? Array.from(applied.f) : null),
+  feed: (d, words) => {
+    onScene(d);
+    const f = new Float32Array(words);
+    const u = new Uint32Array(f.buffer);
+    onFrame(f.buffer, u[1], u[2]);
+  },
+  personJoints: (name) => people && people.joints(name),
+  personEyes: (name) => people && people.eyeDirections(name),
+  setBodies,
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
   character: (i) => {
     const L = desc.layout;
@@ -214,5 +280,8 @@ window.spidarView = {
     .map((e) => [e.dataset.hud ?? `counter:${e.dataset.counter}`, e.textContent])),
   labels: () => Array.from(document.querySelectorAll('.label')).map((e) => ({
     label: e.dataset.label ?? null, character: e.dataset.character ?? null, state: e.dataset.state, text: e.textContent })),
-  grips: () => rig.grips.map((g) => ({ visible: g.visible, pos: g.position.toArray() })),
+  grips: () => rig.grips.map((g, h) => {
+    const o = desc.layout.hands_at + h * desc.layout.hand_floats;
+    return { visible: g.visible, pos: g.position.toArray(), force: applied ? Array.from(applied.f.subarray(o + 3, o + 6)) : null };
+  }),
 };

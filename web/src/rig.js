@@ -37,6 +37,7 @@ export class Rig {
     this.strings.visible = false;
     this.group.add(this.strings);
     this.frame = null;
+    this.showStrings = true;
     this.c = new THREE.Color();
     this.lo = new THREE.Color(0x9aa0a6);
     this.hi = new THREE.Color(0xff3b2f);
@@ -86,7 +87,7 @@ export class Rig {
         for (const e of [k - 3, k]) { this.strCol[e] = this.c.r; this.strCol[e + 1] = this.c.g; this.strCol[e + 2] = this.c.b; }
       }
     }
-    this.strings.visible = !!this.info && valid !== 0;
+    this.strings.visible = this.showStrings && !!this.info && valid !== 0;
     this.strings.geometry.attributes.position.needsUpdate = true;
     this.strings.geometry.attributes.color.needsUpdate = true;
   }

@@ -67,15 +67,26 @@ export class World {
       this.group.add(p); this.group.add(a);
       this.contacts.push({ p, a });
     }
+    // Shapes that are solids of a body drawn as a person: not drawn while people are.
+    for (const h of desc.humanoids || []) for (const seg of h.segments) this.meshes[seg.shape].userData.person = true;
+    this.people = false;
     this.v1 = new THREE.Vector3();
     this.v2 = new THREE.Vector3();
     this.up = new THREE.Vector3(0, 1, 0);
     this.white = new THREE.Color(0xfff2b0);
   }
 
-  // Hides the shapes within `r` of `p` (the user's own head, seen from their eye), or none.
+  // Hides the shapes within `r` of `p` (the user's own head, seen from their eye), or none, and
+  // those of a hidden actor.
   hideNear(p, r) {
-    for (const m of this.meshes) m.visible = !p || m.position.distanceTo(p) > r;
+    for (const m of this.meshes) {
+      m.visible = !m.userData.actorHidden && !(this.people && m.userData.person) && (!p || m.position.distanceTo(p) > r);
+    }
+  }
+
+  // Hides (or shows) every shape of an actor (`avatar`: at the rig, the user's own hands are there).
+  hideActor(actor, hidden) {
+    for (const m of this.meshes) if (m.name.startsWith(`${actor}/`)) m.userData.actorHidden = hidden;
   }
 
   apply(f, dt) {

@@ -103,6 +103,8 @@ struct Inner {
     stop: AtomicBool,
     write_timeout: Duration,
     name: String,
+    /// The client threads, joined when the server stops (so a client gets what was queued).
+    threads: Mutex<Vec<std::thread::JoinHandle<()>>>,
 }
 
 /// The handle that publishes messages; cheap to clone, never waits.
@@ -181,6 +183,7 @@ impl FoxgloveServer {
             stop: AtomicBool::new(false),
             write_timeout,
             name: name.into(),
+            threads: Mutex::new(Vec::new()),
         });
         let i = inner.clone();
         let accept = std::thread::Builder::new()
@@ -223,6 +226,13 @@ impl FoxgloveServer {
         if let Some(h) = self.accept.take() {
             let _ = h.join();
         }
+        // Each client sends what is queued and closes; a stalled one gives up after the
+        // write timeout.
+        let threads =
+            self.publisher.inner.threads.lock().map(|mut t| std::mem::take(&mut *t)).unwrap_or_default();
+        for h in threads {
+            let _ = h.join();
+        }
     }
 }
 
@@ -237,9 +247,13 @@ fn accept_clients(listener: TcpListener, inner: Arc<Inner>) {
         match listener.accept() {
             Ok((stream, _)) => {
                 let i = inner.clone();
-                let _ = std::thread::Builder::new()
+                let spawned = std::thread::Builder::new()
                     .name("spidar-foxglove-client".into())
                     .spawn(move || serve_client(stream, i));
+                if let (Ok(h), Ok(mut threads)) = (spawned, inner.threads.lock()) {
+                    threads.retain(|t| !t.is_finished());
+                    threads.push(h);
+                }
             }
             Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(20)),
             Err(_) => std::thread::sleep(Duration::from_millis(20)),
@@ -346,6 +360,16 @@ fn run_client(ws: &mut WebSocket<TcpStream>, me: &Client, inner: &Inner) -> bool
     }
     loop {
         if inner.stop.load(Ordering::Relaxed) {
+            // What was published before the end reaches the client before the close: a client
+            // that kept up must hold everything the recording holds (each send is bounded by
+            // the write timeout, so a stalled client cannot hold the end up for long).
+            let rest: Vec<Bytes> = me.queue.lock().map(|mut q| q.drain(..).collect()).unwrap_or_default();
+            for b in rest {
+                if ws.send(Message::Binary(b)).is_err() {
+                    return false;
+                }
+                inner.counters.messages_sent.fetch_add(1, Ordering::Relaxed);
+            }
             let _ = ws.close(None);
             let _ = ws.flush();
             return false;
@@ -507,6 +531,59 @@ mod tests {
         assert_eq!(p.counters().messages_published.load(Ordering::Relaxed), 2 * N);
         drop((stalled, reader));
         server.stop();
+    }
+
+    #[test]
+    fn a_server_that_stops_sends_what_it_queued_before_it_closes() {
+        let mut server = FoxgloveServer::start(
+            "127.0.0.1:0".parse().unwrap(),
+            "test",
+            vec![channel("/a")],
+            Duration::from_secs(20),
+        )
+        .unwrap();
+        let mut ws = connect(server.addr(), true);
+        subscribe(&mut ws);
+        let p = server.publisher();
+        wait_until("the subscription", || {
+            p.inner.clients.lock().unwrap().iter().all(|c| c.subs.lock().unwrap().contains_key(&0))
+        });
+        // The client does not read yet: its socket fills, the server's sender waits on it in the
+        // middle of a batch, and messages stay queued behind. Publish until some are.
+        let data = vec![0x5au8; 64 * 1024];
+        let queued =
+            || p.inner.clients.lock().unwrap().iter().map(|c| c.queue.lock().unwrap().len()).sum::<usize>();
+        let mut n = 0u64;
+        let sent = || p.counters().messages_sent.load(Ordering::Relaxed);
+        while sent() == 0 || queued() < 256 {
+            p.publish(0, n, &data);
+            n += 1;
+            assert!(n < CLIENT_QUEUE as u64, "the socket never filled");
+        }
+        // The world ends with messages queued; the client reads from now on.
+        let go = Arc::new(AtomicBool::new(false));
+        let reader = {
+            let go = go.clone();
+            std::thread::spawn(move || {
+                while !go.load(Ordering::Relaxed) {
+                    std::thread::yield_now();
+                }
+                let mut got = Vec::new();
+                loop {
+                    match ws.read() {
+                        Ok(Message::Binary(b)) => got.push(u64::from_le_bytes(b[5..13].try_into().unwrap())),
+                        Ok(Message::Close(_)) | Err(_) => break,
+                        Ok(_) => {}
+                    }
+                }
+                got
+            })
+        };
+        p.inner.stop.store(true, Ordering::Relaxed);
+        go.store(true, Ordering::Relaxed);
+        server.stop();
+        let got = reader.join().unwrap();
+        assert_eq!(got, (0..n).collect::<Vec<_>>(), "every message published before the end, in order");
     }
 
     #[test]

@@ -16,7 +16,6 @@ pub mod decisions;
 pub mod foxglove;
 pub mod host;
 pub mod look;
-mod looks;
 pub mod view;
 pub mod walls;
 

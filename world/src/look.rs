@@ -81,6 +81,45 @@ pub struct LookCrowd {
     pub figures: Option<Arc<Figures>>,
 }
 
+/// A body drawn as a person (the boxing scene's virtual human and avatar): which moving shapes
+/// are its segments and where its joints sit on them, so the page builds a humanoid mesh whose
+/// pieces ride on the shapes' poses and meet at the simulated joints.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookHumanoid {
+    /// The actor (`virtual human`, `avatar`): its shapes are named `actor/part`.
+    pub name: String,
+    pub segments: Vec<LookSegment>,
+    pub joints: Vec<LookBodyJoint>,
+    /// Clothes and skin (sRGB).
+    pub colour: [u8; 3],
+    pub skin: [u8; 3],
+    /// Which way the body faces in its segments' frames (the body model's forward, -z).
+    pub forward: DVec3,
+}
+
+/// One solid of a humanoid: its shape and what part of a body it is.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookSegment {
+    /// Index into `Look::shapes`.
+    pub shape: usize,
+    /// `waist`, `chest`, `head`, `upper_arm`, `forearm` or `hand`.
+    pub part: String,
+    /// -1 left, 0 centre, 1 right.
+    pub side: i8,
+}
+
+/// A joint between two segments: where it is in each one's shape frame (the two coincide in the
+/// world: the simulation's joints hold together).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookBodyJoint {
+    pub name: String,
+    /// Indices into `Look::shapes`.
+    pub parent_shape: usize,
+    pub child_shape: usize,
+    pub at_parent_m: DVec3,
+    pub at_child_m: DVec3,
+}
+
 /// The description of a scene for the view, built once.
 #[derive(Clone, Debug)]
 pub struct Look {
@@ -97,6 +136,8 @@ pub struct Look {
     pub link_offset_m: DVec3,
     /// What the user's-eye camera looks at (scene frame).
     pub focus_m: DVec3,
+    /// Bodies drawn as people (their shapes stay drawable as they are, a toggle).
+    pub humanoids: Vec<LookHumanoid>,
 }
 
 impl Default for Look {
@@ -109,6 +150,7 @@ impl Default for Look {
             crowd: None,
             link_offset_m: DVec3::ZERO,
             focus_m: DVec3::new(0.0, 1.3, -1.0),
+            humanoids: Vec::new(),
         }
     }
 }
@@ -261,4 +303,10 @@ fn put_quat(s: &mut [f32], q: DQuat) {
     s[1] = q.y as f32;
     s[2] = q.z as f32;
     s[3] = q.w as f32;
+}
+
+/// A rotation matrix as a unit quaternion (tolerant of rounding in the matrix).
+#[inline]
+pub(crate) fn quat(m: &glam::DMat3) -> glam::DQuat {
+    glam::DQuat::from_mat3(m).normalize()
 }

@@ -18,7 +18,7 @@
 //!   a motor held stalled at high duty is derated by the thermal limit ([`motor`]). **No
 //!   watchdog**: the last command is held whatever the host does; an optional one exists for
 //!   experiments ([`EmulatorOptions::watchdog`], off unless asked for).
-//! - [`Emulator`]: a pty, a symlink to it in a directory private to the user ([`link`]), and a
+//! - [`Emulator`]: a pty, a symlink to it in a directory private to the user ([`symlink`]), and a
 //!   thread moving bytes between them, applying the faults: dropped replies, corrupted bytes,
 //!   extra delay, boards that hear nothing, disconnect (the pty is closed and the link removed)
 //!   and reconnect (a new pty behind the same link). The boards stay powered through a
@@ -35,8 +35,8 @@
 //! (the host's decoder would accept garbage), or let a test pass on a safety feature the boards
 //! lack (a watchdog, a tolerant parser, an unclipped PWM).
 
-pub mod link;
 pub mod motor;
+pub mod symlink;
 
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
@@ -566,7 +566,7 @@ impl Control {
 /// A running emulator: its pty, link path and serving thread. Dropping it stops the thread and
 /// removes the link.
 pub struct Emulator {
-    link: PathBuf,
+    symlink: PathBuf,
     control: Control,
     thread: Option<JoinHandle<()>>,
 }
@@ -578,7 +578,7 @@ pub enum EmulatorError {
     Config(String),
     #[error("emulator: cannot create a pseudo-terminal: {0}")]
     Pty(std::io::Error),
-    #[error("emulator: cannot create the link {path}: {source} (choose another path with --link)")]
+    #[error("emulator: cannot create the link {path}: {source} (choose another path with --symlink)")]
     Link { path: String, source: std::io::Error },
     #[error("emulator: will not replace {path}: {why}")]
     LinkTaken { path: String, why: String },
@@ -638,13 +638,13 @@ impl Pty {
 impl Emulator {
     /// Starts the boards in front of `rig` on a new pty, reachable at `link` (a symlink that
     /// survives reconnects). Only a dangling link to a pty (an emulator that was killed) is
-    /// replaced; anything else at `link` is refused ([`link::claim`]).
+    /// replaced; anything else at `link` is refused ([`symlink::claim`]).
     pub fn spawn(rig: SimRig, opts: EmulatorOptions, link: &Path) -> Result<Emulator, EmulatorError> {
         let opts_fifo = opts.fifo_priority;
         let boards = Boards::new(rig, opts).map_err(EmulatorError::Config)?;
-        link::claim(link)?;
+        symlink::claim(link)?;
         let pty = Pty::open().map_err(EmulatorError::Pty)?;
-        link::publish(link, &pty.path)?;
+        symlink::publish(link, &pty.path)?;
         let faults = Arc::new(Faults::default());
         *faults.pty.lock().unwrap_or_else(|p| p.into_inner()) = Some(pty.path.clone());
         faults.connections.store(1, Ordering::SeqCst);
@@ -666,17 +666,17 @@ impl Emulator {
                 serve(pty, c, link_owned)
             })
             .map_err(EmulatorError::Pty)?;
-        Ok(Emulator { link: link.to_path_buf(), control, thread: Some(thread) })
+        Ok(Emulator { symlink: link.to_path_buf(), control, thread: Some(thread) })
     }
 
     /// The stable path a host opens (a symlink to the current pty).
-    pub fn link(&self) -> &Path {
-        &self.link
+    pub fn symlink(&self) -> &Path {
+        &self.symlink
     }
 
     /// The pty the link points at now.
     pub fn pty_path(&self) -> Option<PathBuf> {
-        std::fs::read_link(&self.link).ok()
+        std::fs::read_link(&self.symlink).ok()
     }
 
     pub fn control(&self) -> &Control {
@@ -695,7 +695,7 @@ impl Emulator {
         }
         // Also when the serving thread panicked: the link goes if it still points at our pty.
         if let Some(p) = self.control.faults.pty.lock().unwrap_or_else(|p| p.into_inner()).take() {
-            link::remove_if_ours(&self.link, &p);
+            symlink::remove_if_ours(&self.symlink, &p);
         }
     }
 }
@@ -716,14 +716,14 @@ fn serve(first: Pty, control: Control, link: PathBuf) {
     while !f.stop.load(Ordering::SeqCst) {
         if f.disconnect.swap(false, Ordering::SeqCst) {
             if let Some(p) = pty.take() {
-                link::remove_if_ours(&link, &p.path);
+                symlink::remove_if_ours(&link, &p.path);
             } // dropping the pty closes the master, which hangs up the host's end
             *f.pty.lock().unwrap_or_else(|p| p.into_inner()) = None;
             f.connected.store(false, Ordering::SeqCst);
         }
         if f.reconnect.swap(false, Ordering::SeqCst) && pty.is_none() {
             if let Ok(p) = Pty::open() {
-                if link::claim(&link).and_then(|()| link::publish(&link, &p.path)).is_ok() {
+                if symlink::claim(&link).and_then(|()| symlink::publish(&link, &p.path)).is_ok() {
                     control.boards().reset_link();
                     *f.pty.lock().unwrap_or_else(|p| p.into_inner()) = Some(p.path.clone());
                     pty = Some(p);

@@ -228,14 +228,14 @@ fn a_stalled_motor_at_full_duty_is_slowly_derated_and_one_at_low_duty_never() {
 
 /// A link path of its own for each test (tests run in parallel).
 fn link_path(name: &str) -> PathBuf {
-    link::private_dir().unwrap().join(format!("emu-test-{}-{name}", std::process::id()))
+    symlink::private_dir().unwrap().join(format!("emu-test-{}-{name}", std::process::id()))
 }
 
 fn start_with(name: &str, opts: EmulatorOptions) -> (Emulator, UartDevice<crate::uart::SerialPath>) {
     let emu = Emulator::spawn(lab_rig(), opts, &link_path(name)).unwrap();
     // Generous deadlines: these tests check behaviour, not this machine's latency.
     let uo = UartOptions { reply_timeout: Duration::from_millis(100), ..UartOptions::default() };
-    let mut dev = UartDevice::on_port(emu.link().to_str().unwrap(), uo).unwrap();
+    let mut dev = UartDevice::on_port(emu.symlink().to_str().unwrap(), uo).unwrap();
     dev.open_detailed().unwrap();
     (emu, dev)
 }
@@ -263,8 +263,8 @@ fn driver_enumerates_two_b1m_boards_over_the_pty_and_drives_the_rig() {
     assert_eq!(dev.info().board.as_str(), "UART B1M#0+B1M#1");
     // A pty has no latency setting and no modem lines: not applicable, not a warning.
     let port = dev.port_report().unwrap();
-    assert_eq!(port.low_latency, crate::link::PortSetting::NotApplicable);
-    assert_eq!(port.modem_lines_cleared, crate::link::PortSetting::NotApplicable);
+    assert_eq!(port.low_latency, crate::transport::PortSetting::NotApplicable);
+    assert_eq!(port.modem_lines_cleared, crate::transport::PortSetting::NotApplicable);
     assert!(dev.warnings().is_empty(), "{:?}", dev.warnings());
     dev.activate().unwrap();
     let out = Output { volts: [0.6; crate::MAX_CHANNELS] }; // 3 N on every string
@@ -376,12 +376,12 @@ fn each_fault_reaches_the_driver_as_its_error_kind_and_the_link_recovers() {
 #[test]
 fn the_link_lives_in_a_private_directory() {
     use std::os::unix::fs::MetadataExt;
-    let d = link::private_dir().unwrap();
+    let d = symlink::private_dir().unwrap();
     let m = std::fs::symlink_metadata(&d).unwrap();
     assert!(m.is_dir());
     assert_eq!(m.mode() & 0o077, 0, "no access for others: {:o}", m.mode());
     assert_eq!(m.uid(), unsafe { libc::getuid() });
-    assert_eq!(link::default_link().unwrap(), d.join("uart"));
+    assert_eq!(symlink::default_symlink().unwrap(), d.join("uart"));
 }
 
 #[test]
@@ -403,9 +403,9 @@ fn the_link_never_replaces_what_it_did_not_make() {
     // The live link of another emulator.
     let first = Emulator::spawn(lab_rig(), EmulatorOptions::default(), &link_path("live")).unwrap();
     let err =
-        Emulator::spawn(lab_rig(), EmulatorOptions::default(), first.link()).err().expect("must refuse");
+        Emulator::spawn(lab_rig(), EmulatorOptions::default(), first.symlink()).err().expect("must refuse");
     assert!(err.to_string().contains("another emulator"), "{err}");
-    assert_eq!(std::fs::read_link(first.link()).ok(), first.pty_path());
+    assert_eq!(std::fs::read_link(first.symlink()).ok(), first.pty_path());
 }
 
 #[test]

@@ -156,7 +156,7 @@ impl SimRigParams {
         }
     }
 
-    /// The lab's human-scale two-hand rig (reference/spidar.md section 1): hand 0 on channels
+    /// The lab's human-scale two-hand rig (docs/reference.md section 1): hand 0 on channels
     /// 0-3, hand 1 on 4-7, 2.924e-5 m per count, 0.2 V/N, 20 N motors, counters zeroed with
     /// the grip at the origin (the lab's homing), grips starting at `start_m`.
     pub fn lab(start_m: [DVec3; 2]) -> SimRigParams {
@@ -207,7 +207,7 @@ pub struct Truth {
 
 /// Set-up errors of the simulated rig and its scripts.
 #[derive(Debug, Error)]
-pub enum SimError {
+pub enum SimRigError {
     #[error("simulated rig: {field}: {problem}")]
     InvalidParam { field: String, problem: String },
     #[error("script {script}, segment {segment}: {problem}")]
@@ -267,7 +267,7 @@ pub struct SimRig {
 impl SimRig {
     /// Validates the parameters and scripts (loading any trajectory files, relative to the
     /// current directory) and puts both grips at rest at their start positions.
-    pub fn new(params: SimRigParams, mut scripts: [Script; 2]) -> Result<SimRig, SimError> {
+    pub fn new(params: SimRigParams, mut scripts: [Script; 2]) -> Result<SimRig, SimRigError> {
         validate(&params)?;
         for (i, s) in scripts.iter_mut().enumerate() {
             s.prepare(std::path::Path::new(""), &format!("hand {i}"))?;
@@ -347,9 +347,9 @@ impl SimRig {
     }
 
     /// [`SimRig::set_script`] that reports bad scripts and hands instead of panicking.
-    pub fn try_set_script(&mut self, hand: usize, mut script: Script) -> Result<(), SimError> {
+    pub fn try_set_script(&mut self, hand: usize, mut script: Script) -> Result<(), SimRigError> {
         if hand >= 2 {
-            return Err(SimError::NoSuchHand { hand });
+            return Err(SimRigError::NoSuchHand { hand });
         }
         script.prepare(std::path::Path::new(""), &format!("hand {hand}"))?;
         let from = self.truth.hands[hand].target_m - self.hands[hand].push_m;
@@ -432,8 +432,14 @@ impl SimRig {
                 *cmd = match out {
                     Some(out) if self.active => {
                         let v = out.volts.get(s.channel).copied().unwrap_or(0.0);
-                        let v = if v.is_nan() { 0.0 } else { v.clamp(-vmax, vmax) };
-                        (v / s.volts_per_newton).clamp(0.0, s.tension_max_n)
+                        let t = crate::clamp_symmetric(v, vmax) / s.volts_per_newton;
+                        // Never panics: a NaN tension (a zero scale) or a NaN or negative motor
+                        // limit is no tension.
+                        if t.is_nan() || s.tension_max_n.is_nan() || s.tension_max_n < 0.0 {
+                            0.0
+                        } else {
+                            t.clamp(0.0, s.tension_max_n)
+                        }
                     }
                     _ => 0.0,
                 };
@@ -548,8 +554,8 @@ impl Device for SimRig {
     }
 }
 
-fn validate(p: &SimRigParams) -> Result<(), SimError> {
-    let bad = |field: String, problem: String| Err(SimError::InvalidParam { field, problem });
+fn validate(p: &SimRigParams) -> Result<(), SimRigError> {
+    let bad = |field: String, problem: String| Err(SimRigError::InvalidParam { field, problem });
     let positive = |field: &str, v: f64| {
         if v.is_finite() && v > 0.0 {
             Ok(())

@@ -18,7 +18,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use serde::Deserialize;
 
-use super::SimError;
+use super::SimRigError;
 
 /// The scripted target at one instant.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -113,16 +113,16 @@ impl Recorded {
 impl Segment {
     /// A recorded trajectory from samples in memory (tests, generated motions). `origin` names
     /// it in error messages.
-    pub fn recorded(origin: &str, samples: Vec<TrajectorySample>) -> Result<Segment, SimError> {
+    pub fn recorded(origin: &str, samples: Vec<TrajectorySample>) -> Result<Segment, SimRigError> {
         for (i, s) in samples.iter().enumerate() {
             // Report sample numbers from 1, as a CSV line number would be (minus the header).
             let problem = sample_problem(s, i.checked_sub(1).map(|j| samples[j].t_s));
             if let Some(problem) = problem {
-                return Err(SimError::Trajectory { file: origin.to_owned(), line: i + 1, problem });
+                return Err(SimRigError::Trajectory { file: origin.to_owned(), line: i + 1, problem });
             }
         }
         if samples.is_empty() {
-            return Err(SimError::Trajectory {
+            return Err(SimRigError::Trajectory {
                 file: origin.to_owned(),
                 line: 0,
                 problem: "no samples: a trajectory needs at least one".to_owned(),
@@ -132,9 +132,9 @@ impl Segment {
     }
 
     /// Parses trajectory CSV text (header `t_s,x_m,y_m,z_m`); `origin` names it in messages.
-    pub fn recorded_from_csv(origin: &str, text: &str) -> Result<Segment, SimError> {
+    pub fn recorded_from_csv(origin: &str, text: &str) -> Result<Segment, SimRigError> {
         let err =
-            |line: usize, problem: String| SimError::Trajectory { file: origin.to_owned(), line, problem };
+            |line: usize, problem: String| SimRigError::Trajectory { file: origin.to_owned(), line, problem };
         let mut samples = Vec::new();
         let mut header_seen = false;
         for (i, raw) in text.lines().enumerate() {
@@ -189,8 +189,8 @@ impl Segment {
     }
 
     /// Reads a trajectory CSV file.
-    pub fn recorded_from_file(path: &Path) -> Result<Segment, SimError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+    pub fn recorded_from_file(path: &Path) -> Result<Segment, SimRigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SimRigError::Io {
             file: path.display().to_string(),
             what: "the trajectory file",
             source,
@@ -215,9 +215,9 @@ impl Segment {
     }
 
     /// Checks numbers and shapes; `what` names the script in messages.
-    fn validate(&self, what: &str, index: usize) -> Result<(), SimError> {
+    fn validate(&self, what: &str, index: usize) -> Result<(), SimRigError> {
         let bad =
-            |problem: String| SimError::InvalidScript { script: what.to_owned(), segment: index, problem };
+            |problem: String| SimRigError::InvalidScript { script: what.to_owned(), segment: index, problem };
         let finite3 = |name: &str, v: &[f64; 3]| {
             if v.iter().all(|x| x.is_finite()) {
                 Ok(())
@@ -332,7 +332,7 @@ impl Script {
 
     /// Loads every `Trajectory { file }` (relative paths against `base_dir`) and validates every
     /// segment. `what` names the script in messages (e.g. "scripts.ron hand 0").
-    pub fn prepare(&mut self, base_dir: &Path, what: &str) -> Result<(), SimError> {
+    pub fn prepare(&mut self, base_dir: &Path, what: &str) -> Result<(), SimRigError> {
         for seg in &mut self.segments {
             if let Segment::Trajectory { file } = seg {
                 let p = PathBuf::from(&*file);
@@ -344,9 +344,9 @@ impl Script {
     }
 
     /// Validates a prepared script (no `Trajectory` left to load).
-    pub fn validate(&self, what: &str) -> Result<(), SimError> {
+    pub fn validate(&self, what: &str) -> Result<(), SimRigError> {
         if !(self.start_hold_s.is_finite() && self.start_hold_s >= 0.0) {
-            return Err(SimError::InvalidScript {
+            return Err(SimRigError::InvalidScript {
                 script: what.to_owned(),
                 segment: 0,
                 problem: format!("start_hold_s must be a finite time >= 0, not {}", self.start_hold_s),
@@ -367,7 +367,7 @@ impl Script {
                 })
                 .sum();
             if total <= 0.0 {
-                return Err(SimError::InvalidScript {
+                return Err(SimRigError::InvalidScript {
                     script: what.to_owned(),
                     segment: 0,
                     problem: "a repeating script must last longer than 0 s in total".to_owned(),
@@ -414,8 +414,8 @@ impl ScriptFile {
     pub const VERSION: u32 = 1;
 
     /// Reads, parses and prepares a script file (trajectories relative to its folder).
-    pub fn load(path: &Path) -> Result<ScriptFile, SimError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
+    pub fn load(path: &Path) -> Result<ScriptFile, SimRigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SimRigError::Io {
             file: path.display().to_string(),
             what: "the script file",
             source,
@@ -426,10 +426,10 @@ impl ScriptFile {
     /// Parses and prepares script text. `origin_name` names it in messages; if it is a path,
     /// relative trajectory files are looked up in its folder.
     #[allow(clippy::should_implement_trait)] // needs the origin name, so not `FromStr`
-    pub fn from_str(text: &str, origin_name: &str) -> Result<ScriptFile, SimError> {
+    pub fn from_str(text: &str, origin_name: &str) -> Result<ScriptFile, SimRigError> {
         let text =
             &spidar_config::expect_kind(text, origin_name, spidar_config::FileKind::Script).map_err(|e| {
-                SimError::Parse { file: e.origin, line: e.line, column: e.column, message: e.message }
+                SimRigError::Parse { file: e.origin, line: e.line, column: e.column, message: e.message }
             })?;
         let mut file: ScriptFile = ron::from_str(text).map_err(|e| {
             let mut message = e.code.to_string();
@@ -438,7 +438,7 @@ impl ScriptFile {
                 message
                     .push_str(" (tuples are written in parentheses: points as (x, y, z), hands as (.., ..))");
             }
-            SimError::Parse {
+            SimRigError::Parse {
                 file: origin_name.to_owned(),
                 line: e.span.start.line,
                 column: e.span.start.col,
@@ -446,7 +446,7 @@ impl ScriptFile {
             }
         })?;
         if file.version != Self::VERSION {
-            return Err(SimError::Parse {
+            return Err(SimRigError::Parse {
                 file: origin_name.to_owned(),
                 line: 1,
                 column: 1,

@@ -702,11 +702,11 @@ fn script_files_parse_and_report_positions() {
     let bad_field = text.replace("out_s: 0.2", "out_time: 0.2");
     let e = ScriptFile::from_str(&bad_field, "scripts.ron").unwrap_err();
     let msg = e.to_string();
-    assert!(matches!(e, SimError::Parse { line: 7, .. }), "{msg}");
+    assert!(matches!(e, SimRigError::Parse { line: 7, .. }), "{msg}");
     assert!(msg.starts_with("scripts.ron:7:") && msg.contains("out_time"), "{msg}");
 
     let e = ScriptFile::from_str(&text.replace("(0.0, 0.1, 0.0)", "[0.0, 0.1, 0.0]"), "p.ron").unwrap_err();
-    assert!(e.to_string().contains("(x, y, z)") && matches!(e, SimError::Parse { line: 5, .. }), "{e}");
+    assert!(e.to_string().contains("(x, y, z)") && matches!(e, SimRigError::Parse { line: 5, .. }), "{e}");
     let e = ScriptFile::from_str(&text.replace("version: 1", "version: 9"), "x.ron").unwrap_err().to_string();
     assert!(e.contains("version") && e.contains('9'), "{e}");
     // A file of another kind is named as such, at its kind entry.

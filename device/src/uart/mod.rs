@@ -8,7 +8,7 @@
 //! [`Device::exchange`] or [`Device::reopen`] (both run in the 1 kHz tick), block longer than its
 //! reply deadline, or declare a command length of 0 to the boards (that locks every board on the
 //! link with its motors on). The byte layouts live in [`protocol`]; this module moves buffers
-//! through a [`ByteLink`] and keeps the counters' wrap extension.
+//! through a [`ByteTransport`] and keeps the counters' wrap extension.
 //!
 //! Open: enumerate board ids 0..7, declare every board's real command lengths, then measure
 //! which reply layout each board's firmware uses (one zero current command per board, its reply
@@ -33,7 +33,7 @@ use std::ffi::CString;
 use std::time::{Duration, Instant};
 
 use crate::frame::Unwrap;
-use crate::link::{open_serial, ByteLink, FdLink, PortReport, PortSetting};
+use crate::transport::{open_serial, ByteTransport, FdTransport, PortReport, PortSetting};
 use crate::{short_string, Device, DeviceError, DeviceInfo, Input, OpenError, Output, MAX_CHANNELS};
 use protocol::{
     cmd, BoardInfo, CurrentReply, ReplyLayout, INFO_REPLY_LEN, INFO_REQUEST_LEN, INFO_TRAIL_ZEROS,
@@ -46,7 +46,7 @@ pub const STATUS_ACTIVE: u32 = 1;
 /// Opens the link to the boards. `connect` is called again by [`Device::reopen`] inside the tick,
 /// so it must not allocate.
 pub trait Connector: Send {
-    type Link: ByteLink;
+    type Link: ByteTransport;
     fn connect(&mut self) -> Result<Self::Link, DeviceError>;
     /// What the link is, for messages (e.g. the port path).
     fn describe(&self) -> &str;
@@ -69,8 +69,8 @@ impl SerialPath {
 }
 
 impl Connector for SerialPath {
-    type Link = FdLink;
-    fn connect(&mut self) -> Result<FdLink, DeviceError> {
+    type Link = FdTransport;
+    fn connect(&mut self) -> Result<FdTransport, DeviceError> {
         open_serial(&self.path, self.baud)
     }
     fn describe(&self) -> &str {
@@ -184,8 +184,8 @@ const RX_MAX: usize = 512;
 /// The UART boards on one link; see the module doc.
 pub struct UartDevice<C: Connector> {
     conn: C,
-    link: Option<C::Link>,
-    opts: UartOptions,
+    pub(crate) link: Option<C::Link>,
+    pub(crate) opts: UartOptions,
     boards: heapless::Vec<BoardInfo, MAX_BOARDS>,
     layouts: [ReplyLayout; MAX_BOARDS],
     /// First channel of each board in `boards`.
@@ -328,7 +328,7 @@ impl<C: Connector> UartDevice<C> {
         self.active = false;
         let mut link = self.conn.connect().map_err(|e| OpenError::from_serial(&port, e))?;
         self.port = link.port_report();
-        self.latency_timer_ms = crate::link::latency_timer_ms(&port);
+        self.latency_timer_ms = crate::transport::latency_timer_ms(&port);
         let mut found: heapless::Vec<BoardInfo, MAX_BOARDS> = heapless::Vec::new();
         let mut garbage = Vec::new();
         for id in 0..MAX_BOARDS as u8 {
@@ -647,7 +647,7 @@ impl<C: Connector> UartDevice<C> {
 }
 
 /// Sends board `id` a board-info request and reads its answer.
-fn identify<L: ByteLink>(link: &mut L, id: u8, deadline: Instant) -> Result<BoardInfo, DeviceError> {
+fn identify<L: ByteTransport>(link: &mut L, id: u8, deadline: Instant) -> Result<BoardInfo, DeviceError> {
     let mut req = [0u8; INFO_REQUEST_LEN];
     protocol::encode_info_request(id, &mut req);
     link.clear_input()?;
@@ -659,7 +659,7 @@ fn identify<L: ByteLink>(link: &mut L, id: u8, deadline: Instant) -> Result<Boar
 
 /// Tells every board the command lengths of each board in `boards` (each board stores the
 /// lengths of every id it hears), then the trailing zeros.
-fn set_command_lengths<L: ByteLink>(
+fn set_command_lengths<L: ByteTransport>(
     link: &mut L,
     boards: &[BoardInfo],
     deadline: Instant,
@@ -683,7 +683,7 @@ enum Measured {
 
 /// Sends board `b` a zero current command and a board-info request, and finds the layout whose
 /// reply length puts the board-info reply right after the current reply. Allocates nothing.
-fn measure_layout<L: ByteLink>(
+fn measure_layout<L: ByteTransport>(
     link: &mut L,
     b: &BoardInfo,
     deadline: Instant,
@@ -806,6 +806,3 @@ impl<C: Connector> Device for UartDevice<C> {
         &self.info
     }
 }
-
-#[cfg(test)]
-mod tests;

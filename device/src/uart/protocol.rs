@@ -310,14 +310,10 @@ pub fn encode_set_command_lengths(info: &BoardInfo, buf: &mut [u8; SET_CMD_LEN_L
 }
 
 /// Volts of the host's scale to a board command: `volts x digits_per_volt`, rounded, clamped to
-/// `+-limit` digits; NaN is 0.
+/// `+-limit` digits; NaN is 0. Never panics, for any input or scale: a negative `limit` allows 0.
 pub fn volts_to_digits(volts: f64, digits_per_volt: f64, limit: i16) -> i16 {
-    let d = (volts * digits_per_volt).round();
-    if d.is_nan() {
-        0
-    } else {
-        d.clamp(-f64::from(limit), f64::from(limit)) as i16
-    }
+    // `as` saturates to the i16 range (the limit's own magnitude may be 32768 for i16::MIN).
+    crate::clamp_symmetric((volts * digits_per_volt).round(), f64::from(limit)) as i16
 }
 
 /// Writes board `info`'s current command (header, nMotor x i16 little-endian, then the padding

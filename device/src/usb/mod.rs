@@ -3,8 +3,8 @@
 //!
 //! Why it exists: labs still run rigs on these boards. The byte layouts are in [`protocol`]; this
 //! module identifies the board (by USB id and rotary switch), moves one OUT and one IN transfer
-//! per tick through a [`BulkLink`], and extends the counters (24-bit on Simple, 16-bit on SH-4)
-//! to i64. Tests run it against fake boards behind the same trait; [`rusb_link`] is the real
+//! per tick through a [`BulkTransport`], and extends the counters (24-bit on Simple, 16-bit on SH-4)
+//! to i64. Tests run it against fake boards behind the same trait; [`rusb_transport`] is the real
 //! transport. What it must never do: allocate in its own code, lock or panic in `exchange`, or
 //! block past the deadline (libusb's timeouts have a 1 ms resolution, so a transfer may take up
 //! to 1 ms). libusb's synchronous transfers allocate inside C; a lost USB board is not reopened
@@ -20,12 +20,12 @@
 //! flipped (one written for the Simple board needs nothing).
 
 pub mod protocol;
-pub mod rusb_link;
+pub mod rusb_transport;
 
 use std::time::{Duration, Instant};
 
 use crate::frame::Unwrap;
-use crate::link::BulkLink;
+use crate::transport::BulkTransport;
 use crate::{short_string, Device, DeviceError, DeviceInfo, Input, OpenError, Output, MAX_CHANNELS};
 use protocol::{CHANNELS, EP_IN, EP_OUT, SH4_LEN, SIMPLE_LEN};
 
@@ -64,7 +64,7 @@ impl UsbKind {
 
 /// Finds and opens boards on the bus (set-up time: may allocate).
 pub trait UsbOpener: Send {
-    type Link: BulkLink;
+    type Link: BulkTransport;
     /// Every attached device with these ids, opened and claimed, with where it is ("bus 1 addr 4").
     fn candidates(&mut self, vid: u16, pid: u16) -> Result<Vec<(String, Self::Link)>, OpenError>;
     /// A one-line list of the USB devices seen, for "not found" messages.
@@ -301,7 +301,7 @@ fn usb_timeout(deadline: Instant, waited_from: Instant) -> Result<Duration, Devi
 
 /// One servo exchange on `link`: DA out, counters in. Decodes fully before committing anything.
 #[allow(clippy::too_many_arguments)]
-fn transfer<L: BulkLink>(
+fn transfer<L: BulkTransport>(
     kind: UsbKind,
     link: &mut L,
     opts: &UsbOptions,

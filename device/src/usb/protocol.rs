@@ -30,10 +30,10 @@ pub const SIMPLE_LEN: usize = 32;
 pub const SH4_LEN: usize = 512;
 
 /// Volts to a DA value: `volts x digits_per_volt`, rounded, clamped to `+-volts_max` and to i16;
-/// NaN is 0.
+/// NaN is 0. Never panics, for any input or range: a NaN or negative `volts_max` allows only 0.
 pub fn volts_to_da(volts: f64, digits_per_volt: f64, volts_max: f64) -> i16 {
-    let v = if volts.is_nan() { 0.0 } else { volts.clamp(-volts_max, volts_max) };
-    (v * digits_per_volt).round().clamp(f64::from(i16::MIN + 1), f64::from(i16::MAX)) as i16
+    let v = crate::clamp_symmetric(volts, volts_max);
+    crate::clamp_symmetric((v * digits_per_volt).round(), f64::from(i16::MAX)) as i16
 }
 
 /// The board's rotary switch: bits 4..7 of the PIO input.

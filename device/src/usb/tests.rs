@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use super::protocol::*;
 use super::*;
-use crate::link::BulkLink;
+use crate::transport::BulkTransport;
 use crate::ErrorKind;
 
 #[test]
@@ -85,9 +85,9 @@ struct FakeBoard {
     in_resets: u32,
 }
 
-struct FakeLink(std::sync::Arc<std::sync::Mutex<FakeBoard>>);
+struct FakeTransport(std::sync::Arc<std::sync::Mutex<FakeBoard>>);
 
-impl BulkLink for FakeLink {
+impl BulkTransport for FakeTransport {
     fn bulk_write(&mut self, ep: u8, data: &[u8], _: Duration) -> Result<(), DeviceError> {
         let mut b = self.0.lock().unwrap();
         assert_eq!(ep, EP_OUT);
@@ -157,10 +157,13 @@ struct FakeBus {
 }
 
 impl UsbOpener for FakeBus {
-    type Link = FakeLink;
-    fn candidates(&mut self, vid: u16, pid: u16) -> Result<Vec<(String, FakeLink)>, OpenError> {
+    type Link = FakeTransport;
+    fn candidates(&mut self, vid: u16, pid: u16) -> Result<Vec<(String, FakeTransport)>, OpenError> {
         if self.denied {
-            return Err(OpenError::Permission { what: "0cec:0203".into(), fix: rusb_link::UDEV_FIX.into() });
+            return Err(OpenError::Permission {
+                what: "0cec:0203".into(),
+                fix: rusb_transport::UDEV_FIX.into(),
+            });
         }
         assert_eq!(vid, VENDOR_ID);
         Ok(self
@@ -168,7 +171,7 @@ impl UsbOpener for FakeBus {
             .iter()
             .enumerate()
             .filter(|(_, (p, _))| *p == pid)
-            .map(|(i, (_, b))| (format!("bus 1 addr {}", i + 2), FakeLink(b.clone())))
+            .map(|(i, (_, b))| (format!("bus 1 addr {}", i + 2), FakeTransport(b.clone())))
             .collect())
     }
     fn seen(&mut self) -> String {

@@ -44,7 +44,7 @@ use spidar_device::{DeviceError, Input, Output};
 use spidar_msg::{ContactModel, HandSample, HandState, HANDS, MAX_PROXIES};
 
 pub use crate::control::{Command, Event, FaultReason, Lifecycle};
-use crate::kinematics::{Kinematics, Pose};
+use crate::kinematics::{GripSolution, Kinematics};
 use crate::local::Passivity;
 use crate::rig::{HandRig, Rig};
 use crate::safety::{Ramp, ReturnRamp};
@@ -115,7 +115,7 @@ struct HandCore {
     /// Counts of the last accepted reply, and of the one before (homing checks they agree).
     counts: [i64; 4],
     prev_counts: [i64; 4],
-    pose: Pose,
+    pose: GripSolution,
     /// Last pose that was valid: the safe output's string directions come from it.
     safe_pos_m: DVec3,
     bad_residual_ticks: u32,
@@ -201,7 +201,7 @@ impl TickCore {
                 zero_m: hr.length_at_zero_m,
                 counts: [0; 4],
                 prev_counts: [0; 4],
-                pose: Pose { pos_m: hr.home_m, residual_m: 0.0, valid: false },
+                pose: GripSolution { pos_m: hr.home_m, residual_m: 0.0, valid: false },
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
                 passivity: Passivity::default(),

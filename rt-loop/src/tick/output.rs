@@ -135,14 +135,14 @@ pub(super) fn hand_output(
         }
     }
     last.state = HandState {
-        pos_m: v.xf.point(h.pose.pos_m),
-        vel_m_per_s: v.xf.vector(vel),
+        pos_world_m: v.xf.point(h.pose.pos_m),
+        vel_world_m_per_s: v.xf.vector(vel),
         force_n: v.xf.vector(alloc.force_n),
         valid: pose_ok,
     };
     last.rec = HandRecord {
-        pos_m: h.pose.pos_m,
-        vel_m_per_s: vel,
+        pos_rig_m: h.pose.pos_m,
+        vel_rig_m_per_s: vel,
         residual_m: h.pose.residual_m,
         valid: pose_ok,
         rendered_n: want_rig,

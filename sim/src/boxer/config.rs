@@ -7,7 +7,7 @@ use std::path::Path;
 
 use glam::DVec3;
 use serde::Deserialize;
-use spidar_config as config;
+use spidar_config::{self as config, At, Bound, Checker};
 
 use super::mind::MindParams;
 use super::BoxerParams;
@@ -63,69 +63,90 @@ pub struct MindFile {
     pub brace_d_n_s_per_m: f64,
 }
 
+/// Why the boxer's numbers are bounded where they are (a reason per kind of number).
+const SPRING: &str =
+    "an explicit spring stepped every 3 ms is stable only while k dt^2 / m stays well under 4 on the \
+                      part it moves (0.6 kg for a hand)";
+const DAMPER: &str =
+    "an explicit damper stepped every 3 ms is stable only while d dt / m stays under 2 on the part it moves";
+const FRACTION: &str = "it is a share of a whole";
+const SPEED: &str = "no hand or body moves faster than 20 m/s";
+const TIME: &str = "the mind's decisions and motions span at most a few seconds";
+const REACH: &str = "a boxer's reach and steps stay within a couple of metres";
+
+/// Every number of a boxer file with its bound: (field path, value, bound).
+fn boxer_numbers(f: &BoxerFile) -> [(&'static str, f64, Bound); 34] {
+    let m = &f.mind;
+    let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
+    [
+        ("coupling_k_n_per_m", f.coupling_k_n_per_m, b(1.0, 20_000.0, "N/m", SPRING)),
+        ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, b(0.0, 300.0, "N s/m", DAMPER)),
+        (
+            "coupling_max_n",
+            f.coupling_max_n,
+            b(1.0, 10_000.0, "N", "the coupling carries a punch, not a crash"),
+        ),
+        ("avatar_joint_scale", f.avatar_joint_scale, b(0.01, 1.0, "", FRACTION)),
+        ("damage_attenuation", f.damage_attenuation, b(0.0, 1.0, "", FRACTION)),
+        ("reach_arm_k_n_per_m", f.reach_arm_k_n_per_m, b(0.0, 60_000.0, "N/m", SPRING)),
+        ("reach_arm_d_n_s_per_m", f.reach_arm_d_n_s_per_m, b(0.0, 400.0, "N s/m", DAMPER)),
+        ("reach_body_k_n_per_m", f.reach_body_k_n_per_m, b(0.0, 400_000.0, "N/m", SPRING)),
+        ("reach_body_d_n_s_per_m", f.reach_body_d_n_s_per_m, b(0.0, 2_500.0, "N s/m", DAMPER)),
+        ("mind.trigger_m_per_s", m.trigger_m_per_s, b(0.0, 20.0, "m/s", SPEED)),
+        ("mind.approach_m_per_s", m.approach_m_per_s, b(0.0, 20.0, "m/s", SPEED)),
+        (
+            "mind.horizon_s",
+            m.horizon_s,
+            b(0.003, 2.0, "s", "a prediction looks at least one step and at most 2 s ahead"),
+        ),
+        ("mind.middle_grace_s", m.middle_grace_s, b(0.0, 2.0, "s", TIME)),
+        ("mind.predict_every_s", m.predict_every_s, b(0.0, 2.0, "s", TIME)),
+        ("mind.decel_m_per_s2", m.decel_m_per_s2, b(0.0, 1000.0, "m/s^2", "a fist stops within its reach")),
+        (
+            "mind.avoid_extend",
+            m.avoid_extend,
+            b(1.0, 5.0, "", "an avoidance moves at least as far as the threat"),
+        ),
+        ("mind.avoid_clearance_m", m.avoid_clearance_m, b(0.0, 1.0, "m", REACH)),
+        ("mind.avoid_time_fraction", m.avoid_time_fraction, b(0.1, 1.0, "", FRACTION)),
+        ("mind.avoid_duck_cost", m.avoid_duck_cost, b(0.1, 100.0, "", "a cost compared with leaning aside")),
+        ("mind.avoid_lead_s", m.avoid_lead_s, b(0.0, 2.0, "s", TIME)),
+        ("mind.lean_m", m.lean_m, b(0.0, 0.5, "m", "a body leans by at most half a metre")),
+        ("mind.block_time_fraction", m.block_time_fraction, b(0.1, 1.0, "", FRACTION)),
+        ("mind.block_speed_m_per_s", m.block_speed_m_per_s, b(0.0, 20.0, "m/s", SPEED)),
+        ("mind.attack_per_step", m.attack_per_step, b(0.0, 1.0, "", "a probability")),
+        ("mind.attack_min_s", m.attack_min_s, b(0.05, 5.0, "s", TIME)),
+        ("mind.attack_max_s", m.attack_max_s, b(0.05, 5.0, "s", TIME)),
+        (
+            "mind.attack_scatter_m",
+            m.attack_scatter_m,
+            b(0.0, 0.3, "m", "a scatter around the target, not a miss"),
+        ),
+        ("mind.hold_s", m.hold_s, b(0.0, 5.0, "s", TIME)),
+        ("mind.return_s", m.return_s, b(0.05, 5.0, "s", TIME)),
+        ("mind.fist_near_m", m.fist_near_m, b(0.0, 2.0, "m", REACH)),
+        ("mind.stance_step_max_m", m.stance_step_max_m, b(0.0, 0.5, "m", REACH)),
+        ("mind.stance_return_m_per_s", m.stance_return_m_per_s, b(0.01, 5.0, "m/s", SPEED)),
+        ("mind.brace_k_n_per_m", m.brace_k_n_per_m, b(0.0, 100_000.0, "N/m", SPRING)),
+        ("mind.brace_d_n_s_per_m", m.brace_d_n_s_per_m, b(0.0, 5_000.0, "N s/m", DAMPER)),
+    ]
+}
+
 /// Parses and validates boxer text; `origin` names it in errors.
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
-    let err = |field: &str, msg: String| {
-        let key = field.rsplit('.').next().unwrap_or(field);
-        SimError::Config(config::invalid(text, origin, field, key, 0, msg))
-    };
-    config::check_version(text, origin, f.version, 3)?;
+    let c = Checker::new(text, origin);
+    c.version(f.version, 3)?;
     let o = f.user_offset_m;
-    if !(o.0.is_finite() && o.1.is_finite() && o.2.is_finite()) {
-        return Err(err("user_offset_m", "must be finite".into()));
+    c.finite_within(&At::key("user_offset_m"), &[o.0, o.1, o.2], f64::MAX, "m")?;
+    for (field, v, bound) in boxer_numbers(&f) {
+        let key = field.rsplit('.').next().unwrap_or(field);
+        c.within(&At::new(field, key, 0), v, &bound)?;
     }
     let m = &f.mind;
-    // (field, value, low, high): every number must lie in [low, high].
-    let ranges: [(&str, f64, f64, f64); 35] = [
-        ("coupling_k_n_per_m", f.coupling_k_n_per_m, 1.0, 20_000.0),
-        ("coupling_d_n_s_per_m", f.coupling_d_n_s_per_m, 0.0, 300.0),
-        ("coupling_max_n", f.coupling_max_n, 1.0, 10_000.0),
-        ("avatar_joint_scale", f.avatar_joint_scale, 0.01, 1.0),
-        ("damage_attenuation", f.damage_attenuation, 0.0, 1.0),
-        ("reach_arm_k_n_per_m", f.reach_arm_k_n_per_m, 0.0, 60_000.0),
-        ("reach_arm_d_n_s_per_m", f.reach_arm_d_n_s_per_m, 0.0, 400.0),
-        ("reach_body_k_n_per_m", f.reach_body_k_n_per_m, 0.0, 400_000.0),
-        ("reach_body_d_n_s_per_m", f.reach_body_d_n_s_per_m, 0.0, 2_500.0),
-        ("mind.trigger_m_per_s", m.trigger_m_per_s, 0.0, 20.0),
-        ("mind.approach_m_per_s", m.approach_m_per_s, 0.0, 20.0),
-        ("mind.horizon_s", m.horizon_s, 0.003, 2.0),
-        ("mind.middle_grace_s", m.middle_grace_s, 0.0, 2.0),
-        ("mind.predict_every_s", m.predict_every_s, 0.0, 2.0),
-        ("mind.decel_m_per_s2", m.decel_m_per_s2, 0.0, 1000.0),
-        ("mind.avoid_extend", m.avoid_extend, 1.0, 5.0),
-        ("mind.avoid_clearance_m", m.avoid_clearance_m, 0.0, 1.0),
-        ("mind.avoid_time_fraction", m.avoid_time_fraction, 0.1, 1.0),
-        ("mind.avoid_duck_cost", m.avoid_duck_cost, 0.1, 100.0),
-        ("mind.avoid_lead_s", m.avoid_lead_s, 0.0, 2.0),
-        ("mind.lean_m", m.lean_m, 0.0, 0.5),
-        ("mind.block_time_fraction", m.block_time_fraction, 0.1, 1.0),
-        ("mind.block_speed_m_per_s", m.block_speed_m_per_s, 0.0, 20.0),
-        ("mind.attack_per_step", m.attack_per_step, 0.0, 1.0),
-        ("mind.attack_min_s", m.attack_min_s, 0.05, 5.0),
-        ("mind.attack_max_s", m.attack_max_s, 0.05, 5.0),
-        ("mind.attack_scatter_m", m.attack_scatter_m, 0.0, 0.3),
-        ("mind.hold_s", m.hold_s, 0.0, 5.0),
-        ("mind.return_s", m.return_s, 0.05, 5.0),
-        ("mind.fist_near_m", m.fist_near_m, 0.0, 2.0),
-        ("mind.stance_step_max_m", m.stance_step_max_m, 0.0, 0.5),
-        ("mind.stance_return_m_per_s", m.stance_return_m_per_s, 0.01, 5.0),
-        ("mind.brace_k_n_per_m", m.brace_k_n_per_m, 0.0, 100_000.0),
-        ("mind.brace_d_n_s_per_m", m.brace_d_n_s_per_m, 0.0, 5_000.0),
-        ("mind.attack_max_s", m.attack_max_s - m.attack_min_s, 1e-6, 5.0),
-    ];
-    for (field, v, lo, hi) in ranges {
-        if !(v >= lo && v <= hi) {
-            let why = if field == "mind.attack_max_s" && f.mind.attack_max_s >= 0.05 {
-                "must be more than attack_min_s".to_string()
-            } else {
-                // The stability bounds: explicit springs on a 0.6 kg hand at 3 ms need
-                // k dt^2 / m well under 4, and d dt / m under 2.
-                format!("{v} is outside {lo} ..= {hi}")
-            };
-            return Err(err(field, why));
-        }
-    }
+    c.ensure(m.attack_max_s > m.attack_min_s, &At::new("mind.attack_max_s", "attack_max_s", 0), || {
+        format!("{} s: must be more than attack_min_s ({} s)", m.attack_max_s, m.attack_min_s)
+    })?;
     Ok(BoxerParams {
         user_offset_m: DVec3::new(o.0, o.1, o.2),
         coupling_k_n_per_m: f.coupling_k_n_per_m,

@@ -96,7 +96,7 @@ impl Reach {
         (t_s - self.start_s) / self.duration_s
     }
 
-    /// The spring's natural length: l0 (1 - s(tau)), shrinking to zero (reference/body.md: the
+    /// The spring's natural length: l0 (1 - s(tau)), shrinking to zero (docs/reference.md section 6: the
     /// paper prints the growing form; the lab code shrinks).
     pub fn natural_length_m(&self, t_s: f64) -> f64 {
         self.l0_m * (1.0 - min_jerk(self.tau(t_s)))

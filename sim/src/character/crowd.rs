@@ -23,13 +23,13 @@
 use glam::{DMat3, DQuat, DVec3};
 
 use super::ai::Goal;
-use super::controller::{Ground, TiltCosines};
-use super::keyframe::{KeyframeSet, Pose};
+use super::controller::Ground;
+use super::keyframe::KeyframeSet;
+use super::params::TiltCosines;
+use super::skeleton::SkeletonPose;
 use super::space::BodySpace;
 use super::{Character, CharacterParams};
-use crate::collide::{
-    bounding_radius, box_on_plane, collide, plane_normal, Hit, Pose as ShapePose, Shape, MAX_HITS,
-};
+use crate::collide::{bounding_radius, box_on_plane, collide, plane_normal, Hit, Shape, ShapePose, MAX_HITS};
 use crate::contact::{penalty_force, Penalty};
 use crate::desc::{BodyFile, ContactDesc, MassDesc};
 use crate::spatial::quat_exp;
@@ -447,14 +447,14 @@ impl Crowd {
     /// tools) asks for the poses it draws, at its own rate, and gets exactly the pose the step
     /// would have computed.
     #[inline]
-    pub fn pose(&self, i: usize, out: &mut Pose) {
-        *out = Pose::default();
+    pub fn pose(&self, i: usize, out: &mut SkeletonPose) {
+        *out = SkeletonPose::default();
         self.chars[i].pose(&self.starts[i].space(), &self.set, &self.params.controller, out);
     }
 
     /// [`Crowd::pose`], returned.
-    pub fn pose_of(&self, i: usize) -> Pose {
-        let mut p = Pose::default();
+    pub fn pose_of(&self, i: usize) -> SkeletonPose {
+        let mut p = SkeletonPose::default();
         self.pose(i, &mut p);
         p
     }
@@ -644,28 +644,16 @@ impl Crowd {
 
     /// A digest of the exact bits of every body and character, for determinism tests.
     pub fn digest(&self) -> u64 {
-        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-        let mut eat = |x: f64| {
-            for b in x.to_bits().to_le_bytes() {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x0000_0100_0000_01b3);
-            }
-        };
-        eat(self.steps as f64);
+        let mut d = spidar_msg::digest::Digest::new();
+        d.f64(self.steps as f64);
         for (s, c) in self.bodies.iter().zip(&self.chars) {
-            for v in [s.pos_m, s.w_body, s.vel_m_per_s] {
-                eat(v.x);
-                eat(v.y);
-                eat(v.z);
-            }
+            d.vec3(s.pos_m).vec3(s.w_body).vec3(s.vel_m_per_s);
             for x in s.rot.to_array() {
-                eat(x);
+                d.f64(x);
             }
-            eat(c.anim.d_front_m);
-            eat(c.anim.d_side_m);
-            eat(c.control.policy as u8 as f64);
+            d.f64(c.anim.d_front_m).f64(c.anim.d_side_m).f64(c.control.policy as u8 as f64);
         }
-        h
+        d.value()
     }
 }
 

@@ -13,24 +13,26 @@
 
 use glam::{DMat3, DQuat, DVec3, Vec3};
 
-use super::controller::{ControllerParams, ControllerState, Ground};
+use super::controller::{ControllerState, Ground};
 use super::crowd::{Crowd, CrowdBody, StartPose, PARALLEL_MIN};
 use super::feet::{Feet, Foot};
-use super::keyframe::{Joint, KeyframeSet, Pose, MAX_JOINTS};
+use super::keyframe::KeyframeSet;
 use super::legs::joint_positions;
+use super::params::ControllerParams;
+use super::skeleton::{Joint, SkeletonPose, MAX_JOINTS};
 use super::{Character, Correspondence};
 use crate::collide::Shape;
 
 /// World positions of the joints of character `i` as drawn: its pose ([`Crowd::pose`], in `S_r`)
 /// placed at the body's centre of mass and orientation. Returns how many joints the skeleton has.
 pub fn world_joints(c: &Crowd, i: usize, out: &mut [DVec3; MAX_JOINTS]) -> usize {
-    let mut pose = Pose::default();
+    let mut pose = SkeletonPose::default();
     c.pose(i, &mut pose);
     world_joints_of(c, i, &pose, out)
 }
 
 /// [`world_joints`] of a pose already computed.
-pub fn world_joints_of(c: &Crowd, i: usize, pose: &Pose, out: &mut [DVec3; MAX_JOINTS]) -> usize {
+pub fn world_joints_of(c: &Crowd, i: usize, pose: &SkeletonPose, out: &mut [DVec3; MAX_JOINTS]) -> usize {
     let s = &c.bodies[i];
     place(&c.set.joints, pose, s.pos_m, s.rot, c.body.com_m, out)
 }
@@ -39,7 +41,7 @@ pub fn world_joints_of(c: &Crowd, i: usize, pose: &Pose, out: &mut [DVec3; MAX_J
 /// `com_m` in its own frame. Returns how many joints the skeleton has.
 fn place(
     joints: &[Joint],
-    pose: &Pose,
+    pose: &SkeletonPose,
     pos_m: DVec3,
     rot: DQuat,
     com_m: DVec3,
@@ -151,7 +153,7 @@ impl Figures {
     /// The world positions of the joints of the figure of `s` (as [`world_joints`] gives them at
     /// the step `s` was copied after). Returns how many joints the skeleton has.
     pub fn world_joints(&self, s: &FigureState, out: &mut [DVec3; MAX_JOINTS]) -> usize {
-        let mut pose = Pose::default();
+        let mut pose = SkeletonPose::default();
         s.character().pose(&s.start.space(), &self.set, &self.controller, &mut pose);
         place(&self.set.joints, &pose, s.pos_m, s.rot, self.com_m, out)
     }

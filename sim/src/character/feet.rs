@@ -20,7 +20,7 @@
 
 use glam::DVec3;
 
-use super::controller::ControllerParams;
+use super::params::ControllerParams;
 
 /// One foot: planted where it is, or swinging from `from_m` to `to_m`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

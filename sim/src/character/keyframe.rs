@@ -26,13 +26,11 @@ use std::collections::BTreeMap;
 
 use glam::{DVec3, Mat4, Quat, Vec3, Vec4};
 use serde::Deserialize;
-use spidar_config as config;
+use spidar_config::{self as config, At, Bound, Checker, ConfigError};
 
+use super::skeleton::{Joint, SkeletonPose, MAX_JOINTS};
 use crate::spatial::quat_exp;
 use crate::SimError;
-
-/// Most joints a skeleton may have.
-pub const MAX_JOINTS: usize = 16;
 
 /// The built-in evaluation set of section 6.1.
 pub const KEYFRAMES_HUMANOID_RON: &str = include_str!("../../../configs/keyframes-humanoid.ron");
@@ -59,37 +57,6 @@ pub struct Lean {
     pub front_rad: f64,
     pub side_rad: f64,
     pub front_share: f64,
-}
-
-/// A skeleton pose in the body frame `S_r`: each joint's rotation relative to its parent (at rest
-/// all joint frames are aligned with `S_r`), and the root joint's offset from its rest position.
-/// Single precision: a pose is for display (the physics is all f64), and f32 quaternions blend
-/// four at a time in SIMD registers, which is what makes posing thousands of characters cheap.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
-    pub rot: [Quat; MAX_JOINTS],
-    pub root_m: Vec3,
-}
-
-impl Default for Pose {
-    fn default() -> Self {
-        Pose { rot: [Quat::IDENTITY; MAX_JOINTS], root_m: Vec3::ZERO }
-    }
-}
-
-impl Pose {
-    /// Largest rotation angle between two poses over the first `n` joints (rad), from the chord
-    /// `|a - b| = 2 sin(angle / 4)` (well conditioned for nearly equal rotations, unlike acos).
-    pub fn max_angle_to(&self, o: &Pose, n: usize) -> f64 {
-        (0..n)
-            .map(|j| {
-                let (a, b) = (self.rot[j].as_dquat(), o.rot[j].as_dquat());
-                let b = if a.dot(b) < 0.0 { -b } else { b };
-                let chord = (a - b).length();
-                4.0 * (0.5 * chord).min(1.0).asin()
-            })
-            .fold(0.0, f64::max)
-    }
 }
 
 // ---- file format ----
@@ -182,18 +149,11 @@ pub const KEYS_MAX: usize = 1024;
 
 // ---- the built set ----
 
-#[derive(Clone, Debug)]
-pub struct Joint {
-    pub name: String,
-    pub parent: Option<usize>,
-    pub offset_m: DVec3,
-}
-
 /// One keyframe pose, joint rotations only up to the skeleton's length.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Key {
     phase: f64,
-    pose: Pose,
+    pose: SkeletonPose,
 }
 
 #[derive(Clone, Debug)]
@@ -225,14 +185,14 @@ struct Subspace {
     front: Plane,
     side: Plane,
     /// The pose at the origin of the subspace (the side plane's keys are offsets from it).
-    origin: Pose,
+    origin: SkeletonPose,
 }
 
 /// A keyframe as it was placed in Q, for tests and tools.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlacedKey {
     pub at: QPoint,
-    pub pose: Pose,
+    pub pose: SkeletonPose,
 }
 
 /// A loaded, validated multidimensional keyframe set.
@@ -257,10 +217,6 @@ pub struct KeyframeSet {
 
 const SAME: f64 = 1e-9;
 
-fn err(text: &str, origin: &str, field: &str, key: &str, occ: usize, msg: String) -> SimError {
-    SimError::Config(config::invalid(text, origin, field, key, occ, msg))
-}
-
 impl KeyframeSet {
     /// The built-in humanoid evaluation set.
     pub fn builtin() -> KeyframeSet {
@@ -275,309 +231,17 @@ impl KeyframeSet {
     }
 
     /// Parses and validates a keyframe-set file; errors name the file, line, column and field.
+    /// One function per part of the file: the header, the skeleton, the legs, the keyframes of the
+    /// animations, and the behaviours' subspaces built from them.
     pub fn parse(text: &str, origin: &str) -> Result<KeyframeSet, SimError> {
         let f: KeyframeFile = config::parse_kind(text, origin, config::FileKind::Keyframes)?;
-        config::check_version(text, origin, f.version, 1)?;
-        for (field, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
-            if !(v > 0.0 && v <= LENGTH_MAX_M) {
-                return Err(err(
-                    text,
-                    origin,
-                    field,
-                    field,
-                    0,
-                    format!("must be a positive length up to {LENGTH_MAX_M} m, got {v}"),
-                ));
-            }
-        }
-        if !(f.behaviour_blend_s > 0.0 && f.behaviour_blend_s <= 60.0) {
-            return Err(err(
-                text,
-                origin,
-                "behaviour_blend_s",
-                "behaviour_blend_s",
-                0,
-                format!("must be in (0, 60] s, got {}", f.behaviour_blend_s),
-            ));
-        }
-        if f.animations.is_empty() || f.animations.len() > ANIMATIONS_MAX {
-            return Err(err(
-                text,
-                origin,
-                "animations",
-                "animations",
-                0,
-                format!("needs 1 to {ANIMATIONS_MAX} animations, got {}", f.animations.len()),
-            ));
-        }
-        if f.skeleton.is_empty() || f.skeleton.len() > MAX_JOINTS {
-            return Err(err(
-                text,
-                origin,
-                "skeleton",
-                "skeleton",
-                0,
-                format!("needs 1 to {MAX_JOINTS} joints, got {}", f.skeleton.len()),
-            ));
-        }
-        if f.behaviours.is_empty() || f.behaviours.len() > 255 {
-            return Err(err(text, origin, "behaviours", "behaviours", 0, "needs 1 to 255 behaviours".into()));
-        }
-        let mut joints = Vec::new();
-        for (i, j) in f.skeleton.iter().enumerate() {
-            let parent = match &j.parent {
-                None if i == 0 => None,
-                None => {
-                    return Err(err(
-                        text,
-                        origin,
-                        &format!("skeleton[{i}].parent"),
-                        "parent",
-                        i,
-                        "only the first joint is the root; name a parent".into(),
-                    ))
-                }
-                Some(p) => match f.skeleton[..i].iter().position(|o| &o.name == p) {
-                    Some(k) => Some(k),
-                    None => {
-                        return Err(err(
-                            text,
-                            origin,
-                            &format!("skeleton[{i}].parent"),
-                            "parent",
-                            i,
-                            format!("parent {p:?} is not a joint listed before {:?}", j.name),
-                        ))
-                    }
-                },
-            };
-            if f.skeleton[..i].iter().any(|o| o.name == j.name) {
-                return Err(err(
-                    text,
-                    origin,
-                    &format!("skeleton[{i}].name"),
-                    "name",
-                    // The set's own `name` comes first.
-                    i + 1,
-                    format!("joint name {:?} is used twice", j.name),
-                ));
-            }
-            if !(j.offset_m.is_finite() && j.offset_m.length() <= LENGTH_MAX_M) {
-                return Err(err(
-                    text,
-                    origin,
-                    &format!("skeleton[{i}].offset_m"),
-                    "offset_m",
-                    i,
-                    format!("must be finite and within {LENGTH_MAX_M} m, got {}", j.offset_m),
-                ));
-            }
-            joints.push(Joint { name: j.name.clone(), parent, offset_m: j.offset_m });
-        }
-        let legs = match &f.legs {
-            None => None,
-            Some(l) => {
-                let find = |name: &str| joints.iter().position(|j| j.name == name);
-                let bad = |m: String| err(text, origin, "legs.ankles", "ankles", 0, m);
-                let left = find(&l.ankles.0)
-                    .ok_or_else(|| bad(format!("no joint {:?} in the skeleton", l.ankles.0)))?;
-                let right = find(&l.ankles.1)
-                    .ok_or_else(|| bad(format!("no joint {:?} in the skeleton", l.ankles.1)))?;
-                if !(l.ankle_height_m >= 0.0 && l.ankle_height_m <= 1.0) {
-                    return Err(err(
-                        text,
-                        origin,
-                        "legs.ankle_height_m",
-                        "ankle_height_m",
-                        0,
-                        format!("must be in [0, 1] m, got {}", l.ankle_height_m),
-                    ));
-                }
-                Some(super::legs::Legs::new(&joints, [left, right], l.ankle_height_m as f32).map_err(bad)?)
-            }
-        };
-        let nb = f.behaviours.len();
-        let mut planes: Vec<(Plane, Plane)> = vec![(Plane::default(), Plane::default()); nb];
-        let mut keys = Vec::new();
-        let mut key_occ = 0usize;
-        // `root_m` is optional: its n-th appearance in the text is the n-th key that sets it.
-        let mut root_occ = 0usize;
-        for (ai, a) in f.animations.iter().enumerate() {
-            let field = |s: &str| format!("animations[{ai}].{s}");
-            let Some(b) = f.behaviours.iter().position(|x| x == &a.behaviour) else {
-                return Err(err(
-                    text,
-                    origin,
-                    &field("behaviour"),
-                    "behaviour",
-                    ai + 1,
-                    format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours),
-                ));
-            };
-            if a.keys.is_empty() || a.keys.len() > KEYS_MAX {
-                return Err(err(
-                    text,
-                    origin,
-                    &field("keys"),
-                    "keys",
-                    ai,
-                    format!("an animation needs 1 to {KEYS_MAX} keyframes, got {}", a.keys.len()),
-                ));
-            }
-            for (ki, k) in a.keys.iter().enumerate() {
-                let occ = key_occ + ki;
-                let mut at = QPoint {
-                    theta_x: a.line.theta_x_deg.to_radians(),
-                    theta_z: a.line.theta_z_deg.to_radians(),
-                    d_x: a.line.d_x,
-                    d_z: a.line.d_z,
-                    behaviour: b as u8,
-                };
-                let kf = field(&format!("keys[{ki}].at"));
-                if ![a.line.theta_x_deg, a.line.theta_z_deg, a.line.d_x, a.line.d_z]
-                    .iter()
-                    .all(|v| v.is_finite())
-                {
-                    return Err(err(
-                        text,
-                        origin,
-                        &field("line"),
-                        "line",
-                        ai,
-                        "the line's coordinates must be finite numbers".into(),
-                    ));
-                }
-                if !k.at.is_finite() {
-                    return Err(err(
-                        text,
-                        origin,
-                        &kf,
-                        "at",
-                        occ,
-                        "positions in Q must be finite numbers".into(),
-                    ));
-                }
-                if !(k.root_m.is_finite() && k.root_m.length() <= LENGTH_MAX_M) {
-                    return Err(err(
-                        text,
-                        origin,
-                        &field(&format!("keys[{ki}].root_m")),
-                        "root_m",
-                        root_occ,
-                        format!("must be finite and within {LENGTH_MAX_M} m, got {}", k.root_m),
-                    ));
-                }
-                root_occ += (k.root_m != DVec3::ZERO) as usize;
-                match a.along {
-                    Axis::ThetaX => at.theta_x = k.at.to_radians(),
-                    Axis::ThetaZ => at.theta_z = k.at.to_radians(),
-                    Axis::Dx => at.d_x = k.at,
-                    Axis::Dz => at.d_z = k.at,
-                }
-                if !(at.theta_x.abs() <= std::f64::consts::PI + SAME
-                    && at.theta_z.abs() <= std::f64::consts::FRAC_PI_2 + SAME)
-                {
-                    return Err(err(
-                        text,
-                        origin,
-                        &kf,
-                        "at",
-                        occ,
-                        "leans must be within Theta_x in [-180, 180], Theta_z in [-90, 90] degrees".into(),
-                    ));
-                }
-                if !((0.0..1.0).contains(&at.d_x) && (0.0..1.0).contains(&at.d_z)) {
-                    return Err(err(text, origin, &kf, "at", occ, "walk phases must be in [0, 1)".into()));
-                }
-                let in_front = at.theta_z.abs() < SAME && at.d_x.abs() < SAME;
-                let in_side = at.theta_x.abs() < SAME && at.d_z.abs() < SAME;
-                if !in_front && !in_side {
-                    return Err(err(text, origin, &field("line"), "line", ai, "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, D_z = 0); move its line".into()));
-                }
-                let mut pose = Pose { root_m: k.root_m.as_vec3(), ..Pose::default() };
-                for (name, rv) in &k.pose {
-                    let Some(j) = joints.iter().position(|j| &j.name == name) else {
-                        return Err(err(
-                            text,
-                            origin,
-                            &field(&format!("keys[{ki}].pose")),
-                            "pose",
-                            occ,
-                            format!("no joint {name:?} in the skeleton"),
-                        ));
-                    };
-                    if !(rv.is_finite() && rv.length() <= 36_000.0) {
-                        return Err(err(
-                            text,
-                            origin,
-                            &field(&format!("keys[{ki}].pose")),
-                            "pose",
-                            occ,
-                            format!("joint {name:?} has a non-finite rotation"),
-                        ));
-                    }
-                    pose.rot[j] = quat_exp(*rv * (std::f64::consts::PI / 180.0)).as_quat();
-                }
-                if let Some(o) = keys.iter().find(|o: &&PlacedKey| same_point(&o.at, &at)) {
-                    if o.pose != pose {
-                        return Err(err(text, origin, &kf, "at", occ, "another keyframe sits at this point of Q with a different pose; a point has one pose".into()));
-                    }
-                    continue;
-                }
-                keys.push(PlacedKey { at, pose });
-                let (front, side) = &mut planes[b];
-                if in_front {
-                    front.insert(at.theta_x, at.d_z, pose);
-                }
-                if in_side {
-                    side.insert(at.theta_z, at.d_x, pose);
-                }
-            }
-            key_occ += a.keys.len();
-        }
-        let mut sub = Vec::new();
-        for (b, (front, side)) in planes.into_iter().enumerate() {
-            if front.rows.is_empty() && side.rows.is_empty() {
-                return Err(err(
-                    text,
-                    origin,
-                    "behaviours",
-                    "behaviours",
-                    0,
-                    format!("behaviour {:?} has no keyframes", f.behaviours[b]),
-                ));
-            }
-            let origin_key = keys.iter().find(|k| {
-                k.at.behaviour == b as u8
-                    && same_point(&k.at, &QPoint { behaviour: b as u8, ..QPoint::default() })
-            });
-            if !side.rows.is_empty() && (origin_key.is_none() || front.rows.is_empty()) {
-                return Err(err(text, origin, "animations", "animations", 0, format!("behaviour {:?} has side-plane keyframes, so it needs keyframes in the front plane and one at the origin (all leans and phases 0) that both planes share", f.behaviours[b])));
-            }
-            let o = origin_key.map(|k| k.pose).unwrap_or_default();
-            let mut origin_inv = [Quat::IDENTITY; MAX_JOINTS];
-            for j in 0..MAX_JOINTS {
-                origin_inv[j] = o.rot[j].inverse();
-            }
-            // The side plane keeps its keyframes as offsets from the origin, `q_origin^-1 q_side`,
-            // so posing blends offsets and applies them with one product per joint.
-            let mut side = side;
-            if !front.rows.is_empty() {
-                for row in &mut side.rows {
-                    for k in &mut row.keys {
-                        for j in 0..MAX_JOINTS {
-                            let q = origin_inv[j].as_dquat() * k.pose.rot[j].as_dquat();
-                            k.pose.rot[j] = q.normalize().as_quat();
-                        }
-                        k.pose.root_m -= o.root_m;
-                    }
-                }
-            }
-            let (mut front, mut side) = (front, side);
-            front.align(joints.len());
-            side.align(joints.len());
-            sub.push(Subspace { front, side, origin: o });
-        }
+        let c = Checker::new(text, origin);
+        c.version(f.version, 1)?;
+        check_header(&c, &f)?;
+        let joints = check_skeleton(&c, &f.skeleton)?;
+        let legs = f.legs.as_ref().map(|l| check_legs(&c, l, &joints)).transpose()?;
+        let (keys, planes) = place_keys(&c, &f, &joints)?;
+        let sub = subspaces(&c, &f.behaviours, &keys, planes, joints.len())?;
         let posed = posed_joints(&joints, &keys);
         Ok(KeyframeSet {
             posed,
@@ -595,7 +259,7 @@ impl KeyframeSet {
     }
 
     /// The pose at a point of Q (no behaviour blend).
-    pub fn pose(&self, q: &QPoint, out: &mut Pose) {
+    pub fn pose(&self, q: &QPoint, out: &mut SkeletonPose) {
         let n = self.posed;
         let s = &self.sub[(q.behaviour as usize).min(self.sub.len() - 1)];
         if s.side.rows.is_empty() || s.front.rows.is_empty() {
@@ -627,7 +291,7 @@ impl KeyframeSet {
     /// lean toward the front or back and the side plane's at the lean toward the side, blended by
     /// how much of the lean is in each direction. A body lying down and rolling between its side
     /// and its face moves between the lying poses, never through the poses of falling.
-    pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut Pose) {
+    pub fn pose_polar(&self, lean: &Lean, d_x: f64, d_z: f64, behaviour: u8, out: &mut SkeletonPose) {
         let n = self.posed;
         let s = &self.sub[(behaviour as usize).min(self.sub.len() - 1)];
         let (wf, ws) = (lean.front_share, 1.0 - lean.front_share);
@@ -680,12 +344,12 @@ impl KeyframeSet {
     }
 
     /// The pose at `q` blended with behaviour `from` by weight `1 - w` (w = 1: only `q`'s).
-    pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut Pose) {
+    pub fn pose_blended(&self, q: &QPoint, from: u8, w: f64, out: &mut SkeletonPose) {
         self.pose(q, out);
         if w >= 1.0 || from == q.behaviour {
             return;
         }
-        let mut other = Pose::default();
+        let mut other = SkeletonPose::default();
         self.pose(&QPoint { behaviour: from, ..*q }, &mut other);
         let n = self.joints.len();
         for j in 0..n {
@@ -703,6 +367,233 @@ impl KeyframeSet {
     pub fn behaviour_index(&self, name: &str) -> Option<u8> {
         self.behaviours.iter().position(|b| b == name).map(|i| i as u8)
     }
+}
+
+// ---- checking a keyframe file, part by part (called by `KeyframeSet::parse`) ----
+
+/// Lengths of the file (strides, joint and root offsets): longer is a typo.
+const LENGTH_M: Bound =
+    Bound::hard("length", 0.0, LENGTH_MAX_M, "m", "a skeleton or a stride longer than 100 m is a typo");
+/// The blend between two behaviours.
+const BLEND_S: Bound =
+    Bound::hard("behaviour_blend_s", 1e-9, 60.0, "s", "a blend takes some time, and less than a minute");
+/// Ankles above the sole.
+const ANKLE_HEIGHT_M: Bound = Bound::hard("ankle_height_m", 0.0, 1.0, "m", "an ankle sits on its sole");
+
+/// The strides, the blend time and how many of each list the file holds.
+fn check_header(c: &Checker, f: &KeyframeFile) -> Result<(), ConfigError> {
+    for (key, v) in [("stride_front_m", f.stride_front_m), ("stride_side_m", f.stride_side_m)] {
+        c.positive(&At::key(key), v, "m", "a walk cycle moves the body")?;
+        c.within(&At::key(key), v, &LENGTH_M)?;
+    }
+    c.within(&At::key("behaviour_blend_s"), f.behaviour_blend_s, &BLEND_S)?;
+    c.count(&At::key("animations"), f.animations.len(), 1, ANIMATIONS_MAX, "animations")?;
+    c.count(&At::key("skeleton"), f.skeleton.len(), 1, MAX_JOINTS, "joints")?;
+    c.count(&At::key("behaviours"), f.behaviours.len(), 1, 255, "behaviours")
+}
+
+/// The joints: the first is the root, every other names an earlier joint as its parent, names are
+/// unique and offsets bounded.
+fn check_skeleton(c: &Checker, skeleton: &[JointFile]) -> Result<Vec<Joint>, ConfigError> {
+    let mut joints: Vec<Joint> = Vec::new();
+    for (i, j) in skeleton.iter().enumerate() {
+        let parent_at = At::new(format!("skeleton[{i}].parent"), "parent", i);
+        let parent = match &j.parent {
+            None => {
+                c.ensure(i == 0, &parent_at, || "only the first joint is the root; name a parent".into())?;
+                None
+            }
+            Some(p) => {
+                let k = joints.iter().position(|o| &o.name == p);
+                c.ensure(k.is_some(), &parent_at, || {
+                    format!("parent {p:?} is not a joint listed before {:?}", j.name)
+                })?;
+                k
+            }
+        };
+        // The set's own `name` comes first in the text.
+        c.ensure(
+            !joints.iter().any(|o| o.name == j.name),
+            &At::new(format!("skeleton[{i}].name"), "name", i + 1),
+            || format!("joint name {:?} is used twice", j.name),
+        )?;
+        let offset_at = At::new(format!("skeleton[{i}].offset_m"), "offset_m", i);
+        c.ensure(j.offset_m.is_finite(), &offset_at, || format!("{}: must be finite numbers", j.offset_m))?;
+        c.within(&offset_at, j.offset_m.length(), &LENGTH_M)?;
+        joints.push(Joint { name: j.name.clone(), parent, offset_m: j.offset_m });
+    }
+    Ok(joints)
+}
+
+/// The legs: two ankles of the skeleton, at a height above their soles.
+fn check_legs(c: &Checker, l: &LegsFile, joints: &[Joint]) -> Result<super::legs::Legs, ConfigError> {
+    let at = At::new("legs.ankles", "ankles", 0);
+    let find = |name: &str| {
+        let k = joints.iter().position(|j| j.name == name);
+        c.ensure(k.is_some(), &at, || format!("no joint {name:?} in the skeleton")).map(|()| k.unwrap_or(0))
+    };
+    let (left, right) = (find(&l.ankles.0)?, find(&l.ankles.1)?);
+    c.within(&At::new("legs.ankle_height_m", "ankle_height_m", 0), l.ankle_height_m, &ANKLE_HEIGHT_M)?;
+    super::legs::Legs::new(joints, [left, right], l.ankle_height_m as f32).map_err(|m| c.error(&at, m))
+}
+
+/// Each behaviour's front and side planes, as the keyframes are placed in them.
+type Planes = Vec<(Plane, Plane)>;
+
+/// Every keyframe of every animation placed in Q and in its behaviour's front and side planes.
+/// Two keyframes at one point must agree.
+fn place_keys(
+    c: &Checker,
+    f: &KeyframeFile,
+    joints: &[Joint],
+) -> Result<(Vec<PlacedKey>, Planes), ConfigError> {
+    let mut planes: Planes = vec![(Plane::default(), Plane::default()); f.behaviours.len()];
+    let mut keys: Vec<PlacedKey> = Vec::new();
+    let mut seen = KeysSeen { keys: 0, roots: 0 };
+    for (ai, a) in f.animations.iter().enumerate() {
+        let field = |s: &str| format!("animations[{ai}].{s}");
+        let b = f.behaviours.iter().position(|x| x == &a.behaviour);
+        c.ensure(b.is_some(), &At::new(field("behaviour"), "behaviour", ai + 1), || {
+            format!("behaviour {:?} is not in `behaviours` {:?}", a.behaviour, f.behaviours)
+        })?;
+        let b = b.unwrap_or(0) as u8;
+        c.count(&At::new(field("keys"), "keys", ai), a.keys.len(), 1, KEYS_MAX, "keyframes in an animation")?;
+        let l = &a.line;
+        let line_at = At::new(field("line"), "line", ai);
+        c.ensure(
+            [l.theta_x_deg, l.theta_z_deg, l.d_x, l.d_z].iter().all(|v| v.is_finite()),
+            &line_at,
+            || "the line's coordinates must be finite numbers".into(),
+        )?;
+        for (ki, k) in a.keys.iter().enumerate() {
+            let (at, pose) = check_key(c, (ai, a), (ki, k), b, joints, &mut seen)?;
+            let kf = At::new(field(&format!("keys[{ki}].at")), "at", seen.keys + ki);
+            let in_front = at.theta_z.abs() < SAME && at.d_x.abs() < SAME;
+            let in_side = at.theta_x.abs() < SAME && at.d_z.abs() < SAME;
+            c.ensure(in_front || in_side, &line_at, || {
+                "a keyframe must lie in the front plane (Theta_z = 0, D_x = 0) or the side plane (Theta_x = 0, \
+                 D_z = 0); move its line"
+                    .into()
+            })?;
+            if let Some(o) = keys.iter().find(|o| same_point(&o.at, &at)) {
+                c.ensure(o.pose == pose, &kf, || {
+                    "another keyframe sits at this point of Q with a different pose; a point has one pose"
+                        .into()
+                })?;
+                continue;
+            }
+            keys.push(PlacedKey { at, pose });
+            let (front, side) = &mut planes[usize::from(b)];
+            if in_front {
+                front.insert(at.theta_x, at.d_z, pose);
+            }
+            if in_side {
+                side.insert(at.theta_z, at.d_x, pose);
+            }
+        }
+        seen.keys += a.keys.len();
+    }
+    Ok((keys, planes))
+}
+
+/// How many `at:` and `root_m:` entries came before: they locate a key's values in the text.
+struct KeysSeen {
+    keys: usize,
+    /// `root_m` is optional: its n-th appearance in the text is the n-th key that sets it.
+    roots: usize,
+}
+
+/// One keyframe: its point of Q (the animation's line moved along its axis) within the leans and
+/// phases Q allows, and its pose over the skeleton's joints.
+fn check_key(
+    c: &Checker,
+    (ai, a): (usize, &AnimationFile),
+    (ki, k): (usize, &KeyFile),
+    behaviour: u8,
+    joints: &[Joint],
+    seen: &mut KeysSeen,
+) -> Result<(QPoint, SkeletonPose), ConfigError> {
+    let field = |s: &str| format!("animations[{ai}].keys[{ki}].{s}");
+    let kf = At::new(field("at"), "at", seen.keys + ki);
+    c.ensure(k.at.is_finite(), &kf, || "positions in Q must be finite numbers".into())?;
+    let root = At::new(field("root_m"), "root_m", seen.roots);
+    c.ensure(k.root_m.is_finite(), &root, || format!("{}: must be finite numbers", k.root_m))?;
+    c.within(&root, k.root_m.length(), &LENGTH_M)?;
+    seen.roots += usize::from(k.root_m != DVec3::ZERO);
+    let l = &a.line;
+    let mut at = QPoint {
+        theta_x: l.theta_x_deg.to_radians(),
+        theta_z: l.theta_z_deg.to_radians(),
+        d_x: l.d_x,
+        d_z: l.d_z,
+        behaviour,
+    };
+    match a.along {
+        Axis::ThetaX => at.theta_x = k.at.to_radians(),
+        Axis::ThetaZ => at.theta_z = k.at.to_radians(),
+        Axis::Dx => at.d_x = k.at,
+        Axis::Dz => at.d_z = k.at,
+    }
+    let leans_ok = at.theta_x.abs() <= std::f64::consts::PI + SAME
+        && at.theta_z.abs() <= std::f64::consts::FRAC_PI_2 + SAME;
+    c.ensure(leans_ok, &kf, || {
+        "leans must be within Theta_x in [-180, 180], Theta_z in [-90, 90] degrees".into()
+    })?;
+    let phases_ok = (0.0..1.0).contains(&at.d_x) && (0.0..1.0).contains(&at.d_z);
+    c.ensure(phases_ok, &kf, || "walk phases must be in [0, 1)".into())?;
+    let mut pose = SkeletonPose { root_m: k.root_m.as_vec3(), ..SkeletonPose::default() };
+    let pose_at = At::new(field("pose"), "pose", seen.keys + ki);
+    for (name, rv) in &k.pose {
+        let j = joints.iter().position(|j| &j.name == name);
+        c.ensure(j.is_some(), &pose_at, || format!("no joint {name:?} in the skeleton"))?;
+        c.ensure(rv.is_finite() && rv.length() <= 36_000.0, &pose_at, || {
+            format!("joint {name:?} has a non-finite rotation")
+        })?;
+        pose.rot[j.unwrap_or(0)] = quat_exp(*rv * (std::f64::consts::PI / 180.0)).as_quat();
+    }
+    Ok((at, pose))
+}
+
+/// Each behaviour's subspace from its planes: every behaviour has keyframes, and one with a side
+/// plane has a front plane and an origin keyframe both share (the side keys become offsets from
+/// it, so posing blends offsets and applies them with one product per joint).
+fn subspaces(
+    c: &Checker,
+    behaviours: &[String],
+    keys: &[PlacedKey],
+    planes: Planes,
+    n_joints: usize,
+) -> Result<Vec<Subspace>, ConfigError> {
+    let mut sub = Vec::with_capacity(planes.len());
+    for (b, (mut front, mut side)) in planes.into_iter().enumerate() {
+        c.ensure(!(front.rows.is_empty() && side.rows.is_empty()), &At::key("behaviours"), || {
+            format!("behaviour {:?} has no keyframes", behaviours[b])
+        })?;
+        let origin = QPoint { behaviour: b as u8, ..QPoint::default() };
+        let origin_key = keys.iter().find(|k| k.at.behaviour == b as u8 && same_point(&k.at, &origin));
+        c.ensure(side.rows.is_empty() || (origin_key.is_some() && !front.rows.is_empty()), &At::key("animations"), || {
+            format!(
+                "behaviour {:?} has side-plane keyframes, so it needs keyframes in the front plane and one at the \
+                 origin (all leans and phases 0) that both planes share",
+                behaviours[b]
+            )
+        })?;
+        let o = origin_key.map(|k| k.pose).unwrap_or_default();
+        if !front.rows.is_empty() {
+            let origin_inv: [Quat; MAX_JOINTS] = std::array::from_fn(|j| o.rot[j].inverse());
+            for k in side.rows.iter_mut().flat_map(|row| row.keys.iter_mut()) {
+                for j in 0..MAX_JOINTS {
+                    let q = origin_inv[j].as_dquat() * k.pose.rot[j].as_dquat();
+                    k.pose.rot[j] = q.normalize().as_quat();
+                }
+                k.pose.root_m -= o.root_m;
+            }
+        }
+        front.align(n_joints);
+        side.align(n_joints);
+        sub.push(Subspace { front, side, origin: o });
+    }
+    Ok(sub)
 }
 
 /// How many leading joints posing must interpolate: up to the last joint that has a child or that
@@ -773,7 +664,7 @@ impl Plane {
         self.aligned = ok;
     }
 
-    fn insert(&mut self, lean: f64, phase: f64, pose: Pose) {
+    fn insert(&mut self, lean: f64, phase: f64, pose: SkeletonPose) {
         let r = match self.rows.iter().position(|r| (r.lean - lean).abs() < SAME) {
             Some(r) => r,
             None => {
@@ -792,7 +683,7 @@ impl Plane {
 
     /// The (up to) four keyframes around a point of the plane and their weights (sum 1).
     #[inline(always)]
-    fn weights(&self, lean: f64, phase: f64) -> [(&Pose, f64); 4] {
+    fn weights(&self, lean: f64, phase: f64) -> [(&SkeletonPose, f64); 4] {
         let rows = &self.rows;
         let hi = count_le(&self.leans, lean);
         if hi == 0 || hi == rows.len() {
@@ -841,7 +732,7 @@ fn count_le(xs: &[f64], x: f64) -> usize {
 /// Weights in single precision and the index of the heaviest (the sign reference; `usize::MAX`
 /// when the plane is pre-aligned and no sign test is needed).
 #[inline]
-fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
+fn weights32(w: &[(&SkeletonPose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
     let w32 = [w[0].1 as f32, w[1].1 as f32, w[2].1 as f32, w[3].1 as f32];
     if aligned {
         return (w32, usize::MAX);
@@ -857,7 +748,7 @@ fn weights32(w: &[(&Pose, f64); 4], aligned: bool) -> ([f32; 4], usize) {
 
 /// Weighted sum of one joint's rotations (signs aligned with the heaviest), not normalised.
 #[inline]
-fn blend4(w: &[(&Pose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
+fn blend4(w: &[(&SkeletonPose, f64); 4], (wt, heavy): &([f32; 4], usize), j: usize) -> Quat {
     if *heavy == usize::MAX {
         let q = |i: usize| w[i].0.rot[j] * wt[i];
         return q(0) + q(1) + q(2) + q(3);
@@ -889,7 +780,7 @@ fn normalize_joints(rot: &mut [Quat; MAX_JOINTS], n: usize) {
 }
 
 #[inline]
-fn root4(w: &[(&Pose, f64); 4]) -> Vec3 {
+fn root4(w: &[(&SkeletonPose, f64); 4]) -> Vec3 {
     let r = |i: usize| w[i].0.root_m * w[i].1 as f32;
     r(0) + r(1) + r(2) + r(3)
 }

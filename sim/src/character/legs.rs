@@ -11,7 +11,7 @@
 
 use glam::{Quat, Vec3};
 
-use super::keyframe::{Joint, Pose, MAX_JOINTS};
+use super::skeleton::{Joint, SkeletonPose, MAX_JOINTS};
 
 /// The two legs of a skeleton: hip, knee and ankle joints (each the parent of the next), the
 /// segment lengths, and the joints from the root to each hip.
@@ -101,7 +101,7 @@ impl Legs {
 
     /// Position and rotation of the frame of hip `k`'s parent in `S_r`.
     #[inline]
-    fn hip_parent_frame(&self, joints: &[Joint], pose: &Pose, k: usize) -> (Vec3, Quat) {
+    fn hip_parent_frame(&self, joints: &[Joint], pose: &SkeletonPose, k: usize) -> (Vec3, Quat) {
         if self.chain_len[k] == 1 {
             // The hips hang from the root (the usual skeleton): its offset and rotation.
             return (self.root_off + pose.root_m, pose.rot[0]);
@@ -124,7 +124,7 @@ impl Legs {
     pub fn reach(
         &self,
         joints: &[Joint],
-        pose: &mut Pose,
+        pose: &mut SkeletonPose,
         target: [Vec3; 2],
         weight: [f32; 2],
         up: Vec3,
@@ -221,7 +221,7 @@ impl Legs {
 }
 
 /// Positions of the first `joints.len()` joints of `pose` in `S_r` (m).
-pub fn joint_positions(joints: &[Joint], pose: &Pose, out: &mut [Vec3; MAX_JOINTS]) {
+pub fn joint_positions(joints: &[Joint], pose: &SkeletonPose, out: &mut [Vec3; MAX_JOINTS]) {
     let mut rot = [Quat::IDENTITY; MAX_JOINTS];
     for (i, j) in joints.iter().enumerate().take(MAX_JOINTS) {
         let off = j.offset_m.as_vec3();

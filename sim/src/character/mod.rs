@@ -22,7 +22,9 @@ pub mod drawn;
 pub mod feet;
 pub mod keyframe;
 pub mod legs;
+pub mod params;
 pub mod scene;
+pub mod skeleton;
 pub mod space;
 
 use glam::{DQuat, DVec3};
@@ -31,8 +33,10 @@ use serde::Deserialize;
 use crate::model::Model;
 use crate::state::Workspace;
 use ai::{AiParams, Goal};
-use controller::{ControllerParams, ControllerState, Drive, Ground, TiltCosines};
-use keyframe::{KeyframeSet, Lean, Pose, QPoint};
+use controller::{ControllerState, Drive, Ground};
+use keyframe::{KeyframeSet, Lean, QPoint};
+use params::{ControllerParams, TiltCosines};
+use skeleton::SkeletonPose;
 use space::BodySpace;
 
 /// All settings of a kind of character.
@@ -117,14 +121,14 @@ impl Correspondence {
     /// The pose to show (in `S_r`), from the keyframes alone: at the point of Q, and for large
     /// leans by the lean's direction ([`KeyframeSet::pose_polar`]), with the behaviour blend.
     #[inline]
-    pub fn pose(&self, b: &BodySpace, set: &KeyframeSet, out: &mut Pose) {
+    pub fn pose(&self, b: &BodySpace, set: &KeyframeSet, out: &mut SkeletonPose) {
         let q = self.q(b, set);
         let polar = polar_lean(b);
         pose_at(set, &q, q.behaviour, polar.as_ref(), out);
         if self.blend >= 1.0 || self.from_behaviour == self.behaviour {
             return;
         }
-        let mut other = Pose::default();
+        let mut other = SkeletonPose::default();
         pose_at(set, &q, self.from_behaviour, polar.as_ref(), &mut other);
         let (w, n) = (self.blend as f32, set.posed);
         for j in 0..n {
@@ -161,10 +165,16 @@ fn polar_lean(b: &BodySpace) -> Option<(Lean, f32)> {
 
 /// The pose of one behaviour at `q`, moved toward the lean's direction by its weight.
 #[inline]
-fn pose_at(set: &KeyframeSet, q: &QPoint, behaviour: u8, polar: Option<&(Lean, f32)>, out: &mut Pose) {
+fn pose_at(
+    set: &KeyframeSet,
+    q: &QPoint,
+    behaviour: u8,
+    polar: Option<&(Lean, f32)>,
+    out: &mut SkeletonPose,
+) {
     set.pose(&QPoint { behaviour, ..*q }, out);
     let Some((lean, m)) = polar else { return };
-    let mut p = Pose::default();
+    let mut p = SkeletonPose::default();
     set.pose_polar(lean, q.d_x, q.d_z, behaviour, &mut p);
     if *m >= 1.0 {
         *out = p;
@@ -278,7 +288,13 @@ impl Character {
     /// The drawn pose (in `S_r`): the keyframe set at the point of Q the body maps to, with the legs
     /// turned onto the feet the controller stands on (while upright; a fall hands the legs back to
     /// the keyframes by the time the body leans [`LEGS_FREE_DEG`]).
-    pub fn pose(&self, b: &BodySpace, set: &KeyframeSet, p: &controller::ControllerParams, out: &mut Pose) {
+    pub fn pose(
+        &self,
+        b: &BodySpace,
+        set: &KeyframeSet,
+        p: &params::ControllerParams,
+        out: &mut SkeletonPose,
+    ) {
         self.anim.pose(b, set, out);
         let (Some(legs), true) = (&set.legs, self.control.feet.grip > 0.0) else { return };
         let w = legs_weight(b.e_yr.y) * self.control.feet.grip;

@@ -8,13 +8,13 @@ use std::path::Path;
 
 use glam::{DMat3, DVec3};
 use serde::Deserialize;
-use spidar_config as config;
+use spidar_config::{self as config, At, Bound, Checker};
 
 use super::ai::Goal;
 use super::crowd::{Crowd, CrowdBody, CrowdWorld};
 use super::keyframe::{KeyframeSet, KEYFRAMES_HUMANOID_RON};
 use super::CharacterParams;
-use crate::collide::Pose;
+use crate::collide::ShapePose;
 use crate::desc::{parse_body, ContactDesc, ShapeFile};
 use crate::spatial::quat_exp;
 use crate::SimError;
@@ -66,10 +66,6 @@ pub const AREA_MAX_M: f64 = 1e5;
 /// The spacing of the starting grid (m).
 const START_SPACING_M: f64 = 1.2;
 
-fn err(text: &str, origin: &str, field: &str, key: &str, msg: String) -> SimError {
-    SimError::Config(config::invalid(text, origin, field, key, 0, msg))
-}
-
 /// The built-in crowd scene.
 pub fn builtin_crowd() -> Result<Crowd, SimError> {
     build_crowd(SCENE_CROWD_RON, "configs/scene-crowd.ron (built in)", |name| match name {
@@ -96,130 +92,111 @@ pub fn load_crowd(path: &Path) -> Result<Crowd, SimError> {
     })
 }
 
-/// Builds a crowd from scene text; `resolve` gives (text, origin) of a named file.
+/// Builds a crowd from scene text; `resolve` gives (text, origin) of a named file. The file is
+/// checked part by part (the world, the crowd's layout), then the body and keyframe set it names
+/// are read, then the crowd is placed.
 pub fn build_crowd(
     text: &str,
     origin: &str,
     mut resolve: impl FnMut(&str) -> Result<(String, String), SimError>,
 ) -> Result<Crowd, SimError> {
     let f: CrowdSceneFile = config::parse_kind(text, origin, config::FileKind::CrowdScene)?;
-    config::check_version(text, origin, f.version, 2)?;
-    if !(f.dt_s > 0.0 && f.dt_s <= 0.01) {
-        return Err(err(text, origin, "dt_s", "dt_s", format!("must be in (0, 0.01] s, got {}", f.dt_s)));
-    }
+    let c = Checker::new(text, origin);
+    c.version(f.version, 2)?;
+    check_world(&c, &f)?;
+    let cols = check_layout(&c, &f.crowd)?;
+    let (btext, borigin) = resolve(&f.body)?;
+    let body = CrowdBody::from_file(&parse_body(&btext, &borigin)?, &borigin)?;
+    let (ktext, korigin) = resolve(&f.keyframes)?;
+    let set = KeyframeSet::parse(&ktext, &korigin)?;
+    c.ensure(set.behaviours.len() >= 2, &At::key("keyframes"), || {
+        format!("{korigin}: the character AI needs two behaviours (walking and falling, standing up)")
+    })?;
+    Ok(place_crowd(f, body, set, cols))
+}
+
+/// The crowd's step.
+const CROWD_DT_S: Bound = Bound::hard(
+    "dt_s",
+    0.0,
+    0.01,
+    "s",
+    "the characters' controllers and contacts are tuned for steps of a few ms",
+);
+/// How fast the crowd wanders.
+const WALK_SPEED_M_PER_S: Bound = Bound::hard("walk_speed_m_per_s", 0.0, 10.0, "m/s", "nobody walks faster");
+
+/// The world: the step, gravity, the contacts, the characters' controller and AI settings and the
+/// scenery.
+fn check_world(c: &Checker, f: &CrowdSceneFile) -> Result<(), SimError> {
+    c.positive(&At::key("dt_s"), f.dt_s, "s", "the world steps forward")?;
+    c.within(&At::key("dt_s"), f.dt_s, &CROWD_DT_S)?;
     let g = f.gravity_m_per_s2;
-    if !(g.is_finite() && g.length() <= 1000.0 && g.y < 0.0) {
-        return Err(err(
-            text,
-            origin,
-            "gravity_m_per_s2",
-            "gravity_m_per_s2",
-            format!("must be finite, pointing down (y < 0) and within 1000 m/s^2, got {g}"),
-        ));
-    }
-    f.contact.check().map_err(|(field, m)| err(text, origin, &format!("contact.{field}"), field, m))?;
-    f.character
-        .controller
-        .check()
-        .map_err(|(field, m)| err(text, origin, &format!("character.controller.{field}"), field, m))?;
-    f.character
-        .ai
-        .check()
-        .map_err(|(field, m)| err(text, origin, &format!("character.ai.{field}"), field, m))?;
+    c.ensure(g.is_finite() && g.length() <= 1000.0 && g.y < 0.0, &At::key("gravity_m_per_s2"), || {
+        format!("must be finite, pointing down (y < 0) and within 1000 m/s^2, got {g}")
+    })?;
+    let located =
+        |part: &str, (key, m): (&'static str, String)| c.error(&At::new(format!("{part}.{key}"), key, 0), m);
+    f.contact.check().map_err(|e| located("contact", e))?;
+    f.character.controller.check().map_err(|e| located("character.controller", e))?;
+    f.character.ai.check().map_err(|e| located("character.ai", e))?;
     for (i, s) in f.statics.iter().enumerate() {
-        if let Err(m) = s.check() {
-            return Err(SimError::Config(config::invalid(
-                text,
-                origin,
-                &format!("statics[{i}].shape"),
-                "shape",
-                i,
-                m,
-            )));
-        }
+        s.check().map_err(|m| c.error(&At::new(format!("statics[{i}].shape"), "shape", i), m))?;
     }
-    let a = f.crowd.area_m;
-    if !(a.iter().all(|v| v.abs() <= AREA_MAX_M) && a[2] > a[0] && a[3] > a[1]) {
-        return Err(err(
-            text,
-            origin,
-            "crowd.area_m",
-            "area_m",
+    Ok(())
+}
+
+/// Where the crowd stands: an area, a number of characters that fits in it on the starting
+/// grid, a walking speed, and the stations. Returns the grid's columns.
+fn check_layout(c: &Checker, l: &CrowdLayout) -> Result<usize, SimError> {
+    let a = l.area_m;
+    c.ensure(
+        a.iter().all(|v| v.abs() <= AREA_MAX_M) && a[2] > a[0] && a[3] > a[1],
+        &At::new("crowd.area_m", "area_m", 0),
+        || {
             format!(
                 "needs finite corners within {AREA_MAX_M} m with min x < max x and min z < max z, got {a:?}"
-            ),
-        ));
-    }
-    let n_total = f.crowd.count.saturating_add(f.crowd.stations.len());
-    if n_total == 0 || n_total > CROWD_MAX {
-        return Err(err(
-            text,
-            origin,
-            "crowd.count",
-            "count",
-            format!("a crowd needs 1 to {CROWD_MAX} characters (count plus stations), got {n_total}"),
-        ));
-    }
-    if !(f.crowd.walk_speed_m_per_s > 0.0 && f.crowd.walk_speed_m_per_s <= 10.0) {
-        return Err(err(
-            text,
-            origin,
-            "crowd.walk_speed_m_per_s",
-            "walk_speed_m_per_s",
-            format!("must be in (0, 10] m/s, got {}", f.crowd.walk_speed_m_per_s),
-        ));
-    }
-    for (i, st) in f.crowd.stations.iter().enumerate() {
+            )
+        },
+    )?;
+    let count = At::new("crowd.count", "count", 0);
+    let n_total = l.count.saturating_add(l.stations.len());
+    c.count(&count, n_total, 1, CROWD_MAX, "characters (count plus stations)")?;
+    let speed = At::new("crowd.walk_speed_m_per_s", "walk_speed_m_per_s", 0);
+    c.positive(&speed, l.walk_speed_m_per_s, "m/s", "the crowd walks")?;
+    c.within(&speed, l.walk_speed_m_per_s, &WALK_SPEED_M_PER_S)?;
+    for (i, st) in l.stations.iter().enumerate() {
         let (x, z) = st.at_m;
-        if !(x.abs() <= AREA_MAX_M && z.abs() <= AREA_MAX_M && st.heading_deg.is_finite()) {
-            return Err(SimError::Config(config::invalid(
-                text,
-                origin,
-                &format!("crowd.stations[{i}]"),
-                "at_m",
-                i,
-                format!("position (within {AREA_MAX_M} m) and heading must be finite numbers"),
-            )));
-        }
+        let ok = x.abs() <= AREA_MAX_M && z.abs() <= AREA_MAX_M && st.heading_deg.is_finite();
+        c.ensure(ok, &At::new(format!("crowd.stations[{i}]"), "at_m", i), || {
+            format!("position (within {AREA_MAX_M} m) and heading must be finite numbers")
+        })?;
     }
     // Start on a grid over the area, START_SPACING_M apart at least (sizes compared as floats: a
     // huge area must not overflow the product).
     let cols = ((a[2] - a[0]) / START_SPACING_M).floor().max(1.0);
     let rows = ((a[3] - a[1]) / START_SPACING_M).floor().max(1.0);
-    if f.crowd.count as f64 > cols * rows {
-        return Err(err(
-            text,
-            origin,
-            "crowd.count",
-            "count",
-            format!(
-                "{} characters do not fit in the area {START_SPACING_M} m apart (at most {}); enlarge area_m",
-                f.crowd.count,
-                cols * rows
-            ),
-        ));
-    }
-    let cols = cols as usize;
-    let (btext, borigin) = resolve(&f.body)?;
-    let body = CrowdBody::from_file(&parse_body(&btext, &borigin)?, &borigin)?;
-    let (ktext, korigin) = resolve(&f.keyframes)?;
-    let set = KeyframeSet::parse(&ktext, &korigin)?;
-    if set.behaviours.len() < 2 {
-        return Err(err(
-            text,
-            origin,
-            "keyframes",
-            "keyframes",
-            format!("{korigin}: the character AI needs two behaviours (walking and falling, standing up)"),
-        ));
-    }
+    c.ensure(l.count as f64 <= cols * rows, &count, || {
+        format!(
+            "{} characters do not fit in the area {START_SPACING_M} m apart (at most {}); enlarge area_m",
+            l.count,
+            cols * rows
+        )
+    })?;
+    Ok(cols as usize)
+}
+
+/// The crowd, placed: its scenery, the stations' characters, then the wanderers on the starting
+/// grid of `cols` columns, each facing a random way.
+fn place_crowd(f: CrowdSceneFile, body: CrowdBody, set: KeyframeSet, cols: usize) -> Crowd {
     let world = CrowdWorld::new(f.dt_s, f.gravity_m_per_s2, &f.contact, body.mass_kg);
     let mut c = Crowd::new(body, world, f.character, set);
     for s in &f.statics {
         let shape = s.shape.to_shape();
         let rot = DMat3::from_quat(quat_exp(s.rot_deg * (std::f64::consts::PI / 180.0)));
-        c.statics.push((shape, Pose { pos_m: s.pos_m, rot }));
+        c.statics.push((shape, ShapePose { pos_m: s.pos_m, rot }));
     }
+    let a = f.crowd.area_m;
     c.seed(f.crowd.seed);
     c.wander = Some(a);
     c.wander_speed_m_per_s = f.crowd.walk_speed_m_per_s;
@@ -235,5 +212,5 @@ pub fn build_crowd(
         let h = c.random() * std::f64::consts::TAU;
         c.add(x, z, h, Goal::Stand);
     }
-    Ok(c)
+    c
 }

@@ -53,7 +53,8 @@ fn felt_force_is_the_avatar_hands_contact_clipped_never_the_coupling_spring() {
                     max_spring_free = max_spring_free.max(rep.coupling_force_n[h].length());
                     continue;
                 }
-                let want = render_contact(&c, s.hands[h].pos_m, r.hands[h].stiffness_limit_n_per_m).force_n;
+                let want =
+                    render_contact(&c, s.hands[h].pos_world_m, r.hands[h].stiffness_limit_n_per_m).force_n;
                 assert!(
                     (xf.vector(rec.hands[h].rendered_n) - want).length() < 1e-9,
                     "the tick rendered {want}"
@@ -127,7 +128,7 @@ impl Scene for LaggingWall {
         self.seq += 1;
         let mut m = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
         let Some(s) = samples.last().filter(|s| s.hands[0].valid) else { return m };
-        let x = s.hands[0].pos_m;
+        let x = s.hands[0].pos_world_m;
         self.history.push_back(x);
         if self.history.len() > LAG_STEPS {
             self.history.pop_front();
@@ -208,9 +209,9 @@ fn closed_loops_into_a_contact_give_the_hand_no_net_work() {
         let want = hr.rendered_n * rec.gain;
         let guarded = want * (r.hands[0].force_limit_n / want.length().max(r.hands[0].force_limit_n));
         if let Some(p) = last_pos {
-            asked_j += asked_prev2.dot(hr.pos_m - p);
+            asked_j += asked_prev2.dot(hr.pos_rig_m - p);
         }
-        last_pos = Some(hr.pos_m);
+        last_pos = Some(hr.pos_rig_m);
         asked_prev2 = asked_prev;
         asked_prev = guarded;
         contact_ticks += (hr.contacts > 0) as u32;
@@ -261,60 +262,10 @@ fn presses_into_the_virtual_human_give_the_hand_no_net_work() {
 /// non-finite one is counted.
 #[test]
 fn hostile_local_models_stay_within_the_rigs_limit() {
-    struct Hostile {
-        seq: u64,
-    }
-    impl Scene for Hostile {
-        fn name(&self) -> &str {
-            "hostile local models"
-        }
-        fn step_s(&self) -> f64 {
-            0.003
-        }
-        fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
-            self.seq += 1;
-            let mut m = ContactModel { seq: self.seq, stamp_s: t_s, ..Default::default() };
-            let Some(s) = samples.last() else { return m };
-            let bad = [f64::NAN, f64::INFINITY, -f64::INFINITY, 1e300, -1e9];
-            for h in 0..2 {
-                let x = bad[(self.seq as usize + h) % bad.len()];
-                m.hand_contacts[h] = match self.seq % 4 {
-                    0 => HandContact {
-                        force_n: DVec3::new(x, 1.0, 0.0),
-                        normal: DVec3::Y,
-                        k_n_per_m: 1e3,
-                        at_m: s.hands[h].pos_m,
-                        source_w: 0.0,
-                    },
-                    1 => HandContact {
-                        force_n: DVec3::Y * 1e6,
-                        normal: DVec3::splat(x),
-                        k_n_per_m: x,
-                        at_m: s.hands[h].pos_m,
-                        source_w: x,
-                    },
-                    2 => HandContact {
-                        force_n: DVec3::Y,
-                        normal: DVec3::Y,
-                        k_n_per_m: 1e12,
-                        at_m: DVec3::splat(x),
-                        source_w: 1e9,
-                    },
-                    _ => HandContact {
-                        force_n: DVec3::Y * 3.0,
-                        normal: -DVec3::Y,
-                        k_n_per_m: 1e4,
-                        at_m: s.hands[h].pos_m + DVec3::Y,
-                        source_w: -x,
-                    },
-                };
-            }
-            m
-        }
-    }
     let r = rig();
     let scripts = load_scripts("spar", &r, 2).unwrap();
-    let mut v = session(scripts, Some(Box::new(Hostile { seq: 0 })), &SimOptions::default());
+    let scene = spidar_testkit::HostileScene::new(spidar_testkit::Hostility::HandContacts, 1);
+    let mut v = session(scripts, Some(Box::new(scene)), &SimOptions::default());
     for _ in 0..5000 {
         let rec = v.tick();
         for (h, hr) in rec.hands.iter().enumerate() {

@@ -4,63 +4,11 @@
 //! the hand's own motion, and the four strings' residual.
 
 use super::*;
-use spidar_device::{Device, DeviceInfo, Input, Output};
 
-/// A device in front of the simulated rig that garbles a fraction of its replies the way a UART
-/// board's reply without checksum is garbled: one count of the reply changed by 1 .. 4096 either
-/// way, silently (the exchange reports success). Deterministic for its seed.
-struct Garbling {
-    inner: SimRig,
-    rate: f64,
-    rng: u64,
-    /// Replies garbled so far.
-    garbled: u64,
-    /// The last reply as the plant gave it, before garbling, and what was garbled in it.
-    clean: Input,
-    last: Option<(usize, i64)>,
-}
-
-impl Garbling {
-    fn next(&mut self) -> u64 {
-        // xorshift64*: enough for picking ticks and offsets.
-        self.rng ^= self.rng >> 12;
-        self.rng ^= self.rng << 25;
-        self.rng ^= self.rng >> 27;
-        self.rng.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn uniform(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
-impl Device for Garbling {
-    fn open(&mut self) -> Result<(), DeviceError> {
-        self.inner.open()
-    }
-    fn activate(&mut self) -> Result<(), DeviceError> {
-        self.inner.activate()
-    }
-    fn deactivate(&mut self) -> Result<(), DeviceError> {
-        self.inner.deactivate()
-    }
-    fn exchange(&mut self, out: &Output, inp: &mut Input) -> Result<(), DeviceError> {
-        self.inner.exchange(out, inp)?;
-        self.clean = *inp;
-        self.last = None;
-        if self.uniform() < self.rate {
-            let ch = (self.next() % 8) as usize;
-            let mag = 1 + (self.next() % 4096) as i64;
-            let by = if self.next().is_multiple_of(2) { mag } else { -mag };
-            inp.counts[ch] += by;
-            self.garbled += 1;
-            self.last = Some((ch, by));
-        }
-        Ok(())
-    }
-    fn info(&self) -> &DeviceInfo {
-        self.inner.info()
-    }
-}
+/// The simulated rig with a fraction of its replies garbled the way a UART board's reply without
+/// checksum is garbled: one count of the reply changed by 1 .. 4096 either way, silently (the
+/// exchange reports success). Deterministic for its seed.
+type Garbling = spidar_testkit::Garbling<SimRig>;
 
 /// Random sparring against the rig-check scene; `rate` of the replies garbled.
 fn sparring_garbled(seed: u64, rate: f64) -> VirtualRun<Garbling> {
@@ -68,14 +16,7 @@ fn sparring_garbled(seed: u64, rate: f64) -> VirtualRun<Garbling> {
     let scripts = load_scripts("spar", &r, seed).unwrap();
     let sim = sim_device(&r, scripts, &SimOptions { seed, encoder_noise_counts: 0.7, ..Default::default() })
         .unwrap();
-    let dev = Garbling {
-        inner: sim,
-        rate,
-        rng: seed ^ 0x9e37_79b9_7f4a_7c15,
-        garbled: 0,
-        clean: Input::default(),
-        last: None,
-    };
+    let dev = Garbling::new(sim, rate, 1, seed ^ 0x9e37_79b9_7f4a_7c15);
     let mut v = VirtualRun::new(dev, &r, Some(Box::new(WallsScene::builtin()))).unwrap();
     v.home_and_activate();
     v
@@ -140,7 +81,7 @@ fn measure(seed: u64, rate: f64, ticks: usize) -> Damage {
             } else {
                 d.force_err_used_n = d.force_err_used_n.max(err);
                 if rb.hands[h].valid {
-                    d.pose_err_m = d.pose_err_m.max(rb.hands[h].pos_m.distance(rc.hands[h].pos_m));
+                    d.pose_err_m = d.pose_err_m.max(rb.hands[h].pos_rig_m.distance(rc.hands[h].pos_rig_m));
                 }
             }
             d.over_half_newton += (err > 0.5) as u64;

@@ -126,7 +126,7 @@ fn same_tick(a: &TickRecord, b: &TickRecord) -> bool {
         && a.contact_age_s == b.contact_age_s
         && a.state == b.state
         && a.hands.iter().zip(b.hands.iter()).all(|(x, y)| {
-            x.pos_m == y.pos_m
+            x.pos_rig_m == y.pos_rig_m
                 && x.commanded_n == y.commanded_n
                 && x.tensions_n == y.tensions_n
                 && x.contacts == y.contacts
@@ -303,7 +303,7 @@ fn hostile_world(
                     seq += 1;
                     let mut m = spidar_msg::ContactModel { seq, stamp_s: s.t_s, ..Default::default() };
                     for hand in 0..2 {
-                        let p = s.hands[hand].pos_m;
+                        let p = s.hands[hand].pos_world_m;
                         m.push(Proxy {
                             id: ProxyId { body: 1, part: hand as u16 },
                             shape: ProxyShape::Sphere {

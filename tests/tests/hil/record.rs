@@ -147,28 +147,13 @@ fn child_records_a_live_session_until_killed() {
 fn a_kill_during_recording_leaves_a_file_that_replays_up_to_its_last_chunk() {
     let path = temp("killed.mcap");
     let _ = std::fs::remove_file(&path);
-    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "record::child_records_a_live_session_until_killed", "--ignored", "--nocapture"])
-        .env("SPIDAR_RECORD_CHILD", &path)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spidar_testkit::spawn_test_child(
+        "record::child_records_a_live_session_until_killed",
+        "SPIDAR_RECORD_CHILD",
+        std::path::Path::new(&path),
+    );
     // Wait until a few chunks are on disk (about 3 s of session), then SIGKILL.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(100);
-    loop {
-        let len = std::fs::metadata(&path).map_or(0, |m| m.len());
-        if len > 400_000 {
-            break;
-        }
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!("the recording child ended by itself ({status}) at {len} bytes");
-        }
-        assert!(std::time::Instant::now() < deadline, "the recording child wrote only {len} bytes");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    child.kill().unwrap(); // SIGKILL: no clean-up of any kind
-    child.wait().unwrap();
+    spidar_testkit::kill_once_written(&mut child, &path, 400_000, std::time::Duration::from_secs(100));
 
     let mut ticks = Vec::new();
     let rec = reader::read(&path, |_, m| {

@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use glam::DVec3;
-use spidar_device::emulator::{link, Control, Emulator, PlantClock};
+use spidar_device::emulator::{symlink, Control, Emulator, PlantClock};
 use spidar_device::sim::Script;
 use spidar_device::uart::protocol::ReplyLayout;
 use spidar_device::uart::{SerialPath, UartDevice};
@@ -37,7 +37,7 @@ impl PtySession {
 }
 
 fn link(name: &str) -> PathBuf {
-    link::private_dir().unwrap().join(format!("hil-{}-{name}", std::process::id()))
+    symlink::private_dir().unwrap().join(format!("hil-{}-{name}", std::process::id()))
 }
 
 /// The left hand pressing the front wall (as `left_hand_pressing_the_wall`), through the pty,
@@ -70,7 +70,7 @@ fn pressing_on(
     // Enumeration at open waits for every board id, present or not: generous, but not slow.
     let mut uo = uart_options(&r, reply_timeout);
     uo.enumerate_timeout = Duration::from_millis(250);
-    let dev = UartDevice::on_port(emu.link().to_str().unwrap(), uo).unwrap();
+    let dev = UartDevice::on_port(emu.symlink().to_str().unwrap(), uo).unwrap();
     let mut v = VirtualRun::new(dev, &r, Some(Box::new(front_wall(k, 5.0)))).unwrap();
     v.home_and_activate();
     PtySession { v, emu }
@@ -466,7 +466,7 @@ fn unplugged_board_goes_safe_is_reopened_and_the_rig_rehomes_once_the_grips_rest
         assert!(n < 10, "not active again after re-homing");
     }
     run_checked(&mut s, 300);
-    let est = s.v.rt.last_record().hands[0].pos_m;
+    let est = s.v.rt.last_record().hands[0].pos_rig_m;
     let t = c.truth().hands[0].pos_m;
     assert!(
         ((t - est) - offset).length() < 1e-3,

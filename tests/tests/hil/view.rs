@@ -24,7 +24,7 @@ use spidar_rt::{Clock, MonotonicClock};
 use spidar_runtime::scene_thread::{self, SceneCounters};
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::drawn::world_joints;
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_world::boxing::BoxingScene;
 use spidar_world::crowd::CrowdScene;
 use spidar_world::host::Stepper;
@@ -61,6 +61,9 @@ struct Rec {
     /// `spidar_sim::character::drawn::world_joints` gives them) and policy.
     skeletons: Vec<(Vec<DVec3>, Policy)>,
     counters: Vec<f64>,
+    /// Boxing: each articulated body's joints in the world (actor, joint, where the simulation has
+    /// it: the child solid's origin).
+    body_joints: Vec<(&'static str, String, DVec3)>,
 }
 
 /// The scene behind the view, recording itself after every step and obeying the test.
@@ -107,6 +110,16 @@ fn record_boxing(s: &BoxingScene, t: f64) -> Rec {
         t,
         parts: w.ws.shape_pose.iter().map(|p| (p.pos_m, DQuat::from_mat3(&p.rot).normalize())).collect(),
         skeletons: Vec::new(),
+        body_joints: [(spidar_sim::boxer::BOXER, "virtual human"), (spidar_sim::boxer::AVATAR, "avatar")]
+            .into_iter()
+            .flat_map(|(a, name)| {
+                w.model.articulations[a]
+                    .bodies
+                    .clone()
+                    .filter(|&b| w.model.bodies[b].parent.is_some())
+                    .map(move |b| (name, w.model.bodies[b].name.clone(), w.ws.point_world(b, DVec3::ZERO)))
+            })
+            .collect(),
         counters: [m.hits_taken, m.hits_given, m.attacks, m.avoidances, m.blocks, m.predictions]
             .iter()
             .map(|c| *c as f64)
@@ -128,6 +141,7 @@ fn record_crowd(s: &CrowdScene, t: f64) -> Rec {
             })
             .collect(),
         counters: vec![c.len() as f64, down as f64, s.impulse_total_n_s.length()],
+        body_joints: Vec::new(),
     }
 }
 
@@ -189,7 +203,7 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
     let r = rig();
     let w = r.rig_to_world;
     let home = [w.point(r.hands[0].home_m), w.point(r.hands[1].home_m)];
-    let mut h = home.map(|p| HandState { pos_m: p, valid: true, ..Default::default() });
+    let mut h = home.map(|p| HandState { pos_world_m: p, valid: true, ..Default::default() });
     let (out_s, hold_s) = (0.2, 0.3);
     let s = t - punch_at;
     if punch_at > 0.0 && s > 0.0 && s < out_s + hold_s + out_s {
@@ -203,8 +217,8 @@ fn hands_at(t: f64, punch_at: f64, target: DVec3) -> [HandState; 2] {
         };
         let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
         let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / out_s;
-        h[1].pos_m = from + (to - from) * p;
-        h[1].vel_m_per_s = (to - from) * v;
+        h[1].pos_world_m = from + (to - from) * p;
+        h[1].vel_world_m_per_s = (to - from) * v;
     }
     h
 }
@@ -254,7 +268,7 @@ fn host<S: Scene + 'static>(
                 let mut s =
                     HandSample { tick, t_s: t, hands: hands_at(t, punch_at, target), ..Default::default() };
                 if let Some((at, to)) = *ctl.jab.lock().unwrap() {
-                    s.hands[1] = jab(s.hands[1].pos_m, t - at, to);
+                    s.hands[1] = jab(s.hands[1].pos_world_m, t - at, to);
                 }
                 let _ = samples_tx.try_send(s);
                 tick += 1;
@@ -282,8 +296,8 @@ fn jab(home: DVec3, s: f64, to: DVec3) -> HandState {
     let p = 10.0 * tau.powi(3) - 15.0 * tau.powi(4) + 6.0 * tau.powi(5);
     let v = (30.0 * tau.powi(2) - 60.0 * tau.powi(3) + 30.0 * tau.powi(4)) / 0.2;
     HandState {
-        pos_m: home + (to - home) * p,
-        vel_m_per_s: (to - home) * v,
+        pos_world_m: home + (to - home) * p,
+        vel_world_m_per_s: (to - home) * v,
         valid: true,
         ..Default::default()
     }
@@ -345,57 +359,12 @@ impl Hosting {
         self.log.lock().unwrap().last().cloned().expect("no step recorded")
     }
 
+    /// The page's question `q` answered (a check of what it drew against the world, or an
+    /// action on the world), each kind by its own method.
     fn answer(&self, q: &Value) -> Value {
-        let f = |v: &Value| v.as_f64().unwrap();
-        let close = |a: DVec3, b: &[Value], what: &str| {
-            let d = (a - DVec3::new(f(&b[0]), f(&b[1]), f(&b[2]))).length();
-            assert!(d < 1e-4, "{what}: the frame is {d} m from the world");
-        };
-        let same_rot = |a: DQuat, b: &[Value], what: &str| {
-            let q = DQuat::from_xyzw(f(&b[0]), f(&b[1]), f(&b[2]), f(&b[3]));
-            assert!(a.dot(q).abs() > 1.0 - 1e-5, "{what}: the frame's rotation {q} is not the world's {a}");
-        };
         match q["ask"].as_str().unwrap() {
-            "check_shapes" => {
-                let rec = self.at(f(&q["t"]));
-                let shapes = q["shapes"].as_object().unwrap();
-                for (name, v) in shapes {
-                    let k =
-                        self.look.shapes.iter().position(|s| &s.name == name).expect("a shape of the look");
-                    let v = v.as_array().unwrap();
-                    close(rec.parts[k].0, &v[0..3], name);
-                    same_rot(rec.parts[k].1, &v[3..7], name);
-                }
-                json!({"ok": shapes.len()})
-            }
-            "check_characters" => {
-                let rec = self.at(f(&q["t"]));
-                let states = &self.look.crowd.as_ref().unwrap().states;
-                for (i, c) in q["characters"].as_array().unwrap().iter().enumerate() {
-                    let c = c.as_array().unwrap();
-                    let what = format!("character {i}");
-                    close(rec.parts[i].0, &c[0..3], &what);
-                    same_rot(rec.parts[i].1, &c[3..7], &what);
-                    let (joints, policy) = &rec.skeletons[i];
-                    assert_eq!(
-                        states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
-                        policy.name(),
-                        "{what}'s state"
-                    );
-                    // The frame carries the world's drawn figure, joint by joint.
-                    assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
-                    assert_eq!(
-                        c.len(),
-                        CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(),
-                        "{what}'s numbers"
-                    );
-                    for (j, p) in joints.iter().enumerate() {
-                        let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
-                        close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
-                    }
-                }
-                json!({"ok": true})
-            }
+            "check_shapes" => self.check_shapes(q),
+            "check_characters" => self.check_characters(q),
             "punch" => {
                 // The world is held with the fist out (0.45 s after the punch starts), so a slow
                 // browser still shows the virtual human's reaction.
@@ -407,27 +376,35 @@ impl Hosting {
                 self.ctl.hold.store(true, Ordering::Relaxed);
                 json!({"t_punch": at})
             }
-            "push" => {
-                // Pushed (again every 3 s while it stands), and held still once it is down.
-                let i = q["i"].as_u64().unwrap() as usize;
-                let until = Instant::now() + Duration::from_secs(15);
-                let mut next_push = Instant::now();
-                loop {
-                    if Instant::now() >= next_push {
-                        *self.ctl.push.lock().unwrap() = Some(i);
-                        next_push += Duration::from_secs(3);
-                    }
-                    let r = self.latest();
-                    if r.skeletons[i].1 == Policy::Down {
-                        return json!({"t_down": self.hold()});
-                    }
-                    if Instant::now() > until {
-                        return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
-                    }
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-            }
+            "push" => self.push_until_down(q["i"].as_u64().unwrap() as usize),
             "hold" => json!({"t_hold": self.hold()}),
+            "check_person_joints" => {
+                let f = |v: &Value| v.as_f64().unwrap();
+                // Every joint of the body drawn as a person, as each of its two pieces draws it,
+                // within 1 cm of where the simulation has it at the frame's step.
+                let rec = self.at(f(&q["t"]));
+                let name = q["name"].as_str().unwrap();
+                let drawn = q["joints"].as_object().unwrap();
+                let mut worst: f64 = 0.0;
+                let mut n = 0;
+                for (actor, joint, truth) in rec.body_joints.iter().filter(|j| j.0 == name) {
+                    let d = drawn.get(joint).unwrap_or_else(|| panic!("{actor}: joint {joint} is not drawn"));
+                    for side in ["parent", "child"] {
+                        let p = d[side]
+                            .as_array()
+                            .unwrap_or_else(|| panic!("{actor}'s {joint}: no {side} piece"));
+                        let e = (DVec3::new(f(&p[0]), f(&p[1]), f(&p[2])) - *truth).length();
+                        assert!(
+                            e < 0.01,
+                            "{actor}'s {joint} as its {side} piece draws it is {e} m from the simulation's"
+                        );
+                        worst = worst.max(e);
+                        n += 1;
+                    }
+                }
+                assert!(n >= 16, "{name}: {n} joint ends compared");
+                json!({"worst_m": worst, "ends": n})
+            }
             "jab" => {
                 // The right fist jabs at the virtual human's head (hit) or out to the right, clear
                 // of every body (miss), and stays there.
@@ -445,42 +422,121 @@ impl Hosting {
                 *self.ctl.jab.lock().unwrap() = None;
                 json!({"ok": true})
             }
-            "check_hud" => {
-                let hud = q["hud"].as_object().unwrap();
-                let text = |k: &str| {
-                    hud.get(k).and_then(|v| v.as_str()).unwrap_or_else(|| panic!("no {k} in the HUD"))
-                };
-                let r = known_rig_status();
-                let want = [
-                    ("rig_state", "active".to_string()),
-                    ("rate_hz", format!("{:.1}", r.rate_hz)),
-                    ("lateness_p99", format!("{:.1} us", r.lateness_p99_s * 1e6)),
-                    ("force_l", format!("{:.2}", r.force_n[0].length())),
-                    ("force_r", format!("{:.2}", r.force_n[1].length())),
-                    ("faults", r.faults.to_string()),
-                    ("device_errors", r.device_errors.to_string()),
-                    ("stale_ticks", r.stale_ticks.to_string()),
-                    ("misses", r.misses.to_string()),
-                    ("link", "up".to_string()),
-                ];
-                for (k, v) in want {
-                    assert_eq!(text(k), v, "the HUD's {k} in the {} browser", q["browser"]);
-                }
-                let world = self.latest();
-                for (name, v) in self.look.counters.iter().zip(world.counters.iter()) {
-                    let shown = if v.fract() == 0.0 { format!("{}", *v as i64) } else { format!("{v:.1}") };
-                    assert_eq!(
-                        text(&format!("counter:{name}")),
-                        shown,
-                        "the HUD's {name} in the {} browser",
-                        q["browser"]
-                    );
-                }
-                json!({"ok": true})
-            }
+            "check_hud" => self.check_hud(q),
             other => json!({"error": format!("unknown question {other}")}),
         }
     }
+
+    /// Every shape the page drew at time `t` is where the world had it.
+    fn check_shapes(&self, q: &Value) -> Value {
+        let rec = self.at(num(&q["t"]));
+        let shapes = q["shapes"].as_object().unwrap();
+        for (name, v) in shapes {
+            let k = self.look.shapes.iter().position(|s| &s.name == name).expect("a shape of the look");
+            let v = v.as_array().unwrap();
+            close(rec.parts[k].0, &v[0..3], name);
+            same_rot(rec.parts[k].1, &v[3..7], name);
+        }
+        json!({"ok": shapes.len()})
+    }
+
+    /// Every character the page drew at time `t` is where the world had it, in its state, with
+    /// the world's drawn figure joint by joint.
+    fn check_characters(&self, q: &Value) -> Value {
+        let rec = self.at(num(&q["t"]));
+        let states = &self.look.crowd.as_ref().unwrap().states;
+        for (i, c) in q["characters"].as_array().unwrap().iter().enumerate() {
+            let c = c.as_array().unwrap();
+            let what = format!("character {i}");
+            close(rec.parts[i].0, &c[0..3], &what);
+            same_rot(rec.parts[i].1, &c[3..7], &what);
+            let (joints, policy) = &rec.skeletons[i];
+            assert_eq!(
+                states[c[CHARACTER_STATE].as_u64().unwrap() as usize],
+                policy.name(),
+                "{what}'s state"
+            );
+            assert_eq!(joints.len(), self.look.crowd.as_ref().unwrap().joints.len());
+            assert_eq!(c.len(), CHARACTER_HEAD_FLOATS + JOINT_FLOATS * joints.len(), "{what}'s numbers");
+            for (j, p) in joints.iter().enumerate() {
+                let o = CHARACTER_HEAD_FLOATS + JOINT_FLOATS * j;
+                close(*p, &c[o..o + 3], &format!("{what} joint {j}"));
+            }
+        }
+        json!({"ok": true})
+    }
+
+    /// Character `i` pushed (again every 3 s while it stands), and the world held still once it
+    /// is down.
+    fn push_until_down(&self, i: usize) -> Value {
+        let until = Instant::now() + Duration::from_secs(15);
+        let mut next_push = Instant::now();
+        loop {
+            if Instant::now() >= next_push {
+                *self.ctl.push.lock().unwrap() = Some(i);
+                next_push += Duration::from_secs(3);
+            }
+            let r = self.latest();
+            if r.skeletons[i].1 == Policy::Down {
+                return json!({"t_down": self.hold()});
+            }
+            if Instant::now() > until {
+                return json!({"error": format!("character {i} did not fall: {:?}", r.skeletons[i].1)});
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// The page's HUD shows the rig's status and the world's counters as they are.
+    fn check_hud(&self, q: &Value) -> Value {
+        let hud = q["hud"].as_object().unwrap();
+        let text =
+            |k: &str| hud.get(k).and_then(|v| v.as_str()).unwrap_or_else(|| panic!("no {k} in the HUD"));
+        let r = known_rig_status();
+        let want = [
+            ("rig_state", "active".to_string()),
+            ("rate_hz", format!("{:.1}", r.rate_hz)),
+            ("lateness_p99", format!("{:.1} us", r.lateness_p99_s * 1e6)),
+            ("force_l", format!("{:.2}", r.force_n[0].length())),
+            ("force_r", format!("{:.2}", r.force_n[1].length())),
+            ("faults", r.faults.to_string()),
+            ("device_errors", r.device_errors.to_string()),
+            ("stale_ticks", r.stale_ticks.to_string()),
+            ("misses", r.misses.to_string()),
+            ("link", "up".to_string()),
+        ];
+        for (k, v) in want {
+            assert_eq!(text(k), v, "the HUD's {k} in the {} browser", q["browser"]);
+        }
+        let world = self.latest();
+        for (name, v) in self.look.counters.iter().zip(world.counters.iter()) {
+            let shown = if v.fract() == 0.0 { format!("{}", *v as i64) } else { format!("{v:.1}") };
+            assert_eq!(
+                text(&format!("counter:{name}")),
+                shown,
+                "the HUD's {name} in the {} browser",
+                q["browser"]
+            );
+        }
+        json!({"ok": true})
+    }
+}
+
+/// A number of the page's answer.
+fn num(v: &Value) -> f64 {
+    v.as_f64().unwrap()
+}
+
+/// The page's position `b` (three numbers) is the world's `a`, to 0.1 mm.
+fn close(a: DVec3, b: &[Value], what: &str) {
+    let d = (a - DVec3::new(num(&b[0]), num(&b[1]), num(&b[2]))).length();
+    assert!(d < 1e-4, "{what}: the frame is {d} m from the world");
+}
+
+/// The page's rotation `b` (x, y, z, w) is the world's `a`.
+fn same_rot(a: DQuat, b: &[Value], what: &str) {
+    let q = DQuat::from_xyzw(num(&b[0]), num(&b[1]), num(&b[2]), num(&b[3]));
+    assert!(a.dot(q).abs() > 1.0 - 1e-5, "{what}: the frame's rotation {q} is not the world's {a}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -517,9 +573,14 @@ pub(super) fn browser_here(test: &str) -> bool {
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
 /// unless it ends with `RESULT ok`.
-pub(super) fn node(args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
+pub(super) fn node(args: &[&str], answer: impl FnMut(&Value) -> Value) {
+    node_script("view.mjs", args, answer)
+}
+
+/// Runs `node SCRIPT ARGS` in `tests/browser` (see [`node`]).
+pub(super) fn node_script(script: &str, args: &[&str], mut answer: impl FnMut(&Value) -> Value) {
     let mut child = Command::new("node")
-        .arg("view.mjs")
+        .arg(script)
         .args(args)
         .current_dir(browser_dir())
         .stdin(Stdio::piped())
@@ -586,6 +647,19 @@ fn view_a_hit_flashes_the_part_hit_in_a_browser() {
         BoxingScene::new(spidar_sim::boxer::BoxerParams { active: false, ..Default::default() }).unwrap();
     let w = host(scene, record_boxing, |_, _| {}, DVec3::ZERO, &any_port());
     node(&["flash", w.view.url()], |q| w.answer(q));
+}
+
+/// The virtual human and the avatar drawn as people: every joint of each, as both pieces that meet
+/// there draw it, within 1 cm of the simulated body's, before and after a punch moves them; the
+/// collision shapes come back with the toggle.
+#[test]
+fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
+    let _one = one_at_a_time();
+    if !browser_here("view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser") {
+        return;
+    }
+    let w = boxing_world(&any_port());
+    node_script("display.mjs", &["people", w.view.url()], |q| w.answer(q));
 }
 
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
@@ -793,6 +867,18 @@ fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
             // The viewer gets it before the next frame is due (the test waits, by counts).
             let got = got_rx.recv_timeout(Duration::from_secs(60)).expect("the frame reached the viewer");
             assert_eq!(u32::from_le_bytes(got[8..12].try_into().unwrap()), seq, "the frame published last");
+            // The live view stamps its frames with the tick's wall-clock time (the reference, like
+            // a recording, does not): within a minute of now, and otherwise the same frame.
+            let wall_ms = f64::from_le_bytes(got[32..40].try_into().unwrap());
+            let now_ms =
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64()
+                    * 1e3;
+            assert!(
+                (now_ms - wall_ms).abs() < 60e3,
+                "the tick's wall-clock time {wall_ms} ms, now {now_ms} ms"
+            );
+            let mut want = want;
+            want[32..40].copy_from_slice(&got[32..40]);
             assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);
             compared += 1;
             most_down = most_down.max(down);
@@ -878,16 +964,21 @@ fn recorder_allocates_nothing<S: Scene>(mut scene: S, name: &str) {
 /// rt-loop, and the child world process (this package's `spidar world`) started, watched and
 /// linked by the session as `spidar run` does, with the view option passed through. The session
 /// is polled on its own thread until `stop`.
-struct RunPath {
+pub(super) struct RunPath {
     /// The view's address, as the world printed it.
-    url: String,
+    pub(super) url: String,
     stop: spidar_runtime::signals::Stop,
-    run: Option<JoinHandle<spidar_runtime::summary::Summary>>,
-    said: Arc<Mutex<Vec<String>>>,
+    run: Option<JoinHandle<spidar_runtime::summary::SessionSummary>>,
+    pub(super) said: Arc<Mutex<Vec<String>>>,
 }
 
 impl RunPath {
-    fn start(scene: &str, script: &str) -> RunPath {
+    pub(super) fn start(scene: &str, script: &str) -> RunPath {
+        RunPath::start_on(scene, script, rig())
+    }
+
+    /// The same on a rig of the test's (a rig file with a screen, say).
+    pub(super) fn start_on(scene: &str, script: &str, r: spidar_rt::Rig) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
         use spidar_runtime::child_world::ChildWorldSpec;
         use spidar_runtime::session::{
@@ -918,7 +1009,6 @@ impl RunPath {
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {
-            let r = rig();
             let dev = sim_device(&r, load_scripts(&script, &r, 1).unwrap(), &SimOptions::default()).unwrap();
             let mut s = LiveSession::start(dev, &r, WorldChoice::Child(spec), &opts).unwrap();
             let mut url_tx = Some(url_tx);
@@ -947,13 +1037,13 @@ impl RunPath {
     }
 
     /// Stops the run (the rig stops, the world process ends) and gives its summary.
-    fn finish(mut self) -> spidar_runtime::summary::Summary {
+    pub(super) fn finish(mut self) -> spidar_runtime::summary::SessionSummary {
         self.stop.request();
         self.run.take().unwrap().join().expect("the session")
     }
 
     /// `GET path` from the world process's view server: the JSON it answers.
-    fn get(&self, path: &str) -> Value {
+    pub(super) fn get(&self, path: &str) -> Value {
         use std::io::Read;
         let host = self.url.trim_start_matches("http://");
         let mut c = std::net::TcpStream::connect(host).unwrap();

@@ -3,9 +3,11 @@
 //!
 //! ```text
 //! word  0..4   header: magic "SPV1" (u32), layout id (u32), frame sequence (u32), flags (u32)
-//! word  4..8   t_s, contact count, proxy count, valid-hands mask (bit h: hand h valid)   (f32)
-//! word  8..20  hands 0 and 1: position xyz, force felt xyz (scene frame)                 (f32)
-//! word 20..28  string tensions, hand 0 strings 0..3 then hand 1 (N; NaN: not known)      (f32)
+//! word  4..10  stamp: world step (u64), rig tick of the hand sample shown (u64; 0: none),
+//!              that tick's wall-clock time (f64, ms since the Unix epoch; 0: not known)
+//! word 10..14  t_s, contact count, proxy count, valid-hands mask (bit h: hand h valid)   (f32)
+//! word 14..26  hands 0 and 1: position xyz, force felt xyz (scene frame)                 (f32)
+//! word 26..34  string tensions, hand 0 strings 0..3 then hand 1 (N; NaN: not known)      (f32)
 //! then         shapes: position xyz, rotation quaternion xyzw, per moving shape         (f32)
 //!              contact force on each moving shape this frame (N)                        (f32)
 //!              label states, one per label                                              (f32)
@@ -25,8 +27,11 @@ use crate::look::{Look, Poses, CHARACTER_PUSH, CONTACT_FLOATS, MAX_CONTACTS, SHA
 
 /// "SPV1" read as a little-endian u32.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"SPV1");
-pub const GLOBALS_AT: usize = 4;
-pub const HANDS_AT: usize = 8;
+/// Where the stamp is: the world step, the rig tick, the tick's wall-clock time (two words each,
+/// low word first; the time an f64's bits).
+pub const STAMP_AT: usize = 4;
+pub const GLOBALS_AT: usize = 10;
+pub const HANDS_AT: usize = 14;
 pub const HAND_FLOATS: usize = 6;
 pub const TENSIONS_AT: usize = HANDS_AT + HANDS * HAND_FLOATS;
 pub const PROXY_FLOATS: usize = 8;
@@ -134,6 +139,12 @@ impl Layout {
 /// What every frame carries besides the scene's poses.
 pub struct Common<'a> {
     pub seq: u32,
+    /// The world step this frame shows (steps taken so far).
+    pub step: u64,
+    /// The rig tick whose hand sample the frame's hands are (0: none yet), and that tick's
+    /// wall-clock time in ms since the Unix epoch (0: not known, e.g. on the virtual clock).
+    pub tick: u64,
+    pub tick_wall_ms: f64,
     pub t_s: f64,
     pub hands: &'a [HandState; HANDS],
     pub tensions_n: Option<&'a [[f64; STRINGS]; HANDS]>,
@@ -144,11 +155,15 @@ pub struct Common<'a> {
 
 /// Writes the header and the sections every scene has (hands, tensions, proxies).
 pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
-    let Common { seq, t_s, hands, tensions_n, model, offset } = *c;
+    let Common { seq, step, tick, tick_wall_ms, t_s, hands, tensions_n, model, offset } = *c;
     buf[0] = f32::from_bits(MAGIC);
     buf[1] = f32::from_bits(layout.id);
     buf[2] = f32::from_bits(seq);
     buf[3] = f32::from_bits(0);
+    for (k, v) in [step, tick, tick_wall_ms.to_bits()].into_iter().enumerate() {
+        buf[STAMP_AT + 2 * k] = f32::from_bits(v as u32);
+        buf[STAMP_AT + 2 * k + 1] = f32::from_bits((v >> 32) as u32);
+    }
     buf[GLOBALS_AT] = t_s as f32;
     buf[GLOBALS_AT + 1] = 0.0;
     buf[GLOBALS_AT + 2] = model.proxy_count as f32;
@@ -158,7 +173,7 @@ pub fn write_common(buf: &mut [f32], layout: &Layout, c: &Common<'_>) {
             valid |= 1 << h;
         }
         let o = HANDS_AT + h * HAND_FLOATS;
-        put3(&mut buf[o..o + 3], hs.pos_m + offset);
+        put3(&mut buf[o..o + 3], hs.pos_world_m + offset);
         put3(&mut buf[o + 3..o + 6], hs.force_n);
     }
     buf[GLOBALS_AT + 3] = valid as f32;

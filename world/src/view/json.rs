@@ -7,7 +7,7 @@ use serde_json::{json, Value};
 use spidar_msg::{RigInfo, RigState, RigStatus};
 use spidar_sim::collide::Shape;
 
-use super::frame::{Layout, GLOBALS_AT, HANDS_AT, HAND_FLOATS, PROXY_FLOATS, TENSIONS_AT};
+use super::frame::{Layout, GLOBALS_AT, HANDS_AT, HAND_FLOATS, PROXY_FLOATS, STAMP_AT, TENSIONS_AT};
 use crate::look::{Look, LookShape, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
 
 fn v3(v: DVec3) -> [f64; 3] {
@@ -73,6 +73,7 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
         "frame_hz": frame_hz,
         "layout": {
             "id": layout.id,
+            "stamp_at": STAMP_AT,
             "globals_at": GLOBALS_AT,
             "hands_at": HANDS_AT,
             "hand_floats": HAND_FLOATS,
@@ -96,6 +97,17 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
         "labels": look.labels.iter().map(|l| json!({"name": l.name, "shape": l.shape, "states": l.states})).collect::<Vec<_>>(),
         "counters": look.counters,
         "crowd": crowd,
+        "humanoids": look.humanoids.iter().map(|h| json!({
+            "name": h.name,
+            "colour": colour(h.colour),
+            "skin": colour(h.skin),
+            "forward": v3(h.forward),
+            "segments": h.segments.iter().map(|s| json!({"shape": s.shape, "part": s.part, "side": s.side})).collect::<Vec<_>>(),
+            "joints": h.joints.iter().map(|j| json!({
+                "name": j.name, "parent_shape": j.parent_shape, "child_shape": j.child_shape,
+                "at_parent_m": v3(j.at_parent_m), "at_child_m": v3(j.at_child_m),
+            })).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
     })
     .to_string()
 }
@@ -114,8 +126,29 @@ pub fn rig(info: &RigInfo, offset: DVec3) -> String {
         "force_limit_n": info.force_limit_n,
         "grip_radius_m": info.grip_radius_m,
         "eye_m": v3(info.eye_m + offset),
+        "display": display(&info.display, offset),
     })
     .to_string()
+}
+
+/// The rig's screen in the scene frame (null: none), for the page's off-axis camera.
+fn display(d: &spidar_msg::DisplayInfo, offset: DVec3) -> Value {
+    if !d.present {
+        return Value::Null;
+    }
+    let stereo = match d.stereo {
+        1 => "side-by-side",
+        2 => "top-bottom",
+        3 => "anaglyph",
+        _ => "mono",
+    };
+    json!({
+        "lower_left_m": v3(d.lower_left_m + offset),
+        "lower_right_m": v3(d.lower_right_m + offset),
+        "upper_left_m": v3(d.upper_left_m + offset),
+        "eye_separation_m": d.eye_separation_m,
+        "stereo": stereo,
+    })
 }
 
 pub fn rig_state_name(s: RigState) -> &'static str {
@@ -150,7 +183,18 @@ pub fn status(
     viewers: usize,
     published: u64,
     skipped: u64,
+    ages: (Option<super::AgeSummary>, Option<super::AgeSummary>),
 ) -> String {
+    let age = |a: Option<super::AgeSummary>| {
+        a.map(|a| {
+            json!({
+                "frames": a.frames, "total": a.total, "p50_ms": a.p50_ms, "p99_ms": a.p99_ms, "max_ms": a.max_ms,
+                "hand_lag_p50_ms": a.hand_lag_p50_ms, "hand_lag_p99_ms": a.hand_lag_p99_ms,
+                "draw_p50_ms": a.draw_p50_ms, "draw_p99_ms": a.draw_p99_ms,
+                "step": a.step, "tick": a.tick,
+            })
+        })
+    };
     let rig = d.rig.map(|r| {
         let f: Vec<[f64; 3]> = r.force_n.iter().map(|f| v3(*f)).collect();
         let fa: Vec<f64> = r.force_n.iter().map(|f| f.length()).collect();
@@ -191,6 +235,7 @@ pub fn status(
         "counters": counters,
         "viewers": viewers,
         "frames": {"published": published, "skipped": skipped},
+        "picture_age": {"screen": age(ages.0), "headset": age(ages.1)},
     })
     .to_string()
 }

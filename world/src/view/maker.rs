@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyId, HANDS, MAX_PROXIES};
 use spidar_sim::character::drawn::{FigureState, Figures};
-use spidar_sim::character::keyframe::MAX_JOINTS;
+use spidar_sim::character::skeleton::MAX_JOINTS;
 use spidar_sim::impulse::{nearest_on_surface, touching_hand};
 
 use super::frame::{self, Layout};
@@ -47,6 +47,12 @@ pub struct FrameMaker {
     rendered: [Rendered; MAX_PROXIES],
     rendered_count: usize,
     hands: [HandState; HANDS],
+    /// The newest hand sample's rig tick and loop-clock time.
+    tick: u64,
+    tick_t_s: f64,
+    /// Stamp frames with the wall-clock time of their tick (the live view: the page measures the
+    /// picture's age by it); off for recordings, whose frames must not depend on when they ran.
+    wall_clock: bool,
     status: StatusData,
     rate_window: (f64, u64),
 }
@@ -63,9 +69,18 @@ impl FrameMaker {
             rendered: [Rendered::default(); MAX_PROXIES],
             rendered_count: 0,
             hands: [HandState::default(); HANDS],
+            tick: 0,
+            tick_t_s: f64::NAN,
+            wall_clock: false,
             status: StatusData { sample_t_s: f64::NAN, ..Default::default() },
             rate_window: (f64::NAN, 0),
         }
+    }
+
+    /// Stamps the frames with their tick's wall-clock time ([`frame::Common::tick_wall_ms`]).
+    pub fn with_wall_clock(mut self) -> FrameMaker {
+        self.wall_clock = true;
+        self
     }
 
     pub fn layout(&self) -> &Layout {
@@ -89,6 +104,8 @@ impl FrameMaker {
         }
         if let Some(s) = step.samples.last() {
             self.hands = s.hands;
+            self.tick = s.tick;
+            self.tick_t_s = s.t_s;
             self.status.sample_t_s = t;
         }
         self.status.t_s = t;
@@ -126,7 +143,7 @@ impl FrameMaker {
                 }
                 let Some(h) = touching_hand(&p.shape, s) else { continue };
                 let c = DrawnContact {
-                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_m) + self.offset,
+                    point_m: nearest_on_surface(&p.shape, s.hands[h].pos_world_m) + self.offset,
                     force_n: *imp / period,
                 };
                 let slot = self.rendered[..self.rendered_count].iter().position(|r| r.id == p.id);
@@ -153,8 +170,22 @@ impl FrameMaker {
         if frame {
             self.seq = self.seq.wrapping_add(1);
         }
+        // The tick's wall-clock time: now, less how long before this step the sample was read
+        // (the step's time is the rig's clock at its start; the step's own compute time, tens of
+        // microseconds, is not counted).
+        let tick_wall_ms = if self.wall_clock && self.tick_t_s.is_finite() {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64() * 1e3);
+            now - (step.t_s - self.tick_t_s) * 1e3
+        } else {
+            0.0
+        };
         let common = frame::Common {
             seq: self.seq,
+            step: self.status.steps,
+            tick: self.tick,
+            tick_wall_ms,
             t_s: step.t_s,
             hands: &self.hands,
             tensions_n: step.rig_status.map(|r| &r.tensions_n),

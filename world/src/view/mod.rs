@@ -14,6 +14,7 @@
 //! counts it, when every frame buffer is still with the broadcaster, and `try_lock`s the
 //! mailbox).
 
+mod age;
 mod fed;
 mod frame;
 pub mod json;
@@ -30,6 +31,7 @@ use crossbeam_channel::{bounded, Receiver, Sender};
 use spidar_msg::RigInfo;
 use spidar_sim::character::drawn::FigureState;
 
+pub use age::{AgeSummary, Drawn, PictureAges};
 pub use fed::FedView;
 pub use frame::{Layout, MAGIC};
 pub use json::StatusData;
@@ -208,6 +210,8 @@ struct Shared {
     done: AtomicBool,
     /// Where the viewers' text messages go (a replay's controls); the live view takes none.
     commands: Option<SyncSender<String>>,
+    /// The pictures' ages the pages report (their `drawn` messages); viewers' threads write it.
+    ages: Mutex<PictureAges>,
 }
 
 impl Shared {
@@ -219,6 +223,7 @@ impl Shared {
             stop: AtomicBool::new(false),
             done: AtomicBool::new(false),
             commands,
+            ages: Mutex::new(PictureAges::default()),
         })
     }
 
@@ -255,7 +260,7 @@ pub struct View {
 impl View {
     /// Starts the view's servers for a scene that looks like `look`.
     pub fn start(scene_name: &str, look: &Look, opts: &ViewOptions) -> Result<View, ViewError> {
-        let maker = FrameMaker::new(look);
+        let maker = FrameMaker::new(look).with_wall_clock();
         let layout = *maker.layout();
         let finisher = FrameFinisher::new(look);
         let (frames, sender) = frame_buffers(layout.max_words, finisher.states());
@@ -389,6 +394,16 @@ impl ViewHandle {
     pub fn counters(&self) -> &ViewCounters {
         &self.shared.counters
     }
+    /// The pictures' ages the pages reported so far (see [`PictureAges`]).
+    pub fn picture_ages(&self) -> PictureAges {
+        self.shared.ages.lock().map(|a| a.clone()).unwrap_or_default()
+    }
+    /// Forgets the ages reported so far.
+    pub fn clear_picture_ages(&self) {
+        if let Ok(mut a) = self.shared.ages.lock() {
+            a.clear();
+        }
+    }
     pub fn url(&self) -> &str {
         &self.urls.0
     }
@@ -421,10 +436,13 @@ mod tests {
         let l = Layout::of(&look, 7);
         let mut buf = vec![f32::NAN; l.max_words];
         let hands =
-            [HandState { pos_m: DVec3::new(0.1, 1.1, 0.0), valid: true, ..Default::default() }; HANDS];
+            [HandState { pos_world_m: DVec3::new(0.1, 1.1, 0.0), valid: true, ..Default::default() }; HANDS];
         let model = ContactModel::default();
         let common = frame::Common {
             seq: 3,
+            step: 41,
+            tick: 123,
+            tick_wall_ms: 1.5e12,
             t_s: 1.5,
             hands: &hands,
             tensions_n: None,
@@ -436,6 +454,9 @@ mod tests {
         let mut contacts = 0;
         crate::Scene::pose(&scene, &mut l.poses(&mut buf, &mut counters, &mut contacts, true));
         assert_eq!((buf[0].to_bits(), buf[1].to_bits(), buf[2].to_bits()), (MAGIC, 7, 3));
+        let word = |k: usize| buf[frame::STAMP_AT + k].to_bits() as u64;
+        assert_eq!((word(0) | word(1) << 32, word(2) | word(3) << 32), (41, 123), "the step and tick");
+        assert_eq!(f64::from_bits(word(4) | word(5) << 32), 1.5e12, "the tick's wall-clock time");
         assert_eq!(buf[frame::GLOBALS_AT], 1.5);
         // Hands are moved into the scene frame.
         let h = &buf[frame::HANDS_AT..frame::HANDS_AT + 3];

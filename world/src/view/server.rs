@@ -312,8 +312,13 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
                     return false;
                 }
                 Ok(Message::Text(t)) => {
-                    // A replay's controls; a full queue drops the command (the page resends).
-                    if let Some(c) = &shared.commands {
+                    // A picture drawn, with its age; else a replay's controls (a full queue drops
+                    // the command: the page resends).
+                    if let Some(d) = super::Drawn::parse(t.as_str()) {
+                        if let Ok(mut a) = shared.ages.lock() {
+                            a.record(&d);
+                        }
+                    } else if let Some(c) = &shared.commands {
                         let _ = c.try_send(t.as_str().to_string());
                     }
                 }
@@ -399,12 +404,14 @@ fn broadcast(
         let status_json =
             status.filter(|s| s.ended || stopping || last_status.elapsed() >= status_every).map(|s| {
                 last_status = Instant::now();
+                let ages = shared.ages.lock().map(|a| a.summaries()).unwrap_or_default();
                 json::status(
                     &s,
                     &counter_names,
                     viewer_count,
                     c.frames_published.load(Ordering::Relaxed),
                     c.frames_skipped.load(Ordering::Relaxed),
+                    ages,
                 )
             });
         if let Ok(mut l) = latest.lock() {

@@ -117,17 +117,17 @@ fn a_corrupt_count_is_rejected_on_the_tick_it_arrives_and_a_run_of_them_faults()
     // A reply with 4096 counts (12 cm) too many on hand 0's string 2: rejected at once.
     let r = step(&mut c, &mut out, Some((2, 4096)));
     assert!(r.hands[0].held && !r.hands[1].held, "only the hand with the bad count is held");
-    assert_eq!(r.hands[0].pos_m, before.hands[0].pos_m);
+    assert_eq!(r.hands[0].pos_rig_m, before.hands[0].pos_rig_m);
     assert_eq!(out.volts[..4], held_out.volts[..4]);
     assert_eq!(c.counters().count_jumps, [1, 0]);
     // The next good reply is accepted, from where the hand really is now.
     let r = step(&mut c, &mut out, None);
     assert!(!r.hands[0].held);
-    assert!((r.hands[0].pos_m - at(k.get() - 1)[0]).length() < 1e-4, "{}", r.hands[0].pos_m);
+    assert!((r.hands[0].pos_rig_m - at(k.get() - 1)[0]).length() < 1e-4, "{}", r.hands[0].pos_rig_m);
     assert!(
-        (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+        (r.hands[0].vel_rig_m_per_s.x - 1.0).abs() < 0.05,
         "velocity over the skipped tick: {}",
-        r.hands[0].vel_m_per_s
+        r.hands[0].vel_rig_m_per_s
     );
     // Small corruptions too: 200 counts (6 mm) on hand 1.
     let r = step(&mut c, &mut out, Some((5, -200)));
@@ -170,9 +170,9 @@ fn a_tick_that_woke_late_is_judged_by_the_time_that_passed_not_as_a_jump() {
     assert!(!r.hands[0].held && !r.hands[1].held, "{:?}", c.counters());
     assert_eq!(c.counters().count_jumps, [0, 0]);
     assert!(
-        (r.hands[0].vel_m_per_s.x - 1.0).abs() < 0.05,
+        (r.hands[0].vel_rig_m_per_s.x - 1.0).abs() < 0.05,
         "velocity over the late tick: {}",
-        r.hands[0].vel_m_per_s
+        r.hands[0].vel_rig_m_per_s
     );
 }
 

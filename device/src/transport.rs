@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use crate::DeviceError;
 
 /// A byte stream with deadlines (a serial port, a pseudo-terminal).
-pub trait ByteLink: Send {
+pub trait ByteTransport: Send {
     /// Writes all of `bytes`, or fails once `deadline` has passed.
     fn write_all(&mut self, bytes: &[u8], deadline: Instant) -> Result<(), DeviceError>;
     /// Fills all of `buf`, or fails with `Timeout` once `deadline` has passed.
@@ -26,7 +26,7 @@ pub trait ByteLink: Send {
 }
 
 /// USB bulk transfers with a timeout.
-pub trait BulkLink: Send {
+pub trait BulkTransport: Send {
     /// Writes `data` to the OUT endpoint `ep`.
     fn bulk_write(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<(), DeviceError>;
     /// Reads one transfer from the IN endpoint `ep` into `buf`; returns the bytes received.
@@ -88,17 +88,17 @@ pub struct PortReport {
 /// A serial port as a file descriptor, driven with `poll`/`read`/`write`: no allocation and a
 /// deadline on every call, which a buffered port type does not give.
 #[derive(Debug)]
-pub struct FdLink {
+pub struct FdTransport {
     fd: OwnedFd,
     /// Set when an error showed the other end is gone: later calls fail fast.
     gone: bool,
     port: Option<PortReport>,
 }
 
-impl FdLink {
+impl FdTransport {
     /// Takes ownership of an open, configured (raw) serial descriptor and makes it non-blocking,
     /// so a read after `poll` said "readable" can never block the tick.
-    pub fn from_fd(fd: OwnedFd) -> FdLink {
+    pub fn from_fd(fd: OwnedFd) -> FdTransport {
         let raw = fd.as_raw_fd();
         // SAFETY: `raw` is the open descriptor `fd` owns; F_GETFL/F_SETFL touch only its flags.
         unsafe {
@@ -107,7 +107,7 @@ impl FdLink {
                 libc::fcntl(raw, libc::F_SETFL, flags | libc::O_NONBLOCK);
             }
         }
-        FdLink { fd, gone: false, port: None }
+        FdTransport { fd, gone: false, port: None }
     }
 
     pub fn fd(&self) -> libc::c_int {
@@ -158,7 +158,7 @@ fn waited_us(from: Instant) -> u32 {
     from.elapsed().as_micros().min(u32::MAX as u128) as u32
 }
 
-impl ByteLink for FdLink {
+impl ByteTransport for FdTransport {
     fn write_all(&mut self, mut bytes: &[u8], deadline: Instant) -> Result<(), DeviceError> {
         if self.gone {
             return Err(DeviceError::Disconnected { what: "serial port gone" });
@@ -208,7 +208,7 @@ impl ByteLink for FdLink {
         Ok(())
     }
 
-    /// What [`open_serial`] set on the port (None for a descriptor given to [`FdLink::from_fd`]).
+    /// What [`open_serial`] set on the port (None for a descriptor given to [`FdTransport::from_fd`]).
     fn port_report(&self) -> Option<PortReport> {
         self.port
     }
@@ -240,10 +240,10 @@ impl ByteLink for FdLink {
 
 /// Opens a serial device (or a pty slave) by path in raw 8N1 mode at `baud`, exclusive, and asks
 /// for what the UART boards want: the kernel's low-latency flag and DTR/RTS cleared (a pty has
-/// neither: that is not an error; [`FdLink::port_report`] says what happened). Allocates
+/// neither: that is not an error; [`FdTransport::port_report`] says what happened). Allocates
 /// nothing: `path` is a prepared C string, so a driver can call this again from its reopen path
 /// inside the tick.
-pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceError> {
+pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdTransport, DeviceError> {
     // SAFETY: a valid NUL-terminated path; the flags are plain open(2) flags.
     let fd = unsafe {
         libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_NONBLOCK | libc::O_CLOEXEC)
@@ -262,7 +262,7 @@ pub fn open_serial(path: &std::ffi::CStr, baud: u32) -> Result<FdLink, DeviceErr
         });
     }
     // SAFETY: `fd` was just opened and is owned by nothing else.
-    let mut link = FdLink::from_fd(unsafe { OwnedFd::from_raw_fd(fd) });
+    let mut link = FdTransport::from_fd(unsafe { OwnedFd::from_raw_fd(fd) });
     // Exclusive use: two programs writing currents to the same boards is never right.
     // SAFETY: TIOCEXCL takes no argument.
     unsafe { libc::ioctl(fd, libc::TIOCEXCL) };

@@ -45,7 +45,7 @@ pub fn private_dir() -> Result<PathBuf, EmulatorError> {
             path: dir.display().to_string(),
             why: format!(
                 "it exists but is not a directory of yours with mode 0700 (owner uid {}, mode {:o}): remove it \
-                 or give --link",
+                 or give --symlink",
                 m.uid(),
                 m.mode() & 0o7777
             ),
@@ -55,7 +55,7 @@ pub fn private_dir() -> Result<PathBuf, EmulatorError> {
 }
 
 /// The default link of `spidar emulate`: `uart` in [`private_dir`].
-pub fn default_link() -> Result<PathBuf, EmulatorError> {
+pub fn default_symlink() -> Result<PathBuf, EmulatorError> {
     Ok(private_dir()?.join("uart"))
 }
 
@@ -80,7 +80,7 @@ pub fn claim(link: &Path) -> Result<(), EmulatorError> {
     }
     if target.exists() {
         return Err(refuse(format!(
-            "it points at {}, which is live: another emulator serves there (stop it, or give --link)",
+            "it points at {}, which is live: another emulator serves there (stop it, or give --symlink)",
             target.display()
         )));
     }

@@ -1,4 +1,4 @@
-//! The real USB transport: libusb through `rusb`, behind [`BulkLink`] and [`UsbOpener`].
+//! The real USB transport: libusb through `rusb`, behind [`BulkTransport`] and [`UsbOpener`].
 //!
 //! Always through an explicit `rusb::Context` whose creation error is handled: on a machine
 //! without USB (a VM, a container) libusb cannot start, and rusb's global helpers panic there.
@@ -8,7 +8,7 @@ use std::time::Duration;
 use rusb::UsbContext;
 
 use super::UsbOpener;
-use crate::link::BulkLink;
+use crate::transport::BulkTransport;
 use crate::{DeviceError, OpenError};
 
 /// The udev rule file shipped with spidar and how to install it.
@@ -17,7 +17,7 @@ pub const UDEV_FIX: &str = "install spidar's udev rule and replug the board: \
      && sudo udevadm trigger (the rule gives the 'plugdev' group access; add yourself to it and log in again)";
 
 /// An opened, claimed board.
-pub struct RusbLink {
+pub struct RusbTransport {
     handle: rusb::DeviceHandle<rusb::Context>,
 }
 
@@ -33,7 +33,7 @@ fn map(e: rusb::Error, doing: &'static str) -> DeviceError {
     }
 }
 
-impl BulkLink for RusbLink {
+impl BulkTransport for RusbTransport {
     fn bulk_write(&mut self, ep: u8, data: &[u8], timeout: Duration) -> Result<(), DeviceError> {
         let n = self.handle.write_bulk(ep, data, timeout).map_err(|e| map(e, "USB bulk write failed"))?;
         if n != data.len() {
@@ -109,9 +109,9 @@ pub fn list_usb() -> Result<Vec<UsbSeen>, String> {
 }
 
 impl UsbOpener for RusbOpener {
-    type Link = RusbLink;
+    type Link = RusbTransport;
 
-    fn candidates(&mut self, vid: u16, pid: u16) -> Result<Vec<(String, RusbLink)>, OpenError> {
+    fn candidates(&mut self, vid: u16, pid: u16) -> Result<Vec<(String, RusbTransport)>, OpenError> {
         let devs = self.ctx.devices().map_err(|e| OpenError::Device {
             what: format!("cannot list USB devices ({e})"),
             source: DeviceError::Other { what: "USB listing failed" },
@@ -138,7 +138,7 @@ impl UsbOpener for RusbOpener {
                 what: format!("claiming interface 0 of {vid:04x}:{pid:04x} at {place} ({e}); is another program using it?"),
                 source: map(e, "USB claim failed"),
             })?;
-            out.push((place, RusbLink { handle }));
+            out.push((place, RusbTransport { handle }));
         }
         Ok(out)
     }

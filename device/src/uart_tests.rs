@@ -1,5 +1,7 @@
 //! The UART protocol byte by byte (`docs/protocols.md`), and the driver against the emulator's
 //! boards in-process (a fake transport that plays the boards' side with the firmware's parser).
+//! Above both `uart` and `emulator` (and `discover`'s probe report), so neither module's tests
+//! import the other: the crate's modules import each other in one direction only.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -7,11 +9,12 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 
-use super::protocol::*;
-use super::*;
 use crate::emulator::{Boards, EmulatorOptions, PlantClock};
 use crate::sim::{Script, SimRig, SimRigParams};
-use crate::Device;
+use crate::transport::ByteTransport;
+use crate::uart::protocol::*;
+use crate::uart::*;
+use crate::{Device, DeviceError, Input, Output};
 
 #[test]
 fn header_packs_board_id_in_bits_0_to_2_and_command_in_bits_3_to_7() {
@@ -284,7 +287,7 @@ struct Loopback {
     recording: Arc<std::sync::atomic::AtomicBool>,
 }
 
-impl ByteLink for Loopback {
+impl ByteTransport for Loopback {
     fn write_all(&mut self, bytes: &[u8], _deadline: Instant) -> Result<(), DeviceError> {
         self.out.clear();
         self.ticks.clear();
@@ -457,7 +460,7 @@ struct OddBoard {
     rx: VecDeque<u8>,
 }
 
-impl ByteLink for OddBoard {
+impl ByteTransport for OddBoard {
     fn write_all(&mut self, bytes: &[u8], _: Instant) -> Result<(), DeviceError> {
         for &b in bytes {
             if b == header(cmd::BOARD_INFO, 0) {
@@ -719,7 +722,7 @@ fn a_late_reply_frame_is_never_taken_as_the_next_ticks() {
 fn no_board_names_the_port_and_what_to_check() {
     // A link nobody answers on.
     struct Silent;
-    impl ByteLink for Silent {
+    impl ByteTransport for Silent {
         fn write_all(&mut self, _: &[u8], _: Instant) -> Result<(), DeviceError> {
             Ok(())
         }

@@ -30,6 +30,8 @@ use spidar_sim::collide::Shape;
 
 use crate::Scene;
 
+mod look;
+
 /// Penalty gains of the character proxies the hands render against: the rig's stiffest contact
 /// (the renderer softens anything stiffer to it), and the damping of a hand pressing into a body.
 pub const PROXY_K_N_PER_M: f64 = 5000.0;
@@ -117,7 +119,7 @@ impl CrowdScene {
 
     fn apply(&mut self, s: &HandSample) {
         for (h, hs) in s.hands.iter().enumerate() {
-            self.hands[h] = hs.valid.then_some(hs.pos_m);
+            self.hands[h] = hs.valid.then_some(hs.pos_world_m);
         }
         if s.model_seq == 0 || s.proxy_impulse_n_s.iter().all(|i| *i == DVec3::ZERO) {
             return;
@@ -137,7 +139,7 @@ impl CrowdScene {
                 continue;
             }
             let at = touching_hand(&p.shape, s)
-                .map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, s.hands[h].pos_m));
+                .map_or_else(|| centre(&p.shape), |h| nearest_on_surface(&p.shape, s.hands[h].pos_world_m));
             self.crowd.add_impulse_at(i, at, *imp);
             self.impulse_total_n_s += *imp;
             self.impulse_sum_n_s += imp.length();
@@ -277,11 +279,11 @@ impl Scene for CrowdScene {
     }
 
     fn look(&self) -> crate::look::Look {
-        crate::looks::crowd::look(self)
+        look::look(self)
     }
 
     fn pose(&self, out: &mut crate::look::Poses<'_>) {
-        crate::looks::crowd::pose(self, out)
+        look::pose(self, out)
     }
 
     fn figure_states(&self, out: &mut [spidar_sim::character::drawn::FigureState]) {

@@ -9,9 +9,8 @@ use glam::DVec3;
 use spidar_sim::character::controller::Policy;
 use spidar_sim::character::drawn::{for_each_figure, Figures};
 
-use super::quat;
-use crate::crowd::CrowdScene;
-use crate::look::{put_character, Look, LookCrowd, LookJoint, LookShape, Poses};
+use super::CrowdScene;
+use crate::look::{put_character, quat, Look, LookCrowd, LookJoint, LookShape, Poses};
 
 const POLICIES: [Policy; 4] = [Policy::Balance, Policy::Fall, Policy::Down, Policy::StandUp];
 const STATE_COLOURS: [[u8; 3]; 4] = [[80, 165, 95], [235, 160, 35], [200, 55, 55], [80, 135, 225]];
@@ -56,6 +55,7 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
         }),
         link_offset_m: DVec3::ZERO,
         focus_m: DVec3::new(0.0, 1.0, -2.0),
+        humanoids: Vec::new(),
     }
 }
 

@@ -18,6 +18,8 @@ use spidar_sim::boxer::{BoxerParams, BoxingWorld, HandTarget};
 
 use crate::Scene;
 
+mod look;
+
 pub struct BoxingScene {
     pub world: BoxingWorld,
     seq: u64,
@@ -160,8 +162,9 @@ impl Scene for BoxingScene {
             let off = self.world.params.user_offset_m;
             for h in 0..HANDS {
                 let hs = s.hands[h];
-                self.targets[h] =
-                    hs.valid.then_some(HandTarget { pos_m: hs.pos_m + off, vel_m_per_s: hs.vel_m_per_s });
+                self.targets[h] = hs
+                    .valid
+                    .then_some(HandTarget { pos_m: hs.pos_world_m + off, vel_m_per_s: hs.vel_world_m_per_s });
             }
         }
         self.world.step(&self.targets);
@@ -175,11 +178,11 @@ impl Scene for BoxingScene {
     }
 
     fn look(&self) -> crate::look::Look {
-        crate::looks::boxing::look(self)
+        look::look(self)
     }
 
     fn pose(&self, out: &mut crate::look::Poses<'_>) {
-        crate::looks::boxing::pose(self, out)
+        look::pose(self, out)
     }
 
     fn decisions(&self) -> Option<crate::decisions::Decisions> {

@@ -1,0 +1,184 @@
+//! `spidar bench view --age`: how late the drawn picture is, on `spidar run`'s path with a real
+//! browser: the simulated rig, the rt-loop at 1 kHz on the real clock, the child world process
+//! serving the live view, and headless chromium drawing the page from the user's eye. The page reports the age of every frame it
+//! draws, from the rig tick whose hand sample it shows to its drawing (`docs/view.md`), and the
+//! world keeps the last thousand in its status; this reads them there at the end.
+//!
+//! Must never: report a figure it did not measure (no browser, no report: an error saying why).
+
+use std::io::{Read, Write};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use serde::Deserialize;
+use spidar_rt::rt_thread::RtOptions;
+use spidar_rt::Rig;
+use spidar_runtime::child_world::ChildWorldSpec;
+use spidar_runtime::session::{load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice};
+
+use crate::browser::Browser;
+
+pub struct AgeBenchOptions {
+    pub scene: String,
+    /// Seconds of drawing measured (after the page's first report).
+    pub seconds: f64,
+    /// The browser window's size (px).
+    pub width: u32,
+    pub height: u32,
+    /// The world process to start (None: this executable's `spidar world`).
+    pub world: Option<ChildWorldSpec>,
+}
+
+/// The ages of one kind of page, as the world's status has them.
+#[derive(Clone, Debug, Default, Deserialize)]
+pub struct Ages {
+    pub frames: usize,
+    pub total: u64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    pub hand_lag_p50_ms: f64,
+    pub hand_lag_p99_ms: f64,
+    pub draw_p50_ms: f64,
+    pub draw_p99_ms: f64,
+}
+
+pub struct AgeReport {
+    pub scene: String,
+    pub page: &'static str,
+    pub ages: Ages,
+    pub seconds: f64,
+    pub load: [String; 2],
+}
+
+/// `GET path` from the view at `url` (`http://HOST:PORT`): the body.
+pub fn http_get(url: &str, path: &str) -> anyhow::Result<String> {
+    let host = url.trim_start_matches("http://");
+    let mut c =
+        std::net::TcpStream::connect(host).with_context(|| format!("connecting to the view at {url}"))?;
+    c.set_read_timeout(Some(Duration::from_secs(5)))?;
+    write!(c, "GET {path} HTTP/1.0\r\nHost: {host}\r\nConnection: close\r\n\r\n")?;
+    let mut text = String::new();
+    c.read_to_string(&mut text)?;
+    let (_, body) = text.split_once("\r\n\r\n").context("the view answered no HTTP")?;
+    Ok(body.to_string())
+}
+
+fn load() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|l| l.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default()
+}
+
+/// The ages of `kind` (`screen` or `headset`) in the view's status, if any were reported.
+fn ages_in(url: &str, kind: &str) -> anyhow::Result<Option<Ages>> {
+    let s: serde_json::Value = serde_json::from_str(&http_get(url, "/status.json")?)?;
+    let a = &s["picture_age"][kind];
+    Ok(if a.is_null() { None } else { Some(serde_json::from_value(a.clone())?) })
+}
+
+pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
+    crate::browser::chromium()?;
+    let script = spidar_runtime::session::default_script(&o.scene);
+    let dev = sim_device(rig, load_scripts(script, rig, 1)?, &SimOptions::default())?;
+    let mut spec = match &o.world {
+        Some(s) => s.clone(),
+        None => ChildWorldSpec::this_executable(&o.scene, 0)?,
+    };
+    spec.extra.extend(["--view".into(), "127.0.0.1:0".into()]);
+    let opts = LiveOptions {
+        seconds: None,
+        rt: RtOptions::default(),
+        spin_ns: 0,
+        status_every: None,
+        stop: spidar_runtime::signals::Stop::detached(),
+        scene_name: o.scene.clone(),
+        script_name: script.into(),
+        connect_timeout: Duration::from_secs(60),
+        world_priority: None,
+        supervisor: None,
+        recorder: None,
+    };
+    let mut s = LiveSession::start(dev, rig, WorldChoice::Child(spec), &opts)?;
+    let mut url = None;
+    let mut said = Vec::new();
+    let mut poll = |s: &mut LiveSession<_>, url: &mut Option<String>| {
+        s.poll(&mut |_| {}, &mut |l: String| {
+            if let Some(at) = l.split("live view at ").nth(1) {
+                *url = at.split(' ').next().map(str::to_string);
+            }
+            said.push(l);
+        })
+    };
+    let until = Instant::now() + Duration::from_secs(60);
+    while url.is_none() && Instant::now() < until {
+        if !poll(&mut s, &mut url) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let Some(url) = url else {
+        s.request_stop();
+        bail!("the world process printed no view address")
+    };
+    let (kind, page, query) = ("screen", "screen", "?camera=eye");
+    let browser = Browser::open(&format!("{url}/{query}"), o.width, o.height)?;
+    let load_start = load();
+    // The page draws and reports; then the window of reports is what this run drew.
+    let until = Instant::now() + Duration::from_secs(90);
+    let mut first = None;
+    while Instant::now() < until {
+        poll(&mut s, &mut Some(String::new()));
+        if ages_in(&url, kind)?.is_some_and(|a| a.total > 0) {
+            first = Some(Instant::now());
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    if first.is_none() {
+        drop(browser);
+        s.request_stop();
+        bail!("the browser drew nothing the world heard of in 90 s");
+    }
+    let until = Instant::now() + Duration::from_secs_f64(o.seconds);
+    while Instant::now() < until {
+        poll(&mut s, &mut Some(String::new()));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let ages = ages_in(&url, kind)?.unwrap_or_default();
+    drop(browser);
+    s.request_stop();
+    while poll(&mut s, &mut Some(String::new())) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = s.finish(0, &mut |_| {});
+    Ok(AgeReport { scene: o.scene.clone(), page, ages, seconds: o.seconds, load: [load_start, load()] })
+}
+
+impl std::fmt::Display for AgeReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = &self.ages;
+        writeln!(
+            f,
+            "spidar bench view --age: scene {}, spidar run's path (simulated rig, rt-loop at 1 kHz, child world \
+             process, headless chromium drawing the {} page), {:.0} s; load average {} at the start, {} at the end",
+            self.scene, self.page, self.seconds, self.load[0], self.load[1]
+        )?;
+        writeln!(
+            f,
+            "  picture age (rig tick of the hand sample shown -> the browser frame that draws it), the last {} frames \
+             drawn: p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms",
+            a.frames, a.p50_ms, a.p99_ms, a.max_ms
+        )?;
+        writeln!(
+            f,
+            "  of which the page's own drawing (software WebGL here): p50 {:.1} ms, p99 {:.1} ms",
+            a.draw_p50_ms, a.draw_p99_ms
+        )?;
+        write!(
+            f,
+            "  drawn hands behind their tick: p50 {:.1} ms, p99 {:.1} ms",
+            a.hand_lag_p50_ms, a.hand_lag_p99_ms
+        )
+    }
+}

@@ -1,0 +1,238 @@
+//! The rig's screen, the headset and the bodies drawn as people, in Debian's chromium
+//! (`tests/browser/display.mjs`), from `spidar run`'s path: the simulated rig, the rt-loop and the
+//! child world process serving the view, on a rig file that places a screen.
+//!
+//! The geometry the pages are checked against is computed here, from the rig file the session
+//! runs on (never from the page's code): where the ray from each eye to a point crosses the
+//! screen, and where the image of a sphere (a grip) centres on it.
+
+use glam::DVec3;
+use serde_json::{json, Value};
+use spidar_rt::display::Display;
+use spidar_rt::rig::DEFAULT_RIG_RON;
+use spidar_rt::Rig;
+
+use super::view::{browser_here, node_script, one_at_a_time, RunPath};
+
+/// The default rig with the eye lower and closer than its default, and a screen off-centre and
+/// turned on all three axes: the grips and the virtual human's head fall well inside it.
+pub(super) const SCREEN_RIG_TAIL: &str = "    eye_m: Some((0.0, 0.2, 0.45)),
+    display: Some((
+        // Off-centre and tilted: yawed 12 degrees, pitched -8, rolled 3.
+        screen: Centre(centre_m: (0.15, 0.07, -0.7), size_m: (1.6, 1.2), yaw_deg: 12.0, pitch_deg: -8.0, roll_deg: 3.0),
+        // The viewer's eyes.
+        eye_separation_m: 0.063,
+        // What the screen takes.
+        stereo: Mono,
+    )),
+)
+";
+
+pub(super) fn screen_rig_text() -> String {
+    let cut = DEFAULT_RIG_RON.rfind("    eye_m: Some(").expect("the default rig's eye_m");
+    format!("{}{}", &DEFAULT_RIG_RON[..cut], SCREEN_RIG_TAIL)
+}
+
+pub(super) fn screen_rig() -> Rig {
+    Rig::from_str(&screen_rig_text(), "the test's rig with a screen").unwrap()
+}
+
+/// Where the image of a sphere of radius `r_m` centred at `c` (seen from `eye`) centres on the
+/// screen, (u, v) in metres: the silhouette cone cut by the screen's plane is an ellipse whose
+/// centre is the midpoint of the two generators in the plane of the cone's axis and the screen's
+/// normal. (It is not where the centre's own ray crosses: a near sphere seen at an angle images
+/// off that point by a few millimetres.)
+fn sphere_image_centre(d: &Display, eye: DVec3, c: DVec3, r_m: f64) -> Option<(f64, f64)> {
+    let n = d.normal();
+    let a = (c - eye).normalize();
+    let alpha = (r_m / (c - eye).length()).asin();
+    let w = n - a * n.dot(a);
+    if w.length() < 1e-9 {
+        return d.crossing(eye, c);
+    }
+    let w = w.normalize();
+    let p = d.crossing(eye, eye + a * alpha.cos() + w * alpha.sin())?;
+    let q = d.crossing(eye, eye + a * alpha.cos() - w * alpha.sin())?;
+    Some(((p.0 + q.0) / 2.0, (p.1 + q.1) / 2.0))
+}
+
+/// Each eye's rectangle of the page (x, y, w, h in px, y down) in a stereo format, as a 3D
+/// display's frame packing has it: left eye left or on top.
+fn eye_views(format: &str, w: f64, h: f64) -> Vec<(f64, f64, f64, f64)> {
+    match format {
+        "side-by-side" => vec![(0.0, 0.0, w / 2.0, h), (w / 2.0, 0.0, w / 2.0, h)],
+        "top-bottom" => vec![(0.0, 0.0, w, h / 2.0), (0.0, h / 2.0, w, h / 2.0)],
+        "anaglyph" => vec![(0.0, 0.0, w, h); 2],
+        _ => vec![(0.0, 0.0, w, h)],
+    }
+}
+
+/// Answers the page's question `screen_pixels`: for each point (scene frame) and each eye, the
+/// pixel where the eye's ray to it crosses the screen and, for a sphere, where its image centres.
+fn screen_pixels(rig: &Rig, link_offset_m: DVec3, q: &Value) -> Value {
+    let d = rig.display.expect("the test's rig has a screen");
+    let (w, h) = (q["w"].as_f64().unwrap(), q["h"].as_f64().unwrap());
+    let format = q["format"].as_str().unwrap();
+    let views = eye_views(format, w, h);
+    let eyes = if views.len() == 1 { vec![rig.eye_m] } else { d.eyes(rig.eye_m).to_vec() };
+    let px = |(x0, y0, vw, vh): (f64, f64, f64, f64), (u, v): (f64, f64)| json!({"x": x0 + u / d.width_m * vw, "y": y0 + (1.0 - v / d.height_m) * vh});
+    let points = q["points"].as_array().unwrap();
+    let out: Vec<Value> = points
+        .iter()
+        .map(|p| {
+            let s: Vec<f64> = p["pos"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+            let p_rig = rig.rig_to_world.point_to_rig(DVec3::new(s[0], s[1], s[2]) - link_offset_m);
+            let radius = p["radius"].as_f64();
+            let per_eye: Vec<Value> = eyes
+                .iter()
+                .zip(&views)
+                .map(|(eye, view)| {
+                    let c = d.crossing(*eye, p_rig).expect("the point is beyond the eye, toward the screen");
+                    let margin = 0.12;
+                    assert!(
+                        c.0 > margin && c.0 < d.width_m - margin && c.1 > margin && c.1 < d.height_m - margin,
+                        "{} crosses the screen at ({:.3}, {:.3}) m: too near its edge (the test's screen must hold it)",
+                        p["name"],
+                        c.0,
+                        c.1
+                    );
+                    let image = radius.and_then(|r| sphere_image_centre(&d, *eye, p_rig, r));
+                    json!({"centre": px(*view, c), "image": image.map(|i| px(*view, i)),
+                        "view": {"x": view.0, "y": view.1, "w": view.2, "h": view.3},
+                        "radius_px": radius.map(|r| r / (p_rig - *eye).length() * (d.lower_left_m - *eye).dot(-d.normal()) / d.width_m * view.2)})
+                })
+                .collect();
+            json!({"name": p["name"], "eyes": per_eye})
+        })
+        .collect();
+    json!({"points": out, "grip_radius_m": rig.hands[0].grip_radius_m})
+}
+
+/// The user's-eye view on a rig screen that is off-centre and tilted: the page draws each grip
+/// and the virtual human's head where the ray from the eye to it crosses the screen (its
+/// projection within 2 px of that crossing, the grips' drawn pixels centred within 2 px of their
+/// images), mono and for each eye in each stereo format (side by side, top and bottom,
+/// anaglyph), on `spidar run`'s path.
+#[test]
+fn display_draws_the_rig_frame_through_the_screen_from_the_eye() {
+    let _one = one_at_a_time();
+    if !browser_here("display_draws_the_rig_frame_through_the_screen_from_the_eye") {
+        return;
+    }
+    let rig = screen_rig();
+    let run = RunPath::start_on("boxing", "hold", rig.clone());
+    let scene = run.get("/scene.json");
+    let off: Vec<f64> =
+        scene["link_offset_m"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let link_offset_m = DVec3::new(off[0], off[1], off[2]);
+    node_script("display.mjs", &["screen", &run.url], |q| match q["ask"].as_str().unwrap() {
+        "screen_pixels" => screen_pixels(&rig, link_offset_m, q),
+        other => json!({"error": format!("unknown question {other}")}),
+    });
+    let sum = run.finish();
+    assert!(sum.clean_stop, "{sum}");
+}
+
+#[test]
+fn the_sphere_image_centre_is_the_crossing_face_on_and_off_it_at_an_angle() {
+    let d = Display::from_corners(
+        DVec3::new(-1.0, -1.0, -1.0),
+        DVec3::new(1.0, -1.0, -1.0),
+        DVec3::new(-1.0, 1.0, -1.0),
+        0.063,
+        spidar_rt::display::Stereo::Mono,
+    );
+    // Face on: the image of a sphere straight ahead is a circle around the crossing.
+    let (u, v) = sphere_image_centre(&d, DVec3::ZERO, DVec3::new(0.0, 0.0, -0.5), 0.1).unwrap();
+    assert!((u - 1.0).abs() < 1e-12 && (v - 1.0).abs() < 1e-12);
+    // At 45 degrees the image is an ellipse centred further out than the centre's crossing.
+    let c = DVec3::new(0.5, 0.0, -0.5);
+    let (u, _) = sphere_image_centre(&d, DVec3::ZERO, c, 0.1).unwrap();
+    let (uc, _) = d.crossing(DVec3::ZERO, c).unwrap();
+    assert!(u > uc + 0.01, "{u} vs {uc}");
+}
+
+/// The screen `place` tests put in front of the rig: off-centre and turned on all three axes.
+fn placed_truth() -> Display {
+    let f = spidar_rt::display::DisplayFile {
+        screen: spidar_rt::display::ScreenFile::Centre {
+            centre_m: [0.1, 0.0, -0.9],
+            size_m: [1.8, 1.2],
+            yaw_deg: 10.0,
+            pitch_deg: -6.0,
+            roll_deg: 2.0,
+        },
+        eye_separation_m: 0.063,
+        stereo: spidar_rt::display::Stereo::Mono,
+    };
+    spidar_rt::display::validate(&f, super::rig().eye_m).unwrap()
+}
+
+/// A scripted person at the simulated rig places the screen through `spidar run`'s path (the rig
+/// loop at 1 kHz on the real clock, a world serving the view): the right grip's centre held on
+/// each target, the ball touching the screen (`off_m` moves the third target off the screen).
+fn place_with_script(off_m: f64, aim_off_m: [DVec3; 5]) -> anyhow::Result<spidar_calib::display::Placement> {
+    use spidar_runtime::placement::{placement_world, scripted_person};
+    use spidar_runtime::session::{sim_device, SimOptions};
+    let rig = super::rig();
+    let truth = placed_truth();
+    let mut aim = aim_off_m;
+    aim[2] += truth.normal() * off_m;
+    let scripts = scripted_person(&rig, &truth, aim);
+    let dev = sim_device(&rig, scripts, &SimOptions::default())?;
+    let (world, _) = placement_world(None)?;
+    let opts = spidar_runtime::placement::placement_options(spidar_rt::rt_thread::RtOptions {
+        fifo_priority: None,
+        lock_memory: false,
+        ..Default::default()
+    });
+    spidar_runtime::placement::place_screen(
+        dev,
+        &rig,
+        world,
+        &opts,
+        std::time::Duration::from_secs(60),
+        &mut |_| {},
+    )
+}
+
+/// Placing the screen: the scripted person's five targets give the screen's rectangle within
+/// 5 mm of the truth on the simulated rig; a target held off the screen is refused, saying which.
+///
+/// The person aims by sight: the simulated arm holds the grip where its impedance and the strings'
+/// pull balance, which outside a hand's anchor tetrahedron (where the minimum tensions cannot
+/// cancel) is a few millimetres off the aim. The person sees the grip beside the target and aims
+/// again that much the other way: the second session is the one placed.
+#[test]
+fn display_placement_finds_the_screen_within_5_mm_and_refuses_a_bad_one() {
+    let truth = placed_truth();
+    let r = super::rig().hands[1].grip_radius_m;
+    let first = place_with_script(0.0, [DVec3::ZERO; 5]).unwrap();
+    let mut aim = [DVec3::ZERO; 5];
+    for (k, &(a, b)) in spidar_calib::display::TARGETS.iter().enumerate() {
+        let want = truth.lower_left_m
+            + truth.right * a * truth.width_m
+            + truth.up * b * truth.height_m
+            + truth.normal() * r;
+        aim[k] = want - first.grips_m[k];
+    }
+    let p = place_with_script(0.0, aim).unwrap();
+    let d = p.display;
+    eprintln!(
+        "placement: the grips missed by up to {:.1} mm at first; placed: rms {:.2} mm, worst {:.2} mm (target {})",
+        aim.iter().map(|a| a.length()).fold(0.0, f64::max) * 1e3,
+        p.rms_m * 1e3,
+        p.worst_m * 1e3,
+        p.worst_target + 1
+    );
+    for (name, got, want) in [
+        ("lower left", d.lower_left_m, truth.lower_left_m),
+        ("lower right", d.lower_right_m(), truth.lower_right_m()),
+        ("upper left", d.upper_left_m(), truth.upper_left_m()),
+    ] {
+        let e = (got - want).length();
+        assert!(e < 0.005, "the {name} corner is {:.2} mm from the truth", e * 1e3);
+    }
+    let e = place_with_script(0.03, aim).unwrap_err().to_string();
+    assert!(e.contains("target 3"), "{e}");
+}
