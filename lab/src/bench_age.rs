@@ -41,6 +41,16 @@ pub struct Ages {
     pub hand_lag_p99_ms: f64,
     pub draw_p50_ms: f64,
     pub draw_p99_ms: f64,
+    /// The tick to the frame's arrival at the page, the arrival to its drawing (None: the page
+    /// did not say).
+    #[serde(default)]
+    pub arrive_p50_ms: Option<f64>,
+    #[serde(default)]
+    pub arrive_p99_ms: Option<f64>,
+    #[serde(default)]
+    pub wait_p50_ms: Option<f64>,
+    #[serde(default)]
+    pub wait_p99_ms: Option<f64>,
 }
 
 pub struct AgeReport {
@@ -169,6 +179,19 @@ impl std::fmt::Display for AgeReport {
             "  picture age (rig tick of the hand sample shown -> the browser frame that draws it), the last {} frames \
              drawn: p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms",
             a.frames, a.p50_ms, a.p99_ms, a.max_ms
+        )?;
+        let ms = |x: Option<f64>| x.map(|v| format!("{v:.1} ms")).unwrap_or_else(|| "not reported".into());
+        writeln!(
+            f,
+            "  of which the way to the page (world, link, broadcaster, socket): p50 {}, p99 {}",
+            ms(a.arrive_p50_ms),
+            ms(a.arrive_p99_ms)
+        )?;
+        writeln!(
+            f,
+            "  of which the wait for the browser's next frame: p50 {}, p99 {}",
+            ms(a.wait_p50_ms),
+            ms(a.wait_p99_ms)
         )?;
         writeln!(
             f,

@@ -23,7 +23,7 @@ def test_every_kind_has_the_payload_length_of_the_link_document():
         "Hello": 493, "Welcome": 91, "Refuse": 169, "Bye": 8, "HandSample": 938, "ContactModel": 1873,
         "RigStatus": 185,
     }
-    assert wire.encode(wire.HandSample(), 1)[:12].hex(" ") == "53 50 44 52 03 00 05 00 aa 03 00 00"
+    assert wire.encode(wire.HandSample(), 1)[:12].hex(" ") == f"53 50 44 52 {wire.PROTOCOL_VERSION:02x} 00 05 00 aa 03 00 00"
 
 
 def _sample():
@@ -115,7 +115,7 @@ def test_another_protocol_version_is_named_with_both_versions():
     with pytest.raises(WireError) as e:
         wire.decode(d)
     assert e.value.version == 2
-    assert "the peer speaks link protocol 2, this side speaks 3" in str(e.value)
+    assert f"the peer speaks link protocol 2, this side speaks {wire.PROTOCOL_VERSION}" in str(e.value)
 
 
 def test_text_is_cut_at_a_character_boundary():

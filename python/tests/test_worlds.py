@@ -8,6 +8,7 @@ import os
 import re
 import signal
 import socket
+import struct
 import time
 
 import pytest
@@ -146,7 +147,7 @@ class Hostile:
             return
         self.link.seq += 1
         try:
-            self.link.sock.sendto(b"SPDR\x03\x00\x06\x00garbage" + os.urandom(20), self.link.peer)
+            self.link.sock.sendto(b"SPDR" + struct.pack("<HBB", wire.PROTOCOL_VERSION, 6, 0) + b"garbage" + os.urandom(20), self.link.peer)
             self.sent["garbage"] += 1
         except OSError:
             pass  # the rig's queue is full: not sent, not counted
@@ -239,8 +240,8 @@ def test_the_handshake_refuses_another_protocol_version_naming_both(spidar_bin, 
         world.send_signal(signal.SIGTERM)
         world.wait(10)
     assert p.returncode != 0
-    assert "speaks link protocol 2, this rig speaks 3" in p.stderr, p.stderr
-    assert "speaks link protocol 3, this world speaks 2" in log.read_text(), log.read_text()
+    assert f"speaks link protocol 2, this rig speaks {wire.PROTOCOL_VERSION}" in p.stderr, p.stderr
+    assert f"speaks link protocol {wire.PROTOCOL_VERSION}, this world speaks 2" in log.read_text(), log.read_text()
 
 
 def test_a_python_world_refuses_a_rig_of_another_version_in_its_own(sock_dir):
@@ -253,8 +254,8 @@ def test_a_python_world_refuses_a_rig_of_another_version_in_its_own(sock_dir):
         link.drain([])
         rig.settimeout(2.0)
         h, m = wire.decode(rig.recv(4096))
-        assert h.version == 3 and isinstance(m, wire.Refuse)
-        assert m.reason == "this world speaks link protocol 3, the rig 2"
+        assert h.version == wire.PROTOCOL_VERSION and isinstance(m, wire.Refuse)
+        assert m.reason == f"this world speaks link protocol {wire.PROTOCOL_VERSION}, the rig 2"
         assert link.stats.wrong_version == 1 and link.peer is None
         # A rig asking for another scene is refused naming both scenes.
         rig.sendto(wire.encode(wire.Hello(rig_session=2, scene="crowd"), 2), str(sock_dir / "w.sock"))

@@ -1116,7 +1116,29 @@ impl WorldWriter {
             s.t_s,
             &WorldStep { step: s.step, t_s: s.t_s, samples: s.samples, proxies: s.proxies, dropped },
         );
-        // Where every body is.
+        let (tf, states) = self.transforms(s, stamp);
+        ok = ok && self.put(TF, s.t_s, &tf);
+        let labels: Vec<u8> =
+            (0..self.layout.labels).map(|i| s.frame[self.layout.labels_at + i].max(0.0) as u8).collect();
+        ok = self.write_looks(ok, s, stamp, &labels, &states);
+        // What the live view drew (at its display rate), for `spidar replay`.
+        if s.view {
+            let v = ViewFrameMsg::new(&s.status, s.rig_info.as_ref(), s.frame[..s.words].to_vec());
+            ok = ok && self.put(VIEW, s.t_s, &v);
+        }
+        ok = self.write_decisions(ok, s);
+        ok = self.write_crowd(ok, s, states);
+        self.prev_labels = labels;
+        if ok {
+            self.report.steps += 1;
+        } else {
+            self.report.write_failed += 1;
+        }
+    }
+
+    /// Where every body is (the y-up world under a z-up root, the link frame, each shape, each
+    /// label's frame, each character), and the characters' states.
+    fn transforms(&self, s: &Snap, stamp: Time) -> (FrameTransforms, Vec<u8>) {
         let l = self.layout;
         let mut tf = FrameTransforms {
             transforms: Vec::with_capacity(l.shapes + l.characters + self.look.labels.len() + 2),
@@ -1173,11 +1195,15 @@ impl WorldWriter {
             });
             states.push(state_of(&s.frame, &l, i));
         }
-        ok = ok && self.put(TF, s.t_s, &tf);
-        // What the bodies look like, on three topics so that the newest message of each (all a
-        // Foxglove 3D panel keeps after a seek) holds the whole of it: every shape now and then;
-        // every label when one changes; every skeleton at display rate (as the observer decided).
-        let labels: Vec<u8> = (0..l.labels).map(|i| s.frame[l.labels_at + i].max(0.0) as u8).collect();
+        (tf, states)
+    }
+
+    /// What the bodies look like, on three topics so that the newest message of each (all a
+    /// Foxglove 3D panel keeps after a seek) holds the whole of it: every shape now and then;
+    /// every label when one changes; every skeleton at display rate (as the observer decided).
+    /// Once a write failed (`ok` false) nothing more is written.
+    fn write_looks(&mut self, mut ok: bool, s: &Snap, stamp: Time, labels: &[u8], states: &[u8]) -> bool {
+        let l = self.layout;
         if s.full {
             let mut update = SceneUpdate::default();
             for d in &self.shapes {
@@ -1190,7 +1216,7 @@ impl WorldWriter {
                 ok = ok && self.put(SCENE, s.t_s, &update);
             }
         }
-        if !self.look.labels.is_empty() && (s.full || labels != self.prev_labels) {
+        if !self.look.labels.is_empty() && (s.full || labels != self.prev_labels.as_slice()) {
             let mut update = SceneUpdate::default();
             // Labels of one body stack upward, one line each.
             let mut line_of_shape: Vec<(usize, usize)> = Vec::new();
@@ -1237,12 +1263,12 @@ impl WorldWriter {
             }
             ok = ok && self.put(SKELETONS, s.t_s, &update);
         }
-        // What the live view drew (at its display rate), for `spidar replay`.
-        if s.view {
-            let v = ViewFrameMsg::new(&s.status, s.rig_info.as_ref(), s.frame[..s.words].to_vec());
-            ok = ok && self.put(VIEW, s.t_s, &v);
-        }
-        // The virtual human's decisions, the crowd's states, and what changed.
+        ok
+    }
+
+    /// The virtual human's decisions and the events they make (hits, each hand's and the body's
+    /// behaviour when it changes).
+    fn write_decisions(&mut self, mut ok: bool, s: &Snap) -> bool {
         if let Some(d) = s.decisions {
             ok = ok && self.put(BOXER, s.t_s, &BoxerMsg { t_s: s.t_s, d });
             let p = self.prev.unwrap_or_default();
@@ -1290,6 +1316,11 @@ impl WorldWriter {
             }
             self.prev = Some(d);
         }
+        ok
+    }
+
+    /// The crowd's states, and an event for each character whose state changed.
+    fn write_crowd(&mut self, mut ok: bool, s: &Snap, states: Vec<u8>) -> bool {
         if self.look.crowd.is_some() {
             for (i, st) in states.iter().enumerate() {
                 if self.prev_states.get(i) != Some(st) {
@@ -1310,12 +1341,7 @@ impl WorldWriter {
                 ok && self.put(CROWD, s.t_s, &CrowdMsg { t_s: s.t_s, states: states.clone(), not_balancing });
             self.prev_states = states;
         }
-        self.prev_labels = labels;
-        if ok {
-            self.report.steps += 1;
-        } else {
-            self.report.write_failed += 1;
-        }
+        ok
     }
 
     fn finish(mut self, dropped: u64) -> WorldRecordingReport {

@@ -25,6 +25,10 @@ use crate::{errln, hardware, outln, report, world_process};
 
 /// Runs `plan`; the exit status (0 unless a supervisor took the boards over).
 pub fn run(plan: RunPlan) -> anyhow::Result<u8> {
+    // A certificate that does not read is refused before the rig starts (the world reads it again).
+    if let (Some(t), false) = (&plan.view.view_tls, plan.view.no_view) {
+        spidar_world::view::TlsIdentity::from_arg(t)?;
+    }
     // Real boards hold their last command if this process dies: a supervisor watches over it.
     let supervised = supervisor::attached();
     if let (Some(choice), None) = (&plan.hardware, supervised) {

@@ -75,6 +75,11 @@ pub struct ViewArgs {
     /// No live view.
     #[arg(long, conflicts_with = "view")]
     pub no_view: bool,
+    /// Serve the live view over HTTPS (and its frames over secure WebSockets) with this PEM
+    /// certificate and key, as CERT.pem,KEY.pem: a headset on the network needs it (WebXR only
+    /// runs in a secure context). docs/display.md says how to make and trust one.
+    #[arg(long, value_name = "CERT,KEY", conflicts_with = "no_view")]
+    pub view_tls: Option<String>,
     /// Serve the world's channels live to Foxglove or Lichtblick (the Foxglove WebSocket
     /// protocol) at this address, e.g. 127.0.0.1:8765 (open ws://127.0.0.1:8765 there): the same
     /// channels and messages as the world's recording. See docs/foxglove.md.
@@ -90,6 +95,9 @@ impl ViewArgs {
             (Some(a), false) => vec!["--view".into(), a.into()],
             (None, false) => Vec::new(),
         };
+        if let (Some(t), false) = (&self.view_tls, self.no_view) {
+            args.extend(["--view-tls".into(), t.into()]);
+        }
         if let Some(f) = &self.foxglove {
             args.extend(["--foxglove".into(), f.into()]);
         }
@@ -102,20 +110,25 @@ pub fn start_view(
     a: &ViewArgs,
     scene: &dyn spidar_world::Scene,
 ) -> anyhow::Result<Option<spidar_world::view::View>> {
-    use spidar_world::view::{parse_addr, View, ViewOptions};
+    use spidar_world::view::{parse_addr, TlsIdentity, View, ViewOptions};
     if a.no_view {
         return Ok(None);
     }
+    let tls = a.view_tls.as_deref().map(TlsIdentity::from_arg).transpose()?;
     let look = scene.look();
     let view = match &a.view {
-        Some(addr) => {
-            View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..Default::default() })?
-        }
+        Some(addr) => View::start(
+            scene.name(),
+            &look,
+            &ViewOptions { addr: parse_addr(addr)?, tls: tls.clone(), ..Default::default() },
+        )?,
         // The default port may be taken (another spidar): then any free one.
-        None => View::start(scene.name(), &look, &ViewOptions::default()).or_else(|_| {
-            let any = ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() };
-            View::start(scene.name(), &look, &any)
-        })?,
+        None => View::start(scene.name(), &look, &ViewOptions { tls: tls.clone(), ..Default::default() })
+            .or_else(|_| {
+                let any =
+                    ViewOptions { addr: ([127, 0, 0, 1], 0).into(), tls: tls.clone(), ..Default::default() };
+                View::start(scene.name(), &look, &any)
+            })?,
     };
     crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))

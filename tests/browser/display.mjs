@@ -1,6 +1,7 @@
 // The rig's screen, the headset and the bodies as people, run by tests/tests/hil/display.rs (which
 // runs `spidar run`'s path and answers ASK lines): `node display.mjs screen|headset|bodies|... URL`.
-import { ask, check, open, pause, run, screenshot } from './harness.mjs';
+import fs from 'node:fs';
+import { ask, check, log, open, pause, run, screenshot } from './harness.mjs';
 
 const [mode, url, ...rest] = process.argv.slice(2);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
@@ -12,7 +13,8 @@ const dist2 = (a, b) => Math.hypot(a.x - b.x, a.y - b.y);
 // blue: the right eye's cyan grip).
 export function classPixels(page, cls, rect) {
   return page.evaluate((cls, rect) => {
-    const src = document.querySelector('#view canvas');
+    // The page's WebGL canvas (in a headset session the emulated runtime moves it out of #view).
+    const src = document.querySelector('canvas[data-engine]');
     const c = document.createElement('canvas');
     c.width = src.width; c.height = src.height;
     const g = c.getContext('2d', { willReadFrequently: true });
@@ -200,7 +202,242 @@ async function people(browser) {
   if (rest[0]) await screenshot(page, rest[0]);
 }
 
-const modes = { screen, people };
+// ---- the headset: an emulated WebXR headset (the `iwer` runtime) inside the page ----
+
+const IWER_JS = fs.readFileSync(new URL('./node_modules/iwer/build/iwer.min.js', import.meta.url), 'utf8');
+
+// The headset's geometry, computed here (never by the page): a point of the headset's floor frame
+// seen by one eye of a headset at `pos` turned by `quat` (xyzw), whose eyes are `ipd` apart and
+// whose views are perspectives of vertical field `fovy` (rad) on each eye's half of the canvas:
+// the pixel of the point's own ray, and of the centre of a sphere's image (radius r).
+const v3 = { sub: (a, b) => a.map((x, i) => x - b[i]), add: (a, b) => a.map((x, i) => x + b[i]), scale: (a, k) => a.map((x) => x * k),
+  dot: (a, b) => a.reduce((s, x, i) => s + x * b[i], 0), len: (a) => Math.hypot(...a) };
+function rotate(q, p, inverse = false) {
+  const [x, y, z, w0] = q;
+  const w = inverse ? -w0 : w0;
+  // p' = p + 2w (u x p) + 2 u x (u x p), u = (x, y, z) (the inverse: w negated)
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const u = [x, y, z];
+  const t = v3.scale(cross(u, p), 2);
+  return v3.add(v3.add(p, v3.scale(t, w)), cross(u, t));
+}
+function eyePixel(head, eye, p, r, view) {
+  const eyePos = v3.add(head.pos, rotate(head.quat, [(eye === 0 ? -0.5 : 0.5) * head.ipd, 0, 0]));
+  const pe = rotate(head.quat, v3.sub(p, eyePos), true); // in the eye's frame: x right, y up, -z ahead
+  const f = 1 / Math.tan(head.fovy / 2);
+  const aspect = view.w / view.h;
+  const toPx = (X, Y) => ({ x: view.x + ((f / aspect) * X + 1) / 2 * view.w, y: view.y + (1 - f * Y) / 2 * view.h });
+  const centre = toPx(pe[0] / -pe[2], pe[1] / -pe[2]);
+  // The sphere's silhouette cone cut by the image plane (z = -1): the midpoint of the two
+  // generators in the plane of its axis and the view direction.
+  const d = v3.len(pe);
+  const a = v3.scale(pe, 1 / d);
+  const alpha = Math.asin(r / d);
+  const n = [0, 0, -1];
+  let w = v3.sub(n, v3.scale(a, v3.dot(n, a)));
+  let image = centre;
+  if (v3.len(w) > 1e-9) {
+    w = v3.scale(w, 1 / v3.len(w));
+    const g1 = v3.add(v3.scale(a, Math.cos(alpha)), v3.scale(w, Math.sin(alpha)));
+    const g2 = v3.sub(v3.scale(a, Math.cos(alpha)), v3.scale(w, Math.sin(alpha)));
+    const p1 = toPx(g1[0] / -g1[2], g1[1] / -g1[2]);
+    const p2 = toPx(g2[0] / -g2[2], g2[1] / -g2[2]);
+    image = { x: (p1.x + p2.x) / 2, y: (p1.y + p2.y) / 2 };
+  }
+  return { centre, image, radiusPx: (r / -pe[2]) * f * view.h / 2 };
+}
+
+async function headset(browser) {
+  const emulate = async (page) => {
+    await page.evaluateOnNewDocument(IWER_JS);
+    await page.evaluateOnNewDocument(() => {
+      const d = new IWER.XRDevice(IWER.metaQuest3);
+      d.installRuntime({ forceInstall: true }); // over chromium's own navigator.xr
+      d.stereoEnabled = true; // both eyes, side by side on the canvas
+      window.emulatedHeadset = d;
+    });
+  };
+  const shots = process.env.SPIDAR_SHOTS;
+  const query = 'avatar=0&strings=0&hud=0&labels=0&xrmarkers=0';
+  const page = await open(browser, url, query, { width: 800, height: 450 }, emulate);
+  await page.waitForFunction(() => spidarView.xr.state().supported && spidarView.state().hasRig, { timeout: 60000 });
+  // The headset where the user's eyes are, before the session starts (the floor frame's origin
+  // is under them).
+  const eyeM = (await page.evaluate(() => spidarView.rigInfo())).eye_m;
+  await page.evaluate(() => { emulatedHeadset.position.set(0, 1.5, 0); emulatedHeadset.quaternion.set(0, 0, 0, 1); });
+  await page.click('#xr-button');
+  await page.waitForFunction(() => spidarView.xr.state().presenting, { timeout: 30000 });
+  check(true, 'the page entered an immersive session in the emulated headset');
+  const grips = await pauseStill(page);
+  const G = grips.map((g) => g.pos);
+  // The controllers held on the grips, in the headset's floor frame: the grips turned 20 degrees
+  // about the vertical and moved (the floor frame is not the scene's until registered).
+  const c = v3.scale(v3.add(G[0], G[1]), 0.5);
+  const turn = [0, Math.sin(0.5 * 0.349), 0, Math.cos(0.5 * 0.349)];
+  const P = G.map((g) => v3.add(rotate(turn, v3.sub(g, c)), [0.05, 1.2, -0.5]));
+  await page.evaluate((P) => {
+    for (const [k, side] of ['left', 'right'].entries()) {
+      const off = IWER.metaQuest3.controllerConfig.layout[side].gripOffsetMatrix;
+      const ctl = emulatedHeadset.controllers[side];
+      ctl.quaternion.set(0, 0, 0, 1);
+      ctl.position.set(P[k][0] - off[12], P[k][1] - off[13], P[k][2] - off[14]);
+    }
+  }, P);
+  await page.waitForFunction(() => spidarView.xr.controllers() !== null, { timeout: 10000 });
+  const tracked = await page.evaluate(() => spidarView.xr.controllers());
+  for (const k of [0, 1]) check(v3.len(v3.sub(tracked[k], P[k])) < 1e-4, `the page tracks the ${k ? 'right' : 'left'} controller at its grip`);
+  // A trigger pressed: the registration.
+  await page.evaluate(async () => {
+    emulatedHeadset.controllers.right.updateButtonValue('trigger', 1);
+    await spidarView.rendered();
+    emulatedHeadset.controllers.right.updateButtonValue('trigger', 0);
+    await spidarView.rendered();
+  });
+  const st = await page.evaluate(() => spidarView.xr.state());
+  check(st.registered, `a trigger press registers the headset to the rig (${st.message})`);
+  const gripR = (await page.evaluate(() => spidarView.rigInfo())).grip_radius_m[0];
+  const { ipd, fovy } = await page.evaluate(() => ({ ipd: emulatedHeadset.ipd, fovy: emulatedHeadset.fovy }));
+  const size = await page.evaluate(() => { const c = document.querySelector('canvas[data-engine]'); return { w: c.width, h: c.height, cw: c.clientWidth }; });
+  check(size.w === size.cw, `the canvas is drawn at one pixel per CSS pixel (${size.w} x ${size.h})`);
+  const views = [{ x: 0, y: 0, w: size.w / 2, h: size.h }, { x: size.w / 2, y: 0, w: size.w / 2, h: size.h }];
+  const poses = [
+    { pos: [0, 1.5, 0], quat: [0, 0, 0, 1], what: 'the headset where it started' },
+    { pos: [0.08, 1.42, -0.04], quat: [0, Math.sin(-0.5 * 0.175), 0, Math.cos(-0.5 * 0.175)], what: 'the headset 8 cm right, 8 cm lower, turned 10 degrees right' },
+  ];
+  let before = null;
+  for (const pose of poses) {
+    await page.evaluate((p) => { emulatedHeadset.position.set(...p.pos); emulatedHeadset.quaternion.set(...p.quat); }, pose);
+    await page.evaluate(async () => { await spidarView.rendered(); await spidarView.rendered(); });
+    const head = { ...pose, ipd, fovy };
+    const seen = [];
+    for (const e of [0, 1]) {
+      const red = await classPixels(page, 'red', views[e]);
+      check(red.n > 800, `${pose.what}: the ${e ? 'right' : 'left'} eye draws the virtual human (${red.n} red pixels)`);
+      seen.push(red);
+      for (const [k, cls] of ['yellow', 'cyan'].entries()) {
+        const want = eyePixel(head, e, P[k], gripR, views[e]);
+        const half = want.radiusPx * 1.6 + 10;
+        const rect = clip({ x: want.image.x - half, y: want.image.y - half, w: 2 * half, h: 2 * half }, views[e]);
+        const px = await classPixels(page, cls, rect);
+        const area = Math.PI * want.radiusPx ** 2;
+        check(px.n > 0.5 * area, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip drawn where its controller is (${px.n} ${cls} pixels, its image about ${area.toFixed(0)})`);
+        const off = dist2(px, want.image);
+        check(off < 3, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip's pixels centre at (${px.x.toFixed(1)}, ${px.y.toFixed(1)}), the controller's image at (${want.image.x.toFixed(1)}, ${want.image.y.toFixed(1)}): ${off.toFixed(2)} px`);
+        if (before) {
+          const moved = dist2(want.image, before[e][k]);
+          check(moved > 15, `${pose.what}, ${e ? 'right' : 'left'} eye: the ${k ? 'right' : 'left'} grip's picture moved ${moved.toFixed(1)} px`);
+        }
+        (seen.images = seen.images || [[], []])[e][k] = want.image;
+      }
+    }
+    // The two eyes see the virtual human from 6 cm apart: further right in the left eye's picture.
+    const disparity = (seen[0].x - views[0].x) - (seen[1].x - views[1].x);
+    check(disparity > 0.5, `${pose.what}: the virtual human is ${disparity.toFixed(1)} px further right in the left eye (stereo)`);
+    before = seen.images;
+  }
+  // Between the world's frames the headset draws blends: a body halfway (position and turn) half
+  // an interval after a frame came, a grip carried forward along its last motion.
+  const L = (await page.evaluate(() => spidarView.desc())).layout;
+  const a = await page.evaluate(() => spidarView.frameWords());
+  const b = a.slice();
+  const s0 = L.shapes_at; const h0 = L.hands_at;
+  b[s0] += 0.1; // the first body 10 cm along x
+  const half = Math.SQRT1_2; // and turned 90 degrees about y
+  [b[s0 + 3], b[s0 + 4], b[s0 + 5], b[s0 + 6]] = [0, half, 0, half];
+  [a[s0 + 3], a[s0 + 4], a[s0 + 5], a[s0 + 6]] = [0, 0, 0, 1];
+  b[h0] += 0.02; // the left grip 2 cm along x
+  const gap = 1000 / 60;
+  const mid = await page.evaluate((a, b, gap) => spidarView.xr.blend(a, b, gap, gap / 2), a, b, gap);
+  const q = mid.f.slice(s0 + 3, s0 + 7);
+  const turned = 2 * Math.atan2(q[1], q[3]) * 180 / Math.PI;
+  check(Math.abs(mid.f[s0] - (a[s0] + 0.05)) < 1e-5 && Math.abs(turned - 45) < 0.01,
+    `half an interval after a frame, a body is drawn halfway: ${((mid.f[s0] - a[s0]) * 100).toFixed(2)} of 10 cm, turned ${turned.toFixed(2)} of 90 degrees`);
+  check(Math.abs(mid.f[h0] - (b[h0] + 0.01)) < 1e-5 && Math.abs(mid.leadMs - gap / 2) < 1e-6,
+    `a grip is carried ${((mid.f[h0] - b[h0]) * 100).toFixed(2)} cm ahead of its newest frame along its last motion (${mid.leadMs.toFixed(2)} ms ahead)`);
+  // The frames are drawn at the headset's rate, interpolated, and reported as the headset's: the
+  // world keeps them apart (its status, fetched by the page over the same HTTPS).
+  await page.evaluate(() => spidarView.resume());
+  await page.waitForFunction(() => spidarView.state().drawnReport && spidarView.state().drawnReport.xr, { timeout: 10000 });
+  if (shots) {
+    // The README's picture: the bodies as people, the avatar shown.
+    await page.evaluate(() => spidarView.setBodies(true));
+    await page.keyboard.press('a');
+    await sleep(1500);
+    await screenshot(page, `${shots}/headset.png`);
+  }
+  const proto = await page.evaluate(() => location.protocol);
+  await page.waitForFunction(async () => {
+    const s = await (await fetch('/status.json')).json();
+    return s && s.picture_age.headset && s.picture_age.headset.total > 0;
+  }, { timeout: 10000, polling: 200 });
+  check(true, `the world keeps the headset's pictures' ages apart (page served over ${proto})`);
+  await page.close();
+  log(`eye point ${JSON.stringify(eyeM)}`);
+}
+
+// ---- the crowd drawn as people ----
+
+async function crowdPeople(browser) {
+  const page = await open(browser, url, 'camera=orbit&bodies=people&labels=0&hud=0');
+  const desc = await page.evaluate(() => spidarView.desc());
+  const joints = desc.crowd.joints;
+  const n = desc.crowd.characters;
+  const skeleton = (c) => joints.map((_, k) => c.slice(9 + 3 * k, 9 + 3 * k + 3));
+  const d3 = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+  // Every joint of every character, as each piece meeting there draws it, against the drawn
+  // figure (the frame's joints, and the figure's bones as the page draws them).
+  const jointForJoint = async (what) => {
+    await pause(page);
+    const all = await page.evaluate((n) => Array.from({ length: n }, (_, i) => ({
+      f: spidarView.character(i), bones: spidarView.characterJoints(i).map((j) => j.pos), person: spidarView.characterPerson(i) })), n);
+    let worst = 0;
+    let count = 0;
+    for (const c of all) {
+      const sk = skeleton(c.f);
+      c.person.joints.forEach((ends, j) => ends.forEach((p) => {
+        worst = Math.max(worst, d3(p, sk[j]), d3(p, c.bones[j]));
+        count++;
+      }));
+    }
+    check(count >= n * (joints.length - 1) * 2 && worst < 0.01, `${what}: the ${count} piece ends of ${n} people meet the drawn figures' joints (worst ${(worst * 1000).toFixed(2)} mm)`);
+    return all;
+  };
+  const all = await jointForJoint('standing and walking');
+  check(all.every((c) => c.person.visible), 'the crowd is drawn as people');
+  const w = all.findIndex((c) => desc.crowd.states[c.f[7]] !== 'down');
+  check(w >= 0, `character ${w} is up`);
+  const standing = all[w].person;
+  check(standing.high > 1.4 && Math.abs(standing.shoeLow) < 0.03, `standing, its person reaches ${standing.high.toFixed(2)} m high, its shoes' soles at ${standing.shoeLow.toFixed(3)} m`);
+  // Pushed over: its person lies on the floor.
+  const { t_down } = await ask({ ask: 'push', i: w });
+  await page.evaluate(() => spidarView.resume());
+  await page.waitForFunction((t) => spidarView.state().t >= t, { timeout: 60000, polling: 50 }, t_down + 0.2);
+  const down = await jointForJoint('one down');
+  check(desc.crowd.states[down[w].f[7]] === 'down', `the frame says character ${w} is down`);
+  const lying = down[w].person;
+  // (The pieces are drawn about the figure's joints, which lie down to the floor itself: a piece
+  // may sink into it by up to its own thickness, the thigh's 7.5 cm at most.)
+  check(lying.high < 0.5 && lying.low > -0.08, `its person lies on the floor: every piece but the shoes between ${lying.low.toFixed(3)} and ${lying.high.toFixed(2)} m high (shoes down to ${lying.shoeLow.toFixed(3)} m)`);
+  // Seen from the side with the eye 0.55 m up looking level: the red (down) person is all below
+  // the horizon.
+  const sk = skeleton(down[w].f);
+  const mid = sk[0];
+  const EYE = 0.55;
+  await page.evaluate((p, t) => spidarView.orbitTo(p, t), [mid[0] + 3, EYE, mid[2] + 0.01], [mid[0], EYE, mid[2]]);
+  await page.evaluate(() => spidarView.rendered());
+  const [floor, horizon, above] = await page.evaluate((ps) => ps.map((p) => spidarView.project(p)),
+    [[mid[0], 0, mid[2]], [mid[0], EYE, mid[2]], [mid[0], 1.4, mid[2]]]);
+  const band = (y0, y1) => ({ x: 0, y: y0, w: 800, h: y1 - y0 });
+  const [onFloor, over] = [await classPixels(page, 'red', band(horizon.y + 2, floor.y + 40)), await classPixels(page, 'red', band(above.y, horizon.y - 2))];
+  check(onFloor.n > 200 && over.n < onFloor.n * 0.02, `seen from the side the person lies on the floor: ${onFloor.n} red pixels below ${EYE} m, ${over.n} above`);
+  if (rest[0]) await screenshot(page, rest[0]);
+  // The toggle: the figure's bones instead.
+  await page.evaluate(() => spidarView.setBodies(false));
+  check(!(await page.evaluate((w) => spidarView.characterPerson(w).visible, w)), 'the toggle draws the figures\' bones instead of people');
+  await page.close();
+}
+
+const modes = { screen, people, headset, crowd: crowdPeople };
 if (!modes[mode]) {
   process.stdout.write(`RESULT failed: unknown mode ${mode}\n`);
   process.exit(1);

@@ -28,10 +28,18 @@ export class AgeReporter {
   // frame's tick the drawn hands were extrapolated (0: not).
   // `drawMs`: how long the drawing itself took (the page's rendering, which a software renderer
   // makes long).
-  drawn(seq, st, xr, leadMs = 0, drawMs = 0) {
+  // `arrivedMs`, `drawStartMs` (page clock, performance.now()): when the frame's message came and
+  // when its drawing began, which split the age into the way here (the tick to the message's
+  // arrival: the world, the link, the broadcaster and the socket), the wait for the browser's next
+  // frame, and the drawing.
+  drawn(seq, st, xr, leadMs = 0, drawMs = 0, arrivedMs = null, drawStartMs = null) {
     if (!st || !(st.wallMs > 0)) return;
     const age = wallNowMs() - st.wallMs;
     this.last = { type: 'drawn', seq, step: st.step, tick: st.tick, age_ms: age, hand_lag_ms: age - leadMs, draw_ms: drawMs, xr };
+    if (arrivedMs !== null && drawStartMs !== null) {
+      this.last.arrive_ms = performance.timeOrigin + arrivedMs - st.wallMs;
+      this.last.wait_ms = drawStartMs - arrivedMs;
+    }
     this.reports++;
     this.send(this.last);
   }

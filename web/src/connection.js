@@ -9,7 +9,9 @@ export function connect({ onScene, onRig, onStatus, onFrame, onState, onPlayback
   const meta = document.querySelector('meta[name="spidar-ws-port"]');
   const port = meta ? meta.content : '';
   const host = location.hostname || '127.0.0.1';
-  const url = `ws://${host.includes(':') ? `[${host}]` : host}:${port}/`;
+  // A page served over HTTPS (a headset on the network) may only open secure WebSockets.
+  const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
+  const url = `${scheme}://${host.includes(':') ? `[${host}]` : host}:${port}/`;
   let retry = 250;
   let ws = null;
   const open = () => {

@@ -2,9 +2,11 @@
 // as the world computes it (interpolated from the keyframes, legs stood on the feet, placed on its
 // rigid body): the frame carries each joint's position in the scene, so the page draws the world's
 // figure as it is, a bone from each joint to its parent, tinted by the character's control state.
-// One instanced mesh per bone, so a thousand characters are a score of draw calls.
+// One instanced mesh per bone, so a thousand characters are a score of draw calls. Drawn as people
+// (crowdpeople.js) the same figure is clothed; the bones are then hidden (the toggle `b`).
 import * as THREE from 'three';
 import { CSS2DObject } from 'three/addons/renderers/CSS2DRenderer.js';
+import { CrowdPeople } from './crowdpeople.js';
 
 const LABELLED_MAX = 24; // characters get a state label when the crowd is no bigger than this
 const PUSH_FLASH_N = 2.0;
@@ -68,6 +70,9 @@ export class Crowd {
       if (e > 0) this.ends.push({ joint: k, mesh: mesh(new THREE.SphereGeometry(e, 16, 12)) });
     });
     this.meshes = [...this.bones.map((b) => b.mesh), ...this.ends.map((e) => e.mesh)];
+    this.people = new CrowdPeople(desc, root);
+    this.asPeople = true;
+    this.last = null;
     this.m = new THREE.Matrix4();
     this.a = new THREE.Vector3();
     this.b = new THREE.Vector3();
@@ -90,7 +95,17 @@ export class Crowd {
     }
   }
 
+  // People (true) or the figure's bones.
+  setPeople(on) {
+    this.asPeople = on;
+    this.people.setVisible(on);
+    for (const m of this.meshes) m.visible = !on;
+    if (on && this.last) this.people.apply(this.last);
+  }
+
   apply(f) {
+    this.last = f;
+    if (this.asPeople) this.people.apply(f);
     const L = this.L;
     const CF = L.character_floats;
     for (let i = 0; i < this.n; i++) {

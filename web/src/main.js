@@ -14,6 +14,7 @@ import { Hud } from './hud.js';
 import { Playback } from './playback.js';
 import { AgeReporter, stamp } from './age.js';
 import { showTargets } from './place.js';
+import { Headset, Interpolator } from './xr.js';
 
 const params = new URLSearchParams(location.search);
 const container = document.getElementById('view');
@@ -36,6 +37,12 @@ scene.add(sun);
 
 const cameras = new Cameras(renderer.domElement);
 const rig = new Rig(scene);
+// The headset (WebXR), registered against the grips as drawn.
+const headset = new Headset(renderer, scene, {
+  grips: () => rig.grips.map((g) => (g.visible ? g.position.toArray() : null)),
+  onChange: () => { labelRenderer.domElement.style.display = headset.session || params.get('labels') === '0' ? 'none' : ''; },
+});
+headset.showMarkers(params.get('xrmarkers') !== '0');
 const hud = new Hud(document.getElementById('hud'), {
   onCamera: (c) => { cameraChosen = true; setCamera(c); },
   onFullScreen: toggleFullScreen,
@@ -97,6 +104,7 @@ function onScene(d) {
   latest = null;
   applied = null;
   cameras.place(desc, rigInfo ? rigInfo.eye_m : null);
+  headset.place(cameras.eye.position.toArray());
   hud.setScene(desc);
 }
 
@@ -104,12 +112,14 @@ function setBodies(asP) {
   asPeople = asP;
   if (world) world.people = asP;
   if (people) people.setShown(asP);
+  if (crowd) crowd.setPeople(asP);
 }
 
 function onRig(r) {
   rigInfo = r;
   rig.setInfo(r);
   if (desc) cameras.place(desc, r.eye_m);
+  headset.place(r.eye_m);
   cameras.setDisplay(r.display, r.eye_m, params.get('stereo'));
   // The page on the rig's screen shows the user's eye unless asked otherwise.
   if (r.display && !params.get('camera') && !cameraChosen) setCamera('eye');
@@ -119,7 +129,7 @@ function onRig(r) {
 function onFrame(buffer, layoutId, seq) {
   if (!desc || layoutId !== desc.layout.id) return;
   const f = new Float32Array(buffer);
-  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout) };
+  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout), arrivedMs: performance.now() };
   framesReceived++;
   rateCount++;
 }
@@ -141,6 +151,7 @@ const conn = connect({
 const ages = new AgeReporter((m) => conn.send(m));
 
 function resize() {
+  if (renderer.xr.isPresenting) return;
   const w = container.clientWidth;
   const h = container.clientHeight;
   renderer.setSize(w, h);
@@ -163,11 +174,24 @@ window.addEventListener('keydown', (e) => {
 const minFrameMs = params.get('fps') ? 1000 / Number(params.get('fps')) : 0;
 let lastDraw = 0;
 
-function frameLoop(now) {
-  requestAnimationFrame(frameLoop);
-  if (minFrameMs && now - lastDraw < minFrameMs - 1) return;
+function frameLoop() {
+  const now = performance.now();
+  const inHeadset = headset.presenting;
+  // A headset draws every frame it is given (a frame not drawn there shows nothing).
+  if (!inHeadset && minFrameMs && now - lastDraw < minFrameMs - 1) return;
+  const sinceDraw = lastDraw ? (now - lastDraw) / 1000 : 0;
   lastDraw = now;
-  if (!paused && latest && latest !== applied) {
+  let leadMs = 0;
+  if (inHeadset && !paused && latest && !playback) {
+    // Interpolated to the headset's rate, the grips carried forward.
+    const x = headset.frame(latest, desc, now);
+    leadMs = x.leadMs;
+    world.apply(x.f, sinceDraw);
+    if (crowd) crowd.apply(x.f);
+    people.apply(x.f);
+    rig.apply(x.f, desc.layout);
+    applied = latest;
+  } else if (!paused && latest && latest !== applied) {
     const dt = applied ? Math.max(0, latest.t - applied.t) : 0;
     world.apply(latest.f, dt);
     if (crowd) crowd.apply(latest.f);
@@ -183,19 +207,24 @@ function frameLoop(now) {
   }
   cameras.update();
   // From the user's eye, their own avatar's head is in the way.
-  if (world) world.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
-  if (people) people.hideNear(cameras.active === 'eye' ? cameras.eye.position : null, 0.3);
+  const eyeAt = inHeadset ? headset.eyePosition(tmpEye) : cameras.active === 'eye' ? cameras.eye.position : null;
+  if (world) world.hideNear(eyeAt, 0.3);
+  if (people) people.hideNear(eyeAt, 0.3);
   const drawStart = performance.now();
-  cameras.render(renderer, scene);
-  labelRenderer.render(scene, cameras.camera);
+  if (inHeadset) renderer.render(scene, headset.camera);
+  else {
+    cameras.render(renderer, scene);
+    labelRenderer.render(scene, cameras.camera);
+  }
   if (applied && applied !== reported && !playback) {
     reported = applied;
-    ages.drawn(applied.seq, applied.stamp, false, 0, performance.now() - drawStart);
+    ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, performance.now() - drawStart, applied.arrivedMs, drawStart);
   }
   renders++;
   while (renderWaiters.length) renderWaiters.shift()();
 }
-requestAnimationFrame(frameLoop);
+const tmpEye = new THREE.Vector3();
+renderer.setAnimationLoop(frameLoop);
 
 // ---- for tests and the console ----
 const tmp = new THREE.Vector3();
@@ -244,6 +273,17 @@ window.spidarView = {
     return cameras.screen.project(p, r.width, r.height).map((e) => ({ ...e, x: e.x + r.left, y: e.y + r.top }));
   },
   rigInfo: () => rigInfo,
+  // The headset: its state, entering a session, registering with the controllers on the grips.
+  xr: { state: () => headset.state(), enter: () => headset.enter(), register: () => headset.register(),
+    // The headset's blend of two frames (words) that came `gapMs` apart, `sinceMs` after the second.
+    blend: (a, b, gapMs, sinceMs) => {
+      const x = new Interpolator();
+      x.push({ f: new Float32Array(a) }, 0);
+      x.push({ f: new Float32Array(b) }, gapMs);
+      const r = x.at(gapMs + sinceMs, desc);
+      return { f: Array.from(r.f), leadMs: r.leadMs };
+    },
+    controllers: () => headset.controllers()?.map((p) => p.toArray()) ?? null },
   screen: () => ({ on: cameras.onScreen, format: cameras.screen.format, display: rigInfo && rigInfo.display }),
   // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
   shape: (name) => {
@@ -271,6 +311,8 @@ window.spidarView = {
   personEyes: (name) => people && people.eyeDirections(name),
   setBodies,
   characterJoints: (i) => crowd.drawnJoints(i).map((p) => ({ pos: p, screen: p && project(p) })),
+  // Character i drawn as a person: each joint as the pieces meeting there draw it, its extent.
+  characterPerson: (i) => crowd.people.drawn(i),
   character: (i) => {
     const L = desc.layout;
     const o = L.characters_at + i * L.character_floats;

@@ -12,7 +12,7 @@ use spidar_rt::display::Display;
 use spidar_rt::rig::DEFAULT_RIG_RON;
 use spidar_rt::Rig;
 
-use super::view::{browser_here, node_script, one_at_a_time, RunPath};
+use super::view::{browser_here, node_script, one_at_a_time, test_certificate, RunPath};
 
 /// The default rig with the eye lower and closer than its default, and a screen off-centre and
 /// turned on all three axes: the grips and the virtual human's head fall well inside it.
@@ -129,6 +129,36 @@ fn display_draws_the_rig_frame_through_the_screen_from_the_eye() {
         "screen_pixels" => screen_pixels(&rig, link_offset_m, q),
         other => json!({"error": format!("unknown question {other}")}),
     });
+    let sum = run.finish();
+    assert!(sum.clean_stop, "{sum}");
+}
+
+/// The headset: in Debian's chromium with a WebXR headset emulated inside the page (npm `iwer`),
+/// on `spidar run`'s path, the page enters an immersive session; with the emulated controllers
+/// held on the grips (in the headset's floor frame, turned and moved from the scene's) a trigger
+/// press registers the headset to the rig; then, for the headset where it started and moved and
+/// turned, each eye draws the virtual human (further right in the left eye: stereo) and draws each
+/// grip centred within 3 px of where the headset's geometry (its pose, eye separation and field of
+/// view, computed by the test) images the controller on it: the grips are where the hands are.
+/// The page comes over HTTPS and its frames over a secure WebSocket (`--view-tls`), and the
+/// world keeps the pictures the headset drew as the headset's ages.
+#[test]
+fn display_headset_enters_registers_and_draws_the_grips_at_the_hands() {
+    let _one = one_at_a_time();
+    if !browser_here("display_headset_enters_registers_and_draws_the_grips_at_the_hands") {
+        return;
+    }
+    // Served over HTTPS as for a headset on the network, with a certificate made for the test.
+    let (dir, cert_pem, key_pem, _) = test_certificate("headset-tls");
+    let tls = format!("{},{}", cert_pem.display(), key_pem.display());
+    let run = RunPath::start_with("boxing", "hold", screen_rig(), &["--view-tls".into(), tls]);
+    assert!(run.url.starts_with("https://"), "the view is served over HTTPS: {}", run.url);
+    node_script(
+        "display.mjs",
+        &["headset", &run.url],
+        |q| json!({"error": format!("unexpected question {q}")}),
+    );
+    let _ = std::fs::remove_dir_all(&dir);
     let sum = run.finish();
     assert!(sum.clean_stop, "{sum}");
 }

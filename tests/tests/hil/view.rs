@@ -662,6 +662,20 @@ fn view_people_move_joint_for_joint_with_the_simulated_bodies_in_a_browser() {
     node_script("display.mjs", &["people", w.view.url()], |q| w.answer(q));
 }
 
+/// The crowd drawn as people: every piece of every character's person meets the drawn figure's
+/// joints within 1 cm (standing, walking, and with one pushed down), the pushed one's person lies
+/// on the floor (every piece under 0.5 m and none deeper in it than a limb is thick; from the side,
+/// all below a level eye at 0.55 m), and the toggle draws the figures' bones instead.
+#[test]
+fn display_crowd_drawn_as_people_joint_for_joint_and_lying_when_down() {
+    let _one = one_at_a_time();
+    if !browser_here("display_crowd_drawn_as_people_joint_for_joint_and_lying_when_down") {
+        return;
+    }
+    let w = crowd_world(&any_port());
+    node_script("display.mjs", &["crowd", w.view.url()], |q| w.answer(q));
+}
+
 /// The crowd in a browser: a walking character's drawn pose changes, a pushed one is drawn down.
 #[test]
 fn view_crowd_in_a_browser() {
@@ -675,6 +689,103 @@ fn view_crowd_in_a_browser() {
 
 // ---------------------------------------------------------------------------------------------
 // Without a browser.
+
+/// A certificate and key for 127.0.0.1 made for a test, in a folder of its own (removed by the
+/// caller), and the certificate's DER.
+pub(super) fn test_certificate(name: &str) -> (PathBuf, PathBuf, PathBuf, Vec<u8>) {
+    let dir = std::env::temp_dir().join(format!("spidar-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let c = rcgen::generate_simple_self_signed(vec!["127.0.0.1".into(), "localhost".into()]).unwrap();
+    let (cert, key) = (dir.join("cert.pem"), dir.join("key.pem"));
+    std::fs::write(&cert, c.cert.pem()).unwrap();
+    std::fs::write(&key, c.signing_key.serialize_pem()).unwrap();
+    (dir, cert, key, c.cert.der().to_vec())
+}
+
+/// The view over HTTPS (`--view-tls`): a TLS client that trusts the view's certificate gets the
+/// page (its request sent with the handshake's last flight, as a browser may), the status, and
+/// over a secure WebSocket the scene and frames; a client that does not trust it gets nothing;
+/// certificate files that do not read are refused naming the file and saying what to do.
+#[test]
+fn view_over_https_serves_the_page_and_frames_and_refuses_a_bad_certificate() {
+    use rustls::pki_types::{CertificateDer, ServerName};
+    use spidar_world::view::TlsIdentity;
+    use std::io::Read;
+    use std::net::TcpStream;
+    let _one = one_at_a_time();
+    let (dir, cert, key, der) = test_certificate("view-tls");
+    let id = TlsIdentity::from_pem_files(&cert, &key).unwrap();
+    let w = boxing_world(&ViewOptions { tls: Some(id), ..any_port() });
+    assert!(
+        w.view.url().starts_with("https://") && w.view.ws_url().starts_with("wss://"),
+        "{}",
+        w.view.url()
+    );
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let client = |trusted: bool| {
+        let mut roots = rustls::RootCertStore::empty();
+        if trusted {
+            roots.add(CertificateDer::from(der.clone())).unwrap();
+        }
+        Arc::new(
+            rustls::ClientConfig::builder_with_provider(provider.clone())
+                .with_safe_default_protocol_versions()
+                .unwrap()
+                .with_root_certificates(roots)
+                .with_no_client_auth(),
+        )
+    };
+    let connect = |url: &str, cfg: Arc<rustls::ClientConfig>| {
+        let addr = url.split("://").nth(1).unwrap().trim_end_matches('/');
+        let tcp = TcpStream::connect(addr).unwrap();
+        tcp.set_read_timeout(Some(Duration::from_secs(20))).unwrap();
+        let conn = rustls::ClientConnection::new(cfg, ServerName::try_from("127.0.0.1").unwrap()).unwrap();
+        rustls::StreamOwned::new(conn, tcp)
+    };
+    let get = |path: &str, cfg: Arc<rustls::ClientConfig>| -> std::io::Result<String> {
+        let mut s = connect(w.view.url(), cfg);
+        // Queued before the handshake: it leaves in one write with the client's Finished, so the
+        // server's last handshake read brings the request too.
+        write!(s.conn.writer(), "GET {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")?;
+        while s.conn.is_handshaking() || s.conn.wants_write() {
+            s.conn.complete_io(&mut s.sock)?;
+        }
+        let mut text = String::new();
+        s.read_to_string(&mut text)?;
+        Ok(text)
+    };
+    let page = get("/", client(true)).unwrap();
+    let ws_port = w.view.ws_url().rsplit(':').next().unwrap().trim_end_matches('/').to_string();
+    assert!(page.starts_with("HTTP/1.") && page.contains(" 200 "), "{page}");
+    assert!(page.contains(&format!("content=\"{ws_port}\"")), "the page names the frames' port {ws_port}");
+    let status = get("/scene.json", client(true)).unwrap();
+    assert!(status.contains("\"type\":\"scene\""), "{status}");
+    assert!(get("/", client(false)).is_err(), "a client that does not trust the certificate gets no page");
+    // The frames over TLS.
+    let stream = connect(w.view.ws_url(), client(true));
+    let (mut ws, _) = tungstenite::client(format!("ws://127.0.0.1:{ws_port}/"), stream).unwrap();
+    let mut scene = false;
+    let mut frames = 0;
+    let until = Instant::now() + Duration::from_secs(20);
+    while frames < 3 && Instant::now() < until {
+        match ws.read().unwrap() {
+            tungstenite::Message::Text(t) if t.as_str().contains("\"type\":\"scene\"") => scene = true,
+            tungstenite::Message::Binary(_) => frames += 1,
+            _ => {}
+        }
+    }
+    assert!(scene && frames == 3, "over wss: the scene ({scene}) and frames ({frames})");
+    drop(ws);
+    // Files that do not read.
+    let missing = dir.join("missing.pem");
+    let e = TlsIdentity::from_pem_files(&missing, &key).unwrap_err().to_string();
+    assert!(e.contains("missing.pem") && e.contains("docs/display.md"), "{e}");
+    let e = TlsIdentity::from_pem_files(&key, &key).unwrap_err().to_string();
+    assert!(e.contains("key.pem") && e.contains("no CERTIFICATE"), "{e}");
+    let e = TlsIdentity::from_arg("only-one.pem").unwrap_err().to_string();
+    assert!(e.contains("CERT.pem,KEY.pem"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
 
 /// A WebSocket viewer on the view's frames port; `read` says whether it reads.
 fn viewer(url: &str, read: bool, frames: Arc<AtomicU64>, stop: Arc<AtomicBool>) -> JoinHandle<()> {
@@ -979,6 +1090,11 @@ impl RunPath {
 
     /// The same on a rig of the test's (a rig file with a screen, say).
     pub(super) fn start_on(scene: &str, script: &str, r: spidar_rt::Rig) -> RunPath {
+        RunPath::start_with(scene, script, r, &[])
+    }
+
+    /// The same with more arguments for the world's view (`--view-tls CERT,KEY`, say).
+    pub(super) fn start_with(scene: &str, script: &str, r: spidar_rt::Rig, view_args: &[String]) -> RunPath {
         use spidar_rt::rt_thread::RtOptions;
         use spidar_runtime::child_world::ChildWorldSpec;
         use spidar_runtime::session::{
@@ -1005,7 +1121,10 @@ impl RunPath {
             prefix: Vec::new(),
             scene: scene.into(),
             restarts: 0,
-            extra: vec!["--view".into(), "127.0.0.1:0".into()],
+            extra: ["--view".into(), "127.0.0.1:0".into()]
+                .into_iter()
+                .chain(view_args.iter().map(std::ffi::OsString::from))
+                .collect(),
         };
         let (st, sd, script) = (stop.clone(), said.clone(), script.to_string());
         let run = std::thread::spawn(move || {

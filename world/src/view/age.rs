@@ -37,6 +37,13 @@ pub struct Drawn {
     /// Drawn in an immersive (headset) session.
     #[serde(default)]
     pub xr: bool,
+    /// Where the age went: from the tick to the frame's message arriving at the page (the world,
+    /// the link, the broadcaster, the socket), and from its arrival to the start of its drawing
+    /// (the wait for the browser's next frame). Pages that do not say: None.
+    #[serde(default)]
+    pub arrive_ms: Option<f64>,
+    #[serde(default)]
+    pub wait_ms: Option<f64>,
 }
 
 impl Drawn {
@@ -70,6 +77,11 @@ pub struct AgeSummary {
     pub hand_lag_p99_ms: f64,
     pub draw_p50_ms: f64,
     pub draw_p99_ms: f64,
+    /// The tick to the message's arrival, and the arrival to the drawing (NaN: not reported).
+    pub arrive_p50_ms: f64,
+    pub arrive_p99_ms: f64,
+    pub wait_p50_ms: f64,
+    pub wait_p99_ms: f64,
     /// The newest report's step and tick.
     pub step: u64,
     pub tick: u64,
@@ -80,6 +92,8 @@ struct Window {
     ages_ms: Vec<f64>,
     lags_ms: Vec<f64>,
     draws_ms: Vec<f64>,
+    arrives_ms: Vec<f64>,
+    waits_ms: Vec<f64>,
     next: usize,
     total: u64,
     step: u64,
@@ -93,10 +107,14 @@ impl Window {
             self.ages_ms.push(d.age_ms);
             self.lags_ms.push(lag);
             self.draws_ms.push(d.draw_ms);
+            self.arrives_ms.push(d.arrive_ms.unwrap_or(f64::NAN));
+            self.waits_ms.push(d.wait_ms.unwrap_or(f64::NAN));
         } else {
             self.ages_ms[self.next] = d.age_ms;
             self.lags_ms[self.next] = lag;
             self.draws_ms[self.next] = d.draw_ms;
+            self.arrives_ms[self.next] = d.arrive_ms.unwrap_or(f64::NAN);
+            self.waits_ms[self.next] = d.wait_ms.unwrap_or(f64::NAN);
         }
         self.next = (self.next + 1) % WINDOW;
         self.total += 1;
@@ -113,6 +131,15 @@ impl Window {
             s.sort_by(f64::total_cmp);
             s[((s.len() - 1) as f64 * p).round() as usize]
         };
+        // Percentiles of the reports that carried the figure (NaN: none did).
+        let known = |v: &[f64], p: f64| {
+            let k: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+            if k.is_empty() {
+                f64::NAN
+            } else {
+                pct(&k, p)
+            }
+        };
         Some(AgeSummary {
             frames: self.ages_ms.len(),
             total: self.total,
@@ -123,6 +150,10 @@ impl Window {
             hand_lag_p99_ms: pct(&self.lags_ms, 0.99),
             draw_p50_ms: pct(&self.draws_ms, 0.5),
             draw_p99_ms: pct(&self.draws_ms, 0.99),
+            arrive_p50_ms: known(&self.arrives_ms, 0.5),
+            arrive_p99_ms: known(&self.arrives_ms, 0.99),
+            wait_p50_ms: known(&self.waits_ms, 0.5),
+            wait_p99_ms: known(&self.waits_ms, 0.99),
             step: self.step,
             tick: self.tick,
         })
@@ -188,6 +219,8 @@ mod tests {
             hand_lag_ms: None,
             draw_ms: 1.0,
             xr,
+            arrive_ms: None,
+            wait_ms: None,
         };
         // 1..=100 ms on the screen, then WINDOW more of 1000 ms push the first ones out.
         for k in 1..=100 {
@@ -210,5 +243,10 @@ mod tests {
         a.record(&Drawn { hand_lag_ms: Some(4.0), ..d(20.0, true) });
         let h = a.summaries().1.unwrap();
         assert_eq!((h.p50_ms, h.hand_lag_p50_ms), (20.0, 4.0));
+        // Where the age went: only from the reports that say (an older page's do not).
+        assert!(h.arrive_p50_ms.is_nan() && h.wait_p99_ms.is_nan());
+        a.record(&Drawn { arrive_ms: Some(3.0), wait_ms: Some(9.0), ..d(20.0, true) });
+        let h = a.summaries().1.unwrap();
+        assert_eq!((h.arrive_p50_ms, h.wait_p99_ms), (3.0, 9.0));
     }
 }

@@ -185,12 +185,15 @@ pub fn status(
     skipped: u64,
     ages: (Option<super::AgeSummary>, Option<super::AgeSummary>),
 ) -> String {
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { Value::Null };
     let age = |a: Option<super::AgeSummary>| {
         a.map(|a| {
             json!({
                 "frames": a.frames, "total": a.total, "p50_ms": a.p50_ms, "p99_ms": a.p99_ms, "max_ms": a.max_ms,
                 "hand_lag_p50_ms": a.hand_lag_p50_ms, "hand_lag_p99_ms": a.hand_lag_p99_ms,
                 "draw_p50_ms": a.draw_p50_ms, "draw_p99_ms": a.draw_p99_ms,
+                "arrive_p50_ms": finite(a.arrive_p50_ms), "arrive_p99_ms": finite(a.arrive_p99_ms),
+                "wait_p50_ms": finite(a.wait_p50_ms), "wait_p99_ms": finite(a.wait_p99_ms),
                 "step": a.step, "tick": a.tick,
             })
         })

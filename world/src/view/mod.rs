@@ -20,6 +20,8 @@ mod frame;
 pub mod json;
 mod maker;
 mod server;
+mod tls;
+pub use tls::TlsIdentity;
 
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
@@ -55,12 +57,14 @@ pub enum ViewError {
     Thread(std::io::Error),
     #[error("the scene description to serve does not read: {0}")]
     Description(String),
+    #[error("the view's HTTPS: {0}")]
+    Tls(String),
 }
 
 /// Parses `--view`'s value: `HOST:PORT`, `http://HOST:PORT[/]`, `:PORT` or `PORT` (the last two
 /// on 127.0.0.1).
 pub fn parse_addr(s: &str) -> Result<SocketAddr, ViewError> {
-    let t = s.trim().trim_start_matches("http://").trim_end_matches('/');
+    let t = s.trim().trim_start_matches("http://").trim_start_matches("https://").trim_end_matches('/');
     let t = t.strip_prefix(':').unwrap_or(t);
     if let Ok(port) = t.parse::<u16>() {
         return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
@@ -82,6 +86,9 @@ pub struct ViewOptions {
     pub max_viewers: usize,
     /// A viewer whose socket takes no data for this long is dropped.
     pub write_timeout: Duration,
+    /// Serve the page over HTTPS and the frames over secure WebSockets with this certificate
+    /// (None: plain HTTP and WebSockets).
+    pub tls: Option<TlsIdentity>,
 }
 
 impl Default for ViewOptions {
@@ -92,6 +99,7 @@ impl Default for ViewOptions {
             status_hz: 4.0,
             max_viewers: 8,
             write_timeout: Duration::from_secs(2),
+            tls: None,
         }
     }
 }
@@ -277,7 +285,8 @@ impl View {
                 finisher,
             },
         )?;
-        let urls = (format!("http://{}", server.http_addr), format!("ws://{}", server.ws_addr));
+        let (http, ws) = if opts.tls.is_some() { ("https", "wss") } else { ("http", "ws") };
+        let urls = (format!("{http}://{}", server.http_addr), format!("{ws}://{}", server.ws_addr));
         Ok(View {
             shared,
             server: Some(server),

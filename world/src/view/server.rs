@@ -77,7 +77,7 @@ fn bind(addr: SocketAddr) -> Result<TcpListener, ViewError> {
 
 impl Server {
     pub fn start(opts: &ViewOptions, shared: Arc<Shared>, scene: Scene) -> Result<Server, ViewError> {
-        let http_listener = bind(opts.addr)?;
+        let mut http_listener = bind(opts.addr)?;
         let http_addr = http_listener.local_addr().map_err(ViewError::Thread)?;
         let ws_want = match http_addr.port() {
             0 => http_addr,
@@ -87,8 +87,17 @@ impl Server {
                     .ok_or_else(|| ViewError::Address(format!("{http_addr} (no port after it)")))?,
             ),
         };
-        let ws_listener = bind(ws_want)?;
+        let mut ws_listener = bind(ws_want)?;
         let ws_addr = ws_listener.local_addr().map_err(ViewError::Thread)?;
+        // With TLS the public ports are TLS fronts relaying to plain servers on loopback ports.
+        let mut fronts = Vec::new();
+        if let Some(id) = &opts.tls {
+            for public in [&mut http_listener, &mut ws_listener] {
+                let inner = bind(SocketAddr::from(([127, 0, 0, 1], 0)))?;
+                let inner_addr = inner.local_addr().map_err(ViewError::Thread)?;
+                fronts.push((std::mem::replace(public, inner), inner_addr, id.clone()));
+            }
+        }
         ws_listener.set_nonblocking(true).map_err(ViewError::Thread)?;
         let http = tiny_http::Server::from_listener(http_listener, None)
             .map_err(|e| ViewError::Thread(std::io::Error::other(e.to_string())))?;
@@ -100,6 +109,13 @@ impl Server {
             std::thread::Builder::new().name(name.into()).spawn(f).map_err(ViewError::Thread)
         };
         let mut threads = Vec::new();
+        for (listener, backend, id) in fronts {
+            let shared = shared.clone();
+            threads.push(spawn(
+                "spidar-view-tls-front",
+                Box::new(move || super::tls::front(listener, backend, id, shared)),
+            )?);
+        }
         {
             let (shared, latest) = (shared.clone(), latest.clone());
             threads
