@@ -19,10 +19,11 @@ fn session(rig: &Rig, noise_counts: f64) -> Vec<Observation> {
         "/../configs/jig-spidar-h.ron"
     )))
     .unwrap();
-    let mut rec = Recorder::new(
+    let mut rec = Recorder::on_virtual_loop(
         sim_rig(rig, &truth, opts.noise_counts, opts.seed).unwrap(),
         rig,
         RecordOptions::default(),
+        false,
     )
     .unwrap();
     let plan =

@@ -3,23 +3,22 @@
 //! `q` (abort).
 //!
 //! Why it exists: on a real rig the grip is moved by hand, and the tool must wait for the person
-//! without letting the link go quiet. While it waits it keeps ticking the [`Link`] (one exchange
-//! per tick period, every string held at the rig's minimum tension, late replies retried, stop
-//! signals seen). The boards have no watchdog: they hold whatever they were last told, so the
-//! holding output is what they keep if this program stalls or dies.
+//! while the rt-loop holds the strings. While it waits it keeps reading the loop's [`Ticks`] (so
+//! its records do not pile up, and a stop signal or a lost board is seen at once). The loop itself
+//! runs on its own thread whatever this does, and on real boards its supervisor writes zero if
+//! this process dies.
 //!
-//! What it must never do: block on the keyboard while the device needs commands (the keys are
-//! read on their own thread), or leave the outputs on when the person aborts or the console
-//! closes (it switches them off before returning [`CalibError::Aborted`]).
+//! What it must never do: block on the keyboard while the loop's records need reading (the keys
+//! are read on their own thread), or leave the outputs on when the person aborts or the console
+//! closes (it ends the loop, which switches them off, before returning [`CalibError::Aborted`]).
 
 use std::io::{BufRead, Write};
 use std::sync::mpsc::{self, Receiver, TryRecvError};
 
-use spidar_device::Device;
 use spidar_rt::Rig;
 
-use crate::link::Link;
 use crate::record::{Answer, Operator, Request};
+use crate::ticks::{TickSource, Ticks};
 use crate::CalibError;
 
 /// The calibration operator at a console.
@@ -32,7 +31,7 @@ pub struct ConsoleOperator {
 
 impl ConsoleOperator {
     /// Reads the answers from `keys` (one line each) on a thread of its own and writes prompts
-    /// to `out`. The pace of the exchanges while waiting is the [`Link`]'s.
+    /// to `out`. While waiting it reads the loop's ticks as they come.
     pub fn new<R: BufRead + Send + 'static>(
         keys: R,
         out: Box<dyn Write + Send>,
@@ -76,8 +75,8 @@ impl ConsoleOperator {
              the tool then waits until the grip is still and records (about a second).\n\
              Keys: Enter = the grip is there, s + Enter = skip this free pose, q + Enter = abort (outputs off).\n\
              Ctrl-C switches the outputs off (`record` has saved every kept pose: continue it with --resume).\n\
-             The boards have no watchdog: if this program hangs they hold the strings at minimum tension until \
-             switched off; if it is killed, switch the amplifiers off.",
+             The rig's loop holds the strings as `spidar run` does; if this program dies, its supervisor \
+             writes zero to the boards (they have no watchdog).",
             self.tension_min_n[0], self.tension_min_n[1]
         );
         self.say(&line);
@@ -90,9 +89,9 @@ impl ConsoleOperator {
         let _ = self.out.flush();
     }
 
-    /// Switches the outputs off and reports why.
-    fn abort<D: Device>(&mut self, link: &mut Link<D>, why: &str) -> CalibError {
-        let note = match link.switch_off() {
+    /// Ends the loop (outputs off) and reports why.
+    fn abort<S: TickSource>(&mut self, ticks: &mut Ticks<S>, why: &str) -> CalibError {
+        let note = match ticks.switch_off() {
             Ok(()) => "outputs switched off".to_string(),
             Err(e) => format!("switching the outputs off failed ({e}): power the amplifiers down"),
         };
@@ -110,8 +109,8 @@ impl ConsoleOperator {
     }
 }
 
-impl<D: Device> Operator<D> for ConsoleOperator {
-    fn request(&mut self, link: &mut Link<D>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
+impl<S: TickSource> Operator<S> for ConsoleOperator {
+    fn request(&mut self, ticks: &mut Ticks<S>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
         let skippable = matches!(req, Request::Free { .. });
         let label = self.labels[hand].clone();
         self.say(&format!("> hand {hand} ({label}): {req}"));
@@ -121,21 +120,21 @@ impl<D: Device> Operator<D> for ConsoleOperator {
             "  press Enter when the grip is there and still (q: abort)"
         });
         loop {
-            // Keep the boards commanded while the person moves the grip (and see a stop signal).
-            if let Err(e) = link.tick() {
-                let _ = link.switch_off();
+            // Keep reading the loop while the person moves the grip (and see a stop signal).
+            if let Err(e) = ticks.tick() {
+                let _ = ticks.switch_off();
                 self.say(&format!("stopping: {e}; outputs switched off"));
                 return Err(e);
             }
             match self.next_key() {
-                Err(()) => return Err(self.abort(link, "the console input closed")),
+                Err(()) => return Err(self.abort(ticks, "the console input closed")),
                 Ok(None) => {}
                 Ok(Some(line)) => match line.trim() {
                     "" => return Ok(Answer::Ready),
                     "s" | "S" if skippable => return Ok(Answer::Skip),
                     "s" | "S" => self
                         .say("  this point cannot be skipped: press Enter when the grip is there (q: abort)"),
-                    "q" | "Q" => return Err(self.abort(link, "stopped by the operator (q)")),
+                    "q" | "Q" => return Err(self.abort(ticks, "stopped by the operator (q)")),
                     other => self.say(&format!(
                         "  '{other}' is not an answer: Enter = the grip is there{}, q = abort",
                         if skippable { ", s = skip" } else { "" }

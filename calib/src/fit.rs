@@ -285,6 +285,14 @@ struct Gauge {
 }
 
 impl Gauge {
+    /// The frame of free poses alone: the configured anchors' centroid, orientation and (with
+    /// metres per count fitted) scale.
+    fn configured(hr: &HandRig, scale: bool) -> Gauge {
+        let cen = hr.anchors_m.iter().copied().sum::<DVec3>() / 4.0;
+        let b = hr.anchors_m.map(|a| a - cen);
+        let r = (b.iter().map(|v| v.length_squared()).sum::<f64>() / 4.0).sqrt();
+        Gauge { a_cfg: hr.anchors_m, b, r, scale }
+    }
     fn rows(&self) -> usize {
         if self.scale {
             7
@@ -556,21 +564,19 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
             geometry = &geometry * (DMatrix::identity(p, p) - jg.transpose() * inv * &jg);
         }
     }
-    // Geometry, residual, one column per reading and one drift per string side by side, so the
-    // free poses are projected out of all of them at once.
-    let (c_res, c_single, c_drift) = (p, p + 1, p + 1 + 4 * n);
-    let mut m = DMatrix::zeros(4 * n, c_drift + 4);
+    // Geometry, residual and one column per reading side by side, so the free poses are
+    // projected out of all of them at once (every cause the quality check tests is a sum of
+    // reading columns).
+    let (c_res, c_single) = (p, p + 1);
+    let mut m = DMatrix::zeros(4 * n, c_single + 4 * n);
     m.columns_mut(0, p).copy_from(&geometry);
     let mut singles_raw = vec![0.0; 4 * n];
-    let mut drifts_raw = vec![0.0; 4];
     for k in 0..n {
         for i in 0..4 {
             let (row, w) = (4 * k + i, whiten[k][i]);
             m[(row, c_res)] = residuals[k][i] * w;
             m[(row, c_single + i * n + k)] = w;
             singles_raw[i * n + k] = w * w;
-            m[(row, c_drift + i)] = k as f64 * w;
-            drifts_raw[i] += (k as f64 * w).powi(2);
         }
     }
     problem.project_poses(&mut m, &whiten);
@@ -581,8 +587,6 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
             residual: m.column(c_res).into_owned(),
             singles: m.columns(c_single, 4 * n).into_owned(),
             singles_raw,
-            drifts: m.columns(c_drift, 4).into_owned(),
-            drifts_raw,
             n,
             rows_dof: 4 * n - 3 * problem.layout.n_free(),
             noise_rms_m,
@@ -593,6 +597,13 @@ fn judge_quality(problem: &Problem<'_>, residuals: &[[f64; 4]], opts: &FitOption
 
 /// Fits one hand's geometry to its observations. `hr` gives the configured geometry (start values
 /// and, for free poses only, the frame).
+///
+/// The phases, each a function below, in order: the observations checked (finite, enough of
+/// them, no duplicates) -> start values (lengths from a jig point or the home pose) -> the poses'
+/// spread checked (not in one plane) -> Levenberg-Marquardt inside Huber reweighting -> data
+/// quality and outliers (a string that disagrees in many poses is an error) -> observability (a
+/// rank deficiency is an error naming the parameters) -> covariance -> the report's parameters,
+/// frame note and advice.
 pub fn fit_hand(
     hand: usize,
     hr: &HandRig,
@@ -600,10 +611,100 @@ pub fn fit_hand(
     opts: &FitOptions,
 ) -> Result<HandFit, CalibError> {
     opts.check()?;
-    let degenerate = |message: String| CalibError::Degenerate { hand, message };
     if hand > 1 {
         return Err(CalibError::Options(format!("hand {hand}: must be 0 (left) or 1 (right)")));
     }
+    let size = check_observations(hand, hr, obs, opts)?;
+    let start = start_values(hand, hr, obs)?;
+    check_spread(hand, obs, &start.positions_m, opts)?;
+    let fit_mpc = opts.fit_metres_per_count;
+    let layout = Layout::new(obs, fit_mpc);
+    let gauge = (size.n_jig == 0).then(|| Gauge::configured(hr, fit_mpc));
+    let labels: Vec<String> = obs.iter().map(|o| o.label.clone()).collect();
+    let solved = solve(hand, hr, obs, &start, &layout, gauge.as_ref(), opts)?;
+    let problem = &solved.problem;
+
+    let residuals = problem.raw_residuals();
+    let quality = judge_quality(problem, &residuals, opts);
+    let weights: Vec<[f64; 4]> = problem.sqrt_w.iter().map(|w| w.map(|v| v * v)).collect();
+    let all: Vec<f64> = residuals.iter().flatten().copied().collect();
+    let rms_m = (all.iter().map(|v| v * v).sum::<f64>() / all.len() as f64).sqrt();
+    let (outliers, limit) = find_outliers(&residuals, solved.sigma, opts);
+    // (Unless the data-quality check found what it is: then its verdict names it more precisely.)
+    if quality.findings.is_empty() {
+        check_strings(hand, obs.len(), &outliers, limit, opts)?;
+    }
+    let worst_pose = residuals
+        .iter()
+        .enumerate()
+        .map(|(k, r)| (k, (r.iter().map(|v| v * v).sum::<f64>() / 4.0).sqrt()))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+
+    let seen = observability(hand, problem, &layout, gauge.as_ref(), &size)?;
+    let cov = covariance(hand, problem, &seen.jd, gauge.as_ref(), &size, &residuals, &weights, opts)?;
+    let std = |col: usize| cov[(col, col)].max(0.0).sqrt();
+
+    let mpc: [f64; 4] = std::array::from_fn(|i| problem.mpc(i));
+    let geometry = HandGeometry {
+        anchors_m: std::array::from_fn(|i| problem.anchor(i)),
+        length_at_zero_m: std::array::from_fn(|i| problem.x[Layout::L + i] - mpc[i] * start.c_ref[i]),
+        metres_per_count: mpc,
+    };
+    let configured = start.geometry;
+    let params = param_reports(hr, problem, &geometry, &cov, start.c_ref, size.gauge_dof, opts);
+    let anchor_std_m = std::array::from_fn(|i| DVec3::new(std(3 * i), std(3 * i + 1), std(3 * i + 2)));
+    let poses_m: Vec<DVec3> = (0..obs.len()).map(|k| problem.pose(k)).collect();
+    let gauge_note = (size.gauge_dof > 0).then(|| gauge_note(fit_mpc));
+    let advice = advice(&params, &seen, &size, &outliers, &labels, &quality, fit_mpc);
+
+    Ok(HandFit {
+        hand,
+        configured,
+        geometry,
+        anchor_std_m,
+        params,
+        labels,
+        poses_m,
+        residuals_m: residuals,
+        weights,
+        rms_m,
+        robust_sigma_m: solved.sigma,
+        worst_pose,
+        outliers,
+        n_jig: size.n_jig,
+        n_free: size.n_free,
+        n_params: layout.n_all(),
+        rank: seen.rank,
+        gauge_dof: size.gauge_dof,
+        gauge_note,
+        condition: seen.condition,
+        advice,
+        quality,
+        lm_evaluations: solved.evaluations,
+        irls_rounds: solved.rounds,
+    })
+}
+
+/// How many poses of each kind, and what the frame choice fixes.
+struct Size {
+    n_jig: usize,
+    n_free: usize,
+    /// Directions fixed by the gauge constraints: 0 with jig points, else 6 (7 with the scale).
+    gauge_dof: usize,
+    /// Equations (4 per pose).
+    m: usize,
+}
+
+/// The first phase: every number finite, at least 8 equations beyond the unknowns (so the noise
+/// and outliers can be seen), and no two poses the same point.
+fn check_observations(
+    hand: usize,
+    hr: &HandRig,
+    obs: &[Observation],
+    opts: &FitOptions,
+) -> Result<Size, CalibError> {
+    let degenerate = |message: String| CalibError::Degenerate { hand, message };
     if let Some(k) = obs.iter().position(|o| {
         !(o.counts.iter().all(|c| c.is_finite())
             && o.noise_counts.iter().all(|c| c.is_finite() && *c >= 0.0)
@@ -624,7 +725,6 @@ pub fn fit_hand(
     let gauge_dof = if n_jig == 0 { 6 + usize::from(fit_mpc) } else { 0 };
     let n_params = 16 + if fit_mpc { 4 } else { 0 } + 3 * n_free;
     let m = 4 * obs.len();
-    // At least 8 equations beyond the unknowns, so that the noise (and outliers) can be seen.
     let needed = n_params - gauge_dof + 8;
     if m < needed {
         let short = needed - m;
@@ -653,8 +753,27 @@ pub fn fit_hand(
             }
         }
     }
-    // Start values: configured anchors and metres per count, lengths from a jig point, else the
-    // home hint, else the rig's own lengths at zero.
+    Ok(Size { n_jig, n_free, gauge_dof, m })
+}
+
+/// Where the fit starts.
+struct Start {
+    /// Counts of the reference (first) pose, and every pose's counts relative to them.
+    c_ref: [f64; 4],
+    dc: Vec<[f64; 4]>,
+    /// String lengths at the reference pose.
+    l_ref: [f64; 4],
+    /// The configured geometry with those lengths.
+    geometry: HandGeometry,
+    /// Every pose's position: the jig point, or solved with the start geometry.
+    positions_m: Vec<DVec3>,
+}
+
+/// Start values: configured anchors and metres per count, lengths from a jig point, else the
+/// home hint, else the rig's own lengths at zero.
+fn start_values(hand: usize, hr: &HandRig, obs: &[Observation]) -> Result<Start, CalibError> {
+    let degenerate = |message: String| CalibError::Degenerate { hand, message };
+    let mpc0 = hr.metres_per_count;
     let c_ref = obs[0].counts;
     let dc: Vec<[f64; 4]> = obs.iter().map(|o| std::array::from_fn(|i| o.counts[i] - c_ref[i])).collect();
     let l_ref: [f64; 4] = if let Some((k, p)) =
@@ -672,41 +791,46 @@ pub fn fit_hand(
                 .into(),
         ));
     };
-    let start = HandGeometry {
+    let geometry = HandGeometry {
         anchors_m: hr.anchors_m,
         length_at_zero_m: std::array::from_fn(|i| l_ref[i] - mpc0[i] * c_ref[i]),
         metres_per_count: mpc0,
     };
-    let start_positions: Vec<DVec3> = obs
+    let positions_m: Vec<DVec3> = obs
         .iter()
         .map(|o| match o.known_m {
             Some(p) => Ok(p),
-            None => start.position(&o.counts).map(|(p, _)| p).ok_or_else(|| {
+            None => geometry.position(&o.counts).map(|(p, _)| p).ok_or_else(|| {
                 degenerate(format!("pose {} gives invalid lengths with the configured geometry", o.label))
             }),
         })
         .collect::<Result<_, _>>()?;
-    // All poses in one plane (or a line): the anchors' distances from it are not determined.
-    {
-        let n = start_positions.len() as f64;
-        let c = start_positions.iter().copied().sum::<DVec3>() / n;
-        let mut cov = nalgebra::Matrix3::<f64>::zeros();
-        for p in &start_positions {
-            let d = nalgebra::Vector3::new(p.x - c.x, p.y - c.y, p.z - c.z);
-            cov += d * d.transpose() / n;
-        }
-        let eig = cov.symmetric_eigen();
-        let (imin, lmin) = eig
-            .eigenvalues
-            .iter()
-            .enumerate()
-            .min_by(|a, b| a.1.total_cmp(b.1))
-            .map(|(i, v)| (i, *v))
-            .unwrap();
-        let spread = lmin.max(0.0).sqrt();
-        if spread < opts.min_depth_spread_m {
-            let nv = eig.eigenvectors.column(imin);
-            return Err(degenerate(format!(
+    Ok(Start { c_ref, dc, l_ref, geometry, positions_m })
+}
+
+/// All poses in one plane (or a line): the anchors' distances from it are not determined.
+fn check_spread(
+    hand: usize,
+    obs: &[Observation],
+    positions_m: &[DVec3],
+    opts: &FitOptions,
+) -> Result<(), CalibError> {
+    let n = positions_m.len() as f64;
+    let c = positions_m.iter().copied().sum::<DVec3>() / n;
+    let mut cov = nalgebra::Matrix3::<f64>::zeros();
+    for p in positions_m {
+        let d = nalgebra::Vector3::new(p.x - c.x, p.y - c.y, p.z - c.z);
+        cov += d * d.transpose() / n;
+    }
+    let eig = cov.symmetric_eigen();
+    let (imin, lmin) =
+        eig.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, v)| (i, *v)).unwrap();
+    let spread = lmin.max(0.0).sqrt();
+    if spread < opts.min_depth_spread_m {
+        let nv = eig.eigenvectors.column(imin);
+        return Err(CalibError::Degenerate {
+            hand,
+            message: format!(
                 "all {} poses lie in one plane (RMS {:.1} mm off it, normal ({:+.2}, {:+.2}, {:+.2})): the anchors' \
                  distances from that plane cannot be told apart; add poses at least 10 cm in front of and behind it \
                  (need an RMS spread of {:.0} mm)",
@@ -716,36 +840,48 @@ pub fn fit_hand(
                 nv[1],
                 nv[2],
                 opts.min_depth_spread_m * 1e3
-            )));
-        }
+            ),
+        });
     }
+    Ok(())
+}
 
-    let layout = Layout::new(obs, fit_mpc);
+/// The solved problem and how the solve went.
+struct Solved<'a> {
+    problem: Problem<'a>,
+    /// Robust scale (MAD) of the last round's residuals.
+    sigma: f64,
+    evaluations: usize,
+    rounds: usize,
+}
+
+/// IRLS around LM: Huber weights from the robust scale of the last fit's residuals, until
+/// reweighting no longer moves the geometry (at most 10 rounds).
+fn solve<'a>(
+    hand: usize,
+    hr: &HandRig,
+    obs: &'a [Observation],
+    start: &Start,
+    layout: &'a Layout,
+    gauge: Option<&'a Gauge>,
+    opts: &FitOptions,
+) -> Result<Solved<'a>, CalibError> {
     let mut x = DVector::zeros(layout.n);
     for i in 0..4 {
         for c in 0..3 {
             x[3 * i + c] = hr.anchors_m[i][c];
         }
-        x[Layout::L + i] = l_ref[i];
+        x[Layout::L + i] = start.l_ref[i];
     }
-    let gauge = (n_jig == 0).then(|| {
-        let cen = hr.anchors_m.iter().copied().sum::<DVec3>() / 4.0;
-        let b = hr.anchors_m.map(|a| a - cen);
-        let r = (b.iter().map(|v| v.length_squared()).sum::<f64>() / 4.0).sqrt();
-        Gauge { a_cfg: hr.anchors_m, b, r, scale: fit_mpc }
-    });
-    let labels: Vec<String> = obs.iter().map(|o| o.label.clone()).collect();
-
-    // IRLS around LM: Huber weights from the robust scale of the last fit's residuals.
     let mut problem = Problem {
         obs,
-        dc,
-        mpc0,
+        dc: start.dc.clone(),
+        mpc0: hr.metres_per_count,
         sqrt_w: vec![[1.0; 4]; obs.len()],
-        layout: &layout,
-        gauge: gauge.as_ref(),
+        layout,
+        gauge,
         x,
-        poses: start_positions,
+        poses: start.positions_m.clone(),
     };
     problem.solve_poses();
     let lm = LevenbergMarquardt::new().with_patience(200);
@@ -780,12 +916,12 @@ pub fn fit_hand(
             break;
         }
     }
+    Ok(Solved { problem, sigma, evaluations, rounds })
+}
 
-    let residuals = problem.raw_residuals();
-    let quality = judge_quality(&problem, &residuals, opts);
-    let weights: Vec<[f64; 4]> = problem.sqrt_w.iter().map(|w| w.map(|v| v * v)).collect();
-    let all: Vec<f64> = residuals.iter().flatten().copied().collect();
-    let rms_m = (all.iter().map(|v| v * v).sum::<f64>() / all.len() as f64).sqrt();
+/// Readings beyond `outlier_sigmas` robust standard deviations (and the floor): (pose, string,
+/// residual), and the limit.
+fn find_outliers(residuals: &[[f64; 4]], sigma: f64, opts: &FitOptions) -> (Vec<(usize, usize, f64)>, f64) {
     let limit = (opts.outlier_sigmas * sigma).max(opts.outlier_floor_m);
     let mut outliers = Vec::new();
     for (k, rk) in residuals.iter().enumerate() {
@@ -795,38 +931,60 @@ pub fn fit_hand(
             }
         }
     }
-    // A string that disagrees in many poses is slack or slipping: not something to fit through.
-    // (Unless the data-quality check found what it is: then its verdict names it more precisely.)
-    let explained = !quality.findings.is_empty();
-    for i in (0..4).filter(|_| !explained) {
+    (outliers, limit)
+}
+
+/// A string that disagrees in many poses is slack or slipping: not something to fit through.
+fn check_strings(
+    hand: usize,
+    poses: usize,
+    outliers: &[(usize, usize, f64)],
+    limit: f64,
+    opts: &FitOptions,
+) -> Result<(), CalibError> {
+    for i in 0..4 {
         let bad: Vec<&(usize, usize, f64)> = outliers.iter().filter(|o| o.1 == i).collect();
-        if bad.len() >= opts.slack_min_poses.max((opts.slack_fraction * obs.len() as f64).ceil() as usize) {
+        if bad.len() >= opts.slack_min_poses.max((opts.slack_fraction * poses as f64).ceil() as usize) {
             let worst = bad.iter().max_by(|a, b| a.2.abs().total_cmp(&b.2.abs())).unwrap();
             return Err(CalibError::InconsistentString {
                 hand,
                 string: i,
                 bad: bad.len(),
-                total: obs.len(),
+                total: poses,
                 limit_mm: limit * 1e3,
                 worst_mm: worst.2 * 1e3,
                 worst_pose: worst.0,
             });
         }
     }
-    let worst_pose = residuals
-        .iter()
-        .enumerate()
-        .map(|(k, r)| (k, (r.iter().map(|v| v * v).sum::<f64>() / 4.0).sqrt()))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap();
+    Ok(())
+}
 
-    // Observability: SVD of the weighted data Jacobian with the gauge rows appended (scaled like
-    // the data rows). The gauge rows pin exactly the gauge directions, so what is still (nearly)
-    // singular is a real lack of information. (Without them the scale direction is not exactly
-    // null: scaling everything scales the residuals too.)
+/// What the data determine: the weighted data Jacobian, its rank and condition, and the least
+/// determined direction (a row of `v_t`).
+struct Seen {
+    jd: DMatrix<f64>,
+    v_t: DMatrix<f64>,
+    smallest: usize,
+    rank: usize,
+    condition: f64,
+}
+
+/// Observability: SVD of the weighted data Jacobian with the gauge rows appended (scaled like
+/// the data rows). The gauge rows pin exactly the gauge directions, so what is still (nearly)
+/// singular is a real lack of information. (Without them the scale direction is not exactly
+/// null: scaling everything scales the residuals too.) A rank deficiency, or a condition above
+/// `MAX_CONDITION`, is an error naming the parameters involved.
+fn observability(
+    hand: usize,
+    problem: &Problem<'_>,
+    layout: &Layout,
+    gauge: Option<&Gauge>,
+    size: &Size,
+) -> Result<Seen, CalibError> {
     let jd = problem.data_jacobian();
     let jn = jd.norm() / (jd.ncols() as f64).sqrt();
-    let j_obs = match gauge.as_ref() {
+    let j_obs = match gauge {
         Some(g) => {
             let jg = problem.gauge_jacobian(g) * (jn / GAUGE_WEIGHT);
             let mut j = DMatrix::zeros(jd.nrows() + jg.nrows(), jd.ncols());
@@ -837,7 +995,7 @@ pub fn fit_hand(
         None => jd.clone(),
     };
     let svd = j_obs.svd(false, true);
-    let v_t = svd.v_t.as_ref().expect("requested");
+    let v_t = svd.v_t.expect("requested");
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
     let smax = svd.singular_values[order[0]];
@@ -845,25 +1003,28 @@ pub fn fit_hand(
         order.iter().copied().filter(|&q| svd.singular_values[q] < NULL_TOL * smax).collect();
     // Rank over all unknowns: each free pose is determined by its own 4 strings (3 of them span
     // space inside the anchor tetrahedron), so a deficiency can only be in the geometry.
+    let gauge_dof = size.gauge_dof;
     let rank = layout.n_all() - null.len() - gauge_dof;
     let smallest = order.iter().copied().rfind(|q| !null.contains(q)).unwrap_or(order[0]);
     let condition = smax / svd.singular_values[smallest];
+    if null.is_empty() && condition <= MAX_CONDITION {
+        return Ok(Seen { jd, v_t, smallest, rank, condition });
+    }
     // Component of each parameter in the (extra) null space.
     let null_part = |col: usize| null.iter().map(|&q| v_t[(q, col)].powi(2)).sum::<f64>().sqrt();
-    let name = param_name;
-    if !null.is_empty() || condition > MAX_CONDITION {
-        let mut cols: Vec<usize> = (0..layout.n).collect();
-        let weak_dir =
-            |col: usize| if !null.is_empty() { null_part(col) } else { v_t[(smallest, col)].abs() };
-        cols.sort_by(|&a, &b| weak_dir(b).total_cmp(&weak_dir(a)));
-        let names: Vec<String> =
-            cols.iter().take(6).filter(|&&c| weak_dir(c) > 0.05).map(|&c| name(c)).collect();
-        let jig_hint = if (1..4).contains(&n_jig) {
-            " With jig points, use at least 4 not in one plane (or none: free poses alone)."
-        } else {
-            ""
-        };
-        return Err(degenerate(format!(
+    let mut cols: Vec<usize> = (0..layout.n).collect();
+    let weak_dir = |col: usize| if !null.is_empty() { null_part(col) } else { v_t[(smallest, col)].abs() };
+    cols.sort_by(|&a, &b| weak_dir(b).total_cmp(&weak_dir(a)));
+    let names: Vec<String> =
+        cols.iter().take(6).filter(|&&c| weak_dir(c) > 0.05).map(|&c| param_name(c)).collect();
+    let jig_hint = if (1..4).contains(&size.n_jig) {
+        " With jig points, use at least 4 not in one plane (or none: free poses alone)."
+    } else {
+        ""
+    };
+    Err(CalibError::Degenerate {
+        hand,
+        message: format!(
             "the data do not determine the geometry: {} ({} of {} directions unobservable{}, condition {:.1e}); \
              involved: {}. Spread the poses through the whole workspace, in all three directions.{jig_hint}",
             if !null.is_empty() { "rank deficient" } else { "nearly rank deficient" },
@@ -872,28 +1033,43 @@ pub fn fit_hand(
             if gauge_dof > 0 { format!(" beyond the {gauge_dof} of the frame") } else { String::new() },
             condition,
             names.join(", ")
-        )));
-    }
+        ),
+    })
+}
 
-    // Covariance in the chosen gauge: sigma^2 (J^T J + G^T G)^-1.
-    let mut normal = jd.transpose() * &jd;
-    if let Some(g) = gauge.as_ref() {
+/// Covariance of the geometry in the chosen gauge: sigma^2 (J^T J + G^T G)^-1, plus what the jig
+/// points' tolerance propagates into it (the residuals cannot show that: the anchors absorb part
+/// of a displaced jig point).
+#[allow(clippy::too_many_arguments)]
+fn covariance(
+    hand: usize,
+    problem: &Problem<'_>,
+    jd: &DMatrix<f64>,
+    gauge: Option<&Gauge>,
+    size: &Size,
+    residuals: &[[f64; 4]],
+    weights: &[[f64; 4]],
+    opts: &FitOptions,
+) -> Result<DMatrix<f64>, CalibError> {
+    let mut normal = jd.transpose() * jd;
+    if let Some(g) = gauge {
         let jg = problem.gauge_jacobian(g);
         normal += jg.transpose() * jg;
     }
-    let redundancy = (m + gauge_dof) as f64 - layout.n_all() as f64;
+    let redundancy = (size.m + size.gauge_dof) as f64 - problem.layout.n_all() as f64;
     let wsum: f64 =
-        residuals.iter().zip(&weights).flat_map(|(r, w)| (0..4).map(move |i| w[i] * r[i] * r[i])).sum();
+        residuals.iter().zip(weights).flat_map(|(r, w)| (0..4).map(move |i| w[i] * r[i] * r[i])).sum();
     let s2 = (wsum / redundancy.max(1.0)).max(SIGMA_FLOOR_M * SIGMA_FLOOR_M);
-    let inv = normal.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| {
-        degenerate("the normal equations are singular although the rank check passed: report this".into())
+    let inv = normal.clone().cholesky().map(|c| c.inverse()).ok_or_else(|| CalibError::Degenerate {
+        hand,
+        message: "the normal equations are singular although the rank check passed: report this".into(),
     })?;
     let mut cov = &inv * s2;
-    if n_jig > 0 && opts.jig_tolerance_m > 0.0 {
+    if size.n_jig > 0 && opts.jig_tolerance_m > 0.0 {
         // A jig point is known to within its tolerance (and the holding tension moves the grip
-        // on it a little): propagate that into the geometry, which the residuals cannot show
-        // (the anchors absorb part of a displaced jig point).
-        let mut jp = DMatrix::zeros(jd.nrows(), 3 * n_jig);
+        // on it a little).
+        let obs = problem.obs;
+        let mut jp = DMatrix::zeros(jd.nrows(), 3 * size.n_jig);
         let mut col = 0;
         for k in (0..obs.len()).filter(|&k| obs[k].known_m.is_some()) {
             let p = problem.pose(k);
@@ -908,16 +1084,21 @@ pub fn fit_hand(
         let a = &inv * (jd.transpose() * jp);
         cov += (&a * a.transpose()) * opts.jig_tolerance_m.powi(2);
     }
-    let std = |col: usize| cov[(col, col)].max(0.0).sqrt();
+    Ok(cov)
+}
 
-    let x = &problem.x;
-    let mpc: [f64; 4] = std::array::from_fn(|i| problem.mpc(i));
-    let geometry = HandGeometry {
-        anchors_m: std::array::from_fn(|i| problem.anchor(i)),
-        length_at_zero_m: std::array::from_fn(|i| x[Layout::L + i] - mpc[i] * c_ref[i]),
-        metres_per_count: mpc,
-    };
-    let configured = HandGeometry { length_at_zero_m: start.length_at_zero_m, ..start };
+/// Every parameter's estimate, configured value, standard deviation and observability.
+fn param_reports(
+    hr: &HandRig,
+    problem: &Problem<'_>,
+    geometry: &HandGeometry,
+    cov: &DMatrix<f64>,
+    c_ref: [f64; 4],
+    gauge_dof: usize,
+    opts: &FitOptions,
+) -> Vec<ParamReport> {
+    let std = |col: usize| cov[(col, col)].max(0.0).sqrt();
+    let (x, mpc0, fit_mpc) = (&problem.x, hr.metres_per_count, problem.layout.fit_mpc);
     // In the free-pose gauge every anchor moves with the frame, and with the scale free the
     // lengths and metres per count scale with it (exactly: see the module doc).
     let in_gauge = |col: usize| gauge_dof > 0 && (col < 12 || gauge_dof == 7);
@@ -934,7 +1115,7 @@ pub fn fit_hand(
     for col in 0..12 {
         let s = std(col);
         params.push(ParamReport {
-            name: name(col),
+            name: param_name(col),
             value: x[col],
             configured: hr.anchors_m[col / 3][col % 3],
             std: s,
@@ -963,49 +1144,60 @@ pub fn fit_hand(
         });
     }
     if fit_mpc {
-        for i in 0..4 {
+        for (i, &m0) in mpc0.iter().enumerate() {
             let col = Layout::S + i;
-            let s = std(col) * mpc0[i].abs();
+            let s = std(col) * m0.abs();
             params.push(ParamReport {
                 name: format!("metres_per_count[{i}]"),
-                value: mpc[i],
-                configured: mpc0[i],
+                value: geometry.metres_per_count[i],
+                configured: m0,
                 std: s,
                 unit: "m/count",
                 status: status(col, std(col), 1e-4),
             });
         }
     }
-    let anchor_std_m = std::array::from_fn(|i| DVec3::new(std(3 * i), std(3 * i + 1), std(3 * i + 2)));
-    let poses_m: Vec<DVec3> = (0..obs.len()).map(|k| problem.pose(k)).collect();
+    params
+}
 
-    let gauge_note = (gauge_dof > 0).then(|| {
-        format!(
-            "from free poses alone the rig frame (3 translations, 3 rotations){} cannot be observed: lengths do not \
-             change when the whole rig moves{}. It was fixed to the configured anchors (same centroid, no rotation{} \
-             against them), so the anchors' absolute positions carry the configured anchors' common error; their \
-             shape, the lengths and the {} are determined. Add at least 4 jig points (not in one plane) to observe it.",
-            if fit_mpc { " and its scale" } else { "" },
-            if fit_mpc { " or grows with the metres per count" } else { "" },
-            if fit_mpc { ", no scaling" } else { "" },
-            if fit_mpc { "ratios of the metres per count" } else { "metres per count as configured" }
-        )
-    });
+/// What free poses alone leave unobservable, and how it was fixed.
+fn gauge_note(fit_mpc: bool) -> String {
+    format!(
+        "from free poses alone the rig frame (3 translations, 3 rotations){} cannot be observed: lengths do not \
+         change when the whole rig moves{}. It was fixed to the configured anchors (same centroid, no rotation{} \
+         against them), so the anchors' absolute positions carry the configured anchors' common error; their \
+         shape, the lengths and the {} are determined. Add at least 4 jig points (not in one plane) to observe it.",
+        if fit_mpc { " and its scale" } else { "" },
+        if fit_mpc { " or grows with the metres per count" } else { "" },
+        if fit_mpc { ", no scaling" } else { "" },
+        if fit_mpc { "ratios of the metres per count" } else { "metres per count as configured" }
+    )
+}
 
-    // What data would help.
+/// What data would help.
+fn advice(
+    params: &[ParamReport],
+    seen: &Seen,
+    size: &Size,
+    outliers: &[(usize, usize, f64)],
+    labels: &[String],
+    quality: &Quality,
+    fit_mpc: bool,
+) -> Vec<String> {
     let mut advice = Vec::new();
     let weak: Vec<&ParamReport> = params.iter().filter(|p| p.status == Observability::Weak).collect();
     if !weak.is_empty() {
+        let (v_t, smallest) = (&seen.v_t, seen.smallest);
         let mut cols: Vec<usize> = (0..if fit_mpc { 20 } else { 16 }).collect();
         cols.sort_by(|&a, &b| v_t[(smallest, b)].abs().total_cmp(&v_t[(smallest, a)].abs()));
         advice.push(format!(
             "weakly determined: {}; the least determined combination involves {}: spread the poses wider (closer to \
              and farther from those anchors) and add more of them",
             weak.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", "),
-            cols.iter().take(3).map(|&c| name(c)).collect::<Vec<_>>().join(", ")
+            cols.iter().take(3).map(|&c| param_name(c)).collect::<Vec<_>>().join(", ")
         ));
     }
-    if gauge_dof > 0 {
+    if size.gauge_dof > 0 {
         advice.push("add at least 4 jig points (not in one plane) to fix the rig frame and scale".into());
     }
     if !outliers.is_empty() {
@@ -1026,33 +1218,7 @@ pub fn fit_hand(
     if advice.is_empty() {
         advice.push("nothing: every parameter is determined to within the threshold".into());
     }
-
-    Ok(HandFit {
-        hand,
-        configured,
-        geometry,
-        anchor_std_m,
-        params,
-        labels,
-        poses_m,
-        residuals_m: residuals,
-        weights,
-        rms_m,
-        robust_sigma_m: sigma,
-        worst_pose,
-        outliers,
-        n_jig,
-        n_free,
-        n_params: layout.n_all(),
-        rank,
-        gauge_dof,
-        gauge_note,
-        condition,
-        advice,
-        quality,
-        lm_evaluations: evaluations,
-        irls_rounds: rounds,
-    })
+    advice
 }
 
 impl HandFit {

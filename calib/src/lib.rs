@@ -6,21 +6,22 @@
 //! position and force the rig renders depends on that geometry, so it is measured here, from
 //! counts recorded with the grip at many poses, with its uncertainty and observability stated.
 //!
-//! What it must never do: run inside the 1 kHz tick (nothing here is real-time; recording drives
-//! the device on its own, with the strings at minimum tension only), return a geometry that the
-//! data do not determine without saying so (degenerate data is an error, weakly determined
-//! parameters are named), or leave a half-written rig file (see [`rigfile`]).
+//! What it must never do: run inside the 1 kHz tick or drive a device (nothing here is
+//! real-time: recording reads the tick records of the rt-loop, which holds the strings at minimum
+//! tension under its own rules, `TickCore::calibrate`), return a geometry that the data do not
+//! determine without saying so (degenerate data is an error, weakly determined parameters are
+//! named), or leave a half-written rig file (see [`rigfile`]).
 //!
-//! Flow: [`record`] (any `Device` behind a [`link::Link`]; [`sim`] builds a simulated rig with a
-//! wrong-on-purpose truth) -> [`session::SessionFile`] (RON, saved after every pose) -> [`fit`]
-//! with its [`quality`] verdict -> report text and [`plot`] SVGs -> [`rigfile`] update (written as
-//! [`safefile`] says) -> [`verify`] at check points.
+//! Flow: [`record`] (the loop's records through [`ticks::Ticks`]: a [`ticks::VirtualLoop`] here,
+//! or the real-time loop of `spidar-runtime`'s calibration session; [`sim`] builds a simulated rig
+//! with a wrong-on-purpose truth) -> [`session::SessionFile`] (RON, saved after every pose) ->
+//! [`fit`] with its [`quality`] verdict -> report text and [`plot`] SVGs -> [`rigfile`] update
+//! (written as [`safefile`] says) -> [`verify`] at check points.
 
 pub mod console;
 pub mod display;
 pub mod fit;
 pub mod jig;
-pub mod link;
 pub mod model;
 pub mod plot;
 pub mod quality;
@@ -29,6 +30,7 @@ pub mod rigfile;
 pub mod safefile;
 pub mod session;
 pub mod sim;
+pub mod ticks;
 pub mod verify;
 
 pub use fit::{fit_hand, FitOptions, HandFit};

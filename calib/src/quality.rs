@@ -10,8 +10,8 @@
 //! order names the cause:
 //! - a *slip*: one string's residual steps at one pose and stays (the string slipped on its pulley,
 //!   so every later count has another zero);
-//! - a *creep*: one string's residual drifts with the pose number (the string stretches or slips a
-//!   little at each pose);
+//! - a *creep*: one string's residual drifts with the pose number, from the first pose or from
+//!   a later one on (the string stretches or slips a little at each pose, once it started);
 //! - an *outlier*: one pose disagrees (the grip moved while it was averaged, a string was briefly
 //!   slack, the wrong jig point).
 //!
@@ -20,7 +20,7 @@
 //! are the geometry's directions (the fit absorbs those too): what is left is the part of the
 //! data the model cannot explain, chi-square distributed with `dof` degrees of freedom if the data
 //! are only noise. Each candidate cause is a column (a step in string i at pose k, a ramp in string
-//! i, one reading) projected the same way; the one that explains most of what is left is taken
+//! i from pose k on, one reading) projected the same way; the one that explains most of what is left is taken
 //! (a linearised likelihood-ratio test), and the search repeats on the rest until the residual
 //! is down to the noise or nothing explains enough.
 //!
@@ -33,7 +33,7 @@ use nalgebra::{DMatrix, DVector};
 /// A cause after the first must explain at least this share of the residual above the noise.
 const MIN_SHARE: f64 = 0.01;
 
-/// Thresholds of the data-quality check (part of [`crate::fit::FitOptions`]).
+/// Thresholds of the data-quality check (the fit options carry one).
 #[derive(Clone, Debug, PartialEq)]
 pub struct QualityOptions {
     /// The residual is "well above the noise" when its RMS, in units of the noise measured at
@@ -83,8 +83,8 @@ pub enum Cause {
     /// `string` reads `size_m` longer in poses `from..=to` only (slack for a while, or it slipped
     /// and slipped back).
     Burst { string: Option<usize>, from: usize, to: usize, size_m: f64 },
-    /// `string` reads `per_pose_m` longer with every pose, in recording order.
-    Creep { string: Option<usize>, per_pose_m: f64 },
+    /// `string` reads `per_pose_m` longer with every pose from pose `from` on, in recording order.
+    Creep { string: Option<usize>, from: usize, per_pose_m: f64 },
     /// Pose `pose` disagrees with the rest by `size_m` (on `string` when the data single it out).
     Outlier { pose: usize, string: Option<usize>, size_m: f64 },
 }
@@ -152,12 +152,16 @@ impl Quality {
                     pose(*to),
                     to - from + 1
                 ),
-                Cause::Creep { string, per_pose_m } => format!(
-                    "creep: hand {hand} {} reads {:+.3} mm more with every pose in recording order ({strength}): \
-                     the string stretches or slips slowly on its pulley. Tension or replace it, then record hand \
-                     {hand} again",
+                Cause::Creep { string, from, per_pose_m } => format!(
+                    "creep: hand {hand} {} reads {:+.3} mm more with every pose {} ({strength}): the string \
+                     stretches or slips slowly on its pulley. Tension or replace it, then record hand {hand} again",
                     which(string),
-                    per_pose_m * 1e3
+                    per_pose_m * 1e3,
+                    if *from == 0 {
+                        "in recording order".to_string()
+                    } else {
+                        format!("from {} on, in recording order", pose(*from))
+                    }
                 ),
                 Cause::Outlier { pose: k, string, size_m } => format!(
                     "outlier: {} disagrees with the other poses by {:.2} mm on {} ({strength}): the grip moved while \
@@ -184,9 +188,6 @@ pub(crate) struct Design {
     pub singles: DMatrix<f64>,
     /// Size (squared) of each reading's column before any projection.
     pub singles_raw: Vec<f64>,
-    /// One column per string: its reading grows with the pose number.
-    pub drifts: DMatrix<f64>,
-    pub drifts_raw: Vec<f64>,
     /// Poses.
     pub n: usize,
     /// Readings minus free-pose unknowns.
@@ -194,26 +195,17 @@ pub(crate) struct Design {
     pub noise_rms_m: f64,
 }
 
-/// A candidate cause: string `string`'s readings off in poses `from..=to`, or drifting.
+/// A candidate cause in one string's readings: off in poses `from..=to`, or growing by the same
+/// amount with every pose from pose `from` on (a creep that starts there; 0: from the first).
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Shape {
     Boxed { from: usize, to: usize },
-    Drift,
+    Ramp { from: usize },
 }
 
 /// Judges the residual against the noise and looks for its causes.
 pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
-    let Design {
-        geometry,
-        mut residual,
-        mut singles,
-        singles_raw,
-        mut drifts,
-        drifts_raw,
-        n,
-        rows_dof,
-        noise_rms_m,
-    } = d;
+    let Design { geometry, mut residual, mut singles, singles_raw, n, rows_dof, noise_rms_m } = d;
     // Orthonormal basis of what the geometry can absorb.
     let svd = geometry.svd(true, false);
     let u = svd.u.expect("requested");
@@ -223,7 +215,6 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
     let basis = u.select_columns(&keep);
     residual -= &basis * (basis.transpose() * &residual);
     singles -= &basis * (basis.transpose() * &singles);
-    drifts -= &basis * (basis.transpose() * &drifts);
     let dof = rows_dof.saturating_sub(keep.len()).max(1);
     let chi2 = residual.norm_squared();
     let ratio = (chi2 / dof as f64).sqrt();
@@ -232,13 +223,13 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
     while (left / dof.saturating_sub(findings.len()).max(1) as f64).sqrt() > opts.max_noise_ratio
         && findings.len() < opts.max_causes
     {
-        let scores = Scores::new(&singles, &singles_raw, &drifts, &drifts_raw, &residual, n);
+        let scores = Scores::new(&singles, &singles_raw, &residual, n);
         let Some((string, shape, drop)) = scores.best() else { break };
         // Too weak, or (after the first) a crumb: what the linearisation leaves of a large cause.
         if drop.sqrt() < opts.min_sigmas || (!findings.is_empty() && drop < MIN_SHARE * (chi2 - dof as f64)) {
             break;
         }
-        let c = scores.column(&drifts, string, shape);
+        let c = scores.column(string, shape);
         let n2 = c.norm_squared();
         let size = c.dot(&residual) / n2;
         // The string is named when the data prefer it clearly (by the same margin a cause needs)
@@ -247,7 +238,7 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
         let rival = (0..4).filter(|&j| j != string).map(|j| scores.drop(j, shape)).fold(0.0, f64::max);
         let named = (drop - rival >= opts.min_sigmas * opts.min_sigmas).then_some(string);
         let cause = match shape {
-            Shape::Drift => Cause::Creep { string: named, per_pose_m: size },
+            Shape::Ramp { from } => Cause::Creep { string: named, from, per_pose_m: size },
             Shape::Boxed { from, to } if from == to => {
                 Cause::Outlier { pose: from, string: named, size_m: size }
             }
@@ -260,7 +251,6 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
         let unit = &c / n2.sqrt();
         residual -= &unit * unit.dot(&residual);
         singles -= &unit * (unit.transpose() * &singles);
-        drifts -= &unit * (unit.transpose() * &drifts);
         left = residual.norm_squared();
     }
     let ratio_after = (left / dof.saturating_sub(findings.len()).max(1) as f64).sqrt();
@@ -269,7 +259,9 @@ pub(crate) fn analyse(d: Design, opts: &QualityOptions) -> Quality {
 
 /// The chi-square drop of every candidate on what is left. A box of readings `from..=to` of one
 /// string is a difference of two prefix sums of its reading columns, so its dot products come from
-/// the prefix sums' Gram matrix: every box of every string costs one small matrix product.
+/// the prefix sums' Gram matrix: every box of every string costs one small matrix product. A ramp
+/// from pose f is the sum of the steps after it (`sum over k > f of (k - f) reading_k`), built
+/// from the prefix sums from the last pose back.
 struct Scores {
     n: usize,
     /// Per string: prefix sums of its reading columns (column k: readings 0..k).
@@ -278,24 +270,27 @@ struct Scores {
     dot_r: Vec<DVector<f64>>,
     gram: Vec<DMatrix<f64>>,
     raw: Vec<Vec<f64>>,
-    drift_dot: [f64; 4],
-    drift_n2: [f64; 4],
-    drift_raw: [f64; 4],
+    /// Per string: the ramp columns (column f: the ramp from pose f), their dot products with
+    /// the residual, squared sizes, and raw sizes.
+    ramps: Vec<DMatrix<f64>>,
+    ramp_dot: Vec<Vec<f64>>,
+    ramp_n2: Vec<Vec<f64>>,
+    ramp_raw: Vec<Vec<f64>>,
 }
 
 impl Scores {
-    fn new(
-        singles: &DMatrix<f64>,
-        singles_raw: &[f64],
-        drifts: &DMatrix<f64>,
-        drifts_raw: &[f64],
-        r: &DVector<f64>,
-        n: usize,
-    ) -> Scores {
-        let mut prefix = Vec::new();
-        let mut dot_r = Vec::new();
-        let mut gram = Vec::new();
-        let mut raw = Vec::new();
+    fn new(singles: &DMatrix<f64>, singles_raw: &[f64], r: &DVector<f64>, n: usize) -> Scores {
+        let mut s = Scores {
+            n,
+            prefix: Vec::new(),
+            dot_r: Vec::new(),
+            gram: Vec::new(),
+            raw: Vec::new(),
+            ramps: Vec::new(),
+            ramp_dot: Vec::new(),
+            ramp_n2: Vec::new(),
+            ramp_raw: Vec::new(),
+        };
         for i in 0..4 {
             let mut p = DMatrix::zeros(singles.nrows(), n + 1);
             let mut rr = vec![0.0; n + 1];
@@ -304,21 +299,24 @@ impl Scores {
                 p.set_column(k + 1, &next);
                 rr[k + 1] = rr[k] + singles_raw[i * n + k];
             }
-            dot_r.push(p.transpose() * r);
-            gram.push(p.transpose() * &p);
-            prefix.push(p);
-            raw.push(rr);
+            // ramp(f) = ramp(f + 1) + (readings f+1 .. n-1), ramp(n - 1) = 0.
+            let mut q = DMatrix::zeros(singles.nrows(), n);
+            let mut q_raw = vec![0.0; n];
+            for f in (0..n.saturating_sub(1)).rev() {
+                let next = q.column(f + 1) + (p.column(n) - p.column(f + 1));
+                q.set_column(f, &next);
+                q_raw[f] = (f + 1..n).map(|k| ((k - f) as f64).powi(2) * singles_raw[i * n + k]).sum();
+            }
+            s.ramp_dot.push((0..n).map(|f| q.column(f).dot(r)).collect());
+            s.ramp_n2.push((0..n).map(|f| q.column(f).norm_squared()).collect());
+            s.ramp_raw.push(q_raw);
+            s.ramps.push(q);
+            s.dot_r.push(p.transpose() * r);
+            s.gram.push(p.transpose() * &p);
+            s.prefix.push(p);
+            s.raw.push(rr);
         }
-        Scores {
-            n,
-            prefix,
-            dot_r,
-            gram,
-            raw,
-            drift_dot: std::array::from_fn(|i| drifts.column(i).dot(r)),
-            drift_n2: std::array::from_fn(|i| drifts.column(i).norm_squared()),
-            drift_raw: std::array::from_fn(|i| drifts_raw[i]),
-        }
+        s
     }
 
     /// Boxes worth testing: every run of poses except the whole session (a constant, which the
@@ -330,9 +328,15 @@ impl Scores {
         })
     }
 
+    /// Ramps worth testing: from every pose that leaves at least two poses after it (a ramp from
+    /// the last but one is the last pose alone: a box already).
+    fn ramp_starts(n: usize) -> std::ops::Range<usize> {
+        0..n.saturating_sub(2)
+    }
+
     fn drop(&self, i: usize, shape: Shape) -> f64 {
         let (dot, n2, raw) = match shape {
-            Shape::Drift => (self.drift_dot[i], self.drift_n2[i], self.drift_raw[i]),
+            Shape::Ramp { from } => (self.ramp_dot[i][from], self.ramp_n2[i][from], self.ramp_raw[i][from]),
             Shape::Boxed { from, to } => {
                 let (a, b) = (from, to + 1);
                 let g = &self.gram[i];
@@ -354,8 +358,9 @@ impl Scores {
     fn best(&self) -> Option<(usize, Shape, f64)> {
         let mut best: Option<(usize, Shape, f64)> = None;
         for i in 0..4 {
-            let shapes =
-                Scores::boxes(self.n).map(|(from, to)| Shape::Boxed { from, to }).chain([Shape::Drift]);
+            let shapes = Scores::boxes(self.n)
+                .map(|(from, to)| Shape::Boxed { from, to })
+                .chain(Scores::ramp_starts(self.n).map(|from| Shape::Ramp { from }));
             for shape in shapes {
                 let d = self.drop(i, shape);
                 if best.is_none_or(|b| d > b.2) {
@@ -367,9 +372,9 @@ impl Scores {
     }
 
     /// The projected column of a candidate.
-    fn column(&self, drifts: &DMatrix<f64>, i: usize, shape: Shape) -> DVector<f64> {
+    fn column(&self, i: usize, shape: Shape) -> DVector<f64> {
         match shape {
-            Shape::Drift => drifts.column(i).clone_owned(),
+            Shape::Ramp { from } => self.ramps[i].column(from).clone_owned(),
             Shape::Boxed { from, to } => self.prefix[i].column(to + 1) - self.prefix[i].column(from),
         }
     }

@@ -14,27 +14,25 @@
 //! Sessions survive: every kept pose is handed to a `save` callback at once (the caller writes
 //! the session file atomically), a resumed session continues where it stopped after checking at
 //! the home point that the counters are still the ones it was recorded with, a pose whose grip
-//! would not keep still is asked for again instead of ending the session, and a late reply is
-//! left out and retried ([`crate::link`]).
+//! would not keep still is asked for again instead of ending the session, and a tick whose reply
+//! the rt-loop did not take (late, corrupt, a count that jumped) is left out ([`crate::ticks`]).
 //!
-//! What it must never do: render force. While recording, every string is held at the rig's
-//! minimum tension (`tension_min_n`, volts from the configured `volts_per_newton`), which keeps
-//! the strings taut and pulls the grip with at most a few newtons; the device is deactivated
-//! (zero output) when recording ends or fails. It works against any [`Device`]; on the simulated
-//! rig the [`SimOperator`] moves a scripted hand where a person would move the grip.
+//! What it must never do: drive the device. The rt-loop does, calibrating
+//! (`TickCore::calibrate`): every string at the rig's minimum tension with zero net force, the
+//! same rules for replies as `spidar run`, and its switch-off (zero output) when recording ends
+//! or fails. This only reads the loop's tick records; on the simulated rig the [`SimOperator`]
+//! moves a scripted hand where a person would move the grip.
 
 use std::collections::VecDeque;
 
 use glam::DVec3;
-use spidar_device::sim::{Script, Segment, SimRig};
-use spidar_device::Device;
+use spidar_device::sim::{Script, Segment};
 use spidar_rt::Rig;
 
 use crate::jig::JigFile;
-pub use crate::link::holding_output;
-use crate::link::{Link, LinkStats, StopCheck};
 use crate::model::HandGeometry;
 use crate::session::{PoseKind, PoseRecord, SessionFile, SessionPlan};
+use crate::ticks::{LoopStats, SimulatedRig, StopCheck, TickSource, Ticks, VirtualLoop};
 use crate::CalibError;
 
 /// What the operator is asked to do.
@@ -76,12 +74,12 @@ pub enum Answer {
 }
 
 /// The person (or script) that moves the grip.
-pub trait Operator<D: Device> {
+pub trait Operator<S: TickSource> {
     /// Ask for `req` on `hand`'s grip. Returns once the operator says the grip is there (a real
     /// operator: presses Enter) or that this free pose is skipped; stillness is then checked by
-    /// the recorder. An operator who waits keeps `link` ticking (strings held at minimum
-    /// tension, stop requests seen); aborting returns [`CalibError::Aborted`].
-    fn request(&mut self, link: &mut Link<D>, hand: usize, req: &Request) -> Result<Answer, CalibError>;
+    /// the recorder. An operator who waits keeps reading `ticks` (the loop's records do not pile
+    /// up, stop requests and a lost board are seen); aborting returns [`CalibError::Aborted`].
+    fn request(&mut self, ticks: &mut Ticks<S>, hand: usize, req: &Request) -> Result<Answer, CalibError>;
     /// Progress lines and warnings for the operator.
     fn tell(&mut self, line: &str);
 }
@@ -100,9 +98,13 @@ impl SimOperator {
     }
 }
 
-impl Operator<SimRig> for SimOperator {
-    fn request(&mut self, link: &mut Link<SimRig>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
-        let dev = link.device();
+impl<S: TickSource + SimulatedRig> Operator<S> for SimOperator {
+    fn request(&mut self, ticks: &mut Ticks<S>, hand: usize, req: &Request) -> Result<Answer, CalibError> {
+        let Some(dev) = ticks.source_mut().sim_rig() else {
+            return Err(CalibError::Options(
+                "the simulated user moves the grips of the simulated rig only (--device sim)".into(),
+            ));
+        };
         let to = match req {
             Request::Home { at_m } | Request::Jig { at_m, .. } => *at_m,
             Request::Free { suggest_m, .. } => *suggest_m,
@@ -154,11 +156,8 @@ pub struct RecordOptions {
     /// A pose whose lengths are inconsistent by more than this with the current geometry (RMS
     /// residual of the position solve) draws a slack warning.
     pub slack_residual_m: f64,
-    /// Sleep one tick period between exchanges (a real device paced by the wall clock). The
-    /// simulated rig's time is its exchange count, so it runs unpaced.
-    pub pace: bool,
     /// The board counts as lost when no exchange succeeded for this long (late or bad replies
-    /// before that are retried and counted).
+    /// before that are left out and counted).
     pub lost_after_s: f64,
     /// Resuming a session: at the home point the lengths must read within this (RMS over the
     /// strings) of the session's home pose, or the counters are not the ones it was recorded with.
@@ -178,7 +177,6 @@ impl Default for RecordOptions {
             attempts: 3,
             min_separation_m: 0.02,
             slack_residual_m: 0.05,
-            pace: false,
             lost_after_s: 2.0,
             resume_max_offset_m: 0.02,
         }
@@ -330,9 +328,10 @@ pub fn is_still(buf: &[[i64; 4]], block: usize, range_counts: &[f64; 4]) -> bool
     })
 }
 
-/// Drives a device for recording: strings at minimum tension, counts read once per tick.
-pub struct Recorder<'r, D: Device> {
-    link: Link<D>,
+/// Records from a calibrating rt-loop's ticks (strings at minimum tension, counts read once per
+/// tick).
+pub struct Recorder<'r, S: TickSource> {
+    ticks: Ticks<S>,
     rig: &'r Rig,
     opts: RecordOptions,
     /// Geometry used for the checks: configured anchors, lengths at zero from the home pose.
@@ -340,39 +339,42 @@ pub struct Recorder<'r, D: Device> {
     warnings: Vec<String>,
 }
 
-impl<'r, D: Device> Recorder<'r, D> {
-    /// Opens and activates the device with every string of the rig at minimum tension.
-    pub fn new(mut dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
+impl<'r, D: spidar_device::Device> Recorder<'r, VirtualLoop<D>> {
+    /// Records from `dev` through a calibrating loop on this thread and the virtual clock
+    /// ([`VirtualLoop`]); `opened`: the device was opened already.
+    pub fn on_virtual_loop(
+        dev: D,
+        rig: &'r Rig,
+        opts: RecordOptions,
+        opened: bool,
+    ) -> Result<Recorder<'r, VirtualLoop<D>>, CalibError> {
         opts.check()?;
-        dev.open()?;
-        Recorder::opened(dev, rig, opts)
+        Recorder::new(VirtualLoop::start(dev, rig, opened)?, rig, opts)
     }
+}
 
-    /// As [`Recorder::new`] for a device already opened (a board opened with detailed errors):
-    /// opening again would enumerate the boards twice.
-    pub fn opened(dev: D, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, D>, CalibError> {
+impl<'r, S: TickSource> Recorder<'r, S> {
+    /// Records from `source`, a calibrating loop already running (its strings at minimum
+    /// tension).
+    pub fn new(source: S, rig: &'r Rig, opts: RecordOptions) -> Result<Recorder<'r, S>, CalibError> {
         opts.check()?;
-        let link = Link::activate(dev, rig, opts.pace, opts.lost_after_s)?;
+        let ticks = Ticks::new(source, rig, opts.lost_after_s);
         let check_geometry = [0, 1].map(|h| HandGeometry::from_rig(&rig.hands[h]));
-        Ok(Recorder { link, rig, opts, check_geometry, warnings: Vec::new() })
+        Ok(Recorder { ticks, rig, opts, check_geometry, warnings: Vec::new() })
     }
 
     /// Polls `stop` every tick: when it says so, the session ends with [`CalibError::Interrupted`].
     pub fn set_stop(&mut self, stop: StopCheck) {
-        self.link.set_stop(stop);
+        self.ticks.set_stop(stop);
     }
 
-    pub fn link(&mut self) -> &mut Link<D> {
-        &mut self.link
+    pub fn ticks(&mut self) -> &mut Ticks<S> {
+        &mut self.ticks
     }
 
-    pub fn device(&mut self) -> &mut D {
-        self.link.device()
-    }
-
-    /// Exchanges so far, and the late or bad replies that were retried.
-    pub fn link_stats(&self) -> LinkStats {
-        self.link.stats()
+    /// What the loop's records showed so far: ticks, replies left out, count jumps, faults.
+    pub fn loop_stats(&self) -> LoopStats {
+        self.ticks.stats()
     }
 
     /// Warnings given so far (also told to the operator).
@@ -380,12 +382,17 @@ impl<'r, D: Device> Recorder<'r, D> {
         &self.warnings
     }
 
-    /// Switches the outputs off and hands the device back.
-    pub fn finish(self) -> Result<D, CalibError> {
-        self.link.finish()
+    /// Ends the loop (its switch-off) and hands the source back.
+    pub fn finish(self) -> Result<S, CalibError> {
+        self.ticks.finish()
     }
 
-    fn ticks(&self, s: f64) -> usize {
+    /// Ends the loop (its switch-off), keeping the recorder (to report after an error).
+    pub fn switch_off(&mut self) -> Result<(), CalibError> {
+        self.ticks.switch_off()
+    }
+
+    fn ticks_of(&self, s: f64) -> usize {
         (s / self.rig.period_s).round().max(1.0) as usize
     }
 
@@ -397,19 +404,18 @@ impl<'r, D: Device> Recorder<'r, D> {
         hand: usize,
         tell: &mut dyn FnMut(&str),
     ) -> Result<Option<Still>, CalibError> {
-        let ch = self.rig.hands[hand].channels;
         let mpc = self.rig.hands[hand].metres_per_count;
-        let window = self.ticks(self.opts.still_window_s);
-        let avg = self.ticks(self.opts.average_s);
-        let max_avg = self.ticks(self.opts.max_average_s).max(avg);
-        let block = self.ticks(self.opts.block_s);
-        let timeout = self.ticks(self.opts.timeout_s);
+        let window = self.ticks_of(self.opts.still_window_s);
+        let avg = self.ticks_of(self.opts.average_s);
+        let max_avg = self.ticks_of(self.opts.max_average_s).max(avg);
+        let block = self.ticks_of(self.opts.block_s);
+        let timeout = self.ticks_of(self.opts.timeout_s);
         let range_counts: [f64; 4] = std::array::from_fn(|i| self.opts.still_range_m / mpc[i].abs());
         let mut recent: VecDeque<[i64; 4]> = VecDeque::with_capacity(window + max_avg + 1);
         for tick in 0..timeout {
-            // A late or bad reply leaves this tick's sample out.
-            let Some(inp) = self.link.tick()? else { continue };
-            recent.push_back(ch.map(|k| inp.counts[k]));
+            // A tick the loop did not take (late, bad, jumped, faulted) leaves its sample out.
+            let Some(counts) = self.ticks.tick()?.hands[hand] else { continue };
+            recent.push_back(counts);
             if recent.len() > window + max_avg {
                 recent.pop_front();
             }
@@ -458,7 +464,7 @@ impl<'r, D: Device> Recorder<'r, D> {
     }
 
     /// Records one pose. `Ok(None)`: skipped, or refused (the reason was told); ask for another.
-    pub fn record_pose<O: Operator<D>>(
+    pub fn record_pose<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         hand: usize,
@@ -466,7 +472,7 @@ impl<'r, D: Device> Recorder<'r, D> {
         earlier: &[PoseRecord],
     ) -> Result<Option<PoseRecord>, CalibError> {
         check_hand(hand)?;
-        if op.request(&mut self.link, hand, req)? == Answer::Skip {
+        if op.request(&mut self.ticks, hand, req)? == Answer::Skip {
             op.tell("  skipped");
             return Ok(None);
         }
@@ -552,7 +558,7 @@ impl<'r, D: Device> Recorder<'r, D> {
 
     /// Records a home or jig point (which cannot be skipped), asking again while it is refused,
     /// up to `attempts` times.
-    fn record_required<O: Operator<D>>(
+    fn record_required<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         hand: usize,
@@ -578,7 +584,7 @@ impl<'r, D: Device> Recorder<'r, D> {
     /// the counters are checked at the home point first). Free poses that are refused are
     /// replaced by the next suggestion (at most twice as many attempts as poses asked for).
     /// On any error `session` holds every pose kept so far (and `save` has seen them).
-    pub fn record_plan<O: Operator<D>>(
+    pub fn record_plan<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         plan: &Plan,
@@ -649,14 +655,14 @@ impl<'r, D: Device> Recorder<'r, D> {
                 self.warn(&mut |s| op.tell(s), line);
             }
             // Back home, so the grip is where the next hand's operator expects it.
-            op.request(&mut self.link, hand, &home)?;
+            op.request(&mut self.ticks, hand, &home)?;
         }
         Ok(())
     }
 
     /// Records `plan` into a new session kept in memory only (tests, benchmarks; the command
     /// line saves after every pose with [`Recorder::record_plan`]).
-    pub fn record_session<O: Operator<D>>(
+    pub fn record_session<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         plan: &Plan,
@@ -670,7 +676,7 @@ impl<'r, D: Device> Recorder<'r, D> {
 
     /// A resumed hand: the grip back at the home point must read the lengths of the session's
     /// home pose, or the counters are not the ones the session was recorded with.
-    fn check_resume<O: Operator<D>>(
+    fn check_resume<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         hand: usize,
@@ -708,7 +714,7 @@ impl<'r, D: Device> Recorder<'r, D> {
 
     /// Records the grip at `req` without the checks (homing, verification), asking again while
     /// it does not keep still (up to `attempts` times).
-    pub fn record_at<O: Operator<D>>(
+    pub fn record_at<O: Operator<S> + ?Sized>(
         &mut self,
         op: &mut O,
         hand: usize,
@@ -716,7 +722,7 @@ impl<'r, D: Device> Recorder<'r, D> {
     ) -> Result<([f64; 4], [f64; 4]), CalibError> {
         check_hand(hand)?;
         for attempt in 1..=self.opts.attempts {
-            if op.request(&mut self.link, hand, req)? == Answer::Skip {
+            if op.request(&mut self.ticks, hand, req)? == Answer::Skip {
                 return Err(CalibError::Recording(format!(
                     "hand {hand}: {req}: this point cannot be skipped"
                 )));

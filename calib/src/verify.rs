@@ -5,12 +5,12 @@
 //! `check_points`, recorded afresh.
 
 use glam::DVec3;
-use spidar_device::Device;
 use spidar_rt::Rig;
 
 use crate::jig::JigFile;
 use crate::model::HandGeometry;
 use crate::record::{Operator, Recorder, Request};
+use crate::ticks::TickSource;
 use crate::CalibError;
 
 #[derive(Clone, Debug)]
@@ -74,8 +74,8 @@ impl std::fmt::Display for VerifyReport {
 }
 
 /// Records every check point of `hands` with `geometry` and reports the position error.
-pub fn verify<D: Device, O: Operator<D>>(
-    rec: &mut Recorder<'_, D>,
+pub fn verify<S: TickSource, O: Operator<S> + ?Sized>(
+    rec: &mut Recorder<'_, S>,
     op: &mut O,
     rig: &Rig,
     geometry: &[HandGeometry; 2],
@@ -105,7 +105,7 @@ pub fn verify<D: Device, O: Operator<D>>(
         });
     }
     for &h in hands {
-        op.request(rec.link(), h, &Request::Home { at_m: rig.hands[h].home_m })?;
+        op.request(rec.ticks(), h, &Request::Home { at_m: rig.hands[h].home_m })?;
     }
     Ok(report)
 }

@@ -10,9 +10,9 @@
 use glam::DVec3;
 use spidar_calib::fit::{fit_hand, observations, FitOptions};
 use spidar_calib::jig::JigFile;
-use spidar_calib::link::Link;
 use spidar_calib::record::{Answer, Operator, Plan, RecordOptions, Recorder, Request};
 use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
+use spidar_calib::ticks::{Ticks, VirtualLoop};
 use spidar_calib::CalibError;
 use spidar_device::sim::{Script, Segment, SimRig};
 use spidar_rt::Rig;
@@ -24,10 +24,10 @@ type Garbling = spidar_testkit::Garbling<SimRig>;
 /// Moves the simulated hand to each requested point (a reach at arm speed, then holds it).
 struct Hand;
 
-impl Operator<Garbling> for Hand {
+impl Operator<VirtualLoop<Garbling>> for Hand {
     fn request(
         &mut self,
-        link: &mut Link<Garbling>,
+        ticks: &mut Ticks<VirtualLoop<Garbling>>,
         hand: usize,
         req: &Request,
     ) -> Result<Answer, CalibError> {
@@ -35,7 +35,7 @@ impl Operator<Garbling> for Hand {
             Request::Home { at_m } | Request::Jig { at_m, .. } => *at_m,
             Request::Free { suggest_m, .. } => *suggest_m,
         };
-        let dev = &mut link.device().inner;
+        let dev = &mut ticks.source_mut().device_mut().inner;
         let from = dev.truth().hands[hand].pos_m;
         let script = Script::from_segments(
             vec![
@@ -57,7 +57,7 @@ fn garbled_session(rig: &Rig) -> (f64, bool, u64, u64) {
     let opts = SimTruthOptions { seed: 21, anchor_error_m: 0.03, mpc_error: 0.05, noise_counts: 0.5 };
     let truth = truth_geometry(rig, &opts);
     let dev = Garbling::new(sim_rig(rig, &truth, opts.noise_counts, opts.seed).unwrap(), 0.02, 64, 99);
-    let mut rec = Recorder::new(dev, rig, RecordOptions::default()).unwrap();
+    let mut rec = Recorder::on_virtual_loop(dev, rig, RecordOptions::default(), false).unwrap();
     let jig = JigFile::load(std::path::Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../configs/jig-spidar-h.ron"
@@ -66,8 +66,8 @@ fn garbled_session(rig: &Rig) -> (f64, bool, u64, u64) {
     let plan =
         Plan { hands: vec![0], jig: Some(jig), free_per_hand: 10, free_half_extent_m: DVec3::splat(0.3) };
     let session = rec.record_session(&mut Hand, &plan, "garbling").unwrap();
-    let jumps = rec.link_stats().count_jumps;
-    let garbled = rec.finish().unwrap().garbled;
+    let jumps = rec.loop_stats().count_jumps;
+    let garbled = rec.finish().unwrap().into_device().garbled;
     assert_eq!(session.poses.len(), 19, "home, 8 jig points, 10 free poses");
     let fit = fit_hand(0, &rig.hands[0], &observations(&session, 0), &FitOptions::default()).unwrap();
     let worst = (0..4).map(|i| fit.geometry.anchors_m[i].distance(truth[0].anchors_m[i])).fold(0.0, f64::max);

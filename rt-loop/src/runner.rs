@@ -197,6 +197,8 @@ pub struct RtLoop<D: Device, C: Clock> {
     beats: u64,
     /// Stopped at once by the lifeline's halt flag (no ramp-out).
     halted: bool,
+    /// What the switch-off at the end said, if it failed (the zero may not have reached the boards).
+    off_error: Option<DeviceError>,
 }
 
 impl<D: Device, C: Clock> RtLoop<D, C> {
@@ -228,6 +230,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             carry: None,
             beats: 0,
             halted: false,
+            off_error: None,
         })
     }
 
@@ -235,6 +238,12 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     /// first deadline one period from now. Not real-time; call before the first tick.
     pub fn configure(&mut self) -> Result<(), DeviceError> {
         self.dev.open()?;
+        self.configure_opened()
+    }
+
+    /// As [`RtLoop::configure`] for a device opened already (boards opened with detailed errors:
+    /// opening them again would enumerate them twice).
+    pub fn configure_opened(&mut self) -> Result<(), DeviceError> {
         self.dev.activate()?;
         // Prime with zero output and one read so the first tick starts from real counts. A late
         // or garbled reply is no reason to give up here either: a few more tries.
@@ -281,6 +290,15 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     /// The loop was stopped at once by the lifeline's halt flag: outputs zeroed, no ramp-out.
     pub fn halted(&self) -> bool {
         self.halted
+    }
+    /// The device's error when the loop switched it off at its end (None: it said it did).
+    pub fn off_error(&self) -> Option<DeviceError> {
+        self.off_error
+    }
+    /// Makes this the calibration's loop (`TickCore::calibrate`): Inactive for good, strings at
+    /// minimum tension, counts checked step by step. Before the first tick.
+    pub fn calibrate(&mut self) {
+        self.core.calibrate();
     }
     /// Gives the loop a heartbeat and halt flag (before it runs; `Endpoints::lifeline` does the same).
     pub fn set_lifeline(&mut self, lifeline: &'static Lifeline) {
@@ -371,7 +389,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
             self.stop_hold += 1;
             if self.stop_hold >= STOP_HOLD_TICKS {
                 // Strings have been at minimum tension with zero net force; now switch off.
-                let _ = self.dev.deactivate();
+                self.off_error = self.dev.deactivate().err();
                 self.finished = true;
                 if let Some(link) = self.ep.link.as_mut() {
                     link.close();
@@ -416,7 +434,7 @@ impl<D: Device, C: Clock> RtLoop<D, C> {
     /// Stops at once: zero output, device off, the world told goodbye (the second stop signal).
     fn halt(&mut self) {
         self.out = Output::default();
-        let _ = self.dev.deactivate();
+        self.off_error = self.dev.deactivate().err();
         self.finished = true;
         self.halted = true;
         if let Some(link) = self.ep.link.as_mut() {

@@ -9,6 +9,8 @@
 //! - Worlds: `child_world` (a `spidar world` child process, watched and restarted),
 //!   `world_process` (the world process itself), `scene_thread` (a world on a thread of the rig's
 //!   process).
+//! - `calibration`: `spidar calib`'s session, the same loop calibrating (strings at minimum
+//!   tension), on the real-time thread under the supervisor on real boards.
 //! - Safety around the process: `supervisor` (the parent that writes zero to the boards when the
 //!   rig process dies or hangs), `signals` (stop requests), `term` (output that never panics).
 //! - `plan`: `spidar run`'s options checked into a plain plan; `run`: runs it.
@@ -19,6 +21,7 @@
 //! The binary (`tools/`, `spidar`) parses arguments and calls into here; the hardware-in-the-loop
 //! tests (`tests/`) and the measurements (`lab/`) use the same code.
 
+pub mod calibration;
 pub mod child_world;
 pub mod hardware;
 pub mod placement;

@@ -26,7 +26,8 @@
 //! the loop runs, or an exit while driving without the loop's `DONE`, is a takeover: zero is on
 //! the boards within 100 ms of the loop's last tick. The supervisor runs one SCHED_FIFO priority
 //! above the loop (see [`supervise`]). The rig child dies with the supervisor
-//! (`PR_SET_PDEATHSIG`: SIGTERM, its clean stop).
+//! (`PR_SET_PDEATHSIG`: SIGTERM, its clean stop; the kernel may send it more than once as the
+//! supervisor's threads die, and the rig counts it once: `signals`).
 //!
 //! What the safe output is: zero on every channel. Nothing regulates the strings any more, so
 //! they go slack (no minimum tension: keeping that would need a running loop).
@@ -240,6 +241,10 @@ pub fn attach_from_env() -> anyhow::Result<Option<&'static Shared>> {
     let page = Page::map(fd)?;
     let shared = page.shared;
     let _ = ATTACHED.set(Some(page));
+    // The parent is the supervisor (`spawn_rig` checked it before exec): its parent-death signal
+    // is one stop, however often the kernel sends it (see `signals`).
+    // SAFETY: getppid has no preconditions.
+    crate::signals::watched_by(unsafe { libc::getppid() });
     Ok(Some(shared))
 }
 

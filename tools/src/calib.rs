@@ -1,20 +1,23 @@
 //! `spidar calib`: home, record, fit and verify the string geometry of a rig (see
-//! `spidar-calib`). Arguments are checked here; the work is in the calib crate.
+//! `spidar-calib`). Arguments are checked here; the work is in the calib crate, and the loop that
+//! holds the strings meanwhile is `spidar_runtime::calibration`'s.
 //!
 //! The rig file: `--rig`, else the user's own (`rigpath`), created from the built-in template by
 //! the first `calib home`; the shipped template itself is never written. Every summary names the
 //! rig file in use and every hint carries the same `--rig` (and device options).
 //!
-//! `--device sim` (the default) is the simulated rig, its grips moved by a scripted operator. Its
-//! true geometry is the built-in rig file perturbed by `--seed` (anchors off by centimetres,
-//! metres per count by up to 10 %, counters starting anywhere), whatever `--rig` says, so that
-//! home, record, fit --write and verify all run against the same simulated hardware while the rig
-//! file is being corrected. `--device uart|usb-simple|usb-sh4` opens the boards as `spidar run`
-//! does (`hardware::open_hardware`) and asks a person at the console to move the grips
+//! `--device sim` (the default) is the simulated rig, its grips moved by a scripted operator, with
+//! the rt-loop on the virtual clock. Its true geometry is the built-in rig file perturbed by
+//! `--seed` (anchors off by centimetres, metres per count by up to 10 %, counters starting
+//! anywhere), whatever `--rig` says, so that home, record, fit --write and verify all run against
+//! the same simulated hardware while the rig file is being corrected. `--device uart|usb-simple|
+//! usb-sh4` opens the boards as `spidar run` does, runs the loop on its real-time thread under the
+//! same supervisor process, and asks a person at the console to move the grips
 //! (`ConsoleOperator`: Enter, s, q).
 //!
-//! Whatever ends a command (done, q, a lost board, Ctrl-C / SIGTERM / SIGHUP, an error) the
-//! outputs are switched off, and `record` has saved every kept pose: `record --resume` continues.
+//! Whatever ends a command (done, q, a lost board, Ctrl-C / SIGTERM / SIGHUP, an error) the loop
+//! ends with its switch-off, and `record` has saved every kept pose: `record --resume` continues.
+//! If the process dies, the supervisor writes zero to the boards.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -30,15 +33,16 @@ use spidar_calib::quality::QualityOptions;
 use spidar_calib::record::{Operator, Plan, RecordOptions, Recorder, Request, SimOperator};
 use spidar_calib::rigfile::{update_rig_file, Stamp};
 use spidar_calib::session::{PoseKind, SessionFile};
-use spidar_calib::sim::{sim_rig, truth_geometry, SimTruthOptions};
+use spidar_calib::sim::SimTruthOptions;
 use spidar_calib::CalibError;
-use spidar_device::sim::SimRig;
-use spidar_device::Device;
+use spidar_rt::rt_thread::RtOptions;
 use spidar_rt::Rig;
 
-use spidar_runtime::hardware::{self, DeviceKind, HardwareArgs};
+use spidar_runtime::calibration::{self, CalibLoop};
+use spidar_runtime::hardware::{DeviceKind, HardwareArgs};
 use spidar_runtime::rigpath::{self, shell_quote, RigSource};
 use spidar_runtime::signals::Stop;
+use spidar_runtime::supervisor;
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq, Debug)]
 pub enum Hands {
@@ -91,6 +95,22 @@ pub struct DeviceArgs {
     /// Simulated rig: print every request and progress line (a console operator always sees them).
     #[arg(long, short)]
     pub verbose: bool,
+    /// Boards: run the loop with the normal scheduler (no SCHED_FIFO, memory not locked), as
+    /// `spidar run --no-rt`.
+    #[arg(long)]
+    pub no_rt: bool,
+}
+
+impl DeviceArgs {
+    /// The simulated rig's options as the command line defaults them (what a hint may leave out).
+    fn sim_defaults() -> DeviceArgs {
+        #[derive(clap::Parser)]
+        struct Only {
+            #[command(flatten)]
+            dev: DeviceArgs,
+        }
+        <Only as clap::Parser>::parse_from(["spidar"]).dev
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -205,59 +225,92 @@ fn check_device_args(d: &DeviceArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The simulated device: the built-in rig perturbed by the seed (see the module doc).
-fn sim_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(SimRig, String)> {
-    let base = Rig::default_rig();
-    let opts = SimTruthOptions {
+/// The simulated rig's truth the options ask for (see the module doc).
+fn sim_truth(d: &DeviceArgs) -> SimTruthOptions {
+    SimTruthOptions {
         seed: d.seed,
         anchor_error_m: d.sim_anchor_error_m,
         mpc_error: d.sim_mpc_error,
         noise_counts: d.noise_counts,
-    };
-    let truth = truth_geometry(&base, &opts);
-    let dev = sim_rig(rig, &truth, d.noise_counts, d.seed)?;
-    let name = format!(
-        "simulated SPIDAR-H (seed {}, anchors off by up to {:.0} mm, metres per count by up to {:.0} %, noise {} counts)",
-        d.seed,
-        d.sim_anchor_error_m * 1e3,
-        d.sim_mpc_error * 100.0,
-        d.noise_counts
-    );
-    Ok((dev, name))
-}
-
-/// The device a calibration command drives, opened.
-enum Opened {
-    /// The simulated rig, its grips moved by the [`SimOperator`].
-    Sim(Box<SimRig>),
-    /// Real boards, its grips moved by a person at the console.
-    Board(Box<dyn Device>),
-}
-
-/// Opens the device `--device` names, with the same options and messages as `spidar run`.
-fn open_device(d: &DeviceArgs, rig: &Rig) -> anyhow::Result<(Opened, String)> {
-    match d.hw.choice(d.device, rig)? {
-        None => {
-            let (mut dev, name) = sim_device(d, rig)?;
-            dev.open()?;
-            Ok((Opened::Sim(Box::new(dev)), name))
-        }
-        Some(choice) => {
-            let dev = hardware::open_hardware(&choice)?;
-            let name = format!("{} ({})", dev.info().board, dev.info().identity);
-            hardware::check_rig_against(rig, dev.info())?;
-            Ok((Opened::Board(dev), name))
-        }
     }
 }
 
-/// Recording options: a board is paced by the wall clock (one exchange per tick period).
-fn record_options(d: &DeviceArgs, board: bool) -> RecordOptions {
-    RecordOptions {
-        pace: board,
-        timeout_s: d.pose_timeout_s,
-        lost_after_s: d.lost_after_s,
-        ..RecordOptions::default()
+/// The loop's thread: SCHED_FIFO 80 with memory locked (as `spidar run`), or `--no-rt`.
+fn rt_options(d: &DeviceArgs) -> RtOptions {
+    if d.no_rt {
+        RtOptions { fifo_priority: None, lock_memory: false, ..RtOptions::default() }
+    } else {
+        RtOptions::default()
+    }
+}
+
+/// Recording options from the command line.
+fn record_options(d: &DeviceArgs) -> RecordOptions {
+    RecordOptions { timeout_s: d.pose_timeout_s, lost_after_s: d.lost_after_s, ..RecordOptions::default() }
+}
+
+/// The stop signals (SIGINT, SIGTERM, SIGHUP), and under a supervisor also the ones it received.
+fn stop_signals() -> anyhow::Result<Stop> {
+    let stop = Stop::install()?;
+    Ok(match supervisor::attached() {
+        Some(page) => stop.with_forwarded(&page.stops),
+        None => stop,
+    })
+}
+
+/// Starts the loop on the device `--device` names and runs `body` with a recorder on it and the
+/// operator it needs (the simulated user on the simulated rig, the person at the console on
+/// boards); then ends the loop (its switch-off), also when `body` failed, the operator aborted,
+/// a stop signal came or the board was lost. Returns what `body` made and the loop's line.
+fn with_recorder<T>(
+    d: &DeviceArgs,
+    rig: &Rig,
+    what: &str,
+    rig_line: &str,
+    body: impl FnOnce(&mut Recorder<'_, CalibLoop>, &mut dyn Operator<CalibLoop>, &str) -> Result<T, CalibError>,
+) -> anyhow::Result<(T, String, String)> {
+    let stop = stop_signals()?;
+    let (lp, name) = calibration::start_loop(d.device, &d.hw, &sim_truth(d), rig, &rt_options(d), &stop)?;
+    eprintln!("spidar calib {what}: {name}; {rig_line}");
+    let live = matches!(lp, CalibLoop::Live(_));
+    let mut rec = Recorder::new(lp, rig, record_options(d))?;
+    let check = stop.clone();
+    rec.set_stop(Arc::new(move || check.requested()));
+    let mut op: Box<dyn Operator<CalibLoop>> = if live {
+        let mut op = ConsoleOperator::stdio(rig)?;
+        op.introduce();
+        Box::new(op)
+    } else {
+        Box::new(SimOperator::new(d.verbose))
+    };
+    let r = body(&mut rec, &mut *op, &name);
+    let off = rec.switch_off();
+    let mut stats = format!("loop: {}", rec.loop_stats());
+    let lp = rec.finish();
+    if let Ok(lp) = &lp {
+        if let Some(c) = lp.counters() {
+            stats += &format!(
+                "; the loop counted {} late or bad replies, {} count jumps, {} faults",
+                c.late_replies,
+                c.count_jumps[0] + c.count_jumps[1],
+                c.faults
+            );
+        }
+        if let Some(rep) = lp.report() {
+            stats += &format!("; its thread: {rep}");
+        }
+    }
+    match (r, off) {
+        (Ok(t), Ok(())) => Ok((t, name, stats)),
+        (Ok(_), Err(e)) => Err(anyhow::Error::new(e).context("switching the outputs off")),
+        (Err(e), off) => {
+            eprintln!("{stats}");
+            let note = match off {
+                Ok(()) => "outputs switched off".to_string(),
+                Err(o) => format!("switching the outputs off failed ({o}): power the amplifiers down"),
+            };
+            Err(anyhow::Error::new(e).context(note))
+        }
     }
 }
 
@@ -265,11 +318,20 @@ fn record_options(d: &DeviceArgs, board: bool) -> RecordOptions {
 fn device_hint(d: &DeviceArgs) -> String {
     let mut s = String::new();
     match d.device {
+        // Every option that makes the simulated rig what it is: a hint without one of them
+        // would verify against another simulated rig.
         DeviceKind::Sim => {
-            if d.seed != 7 {
+            let d0 = DeviceArgs::sim_defaults();
+            if d.seed != d0.seed {
                 s += &format!(" --seed {}", d.seed);
             }
-            if d.noise_counts != 0.5 {
+            if d.sim_anchor_error_m != d0.sim_anchor_error_m {
+                s += &format!(" --sim-anchor-error-m {}", d.sim_anchor_error_m);
+            }
+            if d.sim_mpc_error != d0.sim_mpc_error {
+                s += &format!(" --sim-mpc-error {}", d.sim_mpc_error);
+            }
+            if d.noise_counts != d0.noise_counts {
                 s += &format!(" --noise-counts {}", d.noise_counts);
             }
         }
@@ -290,6 +352,9 @@ fn device_hint(d: &DeviceArgs) -> String {
         if d.hw.reply_timeout_us != 800 {
             s += &format!(" --reply-timeout-us {}", d.hw.reply_timeout_us);
         }
+        if d.no_rt {
+            s += " --no-rt";
+        }
     }
     s
 }
@@ -299,60 +364,20 @@ fn rig_hint(src: &RigSource) -> String {
     src.path().map_or(String::new(), |p| format!(" --rig {}", shell_quote(p)))
 }
 
-/// The stop signals (SIGINT, SIGTERM, SIGHUP), polled by the recorder every tick.
-fn stop_check() -> anyhow::Result<spidar_calib::link::StopCheck> {
-    let stop = Stop::install()?;
-    Ok(Arc::new(move || stop.requested()))
-}
-
-/// Runs `body` on an activated recorder and switches the outputs off afterwards, also when
-/// `body` failed, the operator aborted, a stop signal came or the board was lost.
-fn with_recorder<D: Device, O: Operator<D>, T>(
-    mut rec: Recorder<'_, D>,
-    op: &mut O,
-    body: impl FnOnce(&mut Recorder<'_, D>, &mut O) -> Result<T, CalibError>,
-) -> anyhow::Result<(T, String)> {
-    rec.set_stop(stop_check()?);
-    let r = body(&mut rec, op);
-    let stats = format!("board link: {}", rec.link_stats());
-    let off = rec.finish();
-    match (r, off) {
-        (Ok(t), Ok(_)) => Ok((t, stats)),
-        (Ok(_), Err(e)) => Err(anyhow::Error::new(e).context("switching the outputs off")),
-        (Err(e), off) => {
-            eprintln!("{stats}");
-            let note = match off {
-                Ok(_) => "outputs switched off".to_string(),
-                Err(o) => format!("switching the outputs off failed ({o}): power the amplifiers down"),
-            };
-            Err(anyhow::Error::new(e).context(note))
+/// Runs a calibration command; the exit status (0, or the supervisor's when it had to write
+/// zero to the boards: 3).
+pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
+    // On boards the same supervisor as `spidar run` watches this process: in the supervisor the
+    // command ends here, with the status it gives.
+    if let CalibCmd::Home { dev: d, .. } | CalibCmd::Record { dev: d, .. } | CalibCmd::Verify { dev: d, .. } =
+        &cmd
+    {
+        check_device_args(d)?;
+        if let Some(code) = calibration::supervise_boards(d.device, &d.hw, d.rig.as_deref(), &rt_options(d))?
+        {
+            return Ok(code);
         }
     }
-}
-
-/// Runs `body` (a closure of `rec`, `op`) with the recorder and operator the opened device needs:
-/// the scripted hand on the simulated rig, the person at the console on a board. (A macro: the
-/// body is generic over both, and only one arm's closure borrows what the body uses.)
-macro_rules! drive {
-    ($d:expr, $rig:expr, $dev:expr, |$rec:ident, $op:ident| $body:expr) => {
-        match $dev {
-            Opened::Sim(dev) => with_recorder(
-                Recorder::opened(*dev, $rig, record_options($d, false))?,
-                &mut SimOperator::new($d.verbose),
-                |$rec, $op| $body,
-            ),
-            Opened::Board(dev) => {
-                let mut op = ConsoleOperator::stdio($rig)?;
-                op.introduce();
-                with_recorder(Recorder::opened(dev, $rig, record_options($d, true))?, &mut op, |$rec, $op| {
-                    $body
-                })
-            }
-        }
-    };
-}
-
-pub fn run(cmd: CalibCmd) -> anyhow::Result<()> {
     match cmd {
         CalibCmd::Home { dev, hands, write } => home(&dev, hands, write),
         CalibCmd::Screen { dev, view, write } => screen(&dev, &view, write),
@@ -372,6 +397,7 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<()> {
         }
         CalibCmd::Verify { dev, hands, jig, max_error_m } => verify(&dev, hands, &jig, max_error_m),
     }
+    .map(|()| 0)
 }
 
 fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
@@ -399,7 +425,7 @@ fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
             let dev = spidar_runtime::session::sim_device(&rig, scripts, &Default::default())?;
             place_screen(dev, &rig, world, &opts, timeout, say)?
         }
-        Some(choice) => place_screen(hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?,
+        Some(choice) => place_screen(spidar_runtime::hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?,
     };
     let dsp = &p.display;
     println!(
@@ -424,12 +450,11 @@ fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
 }
 
 fn home(d: &DeviceArgs, hands: Hands, write: bool) -> anyhow::Result<()> {
-    check_device_args(d)?;
     let src = rigpath::calibration_target(d.rig.as_deref(), true)?;
     let (rig, text) = src.load()?;
-    let (dev, name) = open_device(d, &rig)?;
-    eprintln!("spidar calib home: {name}; rig file {}", src.describe());
-    let (geometry, stats) = drive!(d, &rig, dev, |rec, op| home_hands(rec, op, &rig, hands))?;
+    let rig_line = format!("rig file {}", src.describe());
+    let (geometry, _, stats) =
+        with_recorder(d, &rig, "home", &rig_line, |rec, op, _| home_hands(rec, op, &rig, hands))?;
     eprintln!("{stats}");
     let path = src.path().context("homing needs a rig file")?;
     if write {
@@ -452,9 +477,9 @@ fn backup_note(b: &Option<PathBuf>) -> String {
     b.as_ref().map_or(String::new(), |b| format!(" (previous version kept as {})", b.display()))
 }
 
-fn home_hands<D: Device, O: Operator<D>>(
-    rec: &mut Recorder<'_, D>,
-    op: &mut O,
+fn home_hands(
+    rec: &mut Recorder<'_, CalibLoop>,
+    op: &mut dyn Operator<CalibLoop>,
     rig: &Rig,
     hands: Hands,
 ) -> Result<[Option<HandGeometry>; 2], CalibError> {
@@ -529,7 +554,6 @@ fn record(
     out: &Path,
     resume: bool,
 ) -> anyhow::Result<()> {
-    check_device_args(d)?;
     let src = RigSource::resolve(d.rig.as_deref());
     let (rig, _) = src.load()?;
     // Everything that can be checked is checked before the first pose.
@@ -565,16 +589,16 @@ fn record(
         let sp = plan.session_plan(jig.as_ref().map(|j| j.display().to_string()));
         (SessionFile::new(&rig.name, &rig_file, "", sp), plan)
     };
-    let (dev, name) = open_device(d, &rig)?;
-    if session.device.is_empty() {
-        session.device = name.clone();
-    }
-    eprintln!("spidar calib record: {name}; rig file {}; session {}", src.describe(), out.display());
+    let rig_line = format!("rig file {}; session {}", src.describe(), out.display());
     let t0 = std::time::Instant::now();
     let before = session.poses.len();
     let mut save = |s: &SessionFile| s.save(out);
-    let result = drive!(d, &rig, dev, |rec, op| {
-        rec.record_plan(op, &plan, &mut session, &mut save).map(|_| rec.warnings().to_vec())
+    let session_ref = &mut session;
+    let result = with_recorder(d, &rig, "record", &rig_line, |rec, op, name| {
+        if session_ref.device.is_empty() {
+            session_ref.device = name.to_string();
+        }
+        rec.record_plan(op, &plan, session_ref, &mut save).map(|_| rec.warnings().to_vec())
     });
     let resume_hint = format!(
         "spidar calib record{}{} --out {} --resume",
@@ -582,7 +606,7 @@ fn record(
         device_hint(d),
         shell_quote(out)
     );
-    let (warnings, stats) = match result {
+    let (warnings, _, stats) = match result {
         Ok(w) => w,
         Err(e) => {
             let total: usize = plan.hands.iter().map(|&h| session.poses_of(h).count()).sum();
@@ -704,7 +728,6 @@ fn fit(
 }
 
 fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow::Result<()> {
-    check_device_args(d)?;
     check_range("--max-error-m", max_error_m, 1e-6, 0.1)?;
     let src = RigSource::resolve(d.rig.as_deref());
     let (rig, _) = src.load()?;
@@ -719,11 +742,11 @@ fn verify(d: &DeviceArgs, hands: Hands, jig: &Path, max_error_m: f64) -> anyhow:
             rig_hint(&src)
         ),
     };
-    let (dev, name) = open_device(d, &rig)?;
-    eprintln!("spidar calib verify: {name}; rig file {}", src.describe());
+    let rig_line = format!("rig file {}", src.describe());
     let list = hands.list();
-    let (report, stats) =
-        drive!(d, &rig, dev, |rec, op| spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &list))?;
+    let (report, _, stats) = with_recorder(d, &rig, "verify", &rig_line, |rec, op, _| {
+        spidar_calib::verify::verify(rec, op, &rig, &geometry, &jig, &list)
+    })?;
     println!("{report}");
     eprintln!("{stats}");
     println!("rig file {}", src.describe());

@@ -328,7 +328,7 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             let stop = Stop::install()?;
             spidar_runtime::world_process::run_world(&a, &stop).map(|_| 0)
         }
-        Cmd::Calib { what } => crate::calib::run(what).map(|_| 0),
+        Cmd::Calib { what } => crate::calib::run(what),
         Cmd::Emulate(a) => emulate(a).map(|_| 0),
         Cmd::Replay(a) => spidar_runtime::replay::replay(&a).map(|_| 0),
         Cmd::Export(a) => spidar_runtime::replay::export(&a).map(|_| 0),

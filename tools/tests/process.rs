@@ -384,6 +384,40 @@ fn kill_9_of_the_rig_process_leaves_zero_on_the_boards() {
     emu.stop();
 }
 
+/// Regression (issue 26): kill -9 of the supervisor sometimes skipped the ramp-out. The rig
+/// process's parent-death signal (SIGTERM) is tied to the thread that forked it, and the kernel
+/// sends it again each time the orphan is handed to another of the dying supervisor's threads:
+/// in 3 of 11 trials the rig counted two stop signals and stopped at once (4 N to 0 in 6.3 ms).
+/// A dead supervisor is one stop however many times the kernel says so. Repeated, since the
+/// order in which the supervisor's threads die is the kernel's: before the fix, 12 trials all
+/// passing had a chance of (8/11)^12, 2 %.
+#[test]
+fn kill_9_of_the_supervisor_gives_the_rig_one_clean_stop_every_time() {
+    let _s = serial();
+    let dir = temp_dir("boards-supervisor-kill");
+    let emu = emulator(&dir);
+    let trials = 12;
+    for trial in 0..trials {
+        let (p, rig) = run_on_boards(&dir, 10_000);
+        assert_ne!(motors(&emu), [0; 16], "trial {trial}: the rig holds the strings");
+        p.signal(libc::SIGKILL);
+        // The rig process outlives its supervisor; its output (to this test's pipes) ends with it.
+        let (_, out, err) = p.end();
+        let until = Instant::now() + END;
+        // SAFETY: signal 0 only asks whether the process exists.
+        while unsafe { libc::kill(rig, 0) } == 0 && Instant::now() < until {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert!(
+            out.contains("(forces ramped out, strings at minimum tension, device off, on a stop signal)"),
+            "trial {trial} of {trials}: no clean stop\n{out}\n{err}"
+        );
+        assert!(!out.contains("stopped at once"), "trial {trial}: {out}");
+        assert_eq!(motors(&emu), [0; 16], "trial {trial}: the rig switched the boards off");
+    }
+    emu.stop();
+}
+
 #[test]
 fn a_stopped_rig_process_is_noticed_killed_and_its_boards_zeroed() {
     let _s = serial();

@@ -24,10 +24,12 @@ pub(super) struct ReadLimits {
     residual_ticks: u32,
     gauss_newton_iterations: u32,
     dt_s: f64,
+    /// Calibrating: an unhomed hand's counts are checked against the last reply taken.
+    calibrating: bool,
 }
 
 impl ReadLimits {
-    pub(super) fn of(rig: &Rig) -> ReadLimits {
+    pub(super) fn of(rig: &Rig, calibrating: bool) -> ReadLimits {
         let s = &rig.safety;
         ReadLimits {
             reply_ticks: s.reply_fault_ticks.max(1),
@@ -36,6 +38,7 @@ impl ReadLimits {
             residual_ticks: s.residual_fault_ticks.max(1),
             gauss_newton_iterations: rig.estimation.gauss_newton_iterations,
             dt_s: rig.period_s,
+            calibrating,
         }
     }
 }
@@ -70,7 +73,7 @@ impl TickCore {
         hold_all: bool,
         inp: &Input,
     ) -> [bool; HANDS] {
-        let lim = ReadLimits::of(&self.rig);
+        let lim = ReadLimits::of(&self.rig, self.calibrating);
         let mut fault = None;
         let mut hold = [hold_all; HANDS];
         for (hi, (h, hr)) in self.hands.iter_mut().zip(self.rig.hands.iter()).enumerate() {
@@ -119,6 +122,22 @@ pub(super) fn read_hand(
     }
     let counts = read_counts(inp, hr);
     let Some(zero) = h.zero_m else {
+        if lim.calibrating {
+            // No pose to predict from: the counts may step by `reply_jump_m` per tick since the
+            // last reply taken (a grip moved by hand moves less), not by a corrupt count's 12 cm.
+            let periods = h.periods_since_accept(now_s, lim.dt_s);
+            let tol_m = lim.jump_m * f64::from(periods);
+            let step_m = |s: usize| ((counts[s] - h.counts[s]) as f64 * hr.metres_per_count[s]).abs();
+            if h.counts_taken && (0..4).any(|s| step_m(s) > tol_m) {
+                h.jump_run += 1;
+                h.since_accept = h.since_accept.saturating_add(1);
+                return Reading::Jumped { fault: h.jump_run >= lim.reply_ticks };
+            }
+            h.jump_run = 0;
+            h.counts_taken = true;
+            h.since_accept = 1;
+            h.accept_t_s = now_s;
+        }
         h.prev_counts = std::mem::replace(&mut h.counts, counts);
         h.pose.valid = false;
         return Reading::Unhomed;

@@ -128,6 +128,7 @@ impl TickCore {
             h.vel.reset();
             h.bad_residual_ticks = 0;
             h.jump_run = 0;
+            h.counts_taken = false;
         }
         self.set_state(Lifecycle::Faulted);
         self.emit(Event::Fault(why));
@@ -135,6 +136,9 @@ impl TickCore {
 
     /// Homing is gone (interrupted, or the counters may have restarted): wait for it again.
     pub(super) fn lose_homing(&mut self) {
+        if self.calibrating {
+            return; // never homed: nothing to lose, nothing to wait for
+        }
         if !self.awaiting_home {
             self.awaiting_home = true;
             self.emit(Event::HomeNeeded);
@@ -179,6 +183,12 @@ impl TickCore {
     /// Applies a command; refusals are reported as events. `Stop` is handled by the loop.
     pub fn command(&mut self, c: Command) {
         let refuse = |s: &mut Self, why| s.emit(Event::Refused { command: c, why });
+        if self.calibrating && matches!(c, Command::Home | Command::Activate) {
+            return refuse(
+                self,
+                "calibrating: the strings stay at minimum tension, unhomed, until the loop ends",
+            );
+        }
         match c {
             Command::Home => {
                 if self.state == Lifecycle::Faulted {

@@ -20,6 +20,13 @@
 //! - `Faulted`: zero net force at minimum tension from the very tick the fault is seen; the
 //!   reason is kept; cleared by command, or by itself after a transient device fault.
 //!   `Unconfigured` (device not open) belongs to the loop around this core.
+//! - Calibrating (`spidar calib`, set once by [`TickCore::calibrate`] before the first tick): the
+//!   rig stays Inactive for good. The geometry is what is being measured, so the homing is
+//!   forgotten and `Home` and `Activate` are refused; there is no pose, hence no residual check.
+//!   The reply rules stay: late and corrupt replies hold and then fault as always, and each hand's
+//!   counts are checked against the last reply taken (a step beyond `reply_jump_m` per tick since
+//!   is rejected, held and counted; a run of them faults, transient). Calibration reads the counts
+//!   of the ticks that were not held from the telemetry.
 //!
 //! A single unusable reply is not a fault: a late or missing reply, a reply the device calls
 //! corrupt, counts that jump further than the hand can move, or a pose whose string lengths
@@ -121,6 +128,9 @@ struct HandCore {
     lengths_m: [f64; 4],
     /// Rejected count jumps in a row.
     jump_run: u32,
+    /// Calibrating: `counts` is a reply this hand took, the one the next is checked against
+    /// (false at the start and after a fault: the next reply is taken as it comes).
+    counts_taken: bool,
     /// What this hand output on its last computed tick, for holding it.
     last: HeldHand,
     /// Stillness window for the automatic re-homing: count range per string and its length.
@@ -170,6 +180,8 @@ pub struct TickCore {
     activate_after_rehome: bool,
     /// `Home` arrived while faulted: home as soon as the fault clears.
     home_after_fault: bool,
+    /// Calibrating: Inactive for good, unhomed, counts checked step by step (see the module doc).
+    calibrating: bool,
     model: Option<ContactModel>,
     counters: Counters,
     events: heapless::Deque<Event, 16>,
@@ -197,6 +209,7 @@ impl TickCore {
                 accept_t_s: 0.0,
                 lengths_m: [0.0; 4],
                 jump_run: 0,
+                counts_taken: false,
                 last: HeldHand::default(),
                 still_min: [0; 4],
                 still_max: [0; 4],
@@ -220,6 +233,7 @@ impl TickCore {
             awaiting_home: false,
             activate_after_rehome: false,
             home_after_fault: false,
+            calibrating: false,
             model: None,
             counters: Counters::default(),
             events: heapless::Deque::new(),
@@ -240,6 +254,24 @@ impl TickCore {
     }
     pub fn counters_mut(&mut self) -> &mut Counters {
         &mut self.counters
+    }
+    /// Calibration's loop (`spidar calib`): the rig stays Inactive, unhomed, its strings at
+    /// minimum tension, every hand's counts checked against the last reply taken (see the module
+    /// doc). Call before the first tick; there is no way back (a calibration ends the loop).
+    pub fn calibrate(&mut self) {
+        self.calibrating = true;
+        self.homing_wait = None;
+        self.awaiting_home = false;
+        self.activate_after_homing = false;
+        self.activate_after_rehome = false;
+        for h in self.hands.iter_mut() {
+            h.zero_m = None;
+            h.counts_taken = false;
+        }
+    }
+    /// The loop is calibration's (see [`TickCore::calibrate`]).
+    pub fn is_calibrating(&self) -> bool {
+        self.calibrating
     }
     pub fn is_homed(&self) -> bool {
         self.hands.iter().all(|h| h.zero_m.is_some())
