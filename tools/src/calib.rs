@@ -425,7 +425,9 @@ fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
             let dev = spidar_runtime::session::sim_device(&rig, scripts, &Default::default())?;
             place_screen(dev, &rig, world, &opts, timeout, say)?
         }
-        Some(choice) => place_screen(spidar_runtime::hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?,
+        Some(choice) => {
+            place_screen(spidar_runtime::hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?
+        }
     };
     let dsp = &p.display;
     println!(
