@@ -378,7 +378,8 @@ async function headset(browser) {
 // ---- the crowd drawn as people ----
 
 async function crowdPeople(browser) {
-  const page = await open(browser, url, 'camera=orbit&bodies=people&labels=0&hud=0');
+  // The rig's strings hidden: a taut string is drawn red, and would count as the fallen person.
+  const page = await open(browser, url, 'camera=orbit&bodies=people&labels=0&hud=0&strings=0');
   const desc = await page.evaluate(() => spidarView.desc());
   const joints = desc.crowd.joints;
   const n = desc.crowd.characters;
@@ -423,7 +424,16 @@ async function crowdPeople(browser) {
   const sk = skeleton(down[w].f);
   const mid = sk[0];
   const EYE = 0.55;
-  await page.evaluate((p, t) => spidarView.orbitTo(p, t), [mid[0] + 3, EYE, mid[2] + 0.01], [mid[0], EYE, mid[2]]);
+  // From the side no other person stands in front of it: of four directions, the one whose line
+  // of sight passes farthest from every other character (one in the way hid it entirely once).
+  const others = down.filter((_, i) => i !== w).map((c) => skeleton(c.f)[0]);
+  const clearance = ([dx, dz]) => Math.min(...others.map((o) => {
+    const [ox, oz] = [o[0] - mid[0], o[2] - mid[2]];
+    const along = Math.max(0, Math.min(3, ox * dx + oz * dz));
+    return Math.hypot(ox - along * dx, oz - along * dz);
+  }));
+  const [dx, dz] = [[1, 0], [-1, 0], [0, 1], [0, -1]].reduce((a, b) => (clearance(b) > clearance(a) ? b : a));
+  await page.evaluate((p, t) => spidarView.orbitTo(p, t), [mid[0] + 3 * dx, EYE, mid[2] + 3 * dz + 0.01], [mid[0], EYE, mid[2]]);
   await page.evaluate(() => spidarView.rendered());
   const [floor, horizon, above] = await page.evaluate((ps) => ps.map((p) => spidarView.project(p)),
     [[mid[0], 0, mid[2]], [mid[0], EYE, mid[2]], [mid[0], 1.4, mid[2]]]);

@@ -51,7 +51,9 @@ for (const m of recorded) {
   if (!index.has(k)) index.set(k, []);
   index.get(k).push(m.value);
 }
-let first = null;
+// The first message received on each topic: a subscription takes effect when the server reads it
+// (the rig may already be stepping), and its first message is that topic's newest at that time.
+const firstOf = new Map();
 for (const r of received) {
   summary.perTopic[r.ch.topic] = (summary.perTopic[r.ch.topic] || 0) + 1;
   let value;
@@ -64,12 +66,15 @@ for (const r of received) {
   const want = index.get(r.ch.topic + "@" + r.timestamp);
   if (want !== undefined && want.some((w) => isDeepStrictEqual(w, value))) {
     summary.matched += 1;
-    if (first === null || r.timestamp < first) first = r.timestamp;
+    if (!firstOf.has(r.ch.topic) || r.timestamp < firstOf.get(r.ch.topic)) firstOf.set(r.ch.topic, r.timestamp);
   } else if (summary.mismatches.length < 5) {
     summary.mismatches.push({ topic: r.ch.topic, t: Number(r.timestamp), inRecording: want !== undefined });
   }
 }
-// What the recording holds after the first message received: the live client should have it all.
-summary.recordedFromFirst = first === null ? 0 : recorded.filter((m) => m.logTime >= first).length;
+// What the recording holds of each topic from the first message received on it: the live client
+// should have it all, to the end. A topic nothing was received on counts from the latest of the
+// topics' first messages (by then every subscription was taken).
+const latestFirst = [...firstOf.values()].reduce((a, b) => (b > a ? b : a), null);
+summary.recordedFromFirst = latestFirst === null ? 0 : recorded.filter((m) => m.logTime >= (firstOf.has(m.topic) ? firstOf.get(m.topic) : latestFirst)).length;
 await rec.close();
 say(summary);
