@@ -1179,13 +1179,22 @@ impl RunPath {
             "check_live" => {
                 let hud = q["hud"].as_object().unwrap();
                 let text = |k: &str| hud.get(k).and_then(|v| v.as_str()).unwrap_or("(missing)").to_string();
-                let world = self.get("/status.json");
+                let mut world = self.get("/status.json");
+                // A real-clock rig on a loaded 2-core machine may fault for a moment (a late
+                // reply) and recover by itself after its recovery ticks: wait for that, and let
+                // the HUD, read before, show the fault the world showed.
+                let first_state = world["rig"]["state"].clone();
+                let until = std::time::Instant::now() + std::time::Duration::from_secs(20);
+                while world["rig"]["state"] == "faulted" && std::time::Instant::now() < until {
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                    world = self.get("/status.json");
+                }
                 assert_eq!(world["rig"]["state"], "active", "the world's status: {world}");
                 assert_eq!(world["link"]["state"], "up", "the world's status: {world}");
-                assert_eq!(
-                    text("rig_state"),
-                    "active",
-                    "the HUD's rig state; the world says {}",
+                let hud_state = text("rig_state");
+                assert!(
+                    hud_state == "active" || (hud_state == "faulted" && first_state == "faulted"),
+                    "the HUD's rig state {hud_state}; the world said {first_state}, then {}",
                     world["rig"]["state"]
                 );
                 assert_eq!(
