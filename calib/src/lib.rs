@@ -27,6 +27,8 @@ pub mod plot;
 pub mod quality;
 pub mod record;
 pub mod rigfile;
+pub mod rigmap;
+pub mod rigmap_plot;
 pub mod safefile;
 pub mod session;
 pub mod sim;

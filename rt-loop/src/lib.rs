@@ -4,7 +4,7 @@
 //! forces against the contact proxies the scene sent, applies the safety rules and allocates
 //! string tensions, then writes DA volts. Phases live in their own modules, in the order they
 //! run: [`kinematics`], [`velocity`], [`render`] (and [`local`] for the avatar hands' contacts),
-//! [`safety`], [`tension`]; [`tick`] strings them together with the lifecycle (whose states,
+//! [`safety`], [`tension`], [`produced`] (the produced force kept within the limit); [`tick`] strings them together with the lifecycle (whose states,
 //! faults, commands and events are named in [`control`]), [`runner`] adds the device, the clock,
 //! the channels and the link to the world ([`status`]: what the rig tells the world about itself).
 
@@ -17,6 +17,7 @@ pub mod display;
 pub use spidar_config as config;
 pub mod kinematics;
 pub mod local;
+pub mod produced;
 pub mod render;
 pub mod rig;
 pub mod rt_thread;

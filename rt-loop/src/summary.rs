@@ -129,6 +129,8 @@ pub fn safety_json(c: &Counters) -> Value {
         "clamped_ticks": c.clamped,
         "infeasible_ticks": c.infeasible,
         "fallback_ticks": c.fallback,
+        "produced_limited_ticks": c.produced_limited,
+        "produced_unmet_ticks": c.produced_unmet,
         "stiffness_limited_ticks": c.stiffness_limited,
         "stale_model_ticks": c.stale,
         "non_finite_forces": c.non_finite,
@@ -144,11 +146,25 @@ pub fn safety_json(c: &Counters) -> Value {
 }
 
 /// The start of every `safety` line: ticks per hand (left/right) the force was clamped to the
-/// hand's limit, could not be rendered in full, or needed the box-QP fallback.
+/// hand's limit, could not be rendered in full, needed the box-QP fallback, or whose tensions
+/// produced more than the limit and were scaled down to it (`produced`; `unmet` when even the
+/// minimum tensions were above it, said only when it happened).
 pub fn clamped_counts(c: &Counters) -> String {
+    let unmet = if c.produced_unmet == [0, 0] {
+        String::new()
+    } else {
+        format!(" ({}/{} UNMET: minimum tensions above the limit)", c.produced_unmet[0], c.produced_unmet[1])
+    };
     format!(
-        "clamped {}/{}, infeasible {}/{}, fallback {}/{}",
-        c.clamped[0], c.clamped[1], c.infeasible[0], c.infeasible[1], c.fallback[0], c.fallback[1]
+        "clamped {}/{}, infeasible {}/{}, fallback {}/{}, produced-limited {}/{}{unmet}",
+        c.clamped[0],
+        c.clamped[1],
+        c.infeasible[0],
+        c.infeasible[1],
+        c.fallback[0],
+        c.fallback[1],
+        c.produced_limited[0],
+        c.produced_limited[1]
     )
 }
 
@@ -211,6 +227,18 @@ mod tests {
         assert_eq!(j["end"]["stop_signals"], 2);
         assert_eq!(j["end"]["clean_stop"], true);
         assert_eq!(s.text_of("ticks"), Some("10 active"));
+    }
+
+    #[test]
+    fn the_produced_force_counters_are_in_the_safety_text_and_json() {
+        let mut c = Counters { produced_limited: [3, 7], ..Counters::default() };
+        assert!(clamped_counts(&c).ends_with("fallback 0/0, produced-limited 3/7"), "{}", clamped_counts(&c));
+        c.produced_unmet = [0, 2];
+        assert!(clamped_counts(&c)
+            .ends_with("produced-limited 3/7 (0/2 UNMET: minimum tensions above the limit)"));
+        let j = safety_json(&c);
+        assert_eq!(j["produced_limited_ticks"], json!([3, 7]));
+        assert_eq!(j["produced_unmet_ticks"], json!([0, 2]));
     }
 
     #[test]

@@ -64,6 +64,13 @@ pub struct Counters {
     pub infeasible: [u64; HANDS],
     /// Ticks where not even zero force was feasible and the box-QP fallback chose the tensions.
     pub fallback: [u64; HANDS],
+    /// Ticks whose allocated tensions produced more than the force limit (fallback ticks, where
+    /// the box QP picks the force closest to the asked one) and were scaled down toward minimum
+    /// tension until the produced force met it (`produced.rs`).
+    pub produced_limited: [u64; HANDS],
+    /// Of those, ticks where even the minimum tensions alone produce more than the limit: the
+    /// least force along the scaling was kept, still above the limit.
+    pub produced_unmet: [u64; HANDS],
     /// Ticks where a proxy stiffer than the hand's limit was softened.
     pub stiffness_limited: [u64; HANDS],
     /// Ticks where the force of an avatar-hand contact was scaled down so the rig would not give
@@ -429,7 +436,7 @@ impl TickCore {
                     let engaged = active && touching && pose_ok;
                     output::safety_phase(h, hr, rendered_n, vel, &view, engaged).command_n.z
                 }
-                Phase::Allocate => output::allocate_phase(h, pose_ok, commanded_n).tensions_n[0],
+                Phase::Allocate => output::allocate_phase(h, hr, pose_ok, commanded_n).0.tensions_n[0],
             };
         }
         made
@@ -445,6 +452,6 @@ pub enum Phase {
     Render,
     /// Gain, force limit and the avatar contact's energy reserve (`output.rs`).
     Safety,
-    /// String tensions for the commanded force (`output.rs`).
+    /// String tensions for the commanded force, the produced force within the limit (`output.rs`).
     Allocate,
 }

@@ -1,11 +1,13 @@
 //! The tick's output phases, per hand: render the contact model at the hand's pose, pass the
 //! force through the safety rules (gain, force limit, the avatar contact's energy reserve),
-//! allocate string tensions, write the volts; or replay the last output of a held hand.
+//! allocate string tensions and keep the force they produce within the limit, write the volts;
+//! or replay the last output of a held hand.
 //!
 //! Why it exists apart: everything that decides what the strings pull is here, in the order it
-//! runs (render -> safety -> allocate -> volts), each step a function of what the one before
-//! made. It must never allocate, lock or panic, and never write a force that did not pass
-//! `safety::guard` and the allocator (a faulted rig's output is the allocator's, at zero force).
+//! runs (render -> safety -> allocate -> produced limit -> volts), each step a function of what
+//! the one before made. It must never allocate, lock or panic, and never write a force that did
+//! not pass `safety::guard`, the allocator and `produced::limit_produced` (a faulted rig's output
+//! is theirs, at zero force).
 
 use glam::DVec3;
 use spidar_device::{Output, MAX_CHANNELS};
@@ -13,6 +15,7 @@ use spidar_msg::{ContactModel, HandState, MAX_PROXIES};
 
 use super::{Counters, HandCore, HeldHand};
 use crate::local;
+use crate::produced::{self, ProducedLimit};
 use crate::render::{self, Rendered};
 use crate::rig::{HandRig, RigToWorld};
 use crate::safety::{self, Guarded};
@@ -116,7 +119,13 @@ pub(super) fn hand_output(
     if safe.passivity_limited {
         counters.passivity_limited[hi] += 1;
     }
-    let alloc = allocate_phase(h, pose_ok, safe.command_n);
+    let (alloc, produced) = allocate_phase(h, hr, pose_ok, safe.command_n);
+    if produced.limited {
+        counters.produced_limited[hi] += 1;
+    }
+    if produced.unmet {
+        counters.produced_unmet[hi] += 1;
+    }
     h.passivity.commanded(alloc.force_n);
     let last = &mut h.last;
     hand_impulses_of(&rendered, &hand_impulses, want_rig, alloc.force_n, v.gain, last);
@@ -235,10 +244,21 @@ pub(super) fn safety_phase(
 }
 
 /// The allocation phase: string tensions for the commanded force, along the strings'
-/// directions from the current pose, or from the last good one when it is not trusted.
-pub(super) fn allocate_phase(h: &mut HandCore, pose_ok: bool, command_n: DVec3) -> Allocation {
+/// directions from the current pose, or from the last good one when it is not trusted; then the
+/// force those tensions produce brought within the hand's force limit (`produced.rs`: the
+/// fallback's may exceed it).
+pub(super) fn allocate_phase(
+    h: &mut HandCore,
+    hr: &HandRig,
+    pose_ok: bool,
+    command_n: DVec3,
+) -> (Allocation, ProducedLimit) {
     let dir_pos = if pose_ok { h.pose.pos_m } else { h.safe_pos_m };
-    h.alloc.allocate(&h.kin.directions(dir_pos), command_n)
+    let dirs = h.kin.directions(dir_pos);
+    let mut alloc = h.alloc.allocate(&dirs, command_n);
+    let min_n = h.alloc.limits().min_n;
+    let limited = produced::limit_produced(&mut alloc, &dirs, min_n, hr.force_limit_n, command_n);
+    (alloc, limited)
 }
 
 /// Two impulses go back per proxy (see `HandSample`). The applied one is only what the user's

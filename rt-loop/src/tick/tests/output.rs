@@ -369,3 +369,45 @@ fn a_force_beyond_what_the_strings_can_render_there_is_counted_as_infeasible() {
     assert!(scaled > 10);
     assert_eq!(c.counters().infeasible, [scaled, 0]);
 }
+
+#[test]
+fn a_grip_outside_its_frame_never_produces_more_than_the_force_limit() {
+    // The audit's case: fallback ticks (not even zero force feasible) while the scene asks for
+    // the full 4 N; the box QP's closest force was up to 4.07 N before the produced-force limit.
+    let mut c = core();
+    home_and_activate(&mut c);
+    let mut out = Output::default();
+    let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+    let limit = c.rig().hands[1].force_limit_n;
+    let (mut fallback, mut limited, mut worst) = (0, 0, 0.0_f64);
+    // Hand 1 walks 1 mm per tick down to 1.5 m below its home, asked 6 N (clamped to 4 N) in a
+    // direction that turns on a sphere (golden-angle spiral), so every side is asked for.
+    for k in 0..1500 {
+        let z = 1.0 - 2.0 * ((k % 300) as f64 + 0.5) / 300.0;
+        let phi = k as f64 * 2.399_963;
+        let r = (1.0 - z * z).sqrt();
+        let mut m = ContactModel { seq: 1, ..Default::default() };
+        m.extra_force_n = [DVec3::ZERO, DVec3::new(r * phi.cos(), z, r * phi.sin()) * 6.0];
+        let p = [home[0], home[1] - DVec3::Y * (k as f64 * 1e-3)];
+        let before = c.counters().produced_limited[1];
+        let counts = counts_at(&c, p);
+        let (_, rec) = tick_io(&mut c, &mut out, Some(m), &counts, Ok(()));
+        let h = &rec.hands[1];
+        assert!(!h.held);
+        fallback += (h.method == Method::Fallback) as u64;
+        let f = h.output_n.length();
+        worst = worst.max(f);
+        assert!(f <= limit + 1e-9, "tick {k}: produced {f} N above the {limit} N limit: {h:?}");
+        assert!(h.tensions_n.iter().all(|&t| (1.0..=20.0).contains(&t)), "{h:?}");
+        if c.counters().produced_limited[1] > before {
+            limited += 1;
+            assert_eq!(h.method, Method::Fallback, "only the fallback can produce more than it was asked");
+            assert!((f - limit).abs() < 1e-9, "scaled onto the limit: {f}");
+        }
+    }
+    assert!(fallback > 300, "{fallback}");
+    assert!(limited > 20, "the case must exercise the limit: {limited} of {fallback} fallback ticks");
+    assert_eq!(c.counters().produced_limited, [0, limited]);
+    assert_eq!(c.counters().produced_unmet, [0, 0]);
+    assert!(worst > 3.9, "{worst}");
+}
