@@ -702,6 +702,9 @@ fn fit(
     if geometry.iter().all(Option::is_none) {
         bail!("the session {} has no poses", session_path.display());
     }
+    let fitted: [Option<[glam::DVec3; 4]>; 2] =
+        std::array::from_fn(|h| geometry[h].as_ref().map(|g| g.anchors_m));
+    println!("{}", spidar_calib::rigmap_plot::fit_change(&rig, &fitted));
     let Some(path) = src.path().filter(|_| write) else {
         println!(
             "(rig file not changed: add --write to store the fitted geometry: spidar calib fit{} --session {} --write)",

@@ -91,6 +91,52 @@ enum Cmd {
     Export(spidar_runtime::replay::ExportArgs),
     /// Plot a recording as SVG: force per hand, tensions per string, lateness, events and hits.
     Plot(spidar_runtime::replay::PlotArgs),
+    /// What a rig can do where: `map` (each hand's force capacity over its frame against the
+    /// force limit, the volume where the limit holds, strings near the forearm or each other).
+    Rig {
+        #[command(subcommand)]
+        what: RigCmd,
+    },
+}
+
+#[derive(Subcommand)]
+enum RigCmd {
+    /// Map a rig file: over a grid of each hand's frame, the largest force the strings render in
+    /// every direction (the capacity margin) against the force limit; the volume where the limit
+    /// holds, in the frame and within reach of home; the capacity at home; the strings' clearance
+    /// from a forearm capsule (grip toward the elbow) and from the other hand's strings. Writes
+    /// SVG slices with --svg.
+    Map(RigMapArgs),
+}
+
+#[derive(clap::Args)]
+struct RigMapArgs {
+    /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron) if it exists, else the built-in
+    /// configs/rig-spidar-h.ron.
+    #[arg(long)]
+    rig: Option<PathBuf>,
+    /// Write the slices (horizontal and vertical through each home) to this SVG file.
+    #[arg(long)]
+    svg: Option<PathBuf>,
+    /// Grid spacing, millimetres.
+    #[arg(long, default_value_t = 50.0)]
+    step_mm: f64,
+    /// Radius around each home checked for interference and reported as the hand's reach, m.
+    #[arg(long, default_value_t = 0.4)]
+    reach_m: f64,
+    /// Forearm capsule: from the grip toward the elbow, the left hand's direction (the right's
+    /// is mirrored in x), as x,y,z in the rig frame.
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [-0.25, -0.55, 0.8])]
+    forearm_dir: Vec<f64>,
+    /// Forearm capsule: distance from the grip's centre to the wrist and to the elbow, m.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.08, 0.35])]
+    forearm_span_m: Vec<f64>,
+    /// Forearm capsule radius, m.
+    #[arg(long, default_value_t = 0.045)]
+    forearm_radius_m: f64,
+    /// Strings of the two hands closer than this count as touching, mm.
+    #[arg(long, default_value_t = 10.0)]
+    string_clearance_mm: f64,
 }
 
 #[derive(Subcommand)]
@@ -339,7 +385,47 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
         }
         Cmd::Eval { what, json } => eval(what, json).map(|_| 0),
         Cmd::Bench { what } => bench(what).map(|_| 0),
+        Cmd::Rig { what: RigCmd::Map(a) } => rig_map(&a).map(|_| 0),
     }
+}
+
+/// `spidar rig map`: the map's report on stdout, its slices as SVG.
+fn rig_map(a: &RigMapArgs) -> anyhow::Result<()> {
+    use spidar_calib::rigmap::{map_rig, Forearm, MapOptions};
+    use spidar_calib::rigmap_plot::{report, slices_svg};
+    let in_range = |name: &str, v: f64, lo: f64, hi: f64| {
+        if v.is_finite() && (lo..=hi).contains(&v) {
+            Ok(v)
+        } else {
+            Err(anyhow::anyhow!("{name} {v}: must be within {lo} .. {hi}"))
+        }
+    };
+    let dir = glam::DVec3::new(a.forearm_dir[0], a.forearm_dir[1], a.forearm_dir[2]);
+    if !dir.is_finite() || dir.length() < 1e-6 {
+        anyhow::bail!("--forearm-dir {dir}: give a direction (three numbers, not all zero)");
+    }
+    let (wrist, elbow) = (a.forearm_span_m[0], a.forearm_span_m[1]);
+    in_range("--forearm-span-m (wrist)", wrist, 0.0, 1.0)?;
+    in_range("--forearm-span-m (elbow)", elbow, wrist, 2.0)?;
+    let options = MapOptions {
+        step_m: in_range("--step-mm", a.step_mm, 5.0, 500.0)? * 1e-3,
+        reach_m: in_range("--reach-m", a.reach_m, 0.05, 2.0)?,
+        forearm: Forearm {
+            toward_elbow: dir,
+            wrist_m: wrist,
+            elbow_m: elbow,
+            radius_m: in_range("--forearm-radius-m", a.forearm_radius_m, 0.0, 0.2)?,
+        },
+        string_clearance_m: in_range("--string-clearance-mm", a.string_clearance_mm, 0.0, 200.0)? * 1e-3,
+    };
+    let rig = spidar_runtime::rigpath::load_rig(a.rig.as_deref(), &[])?;
+    let map = map_rig(&rig, &options);
+    outln!("{}", report(&map, &rig.name).trim_end());
+    if let Some(svg) = &a.svg {
+        slices_svg(&map, svg)?;
+        outln!("  slices       {}", svg.display());
+    }
+    Ok(())
 }
 
 /// `spidar eval`: each evaluation, its progress on stderr and its report as text or JSON.
