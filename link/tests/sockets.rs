@@ -464,7 +464,6 @@ fn a_model_is_stamped_with_the_rigs_time_however_long_the_world_held_the_sample(
 /// models; a rig that leaves frees its seat for the next.
 #[test]
 fn a_world_of_two_seats_serves_two_rigs_apart_and_refuses_a_third() {
-    let d = PrivateDir::for_process().unwrap();
     let world =
         WorldLink::bind_seats(&Endpoint::Udp("127.0.0.1:0".parse().unwrap()), offer("spar"), 2).unwrap();
     let at = world.listening().clone();
