@@ -455,9 +455,11 @@ mod tests {
 
     /// At 0, 50, 100 and 200 ms round trip, 10 % jitter, 1 % loss, with the rig's staleness set
     /// for the round trip: no hand is given more energy than it put in plus what the world
-    /// credited and the blows could give (within 0.02 J, at every moment of the bout: the reserve books the pose the rig measures, the truth differs by a fraction of a millimetre, 4 N over 2.5 mm is 0.01 J); the clamp
-    /// holds; no force without a contact or blow in the world; the felt force switches on and off
-    /// no more often than at no delay plus half (no sustained oscillation); punches land both ways.
+    /// credited and the blows could give (within 0.02 J, at every moment of the bout: the
+    /// reserve books the pose the rig measures, the truth differs by a fraction of a millimetre,
+    /// and 4 N over 2.5 mm is 0.01 J); the clamp holds; no force without a contact or blow in
+    /// the world; the felt force switches on and off no more often than at no delay plus half
+    /// and one a second (no sustained oscillation); punches land both ways.
     #[test]
     fn sparring_stays_passive_clamped_and_calm_at_every_delay() {
         let rig = Rig::default_rig();
