@@ -70,6 +70,13 @@ pub struct HandBook {
     /// Ticks with more than 0.05 N felt while the world had no contact on that hand and no blow
     /// on that body for the last 300 ms (what a rig could still be rendering at 200 ms).
     pub force_without_contact_ticks: u64,
+    /// Ticks at full gain with a contact and no blow where the force asked was within the rig's
+    /// limit and the reserve did not scale it, and the largest relative difference there between
+    /// the force felt and the contact's local model at the hand (the avatar-hand contact).
+    pub renderable_ticks: u64,
+    pub renderable_err_max: f64,
+    /// Ticks whose rendered force was not the local model of the model the rig held.
+    pub rendered_mismatch: u64,
     last_pos: Option<DVec3>,
     commanded: [DVec3; 2],
     last_stamp: Option<f64>,
@@ -105,8 +112,9 @@ pub struct SparBout {
     /// The last time each seat's world body had a contact on each hand or a blow on it.
     last_contact_s: [[f64; HANDS]; SEATS],
     pub books: [[HandBook; HANDS]; SEATS],
-    /// The blows' force of the newest model each rig took.
+    /// The blows' force of the newest model each rig took, and that model.
     last_extra: [[DVec3; HANDS]; SEATS],
+    last_model: [Option<ContactModel>; SEATS],
     /// Models each rig dropped for arriving after a newer one.
     pub models_out_of_order: [u64; SEATS],
     /// Models each rig took.
@@ -154,6 +162,7 @@ impl SparBout {
             last_contact_s: [[f64::NEG_INFINITY; HANDS]; SEATS],
             books: Default::default(),
             last_extra: [[DVec3::ZERO; HANDS]; SEATS],
+            last_model: [None; SEATS],
             models_out_of_order: [0; SEATS],
             models_taken: [0; SEATS],
             samples_out_of_order: [0; SEATS],
@@ -200,6 +209,7 @@ impl SparBout {
             let _ = v.far.models.try_send(m);
             self.models_taken[seat] += 1;
             self.last_extra[seat] = m.extra_force_n;
+            self.last_model[seat] = Some(m);
             for h in 0..HANDS {
                 let b = &mut self.books[seat][h];
                 let since = b.last_stamp.map_or(0.0, |s| (m.stamp_s - s).clamp(0.0, 0.01));
@@ -257,6 +267,9 @@ impl SparBout {
             if felt > 0.05 && now - self.last_contact_s[seat][h] > 0.3 {
                 b.force_without_contact_ticks += 1;
             }
+            if let Some(m) = &self.last_model[seat] {
+                check_felt(b, &self.rig, h, &rec, m);
+            }
         }
     }
 
@@ -294,6 +307,39 @@ impl SparBout {
             }
         }
     }
+}
+
+/// Felt against the avatar-hand contact's local model at the hand (the boxing scene's check),
+/// where the rig can render it: full gain, no blow, within the limit, not scaled by the reserve,
+/// and exactly allocatable to the strings at that pose.
+fn check_felt(
+    b: &mut HandBook,
+    rig: &Rig,
+    h: usize,
+    rec: &spidar_rt::telemetry::TickRecord,
+    m: &ContactModel,
+) {
+    let c = &m.hand_contacts[h];
+    if rec.gain != 1.0 || !c.touching() || m.extra_force_n[h] != DVec3::ZERO || !rec.hands[h].valid {
+        return;
+    }
+    let xf = rig.rig_to_world;
+    let at = xf.point(rec.hands[h].pos_rig_m);
+    let want = spidar_rt::local::render_contact(c, at, rig.hands[h].stiffness_limit_n_per_m).force_n;
+    if (xf.vector(rec.hands[h].rendered_n) - want).length() > 1e-9 {
+        b.rendered_mismatch += 1;
+        return;
+    }
+    let f = want.length();
+    // Scaled by the reserve, above the limit, or beyond what the strings can pull at this pose
+    // (the allocation scaled it): not renderable as asked.
+    let exact = rec.hands[h].method == spidar_rt::tension::Method::Exact;
+    if rec.hands[h].passivity_limited || f > rig.hands[h].force_limit_n || f <= 0.05 || !exact {
+        return;
+    }
+    b.renderable_ticks += 1;
+    let felt = xf.vector(rec.hands[h].output_n);
+    b.renderable_err_max = b.renderable_err_max.max((felt - want).length() / f);
 }
 
 /// One row of the table: a bout at one network.
@@ -484,6 +530,20 @@ mod tests {
             );
             assert!(row.hits[0] > 0 && row.hits[1] > 0, "{rtt} s: hits {:?}", row.hits);
             assert!(row.felt_max_n > 1.0, "{rtt} s: something is felt ({} N)", row.felt_max_n);
+            for books in &b.books {
+                for book in books {
+                    assert_eq!(book.rendered_mismatch, 0, "{rtt} s: the rig renders the model it holds");
+                    assert!(
+                        book.renderable_err_max < 0.05,
+                        "{rtt} s: felt differs by {:.1} %",
+                        book.renderable_err_max * 100.0
+                    );
+                }
+            }
+            let renderable: u64 = b.books.iter().flatten().map(|x| x.renderable_ticks).sum();
+            assert!(renderable > 20, "{rtt} s: {renderable} renderable contact ticks");
+            let worst = b.books.iter().flatten().map(|x| x.renderable_err_max).fold(0.0, f64::max);
+            eprintln!("{rtt} s: {renderable} renderable contact ticks, felt within {:.2} %", worst * 100.0);
         }
     }
 
