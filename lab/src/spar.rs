@@ -196,6 +196,8 @@ impl SparBout {
         }
     }
 
+    // Per hand (seat), several arrays are read and written together.
+    #[allow(clippy::needless_range_loop)]
     fn tick_rig(&mut self, seat: usize) {
         let v = &mut self.rigs[seat];
         let now = v.clock.now_ns() as f64 * 1e-9;
@@ -291,6 +293,8 @@ impl SparBout {
         }
     }
 
+    // Per hand (seat), several arrays are read and written together.
+    #[allow(clippy::needless_range_loop)]
     fn world_step(&mut self, now: f64) {
         let stamps = self.anchor.map(|a| a.map_or(0.0, |(t, at)| t + (now - at)));
         let models = self.scene.step([&self.pending[0], &self.pending[1]], stamps);
