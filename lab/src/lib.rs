@@ -14,3 +14,4 @@ pub mod crowd_run;
 pub mod eval;
 pub mod eval_impacts;
 pub mod eval_poses;
+pub mod spar;

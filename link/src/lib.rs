@@ -17,6 +17,7 @@
 pub mod channel;
 pub mod private_dir;
 pub mod rig;
+pub mod shim;
 pub mod sock;
 pub mod world;
 

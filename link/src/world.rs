@@ -1,13 +1,15 @@
-//! The world's end of a socket link: listen, take one rig at a time, drain its samples, send it
-//! contact models. Not real-time (the world process may allocate and block); it just must not
+//! The world's end of a socket link: listen, take one rig at a time (or one per seat, for a
+//! scene of several people: [`WorldLink::bind_seats`]), drain its samples, send it contact
+//! models. Not real-time (the world process may allocate and block); it just must not
 //! lose a sample it could have had.
 //!
 //! - A rig is served after a valid `Hello`: same protocol version, same sizes, a usable period,
 //!   and the scene this world runs (or none asked for). Anything else is answered with `Refuse`
 //!   naming both sides; a rig of another protocol version gets a `Refuse` in this version, so
 //!   its header tells it which one this world speaks.
-//! - While a rig is served, hellos from other addresses are refused (busy), and any other
-//!   datagram not from the rig is dropped and counted.
+//! - While every seat is taken, hellos from other addresses are refused (busy), and any other
+//!   datagram not from a served rig is dropped and counted. A rig takes the first free seat; a
+//!   rig saying hello again from its address keeps its seat.
 //! - [`WorldLink::drain`] reads every queued datagram (the world calls it at the start of each
 //!   step, so no sample is lost to a slow step); samples lost on the way show as gaps in their
 //!   tick numbers and are counted. Each sample comes with its kernel arrival time, from which
@@ -75,6 +77,8 @@ pub struct WorldStats {
 pub struct Arrived {
     pub sample: HandSample,
     pub arrived_ns: i64,
+    /// The seat of the rig that sent it (0 for a world of one seat).
+    pub seat: usize,
 }
 
 /// What happened on the link, for the world to say.
@@ -85,6 +89,8 @@ pub enum WorldEvent {
         rig: String,
         session: u64,
         again: bool,
+        /// The seat it took (0 for a world of one seat).
+        seat: usize,
     },
     Refused {
         rig: String,
@@ -97,11 +103,13 @@ pub enum WorldEvent {
     /// The rig said goodbye.
     Left {
         rig: String,
+        seat: usize,
     },
     /// The rig went silent (or its socket is gone).
     Lost {
         rig: String,
         silent_s: f64,
+        seat: usize,
     },
 }
 
@@ -117,9 +125,10 @@ pub struct WorldLink {
     sock: Sock,
     offer: WorldOffer,
     world_session: u64,
-    peer: Option<RigPeer>,
-    /// The last session served, to tell a reconnection from a new rig.
-    last_session: Option<u64>,
+    /// The rig served at each seat.
+    peers: Vec<Option<RigPeer>>,
+    /// The last session served at each seat, to tell a reconnection from a new rig.
+    last_session: Vec<Option<u64>>,
     /// Say each refusal reason once per rig, not at every hello.
     last_refusal: Option<(u64, String)>,
     last_wrong_version: Option<u16>,
@@ -133,6 +142,13 @@ pub struct WorldLink {
 impl WorldLink {
     /// Listens at `listen` (UDP port 0: any free port; [`WorldLink::listening`] says which).
     pub fn bind(listen: &Endpoint, offer: WorldOffer) -> Result<WorldLink, LinkError> {
+        Self::bind_seats(listen, offer, 1)
+    }
+
+    /// Listens at `listen` for up to `seats` rigs at once (at least one), each served as if it
+    /// were alone: its own handshake, liveness, sample counts and models.
+    pub fn bind_seats(listen: &Endpoint, offer: WorldOffer, seats: usize) -> Result<WorldLink, LinkError> {
+        let seats = seats.max(1);
         let sock = match listen {
             Endpoint::Unix(p) => Sock::bind_unix(p)?,
             Endpoint::Udp(a) => Sock::bind_udp(*a)?,
@@ -148,8 +164,8 @@ impl WorldLink {
             sock,
             offer,
             world_session: crate::private_dir::random_u64(),
-            peer: None,
-            last_session: None,
+            peers: vec![None; seats],
+            last_session: vec![None; seats],
             last_refusal: None,
             last_wrong_version: None,
             rx: vec![0; MAX_DATAGRAM + 1],
@@ -165,8 +181,23 @@ impl WorldLink {
         &self.listening
     }
 
+    /// The rig at the first seat (the only one of a world of one seat).
     pub fn peer(&self) -> Option<&RigPeer> {
-        self.peer.as_ref()
+        self.peers[0].as_ref()
+    }
+
+    /// The rig at `seat`, if one is served there.
+    pub fn peer_at(&self, seat: usize) -> Option<&RigPeer> {
+        self.peers.get(seat).and_then(|p| p.as_ref())
+    }
+
+    pub fn seats(&self) -> usize {
+        self.peers.len()
+    }
+
+    /// The seat of the rig at `from`, if it is served.
+    fn seat_of(&self, from: &RawAddr) -> Option<usize> {
+        self.peers.iter().position(|p| p.as_ref().is_some_and(|p| p.addr.same(from)))
     }
 
     pub fn stats(&self) -> &WorldStats {
@@ -235,17 +266,18 @@ impl WorldLink {
     }
 
     fn on_hello(&mut self, h: Hello, from: RawAddr, events: &mut Vec<WorldEvent>) {
-        if let Some(p) = &self.peer {
-            if !p.addr.same(&from) {
-                let reason = format!(
-                    "this world serves the rig at {}: stop that rig or start another world",
-                    p.addr.describe()
-                );
-                return self.refuse(&from, h.rig_session, RefuseCode::Busy, reason, events);
-            }
-        }
+        let Some(seat) = self.seat_of(&from).or_else(|| self.peers.iter().position(|p| p.is_none())) else {
+            let served: Vec<String> = self.peers.iter().flatten().map(|p| p.addr.describe()).collect();
+            let reason = format!(
+                "this world serves the rig{} at {}: stop {} or start another world",
+                if served.len() > 1 { "s" } else { "" },
+                served.join(" and "),
+                if served.len() > 1 { "one of them" } else { "that rig" },
+            );
+            return self.refuse(&from, h.rig_session, RefuseCode::Busy, reason, events);
+        };
         if let Some((code, reason)) = self.check_hello(&h) {
-            self.peer = None;
+            self.peers[seat] = None;
             return self.refuse(&from, h.rig_session, code, reason, events);
         }
         let welcome = Welcome {
@@ -258,16 +290,16 @@ impl WorldLink {
             scene: Name::new(&self.offer.scene),
         };
         let _ = self.send(&welcome, &from);
-        let again = self.last_session == Some(h.rig_session);
-        let same_peer = self.peer.as_ref().is_some_and(|p| p.session == h.rig_session);
+        let again = self.last_session[seat] == Some(h.rig_session);
+        let same_peer = self.peers[seat].as_ref().is_some_and(|p| p.session == h.rig_session);
         self.stats.connections += 1;
-        self.last_session = Some(h.rig_session);
+        self.last_session[seat] = Some(h.rig_session);
         self.last_refusal = None;
-        let (last_seq, last_tick, status) = match (&self.peer, same_peer) {
+        let (last_seq, last_tick, status) = match (&self.peers[seat], same_peer) {
             (Some(p), true) => (p.last_seq, p.last_tick, p.status),
             _ => (0, None, None),
         };
-        self.peer = Some(RigPeer {
+        self.peers[seat] = Some(RigPeer {
             addr: from,
             session: h.rig_session,
             info: h.rig,
@@ -276,7 +308,7 @@ impl WorldLink {
             last_seq,
             last_tick,
         });
-        events.push(WorldEvent::Connected { rig: from.describe(), session: h.rig_session, again });
+        events.push(WorldEvent::Connected { rig: from.describe(), session: h.rig_session, again, seat });
     }
 
     /// Reads every queued datagram: samples of the served rig go to `samples` (in order, with
@@ -284,7 +316,7 @@ impl WorldLink {
     pub fn drain(&mut self, samples: &mut Vec<Arrived>, events: &mut Vec<WorldEvent>) {
         while let Ok(r) = self.sock.recv(&mut self.rx) {
             let arrived_ns = r.arrived_ns.unwrap_or_else(realtime_ns);
-            let from_peer = self.peer.as_ref().is_some_and(|p| p.addr.same(&r.from));
+            let seat = self.seat_of(&r.from);
             let n = r.len.min(self.rx.len());
             let decoded =
                 if r.truncated { Err(WireError::Short { got: 0 }) } else { wire::decode(&self.rx[..n]) };
@@ -303,10 +335,11 @@ impl WorldLink {
                         events.push(WorldEvent::WrongVersion { rig: r.from.describe(), theirs: got });
                     }
                 }
-                _ if !from_peer => self.stats.foreign += 1,
+                _ if seat.is_none() => self.stats.foreign += 1,
                 Err(_) => self.stats.malformed += 1,
                 Ok((h, Message::Sample(s))) => {
-                    let Some(p) = self.peer.as_mut() else { continue };
+                    let Some(seat) = seat else { continue };
+                    let Some(p) = self.peers[seat].as_mut() else { continue };
                     p.last_heard = Instant::now();
                     if h.seq <= p.last_seq || p.last_tick.is_some_and(|t| s.tick <= t) {
                         self.stats.samples_out_of_order += 1;
@@ -318,39 +351,52 @@ impl WorldLink {
                     p.last_seq = h.seq;
                     p.last_tick = Some(s.tick);
                     self.stats.samples += 1;
-                    samples.push(Arrived { sample: s, arrived_ns });
+                    samples.push(Arrived { sample: s, arrived_ns, seat });
                 }
                 Ok((_, Message::Status(st))) => {
-                    if let Some(p) = self.peer.as_mut() {
+                    if let Some(p) = seat.and_then(|i| self.peers[i].as_mut()) {
                         p.last_heard = Instant::now();
                         p.status = Some(st);
                         self.stats.statuses += 1;
                     }
                 }
-                Ok((_, Message::Bye(b))) => match self.peer.take() {
-                    Some(p) if p.session == b.session => {
-                        events.push(WorldEvent::Left { rig: p.addr.describe() })
+                Ok((_, Message::Bye(b))) => {
+                    let i = seat.unwrap_or(0);
+                    match self.peers[i].take() {
+                        Some(p) if p.session == b.session => {
+                            events.push(WorldEvent::Left { rig: p.addr.describe(), seat: i })
+                        }
+                        other => {
+                            self.peers[i] = other;
+                            self.stats.unexpected += 1;
+                        }
                     }
-                    other => {
-                        self.peer = other;
-                        self.stats.unexpected += 1;
-                    }
-                },
+                }
                 Ok(_) => self.stats.unexpected += 1,
             }
         }
-        if let Some(p) = &self.peer {
+        for (seat, slot) in self.peers.iter_mut().enumerate() {
+            let Some(p) = slot else { continue };
             let silent = p.last_heard.elapsed();
             if silent > self.offer.rig_lost_after {
-                events.push(WorldEvent::Lost { rig: p.addr.describe(), silent_s: silent.as_secs_f64() });
-                self.peer = None;
+                events.push(WorldEvent::Lost {
+                    rig: p.addr.describe(),
+                    silent_s: silent.as_secs_f64(),
+                    seat,
+                });
+                *slot = None;
             }
         }
     }
 
     /// Sends a model to the served rig; false if there is none or it could not take it.
     pub fn send_model(&mut self, m: &ContactModel, events: &mut Vec<WorldEvent>) -> bool {
-        let Some(to) = self.peer.as_ref().map(|p| p.addr) else { return false };
+        self.send_model_to(0, m, events)
+    }
+
+    /// Sends a model to the rig at `seat`; false if there is none or it could not take it.
+    pub fn send_model_to(&mut self, seat: usize, m: &ContactModel, events: &mut Vec<WorldEvent>) -> bool {
+        let Some(to) = self.peer_at(seat).map(|p| p.addr) else { return false };
         match self.send(m, &to) {
             Ok(()) => {
                 self.stats.models_sent += 1;
@@ -363,18 +409,21 @@ impl WorldLink {
             Err(e) => {
                 if is_gone(&e) {
                     // The rig's socket is gone: its process ended.
-                    let silent_s = self.peer.take().map_or(0.0, |p| p.last_heard.elapsed().as_secs_f64());
-                    events.push(WorldEvent::Lost { rig: to.describe(), silent_s });
+                    let silent_s =
+                        self.peers[seat].take().map_or(0.0, |p| p.last_heard.elapsed().as_secs_f64());
+                    events.push(WorldEvent::Lost { rig: to.describe(), silent_s, seat });
                 }
                 false
             }
         }
     }
 
-    /// Says goodbye to the served rig (the world is ending).
+    /// Says goodbye to the served rigs (the world is ending).
     pub fn close(&mut self) {
-        if let Some(p) = self.peer.take() {
-            let _ = self.send(&Bye { session: self.world_session }, &p.addr);
+        for seat in 0..self.peers.len() {
+            if let Some(p) = self.peers[seat].take() {
+                let _ = self.send(&Bye { session: self.world_session }, &p.addr);
+            }
         }
     }
 }

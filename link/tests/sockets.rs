@@ -458,3 +458,49 @@ fn a_model_is_stamped_with_the_rigs_time_however_long_the_world_held_the_sample(
     assert!(age >= 0.0, "a model from the future: age {age}");
     assert_eq!(LinkStats::get(&rig.stats().unwrap().future_stamps), 0);
 }
+
+/// A world of two seats (`spidar world --scene spar`): two rigs each take a seat, a third is
+/// refused naming both, each rig's samples come tagged with its seat and each gets its own
+/// models; a rig that leaves frees its seat for the next.
+#[test]
+fn a_world_of_two_seats_serves_two_rigs_apart_and_refuses_a_third() {
+    let world =
+        WorldLink::bind_seats(&Endpoint::Udp("127.0.0.1:0".parse().unwrap()), offer("spar"), 2).unwrap();
+    let at = world.listening().clone();
+    let open = |session: u64| {
+        SocketRigLink::open(&at, None, hello(session, rig_info(), ""), RigLinkOptions::default()).unwrap()
+    };
+    let (mut a, mut b, mut c) = (open(1), open(2), open(3));
+    let (r, world, ev) = connect(&mut a, world);
+    r.unwrap();
+    assert!(matches!(&ev[..], [WorldEvent::Connected { session: 1, seat: 0, .. }]), "{ev:?}");
+    let (r, world, ev) = connect(&mut b, world);
+    r.unwrap();
+    assert!(matches!(&ev[..], [WorldEvent::Connected { session: 2, seat: 1, .. }]), "{ev:?}");
+    let (r, mut world, ev) = connect(&mut c, world);
+    let e = r.unwrap_err().to_string();
+    assert!(matches!(&ev[..], [WorldEvent::Refused { .. }]), "{ev:?}");
+    assert!(e.contains("serves the rigs at udp://127.0.0.1:") && e.contains(" and "), "{e}");
+
+    for tick in 0..3 {
+        a.send_sample(&HandSample { tick, ..Default::default() });
+        b.send_sample(&HandSample { tick: 100 + tick, ..Default::default() });
+    }
+    let (got, _) = drain_until(&mut world, 6);
+    let of = |seat: usize| got.iter().filter(|g| g.seat == seat).map(|g| g.sample.tick).collect::<Vec<_>>();
+    assert_eq!((of(0), of(1)), (vec![0, 1, 2], vec![100, 101, 102]));
+    assert_eq!(world.stats().samples_lost, 0, "each seat's ticks are counted apart");
+    let mut e = Vec::new();
+    assert!(world.send_model_to(0, &ContactModel { seq: 10, stamp_s: 0.001, ..Default::default() }, &mut e));
+    assert!(world.send_model_to(1, &ContactModel { seq: 20, stamp_s: 0.001, ..Default::default() }, &mut e));
+    assert_eq!(poll_until(&mut a, 0.002).map(|m| m.seq), Some(10));
+    assert_eq!(poll_until(&mut b, 0.002).map(|m| m.seq), Some(20));
+
+    a.close();
+    let ev = serve_handshake(&mut world);
+    assert!(matches!(&ev[..], [WorldEvent::Left { seat: 0, .. }]), "{ev:?}");
+    assert!(world.peer_at(0).is_none() && world.peer_at(1).is_some());
+    let (r, _world, ev) = connect(&mut c, world);
+    r.unwrap();
+    assert!(matches!(&ev[..], [WorldEvent::Connected { session: 3, seat: 0, .. }]), "{ev:?}");
+}

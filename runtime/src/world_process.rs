@@ -25,7 +25,7 @@ use crate::signals::Stop;
 #[derive(clap::Args, Clone, Debug)]
 pub struct WorldArgs {
     /// Scene: `boxing` (the reactive virtual human), `boxing-passive`, `crowd`, `walls` (the rig
-    /// check), or a file of any name that says what it is in its `kind`: a boxer file like
+    /// check), `spar` (two rigs box each other: two seats, docs/spar.md), or a file of any name that says what it is in its `kind`: a boxer file like
     /// configs/boxer.ron, a crowd scene like configs/scene-crowd.ron or a walls scene.
     #[arg(long, default_value = "boxing")]
     pub scene: String,
@@ -206,6 +206,9 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         run_echo(&mut link, stop);
         return Ok(ServeReport { link: *link.stats(), ..Default::default() });
     }
+    if a.scene == spidar_world::spar::NAME {
+        return run_spar(a, stop);
+    }
     let scene = spidar_world::load(&a.scene)?;
     let step_s = scene.step_s();
     let scene_label = format!("{} ({})", a.scene, scene.name());
@@ -297,5 +300,53 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
             crate::errln!("spidar world: {status}");
         }
     }
+    Ok(rep)
+}
+
+/// `spidar world --scene spar`: two seats, one rig each (docs/spar.md). No live view or
+/// recording of its own yet: each rig records its own channels (`spidar run --record`).
+fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
+    use spidar_world::spar::{serve_spar, SparScene, NAME};
+    if a.record.is_some() || a.view.foxglove.is_some() || a.view.view.is_some() || a.lockstep {
+        bail!(
+            "--scene spar has no --record, --view, --foxglove or --lockstep of its own yet: record each rig with \
+             `spidar run --record FILE.mcap`, and leave those options out of `spidar world`"
+        );
+    }
+    let mut scene = SparScene::new(spidar_sim::boxer::BoxerParams::default())?;
+    let mut _dir = None;
+    let listen = match &a.listen {
+        Some(s) => Endpoint::parse(s)?,
+        None => {
+            let d =
+                PrivateDir::user_default().context("making a private directory for the world's socket")?;
+            let ep = Endpoint::unix(&d.join("world.sock"));
+            _dir = Some(d);
+            ep
+        }
+    };
+    let offer = WorldOffer {
+        scene: NAME.into(),
+        step_s: scene.step_s(),
+        rig_lost_after: Duration::from_secs_f64(a.rig_lost_s),
+    };
+    let mut link = WorldLink::bind_seats(&listen, offer, spidar_sim::boxer::spar::SEATS)
+        .with_context(|| format!("listening at {listen}"))?;
+    let at = link.listening().clone();
+    if let Some(p) = a.priority {
+        for w in &setup_world_thread(Some(p)).warnings {
+            crate::errln!("spidar world: warning: {w}");
+        }
+    }
+    crate::outln!("spidar world: scene spar (two seats) listening on {at}");
+    let _ = std::io::stdout().flush();
+    crate::errln!(
+        "spidar world: connect two rigs, each with `spidar run --world {at}` (the first takes seat 0, the avatar; \
+         the second seat 1, in front of it); waiting for rigs"
+    );
+    let stop_fn = || stop.requested();
+    let rep = serve_spar(&mut scene, &mut link, &stop_fn, &mut |line| crate::errln!("spidar world: {line}"));
+    crate::errln!("spidar world: {rep}");
+    crate::errln!("spidar world: {}", scene.status());
     Ok(rep)
 }

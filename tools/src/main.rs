@@ -311,6 +311,17 @@ enum BenchCmd {
         #[arg(long, default_value_t = 10.0, value_parser = bench_seconds)]
         seconds: f64,
     },
+    /// Two rigs sparring through one world over a bad network (`--scene spar`, docs/spar.md):
+    /// simulated rigs with scripted users on the virtual clock, a delay/jitter/loss shim each way,
+    /// at 0, 50, 100 and 200 ms round trip; the felt-force error and the energy given to each
+    /// hand against what the design allows.
+    Spar {
+        /// Seconds of each bout (at most 3600).
+        #[arg(long, default_value_t = 20.0, value_parser = bench_seconds)]
+        seconds: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// The rig-world link at 1 kHz: round trip and one-way latency through a world process (Unix
     /// socket and UDP on localhost), then the rig's wake-up lateness and the model age at the
     /// rig with the world as a process and as a thread, alternating in one run.
@@ -553,6 +564,10 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
             );
             let o = ReplayBenchOptions { file, seeks: seeks as usize, viewers: viewers as usize, seconds };
             bench_replay(&o)?.to_string()
+        }
+        BenchCmd::Spar { seconds, seed } => {
+            errln!("seven spar bouts of {seconds} s on the virtual clock ...");
+            spidar_lab::spar::spar_table(seconds, seed)?.to_string()
         }
         BenchCmd::Link { rig, seconds, blocks, scene, echoes, world_priority } => {
             let r = rig.load()?;

@@ -161,7 +161,7 @@ impl std::fmt::Display for ServeReport {
 /// What a world says about an event on its link.
 pub fn describe(e: &WorldEvent) -> String {
     match e {
-        WorldEvent::Connected { rig, session, again: false } => {
+        WorldEvent::Connected { rig, session, again: false, .. } => {
             format!("rig connected from {rig} (session {session:016x}): scene running")
         }
         WorldEvent::Connected { rig, again: true, .. } => format!("rig at {rig} connected again: scene running"),
@@ -170,8 +170,8 @@ pub fn describe(e: &WorldEvent) -> String {
             "a rig at {rig} speaks link protocol {theirs}, this world speaks {PROTOCOL_VERSION}: refused (run the \
              same spidar version on both sides)"
         ),
-        WorldEvent::Left { rig } => format!("rig at {rig} stopped: scene paused, waiting for a rig"),
-        WorldEvent::Lost { rig, silent_s } => {
+        WorldEvent::Left { rig, .. } => format!("rig at {rig} stopped: scene paused, waiting for a rig"),
+        WorldEvent::Lost { rig, silent_s, .. } => {
             format!("rig at {rig} lost (silent for {silent_s:.2} s): scene paused, waiting for a rig")
         }
     }

@@ -16,6 +16,7 @@ pub mod decisions;
 pub mod foxglove;
 pub mod host;
 pub mod look;
+pub mod spar;
 pub mod view;
 pub mod walls;
 
@@ -85,6 +86,10 @@ pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
                          scene file (configs/boxer.ron, configs/scene-crowd.ron, configs/scene-walls.ron)";
     match name_or_path {
         "walls" => return Ok(Box::new(walls::WallsScene::builtin())),
+        spar::NAME => anyhow::bail!(
+            "scene 'spar' needs two rigs and a world of its own: start `spidar world --scene spar --listen \
+             udp://0.0.0.0:7700` and connect each rig with `spidar run --world udp://HOST:7700` (docs/spar.md)"
+        ),
         "crowd" => return Ok(Box::new(crowd::CrowdScene::builtin()?)),
         "boxing" => return Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
         "boxing-passive" => {

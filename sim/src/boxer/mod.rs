@@ -20,6 +20,7 @@
 pub mod config;
 pub mod mind;
 pub mod reach;
+pub mod spar;
 pub mod stance;
 
 use glam::{DMat3, DVec3};
