@@ -1,0 +1,102 @@
+//! Tests of a landed blow through the whole tick (`blow.rs` in the output phases): felt on both
+//! hands along the blow, its burst decaying and ending, the same blow never started twice,
+//! the safety clamp holding over push plus burst, a stale model fading it to zero, counted.
+
+use super::*;
+use crate::blow::BlowParams;
+use spidar_msg::Blow;
+
+/// A model carrying blow `seq` along +z (world), hard: 6 m/s, 10 N s.
+fn with_blow(seq: u64, in_contact: bool) -> ContactModel {
+    let blow =
+        Blow { seq, dir: DVec3::Z, speed_m_per_s: 6.0, momentum_n_s: 10.0, in_contact, ..Default::default() };
+    ContactModel { seq: 1, blow, ..Default::default() }
+}
+
+#[test]
+fn a_landed_blow_is_felt_on_both_hands_along_it_within_the_clamp_once_and_counted() {
+    let mut c = core();
+    home_and_activate(&mut c);
+    let home = [c.rig().hands[0].home_m, c.rig().hands[1].home_m];
+    let still = counts_at(&c, home);
+    let mut out = Output::default();
+    for _ in 0..600 {
+        tick_io(&mut c, &mut out, Some(with_blow(0, false)), &still, Ok(()));
+    }
+    assert_eq!(c.counters().blows_felt, [0, 0]);
+    let dir = c.rig().rig_to_world.vector_to_rig(DVec3::Z);
+    let limit = c.rig().hands[0].force_limit_n;
+    let p = BlowParams::default();
+    // The fist stays on 3 ms, then the same blow keeps arriving with the fist off.
+    let (mut peak, mut trough, mut last_abs) = ([0.0f64; 2], [0.0f64; 2], 0.0);
+    for i in 0..200 {
+        let (_, r) = tick_io(&mut c, &mut out, Some(with_blow(1, i < 3)), &still, Ok(()));
+        for h in 0..2 {
+            let f = r.hands[h].output_n;
+            assert!(f.length() <= limit + 1e-9, "tick {i}: {f} N over the rig's {limit} N");
+            assert!((f - dir * f.dot(dir)).length() < 1e-9, "along the blow: {f}");
+            peak[h] = peak[h].max(f.dot(dir));
+            if i >= 3 {
+                trough[h] = trough[h].min(f.dot(dir));
+            }
+        }
+        if i as f64 * 0.001 >= p.burst_s {
+            last_abs = r.hands[0].output_n.length().max(last_abs);
+        }
+    }
+    for h in 0..2 {
+        // Push 3 N plus the burst's first crest: clamped to the rig's limit.
+        assert!(peak[h] > limit - 1e-9, "hand {h}: peak {} N", peak[h]);
+        // After the push the burst swings against the blow, then ends.
+        assert!(trough[h] < -0.3, "hand {h}: the burst did not swing back ({} N)", trough[h]);
+    }
+    assert!(last_abs < 1e-9, "the burst ends, and the same blow never starts again: {last_abs} N");
+    let k = *c.counters();
+    assert_eq!(k.blows_felt, [1, 1]);
+    assert!(k.clamped[0] > 0 && k.clamped[1] > 0);
+    // A new blow is felt again (its burst starts at zero: felt from its second tick).
+    for _ in 0..3 {
+        tick_io(&mut c, &mut out, Some(with_blow(2, false)), &still, Ok(()));
+    }
+    assert_eq!(c.counters().blows_felt, [2, 2]);
+}
+
+#[test]
+fn a_stale_model_fades_a_blow_to_zero_and_an_inactive_rig_feels_none() {
+    let mut c = core();
+    home_and_activate(&mut c);
+    let still = counts_at(&c, [c.rig().hands[0].home_m, c.rig().hands[1].home_m]);
+    let mut out = Output::default();
+    for _ in 0..600 {
+        tick_io(&mut c, &mut out, Some(with_blow(0, false)), &still, Ok(()));
+    }
+    // The blow arrives with its fist on, then the world goes silent.
+    let (_, r) = tick_io(&mut c, &mut out, Some(with_blow(1, true)), &still, Ok(()));
+    assert!(r.hands[0].output_n.length() > 2.0, "{:?}", r.hands[0]);
+    let s = c.rig().safety.clone();
+    let fade_ticks = ((s.contact_stale_after_s + s.contact_fade_s) / c.rig().period_s).round() as usize;
+    let p = BlowParams::default();
+    let most = p.push_max_n + p.burst_max_n;
+    let mut faded = 0;
+    for _ in 0..fade_ticks + 2 {
+        let (_, r) = tick_io(&mut c, &mut out, None, &still, Ok(()));
+        let f = r.hands[0].output_n.length();
+        assert!(f <= r.gain * most + 1e-9, "fading: {f} N at gain {}", r.gain);
+        faded += u32::from(r.gain < 1.0);
+    }
+    assert!(faded > 10);
+    let (_, r) = tick_io(&mut c, &mut out, None, &still, Ok(()));
+    assert!(
+        r.hands[0].output_n.length() < 1e-9,
+        "a stale model's blow fades to nothing: {}",
+        r.hands[0].output_n
+    );
+    assert!(r.hands[1].output_n.length() < 1e-9);
+    // Inactive: a new blow is not felt and not counted.
+    let felt = c.counters().blows_felt;
+    c.command(Command::Deactivate);
+    run(&mut c, 1000, Ok(()));
+    let (_, r) = tick_io(&mut c, &mut out, Some(with_blow(2, true)), &still, Ok(()));
+    assert!(r.hands[0].output_n.length() < 1e-9);
+    assert_eq!(c.counters().blows_felt, felt);
+}
