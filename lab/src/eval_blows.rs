@@ -26,8 +26,9 @@ use crate::eval::{Bout, PATH};
 /// How long after a blow arrives its force is measured (s): the burst (60 ms) and the push.
 pub const WINDOW_S: f64 = 0.15;
 
-/// Impact speed bins (m/s): lower edges; the last is open.
-pub const SPEED_BINS: [f64; 5] = [0.0, 2.0, 3.0, 4.0, 5.0];
+/// Impact speed bins (m/s): lower edges; the last is open. The virtual human's fist mostly
+/// lands at 0.2-1.8 m/s (its reach slows toward its target).
+pub const SPEED_BINS: [f64; 5] = [0.0, 0.5, 1.0, 1.5, 2.0];
 
 /// One landed blow and what the user's hands felt of it.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -222,10 +223,10 @@ impl fmt::Display for BlowsReport {
             "  impact speed   blows  peak |F| (N)  peak along (N)  impulse along (N s)  burst energy (mJ)"
         )?;
         for b in &self.bins {
-            let to = if b.to_m_per_s.is_finite() { format!("{:.0}", b.to_m_per_s) } else { "  ".into() };
+            let to = if b.to_m_per_s.is_finite() { format!("{:.1}", b.to_m_per_s) } else { "   ".into() };
             writeln!(
                 f,
-                "  {:>3.0}-{:<2} m/s    {:>5}  {:>12.2}  {:>14.2}  {:>19.3}  {:>17.2}",
+                "  {:>3.1}-{:<3} m/s    {:>5}  {:>12.2}  {:>14.2}  {:>19.3}  {:>17.2}",
                 b.from_m_per_s, to, b.blows, b.peak_n, b.peak_along_n, b.impulse_n_s, b.burst_energy_mj
             )?;
         }

@@ -5,8 +5,10 @@
 //! and momentum, a sequence number). Every hand of the rig feels it in two parts, both along the
 //! blow's direction (the whole avatar was struck, and the user holds the rig with both hands):
 //!
-//! - **the push**: while the fist stays on the avatar, a force that grows with the blow's
-//!   momentum (`push_n_per_n_s` times it, at most `push_max_n`). It is paid from an energy
+//! - **the push**: from impact, a force that grows with the blow's momentum (`push_n_per_n_s`
+//!   times it, at most `push_max_n`: F0) and dies away over `push_s` as
+//!   `F0 exp(-t / push_decay_s) (1 - t / push_s)`, so its impulse (about 0.03 s times F0 with the
+//!   defaults) grows with the blow whatever the contact's length. It is paid from an energy
 //!   reserve as the avatar-hand contacts are (`local::Passivity`): credited at impact with the
 //!   blow's kinetic energy scaled as its force is (`push_energy_share`), filled by the hand moving
 //!   against the push, drained by the hand moving with it, and the push is scaled down along its
@@ -33,9 +35,12 @@ use crate::local::Passivity;
 /// How a blow is rendered. The defaults are what `spidar run` uses (`docs/boxing.md` section 6).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BlowParams {
-    /// Push per unit of the blow's momentum (N per N s) and its largest size (N).
+    /// Push per unit of the blow's momentum (N per N s), its largest size (N), its decay time
+    /// constant and its length (s).
     pub push_n_per_n_s: f64,
     pub push_max_n: f64,
+    pub push_decay_s: f64,
+    pub push_s: f64,
     /// Share of the blow's kinetic energy credited to the push's reserve at impact.
     pub push_energy_share: f64,
     /// Burst amplitude per unit of impact speed (N per m/s) and its largest amplitude (N).
@@ -52,10 +57,12 @@ pub struct BlowParams {
 impl Default for BlowParams {
     fn default() -> Self {
         BlowParams {
-            push_n_per_n_s: 0.3,
-            push_max_n: 3.0,
+            push_n_per_n_s: 0.6,
+            push_max_n: 2.5,
+            push_decay_s: 0.04,
+            push_s: 0.15,
             push_energy_share: 0.01,
-            burst_n_per_m_per_s: 0.5,
+            burst_n_per_m_per_s: 2.0,
             burst_max_n: 3.0,
             burst_hz: 50.0,
             burst_decay_s: 0.015,
@@ -84,6 +91,14 @@ impl BlowParams {
         } else {
             0.0
         }
+    }
+
+    /// The push's size `t_s` after impact for a start size `f0_n` (0 outside its length).
+    pub fn push_at(&self, f0_n: f64, t_s: f64) -> f64 {
+        if !(0.0..self.push_s).contains(&t_s) {
+            return 0.0;
+        }
+        f0_n * (-t_s / self.push_decay_s).exp() * (1.0 - t_s / self.push_s)
     }
 
     /// The burst's signed size `t_s` after impact for amplitude `a_n` (0 outside its length).
@@ -172,7 +187,7 @@ impl BlowFeel {
 
     /// One tick of the blow on a hand at `pos_m` moving at `vel_m_per_s` (None: no trusted pose;
     /// nothing is rendered, the burst's time goes on). `dir` is the blow's unit direction in the
-    /// hand's frame, `in_contact` whether its fist is still on the avatar, `gain` the tick's
+    /// hand's frame, `gain` the tick's
     /// ramp times staleness (what the safety phase will scale the force by; the budget and the
     /// reserve judge the force the hand will get).
     #[allow(clippy::too_many_arguments)]
@@ -182,7 +197,6 @@ impl BlowFeel {
         pos_m: Option<DVec3>,
         vel_m_per_s: DVec3,
         dir: DVec3,
-        in_contact: bool,
         gain: f64,
         dt_s: f64,
     ) -> BlowTick {
@@ -195,9 +209,9 @@ impl BlowFeel {
                 self.burst_work_j += w;
             }
         }
-        let pushing = in_contact && self.seq != 0;
-        self.reserve.observe(pos_m, pushing);
         let t = self.since_s;
+        let pushing = self.seq != 0 && t < p.push_s;
+        self.reserve.observe(pos_m, pushing);
         self.since_s += dt_s;
         self.last_burst_n = DVec3::ZERO;
         let dir = dir.normalize_or_zero();
@@ -206,7 +220,7 @@ impl BlowFeel {
             return out;
         };
         if pushing {
-            let want = dir * self.push_size_n;
+            let want = dir * p.push_at(self.push_size_n, t);
             let (f, limited) = self.reserve.limit(want * gain, vel_m_per_s, dt_s, true);
             out.force.push_n = f / gain;
             out.force.push_limited = limited;
@@ -248,15 +262,15 @@ mod tests {
         }
     }
 
-    /// Peak |force| and the burst's work over a whole blow on a hand moving at `vel` (always
-    /// in contact for `contact_s`).
-    fn run(p: &BlowParams, b: &Blow, vel: DVec3, contact_s: f64, gain: f64) -> (f64, f64, f64, u32) {
+    /// Peak |force|, peak burst, the burst's work and the ticks newly felt over a whole blow on a
+    /// hand moving at `vel`.
+    fn run(p: &BlowParams, b: &Blow, vel: DVec3, gain: f64) -> (f64, f64, f64, u32) {
         let mut f = BlowFeel::default();
         f.start(b, p);
         let (mut peak, mut burst_peak, mut work, mut felt) = (0.0f64, 0.0f64, 0.0, 0);
         let mut pos = DVec3::ZERO;
         for i in 0..200 {
-            let t = f.tick(p, Some(pos), vel, b.dir, i as f64 * 0.001 < contact_s, gain, 0.001);
+            let t = f.tick(p, Some(pos), vel, b.dir, gain, 0.001);
             peak = peak.max((t.force.total_n() * gain).length());
             burst_peak = burst_peak.max(t.force.burst_n.length());
             work += t.burst_work_j;
@@ -270,13 +284,13 @@ mod tests {
     fn the_bursts_peak_grows_with_the_impact_speed_and_stops_at_its_largest() {
         let p = BlowParams::default();
         let mut last = 0.0;
-        for speed in [0.5, 1.0, 2.0, 3.0, 4.0, 5.0] {
-            let (_, burst, _, felt) = run(&p, &blow(1, speed), DVec3::ZERO, 0.0, 1.0);
+        for speed in [0.1, 0.25, 0.5, 0.75, 1.0, 1.25] {
+            let (_, burst, _, felt) = run(&p, &blow(1, speed), DVec3::ZERO, 1.0);
             assert!(burst > last + 0.05, "{speed} m/s: burst peak {burst} N not above {last} N");
             assert_eq!(felt, 1, "felt once");
             last = burst;
         }
-        let (_, burst, _, _) = run(&p, &blow(1, 50.0), DVec3::ZERO, 0.0, 1.0);
+        let (_, burst, _, _) = run(&p, &blow(1, 50.0), DVec3::ZERO, 1.0);
         assert!(burst <= p.burst_max_n + 1e-12, "{burst}");
         // The push grows with the momentum too.
         assert!(p.push_n(2.0) < p.push_n(4.0) && p.push_n(1e9) == p.push_max_n);
@@ -298,13 +312,13 @@ mod tests {
             // The hand follows the force's sign (worst case: it moves with every half-wave).
             let t0 = f.since_s;
             let v = DVec3::Z * 3.0 * p.burst_at(1.0, t0).signum();
-            let t = f.tick(&p, Some(pos), v, b.dir, false, 1.0, 0.001);
+            let t = f.tick(&p, Some(pos), v, b.dir, 1.0, 0.001);
             work += t.burst_work_j;
             cut |= t.force.burst_cut;
             pos += v * 0.001;
         }
         // The last tick's work is booked on the next one.
-        work += f.tick(&p, Some(pos), DVec3::ZERO, b.dir, false, 1.0, 0.001).burst_work_j;
+        work += f.tick(&p, Some(pos), DVec3::ZERO, b.dir, 1.0, 0.001).burst_work_j;
         assert!(cut, "the budget had to cut this burst");
         assert!(
             work <= p.burst_budget_j + 1e-9,
@@ -317,7 +331,7 @@ mod tests {
     #[test]
     fn the_push_gives_a_hand_moving_with_it_no_more_than_its_reserve() {
         let p = BlowParams::default();
-        let b = blow(1, 5.0);
+        let b = blow(1, 2.0);
         let credit = 0.5 * b.momentum_n_s * b.speed_m_per_s * p.push_energy_share;
         let mut f = BlowFeel::default();
         f.start(&b, &p);
@@ -325,20 +339,31 @@ mod tests {
         let mut pos = DVec3::ZERO;
         let (mut work, mut limited) = (0.0, false);
         for _ in 0..500 {
-            let t = f.tick(&p, Some(pos), v, b.dir, true, 1.0, 0.001);
+            let t = f.tick(&p, Some(pos), v, b.dir, 1.0, 0.001);
             work += t.force.push_n.dot(v) * 0.001;
             limited |= t.force.push_limited;
             pos += v * 0.001;
         }
         assert!(limited);
         assert!(work <= credit + 0.01, "push work {work} J, reserve {credit} J");
-        // A hand held still feels the full push for as long as the fist is on.
-        let mut f = BlowFeel::default();
-        f.start(&b, &p);
-        let t = f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, true, 1.0, 0.001);
-        assert!((t.force.push_n - DVec3::Z * p.push_n(b.momentum_n_s)).length() < 1e-12);
-        let t = f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, false, 1.0, 0.001);
-        assert_eq!(t.force.push_n, DVec3::ZERO, "no push once the fist is off");
+        // A hand held still feels the whole push: its start size, dying away, over its length,
+        // its impulse growing with the blow's momentum.
+        let impulse = |momentum: f64| {
+            let b = Blow { momentum_n_s: momentum, ..b };
+            let mut f = BlowFeel::default();
+            f.start(&b, &p);
+            let first = f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, 1.0, 0.001).force.push_n;
+            assert!((first - DVec3::Z * p.push_n(momentum)).length() < 1e-12, "{first}");
+            let mut sum = first.z * 0.001;
+            for i in 1..200 {
+                let t = f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, 1.0, 0.001);
+                assert!(i < 150 || t.force.push_n == DVec3::ZERO, "no push after its length");
+                sum += t.force.push_n.z * 0.001;
+            }
+            sum
+        };
+        let (weak, strong) = (impulse(1.0), impulse(3.0));
+        assert!(strong > 2.5 * weak && weak > 0.02 * p.push_n(1.0), "{weak} {strong} N s");
     }
 
     #[test]
@@ -348,20 +373,17 @@ mod tests {
         let mut f = BlowFeel::default();
         f.start(&b, &p);
         for _ in 0..10 {
-            f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, true, 1.0, 0.001);
+            f.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, 1.0, 0.001);
         }
         let since = f.since_s;
         f.start(&b, &p);
         assert_eq!(f.since_s, since, "the same seq again is the same blow");
         let mut g = BlowFeel::default();
         g.start(&b, &p);
-        assert_eq!(g.tick(&p, None, DVec3::ZERO, b.dir, true, 1.0, 0.001).force, BlowForce::default());
+        assert_eq!(g.tick(&p, None, DVec3::ZERO, b.dir, 1.0, 0.001).force, BlowForce::default());
+        assert_eq!(g.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, 0.0, 0.001).force, BlowForce::default());
         assert_eq!(
-            g.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, true, 0.0, 0.001).force,
-            BlowForce::default()
-        );
-        assert_eq!(
-            g.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, true, f64::NAN, 0.001).force,
+            g.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, f64::NAN, 0.001).force,
             BlowForce::default()
         );
         let mut h = BlowFeel::default();
@@ -369,7 +391,7 @@ mod tests {
         assert_eq!(h.seq(), 0, "seq 0 is no blow");
         let nan = Blow { seq: 9, speed_m_per_s: f64::NAN, momentum_n_s: f64::INFINITY, ..b };
         h.start(&nan, &p);
-        let t = h.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, true, 1.0, 0.001);
+        let t = h.tick(&p, Some(DVec3::ZERO), DVec3::ZERO, b.dir, 1.0, 0.001);
         assert!(t.force.total_n().is_finite());
     }
 }

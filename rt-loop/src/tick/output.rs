@@ -184,7 +184,7 @@ fn replay_held(h: &mut HandCore, hr: &HandRig, to: HandOut) {
 }
 
 /// The blow phase: this tick's force of the newest landed blow on the hand (`blow.rs`: its push
-/// while the fist is on, its burst after impact), into `h.blow_n` (rig frame) for the render
+/// and its burst after impact), into `h.blow_n` (rig frame) for the render
 /// phase, counted: a blow felt, a push scaled by its reserve, a burst cut by its budget, the
 /// bursts' work on the hand.
 fn blow_phase(hi: usize, h: &mut HandCore, pose_ok: bool, vel: DVec3, v: &TickView, counters: &mut Counters) {
@@ -193,7 +193,7 @@ fn blow_phase(hi: usize, h: &mut HandCore, pose_ok: bool, vel: DVec3, v: &TickVi
     let dir = v.xf.vector_to_rig(b.dir);
     let pos = live.then_some(h.pose.pos_m);
     let p = BlowParams::default();
-    let t = h.blow.tick(&p, pos, vel, dir, live && b.in_contact, v.gain, v.dt_s);
+    let t = h.blow.tick(&p, pos, vel, dir, v.gain, v.dt_s);
     h.blow_n = t.force.total_n();
     if t.burst_work_j > 0.0 {
         h.burst_given_j += t.burst_work_j;
