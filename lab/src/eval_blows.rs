@@ -4,12 +4,12 @@
 //!
 //! The user throws the `box` script at an active virtual human, which attacks when it is idle.
 //! For every blow the world reports (`ContactModel::blow`, a new `seq`), from the first tick that
-//! rendered a model carrying it, over [`WINDOW_S`]: the peak force the rig applied to each hand
-//! (its size; and along the blow), the impulse along the blow (the force the rig applied, after
-//! every safety rule, projected on the blow's direction, summed over both hands), and the loop's
-//! counters: blows felt, the bursts' work on the hands (their energy), bursts cut by their
-//! budget, ticks clamped. Everything the hands feel in the window is counted, the avatar's own
-//! contacts included: it is what the user's hands get.
+//! rendered a model carrying it, over [`WINDOW_S`]: the blow's own force at the hands (the
+//! loop's record `blow_n`: its push and burst as the rig applied them, after the gain, the clamp
+//! and the allocation scaled the whole force), its peak and its impulse along the blow (per hand,
+//! the mean of both); the peak of the whole force the rig applied to a hand (the avatar hands' own
+//! contacts included: what the user's hands get); and the loop's counters: blows felt, the
+//! bursts' work on the hands (their energy), bursts cut by their budget, ticks clamped.
 //!
 //! Must never: be used as a timed test, or read anything but what the rig applied and counted.
 
@@ -37,12 +37,12 @@ pub struct FeltBlow {
     pub t_s: f64,
     pub speed_m_per_s: f64,
     pub momentum_n_s: f64,
-    /// Largest force the rig applied to either hand in the window (N), and its largest component
-    /// along the blow.
+    /// Largest force the rig applied to either hand in the window, all of it (N).
     pub peak_n: f64,
-    pub peak_along_n: f64,
-    /// Impulse of the applied force along the blow over the window, both hands (N s).
-    pub impulse_n_s: f64,
+    /// Largest force of the blow itself on either hand (N), and its impulse along the blow over
+    /// the window per hand (mean of both, N s).
+    pub blow_peak_n: f64,
+    pub blow_impulse_n_s: f64,
     /// Work the burst did on the hands, both hands, over its window (J), from the loop's counter.
     pub burst_energy_j: f64,
 }
@@ -54,8 +54,8 @@ pub struct Bin {
     pub to_m_per_s: f64,
     pub blows: usize,
     pub peak_n: f64,
-    pub peak_along_n: f64,
-    pub impulse_n_s: f64,
+    pub blow_peak_n: f64,
+    pub blow_impulse_n_s: f64,
     pub burst_energy_mj: f64,
 }
 
@@ -121,8 +121,8 @@ pub fn eval_blows(seconds: f64, seed: u64, mut progress: impl FnMut(f64)) -> any
                         speed_m_per_s: m.blow.speed_m_per_s,
                         momentum_n_s: m.blow.momentum_n_s,
                         peak_n: 0.0,
-                        peak_along_n: 0.0,
-                        impulse_n_s: 0.0,
+                        blow_peak_n: 0.0,
+                        blow_impulse_n_s: 0.0,
                         burst_energy_j: 0.0,
                     },
                     dir: rig.rig_to_world.vector_to_rig(m.blow.dir),
@@ -133,10 +133,9 @@ pub fn eval_blows(seconds: f64, seed: u64, mut progress: impl FnMut(f64)) -> any
         }
         if let Some(o) = open.as_mut() {
             for h in &rec.hands {
-                let along = h.output_n.dot(o.dir);
                 o.blow.peak_n = o.blow.peak_n.max(h.output_n.length());
-                o.blow.peak_along_n = o.blow.peak_along_n.max(along);
-                o.blow.impulse_n_s += along * rig.period_s;
+                o.blow.blow_peak_n = o.blow.blow_peak_n.max(h.blow_n.length());
+                o.blow.blow_impulse_n_s += h.blow_n.dot(o.dir) * rig.period_s / 2.0;
             }
             if rec.tick >= o.started_tick + window {
                 blows.push(close(open.take().expect("open"), burst_uj));
@@ -189,15 +188,15 @@ pub fn bins(blows: &[FeltBlow]) -> Vec<Bin> {
         let Some(bin) = out.iter_mut().rev().find(|x| b.speed_m_per_s >= x.from_m_per_s) else { continue };
         bin.blows += 1;
         bin.peak_n += b.peak_n;
-        bin.peak_along_n += b.peak_along_n;
-        bin.impulse_n_s += b.impulse_n_s;
+        bin.blow_peak_n += b.blow_peak_n;
+        bin.blow_impulse_n_s += b.blow_impulse_n_s;
         bin.burst_energy_mj += b.burst_energy_j * 1e3;
     }
     for bin in &mut out {
         let n = bin.blows.max(1) as f64;
         bin.peak_n /= n;
-        bin.peak_along_n /= n;
-        bin.impulse_n_s /= n;
+        bin.blow_peak_n /= n;
+        bin.blow_impulse_n_s /= n;
         bin.burst_energy_mj /= n;
     }
     out
@@ -220,14 +219,14 @@ impl fmt::Display for BlowsReport {
         )?;
         writeln!(
             f,
-            "  impact speed   blows  peak |F| (N)  peak along (N)  impulse along (N s)  burst energy (mJ)"
+            "  impact speed   blows  blow peak (N)  blow impulse (N s)  burst energy (mJ)  all forces peak (N)"
         )?;
         for b in &self.bins {
             let to = if b.to_m_per_s.is_finite() { format!("{:.1}", b.to_m_per_s) } else { "   ".into() };
             writeln!(
                 f,
-                "  {:>3.1}-{:<3} m/s    {:>5}  {:>12.2}  {:>14.2}  {:>19.3}  {:>17.2}",
-                b.from_m_per_s, to, b.blows, b.peak_n, b.peak_along_n, b.impulse_n_s, b.burst_energy_mj
+                "  {:>3.1}-{:<3} m/s    {:>5}  {:>13.2}  {:>18.3}  {:>17.2}  {:>19.2}",
+                b.from_m_per_s, to, b.blows, b.blow_peak_n, b.blow_impulse_n_s, b.burst_energy_mj, b.peak_n
             )?;
         }
         writeln!(

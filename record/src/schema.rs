@@ -410,6 +410,8 @@ message!(HandRecord = "spidar/HandTick" {
     reserve_j: f64,
     /// the command was scaled down to stay within the reserve
     passivity_limited: bool,
+    /// the landed blow's share of output_n (boxing)
+    blow_n: DVec3,
     /// the output repeats the last tick's (a late, missing or rejected reply, or a high residual)
     held: bool,
 });

@@ -160,6 +160,7 @@ pub(super) fn hand_output(
         non_finite: safe.guarded.non_finite,
         reserve_j: h.passivity.reserve_j(),
         passivity_limited: safe.passivity_limited,
+        blow_n: h.blow_n * applied_share(want_rig, alloc.force_n),
         held: false,
     };
     last.some = true;
@@ -285,8 +286,7 @@ fn hand_impulses_of(
     if rendered.contacts == 0 {
         return;
     }
-    let want_sq = want_rig_n.length_squared();
-    let applied = if want_sq > 0.0 { (output_n.dot(want_rig_n) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+    let applied = applied_share(want_rig_n, output_n);
     let mine = last.impulses.iter_mut().zip(last.contact_impulses.iter_mut());
     for ((m, mc), imp) in mine.zip(impulses.iter()) {
         *m = *imp * applied;
@@ -294,6 +294,18 @@ fn hand_impulses_of(
         if c.is_finite() {
             *mc = c;
         }
+    }
+}
+
+/// The share of the rendered force `want_rig_n` the hand received in `output_n` (the gain, the
+/// clamp, the reserve and the allocation all scale along its direction): 0 to 1, 0 for none.
+fn applied_share(want_rig_n: DVec3, output_n: DVec3) -> f64 {
+    let want_sq = want_rig_n.length_squared();
+    let share = if want_sq > 0.0 { (output_n.dot(want_rig_n) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+    if share.is_finite() {
+        share
+    } else {
+        0.0
     }
 }
 

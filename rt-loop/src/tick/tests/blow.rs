@@ -39,6 +39,7 @@ fn a_landed_blow_is_felt_on_both_hands_along_it_within_the_clamp_once_and_counte
             let f = r.hands[h].output_n;
             assert!(f.length() <= limit + 1e-9, "tick {i}: {f} N over the rig's {limit} N");
             assert!((f - dir * f.dot(dir)).length() < 1e-9, "along the blow: {f}");
+            assert!((r.hands[h].blow_n - f).length() < 1e-9, "the record's blow share is all of it");
             if want.abs() <= limit {
                 assert!((f.dot(dir) - want).abs() < 1e-6, "tick {i} hand {h}: {f} N, want {want} N");
             } else {
