@@ -269,7 +269,7 @@ mod tests {
         f.start(b, p);
         let (mut peak, mut burst_peak, mut work, mut felt) = (0.0f64, 0.0f64, 0.0, 0);
         let mut pos = DVec3::ZERO;
-        for i in 0..200 {
+        for _ in 0..200 {
             let t = f.tick(p, Some(pos), vel, b.dir, gain, 0.001);
             peak = peak.max((t.force.total_n() * gain).length());
             burst_peak = burst_peak.max(t.force.burst_n.length());
