@@ -12,6 +12,7 @@ pub mod bench_view;
 pub mod browser;
 pub mod crowd_run;
 pub mod eval;
+pub mod eval_blows;
 pub mod eval_impacts;
 pub mod eval_poses;
 pub mod spar;

@@ -113,9 +113,30 @@ impl HandContact {
     }
 }
 
+/// A blow the virtual human landed on the avatar (boxing), as the world saw it at impact: the loop
+/// makes the user's hands feel it (`spidar_rt::blow`: a held push along the blow, growing with its
+/// momentum, plus a short decaying burst at impact whose amplitude grows with its speed). A model
+/// carries the newest blow; `seq` tells a new one from the same one sent again. All zero: none yet.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Blow {
+    /// Increases by one for every landed blow the world reports; 0: no blow yet.
+    pub seq: u64,
+    /// Where the fist met the avatar (world frame).
+    pub point_m: DVec3,
+    /// Unit direction of the blow: the fist's velocity relative to the part it struck, at impact.
+    pub dir: DVec3,
+    /// The fist's speed relative to the struck part at impact (m/s).
+    pub speed_m_per_s: f64,
+    /// The blow's effective momentum at impact (N s): the striking hand and forearm's mass times
+    /// the impact speed.
+    pub momentum_n_s: f64,
+    /// True while the fist of this blow still touches the avatar (the held push lasts that long).
+    pub in_contact: bool,
+}
+
 /// What the scene sends the rt-loop every simulation step: the local proxies near the hands, the
 /// avatar hands' contacts as local models (boxing), plus a held per-hand force (the attenuated
-/// "damage" force of hits on the avatar's body).
+/// "damage" force of hits on the avatar's body) and the newest blow landed on the avatar.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactModel {
     /// Increases by one for every model a scene sends.
@@ -129,6 +150,9 @@ pub struct ContactModel {
     pub hand_contacts: [HandContact; HANDS],
     /// Extra force per hand added after rendering (world frame); faded like the rest when stale.
     pub extra_force_n: [DVec3; HANDS],
+    /// The newest blow landed on the avatar (boxing; zero in the other scenes): rendered on both
+    /// hands through the same safety chain.
+    pub blow: Blow,
 }
 
 impl Default for ContactModel {
@@ -147,6 +171,7 @@ impl Default for ContactModel {
             proxy_count: 0,
             hand_contacts: [HandContact::default(); HANDS],
             extra_force_n: [DVec3::ZERO; HANDS],
+            blow: Blow::default(),
         }
     }
 }

@@ -25,13 +25,13 @@ use glam::DVec3;
 
 use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
 use crate::{
-    ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo,
+    Blow, ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo,
     RigState, RigStatus, HANDS, MAX_PROXIES, STRINGS,
 };
 
 pub const MAGIC: [u8; 4] = *b"SPDR";
 /// Raised whenever any message's layout changes; both ends must speak the same one.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 pub const HEADER_LEN: usize = 20;
 
 /// What a datagram carries.
@@ -446,10 +446,37 @@ impl Field for HandContact {
     }
 }
 
+impl Field for Blow {
+    const SIZE: usize = 8 + 2 * DVec3::SIZE + 8 + 8 + 1;
+    fn put(&self, w: &mut Put<'_>) {
+        self.seq.put(w);
+        self.point_m.put(w);
+        self.dir.put(w);
+        self.speed_m_per_s.put(w);
+        self.momentum_n_s.put(w);
+        self.in_contact.put(w);
+    }
+    fn get(r: &mut Get<'_>) -> Self {
+        Blow {
+            seq: u64::get(r),
+            point_m: DVec3::get(r),
+            dir: DVec3::get(r),
+            speed_m_per_s: f64::get(r),
+            momentum_n_s: f64::get(r),
+            in_contact: bool::get(r),
+        }
+    }
+}
+
 /// All `MAX_PROXIES` slots travel, used or not: the datagram has one size.
 impl Field for ContactModel {
-    const SIZE: usize =
-        8 + 8 + <[Proxy; MAX_PROXIES]>::SIZE + 1 + <[HandContact; HANDS]>::SIZE + <[DVec3; HANDS]>::SIZE;
+    const SIZE: usize = 8
+        + 8
+        + <[Proxy; MAX_PROXIES]>::SIZE
+        + 1
+        + <[HandContact; HANDS]>::SIZE
+        + <[DVec3; HANDS]>::SIZE
+        + Blow::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.seq.put(w);
         self.stamp_s.put(w);
@@ -457,6 +484,7 @@ impl Field for ContactModel {
         self.proxy_count.put(w);
         self.hand_contacts.put(w);
         self.extra_force_n.put(w);
+        self.blow.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         let m = ContactModel {
@@ -466,6 +494,7 @@ impl Field for ContactModel {
             proxy_count: u8::get(r),
             hand_contacts: Field::get(r),
             extra_force_n: Field::get(r),
+            blow: Field::get(r),
         };
         if m.proxy_count as usize > MAX_PROXIES {
             r.bad("proxy count (above MAX_PROXIES)");

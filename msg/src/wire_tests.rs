@@ -53,6 +53,19 @@ fn hand_contact() -> impl Strategy<Value = HandContact> {
     })
 }
 
+fn blow() -> impl Strategy<Value = Blow> {
+    (any::<u64>(), v3(), v3(), num(), num(), any::<bool>()).prop_map(
+        |(seq, point_m, dir, speed_m_per_s, momentum_n_s, in_contact)| Blow {
+            seq,
+            point_m,
+            dir,
+            speed_m_per_s,
+            momentum_n_s,
+            in_contact,
+        },
+    )
+}
+
 fn model() -> impl Strategy<Value = ContactModel> {
     (
         any::<u64>(),
@@ -61,14 +74,10 @@ fn model() -> impl Strategy<Value = ContactModel> {
         0..=MAX_PROXIES as u8,
         arr::<_, HANDS>(hand_contact()),
         arr::<_, HANDS>(v3()),
+        blow(),
     )
-        .prop_map(|(seq, stamp_s, proxies, proxy_count, hand_contacts, extra_force_n)| ContactModel {
-            seq,
-            stamp_s,
-            proxies,
-            proxy_count,
-            hand_contacts,
-            extra_force_n,
+        .prop_map(|(seq, stamp_s, proxies, proxy_count, hand_contacts, extra_force_n, blow)| {
+            ContactModel { seq, stamp_s, proxies, proxy_count, hand_contacts, extra_force_n, blow }
         })
 }
 
@@ -284,7 +293,8 @@ fn sizes_follow_the_layout() {
     assert_eq!(ProxyShape::SIZE, 57);
     assert_eq!(Proxy::SIZE, 102);
     assert_eq!(HandContact::SIZE, 88);
-    assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 2 * 88 + 48);
+    assert_eq!(Blow::SIZE, 73);
+    assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 2 * 88 + 48 + 73);
     assert_eq!(HandSample::SIZE, 8 + 8 + 2 * 73 + 8 + 2 * 16 * 24);
     assert_eq!(RigInfo::SIZE, 336 + 82);
     assert_eq!(RigStatus::SIZE, 185);
@@ -330,7 +340,8 @@ fn a_message_struct_that_grows_must_grow_its_wire_form_too() {
     use std::mem::size_of;
     let pinned = [
         ("HandSample", size_of::<HandSample>(), 952),
-        ("ContactModel", size_of::<ContactModel>(), 2040),
+        ("ContactModel", size_of::<ContactModel>(), 2120),
+        ("Blow", size_of::<Blow>(), 80),
         ("HandContact", size_of::<HandContact>(), 88),
         ("Proxy", size_of::<Proxy>(), 112),
         ("RigInfo", size_of::<RigInfo>(), 424),
@@ -454,7 +465,7 @@ fn encoding_needs_a_big_enough_buffer_and_allocates_nothing_else() {
 #[test]
 fn the_documented_bye_datagram_is_what_encode_writes() {
     let hex: String = bye_datagram().iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
-    assert_eq!(hex, "53 50 44 52 04 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
+    assert_eq!(hex, "53 50 44 52 05 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
 }
 
 #[test]

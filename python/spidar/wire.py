@@ -23,7 +23,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 
 MAGIC = b"SPDR"
 #: Raised on the Rust side whenever a message's layout changes; both ends must speak the same.
-PROTOCOL_VERSION = 4
+PROTOCOL_VERSION = 5
 HEADER_LEN = 20
 HANDS = 2
 STRINGS = 4
@@ -67,6 +67,7 @@ _HAND_STATE = struct.Struct("<9dB")  # pos, vel, force, valid
 _VEC16 = struct.Struct("<48d")
 _PROXY = struct.Struct("<HHB7d2d3dB")
 _HAND_CONTACT = struct.Struct("<3d3dd3dd")
+_BLOW = struct.Struct("<Q3d3dddB")
 _RIG_INFO = struct.Struct("<d24d6d2d2d2d2d3d")
 _DISPLAY = struct.Struct("<B3d3d3ddB")  # present, lower left, lower right, upper left, eye separation, stereo
 _STATUS = struct.Struct("<QdBdd6d8d5Q")
@@ -175,6 +176,21 @@ class HandContact:
 
 
 @dataclass
+class Blow:
+    """A blow landed on the avatar (boxing): the rig renders a push along ``dir`` growing with
+    ``momentum_n_s`` while ``in_contact``, and a short decaying burst at impact growing with
+    ``speed_m_per_s``. ``seq`` tells a new blow from the same one sent again; 0: no blow yet."""
+
+    seq: int = 0
+    point_m: Vec3 = ZERO
+    #: Unit direction of the blow (world frame).
+    dir: Vec3 = ZERO
+    speed_m_per_s: float = 0.0
+    momentum_n_s: float = 0.0
+    in_contact: bool = False
+
+
+@dataclass
 class ContactModel:
     """What a world sends every step."""
 
@@ -185,6 +201,8 @@ class ContactModel:
     hand_contacts: List[HandContact] = field(default_factory=lambda: [HandContact(), HandContact()])
     #: Extra force per hand, added after rendering and held until the next model (world frame).
     extra_force_n: List[Vec3] = field(default_factory=lambda: [ZERO, ZERO])
+    #: The newest blow landed on the avatar (a world without one leaves it zero).
+    blow: Blow = field(default_factory=Blow)
 
 
 @dataclass
@@ -282,7 +300,7 @@ _SIZES = {
     KIND_REFUSE: 8 + 1 + REASON_BYTES,
     KIND_BYE: 8,
     KIND_SAMPLE: 8 + 8 + HANDS * _HAND_STATE.size + 8 + 2 * _VEC16.size,
-    KIND_MODEL: 8 + 8 + MAX_PROXIES * _PROXY.size + 1 + HANDS * _HAND_CONTACT.size + HANDS * 24,
+    KIND_MODEL: 8 + 8 + MAX_PROXIES * _PROXY.size + 1 + HANDS * _HAND_CONTACT.size + HANDS * 24 + _BLOW.size,
     KIND_STATUS: _STATUS.size,
 }
 
@@ -349,8 +367,12 @@ def _payload(m: Message) -> Tuple[int, bytes]:
             for c in m.hand_contacts
         )
         extra = b"".join(struct.pack("<3d", *_vec(f)) for f in m.extra_force_n)
+        b = m.blow
+        blow = _BLOW.pack(
+            b.seq, *_vec(b.point_m), *_vec(b.dir), float(b.speed_m_per_s), float(b.momentum_n_s), int(bool(b.in_contact))
+        )
         return KIND_MODEL, (
-            struct.pack("<Qd", m.seq, float(m.stamp_s)) + proxies + bytes([len(m.proxies)]) + contacts + extra
+            struct.pack("<Qd", m.seq, float(m.stamp_s)) + proxies + bytes([len(m.proxies)]) + contacts + extra + blow
         )
     if isinstance(m, Welcome):
         return KIND_WELCOME, (
@@ -556,7 +578,9 @@ def decode(d: bytes) -> Tuple[Header, Message]:
             v = _HAND_CONTACT.unpack_from(p, at + i * _HAND_CONTACT.size)
             contacts.append(HandContact((v[0], v[1], v[2]), (v[3], v[4], v[5]), v[6], (v[7], v[8], v[9]), v[10]))
         extra = _triples(struct.unpack_from("<6d", p, at + HANDS * _HAND_CONTACT.size))
-        return h, ContactModel(seq, stamp, all_proxies[:count], contacts, extra)
+        v = _BLOW.unpack_from(p, at + HANDS * _HAND_CONTACT.size + HANDS * 24)
+        blow = Blow(v[0], (v[1], v[2], v[3]), (v[4], v[5], v[6]), v[7], v[8], _bool(v[9], k))
+        return h, ContactModel(seq, stamp, all_proxies[:count], contacts, extra, blow)
     if k == KIND_WELCOME:
         rs, ws, hands_n, strings, max_proxies, step_s = struct.unpack_from("<QQBBBd", p, 0)
         return h, Welcome(rs, ws, hands_n, strings, max_proxies, step_s, _read_text(p[27 : 27 + NAME_BYTES], k))

@@ -19,7 +19,7 @@ pub mod schema;
 
 /// Format of the recordings this spidar writes and reads (in the `spidar` metadata record).
 /// Raised whenever a schema or the meaning of a channel changes.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 /// The MCAP header's profile: what tells a spidar recording from any other MCAP file.
 pub const PROFILE: &str = "spidar";
 /// spidar's version, as written into recordings.

@@ -9,7 +9,7 @@
 use glam::DVec3;
 use spidar_device::{ErrorKind, Input, Output, MAX_CHANNELS};
 use spidar_msg::{
-    ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES,
+    Blow, ContactModel, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, HANDS, MAX_PROXIES,
 };
 use spidar_rt::telemetry::{CommandLog, HandRecord, TickRecord, RECORD_COMMANDS};
 use spidar_rt::tension::Method;
@@ -316,6 +316,21 @@ message!(HandContact = "spidar/HandContact" {
     source_w: f64,
 });
 
+message!(Blow = "spidar/Blow" {
+    /// +1 per blow landed on the avatar; 0: none yet
+    seq: u64,
+    /// where the fist met the avatar, world frame
+    point_m: DVec3,
+    /// unit direction of the blow: the fist's velocity relative to the struck part
+    dir: DVec3,
+    /// the fist's speed relative to the struck part at impact
+    speed_m_per_s: f64,
+    /// striking hand and forearm's mass times the impact speed
+    momentum_n_s: f64,
+    /// the fist still touches the avatar
+    in_contact: bool,
+});
+
 message!(ContactModel = "spidar/ContactModel" {
     seq: u64,
     /// loop-clock time the geometry is valid at
@@ -326,6 +341,8 @@ message!(ContactModel = "spidar/ContactModel" {
     /// per hand: the contact on the avatar's hand (boxing)
     hand_contacts: [HandContact; HANDS],
     extra_force_n: [DVec3; HANDS],
+    /// the newest blow landed on the avatar (boxing)
+    blow: Blow,
 });
 
 /// A contact model and the tick that took it.
@@ -393,6 +410,8 @@ message!(HandRecord = "spidar/HandTick" {
     reserve_j: f64,
     /// the command was scaled down to stay within the reserve
     passivity_limited: bool,
+    /// the landed blow's share of output_n (boxing)
+    blow_n: DVec3,
     /// the output repeats the last tick's (a late, missing or rejected reply, or a high residual)
     held: bool,
 });

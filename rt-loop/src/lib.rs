@@ -8,6 +8,7 @@
 //! faults, commands and events are named in [`control`]), [`runner`] adds the device, the clock,
 //! the channels and the link to the world ([`status`]: what the rig tells the world about itself).
 
+pub mod blow;
 pub mod boards;
 pub mod bounds;
 pub mod clock;

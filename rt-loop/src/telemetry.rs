@@ -45,6 +45,9 @@ pub struct HandRecord {
     /// to stay within it this tick (`local.rs`).
     pub reserve_j: f64,
     pub passivity_limited: bool,
+    /// The landed blow's share of `output_n` (its push and burst as asked, scaled as the safety
+    /// phase and the allocation scaled the whole force; `blow.rs`).
+    pub blow_n: DVec3,
     /// This hand's output was held from the last tick (late, missing or rejected reply, or a
     /// pose above the residual limit): every other field repeats that tick's.
     pub held: bool,
@@ -69,6 +72,7 @@ impl Default for HandRecord {
             non_finite: false,
             reserve_j: 0.0,
             passivity_limited: false,
+            blow_n: DVec3::ZERO,
             held: false,
         }
     }

@@ -360,6 +360,29 @@ fn safety(out: &mut Summary, c: &Counters) {
     out.line(
         "",
         format!(
+            "blows felt {}/{}, burst energy {:.1}/{:.1} mJ, bursts cut {}/{} and pushes limited {}/{} ticks (landed blows, `docs/boxing.md` 6)",
+            c.blows_felt[0],
+            c.blows_felt[1],
+            c.blow_burst_uj[0] as f64 * 1e-3,
+            c.blow_burst_uj[1] as f64 * 1e-3,
+            c.blow_burst_cut[0],
+            c.blow_burst_cut[1],
+            c.blow_push_limited[0],
+            c.blow_push_limited[1],
+        ),
+    );
+    out.field(
+        "blows",
+        serde_json::json!({
+            "felt": c.blows_felt,
+            "burst_energy_uj": c.blow_burst_uj,
+            "burst_cut_ticks": c.blow_burst_cut,
+            "push_limited_ticks": c.blow_push_limited,
+        }),
+    );
+    out.line(
+        "",
+        format!(
             "stale-model ticks {}, non-finite forces {}, faults {}, device errors {}",
             c.stale, c.non_finite, c.faults, c.device_errors
         ),

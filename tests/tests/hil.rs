@@ -850,6 +850,9 @@ mod uart_pty;
 #[path = "hil/boxing.rs"]
 mod boxing;
 
+#[path = "hil/blows.rs"]
+mod blows;
+
 #[path = "hil/corrupt.rs"]
 mod corrupt;
 

@@ -74,7 +74,7 @@ enum Cmd {
         what: BenchCmd,
     },
     /// Evaluations: `reactions` (the virtual boxer's timing during a bout, and how readable its
-    /// reactions to jabs are), `impacts` (how well impact forces can be told from the keyframe
+    /// reactions to jabs are), `blows` (what the user's hands feel of the virtual human's blows), `impacts` (how well impact forces can be told from the keyframe
     /// characters' motion), `poses` (contact sheets of the characters as drawn).
     Eval {
         #[command(subcommand)]
@@ -160,6 +160,16 @@ enum EvalCmd {
         /// down to the feet).
         #[arg(long, value_enum, default_value = "rig")]
         path: spidar_lab::eval_impacts::ImpactPath,
+    },
+    /// On the path of `spidar run`: the virtual human's landed blows and what the user's hands
+    /// feel of each (peak force and impulse by impact speed, the bursts' energy, the clamp).
+    Blows {
+        /// Length of the bout (s of rig time, virtual clock; at most 3600).
+        #[arg(long, default_value_t = 60.0, value_parser = bout_seconds)]
+        seconds: f64,
+        /// Seed of the user's punches and of the bout.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
     /// Contact sheets (SVG) of the keyframe characters as drawn over their rigid bodies
     /// (a walk, a stagger, a fall each way, a stand-up), with the pose-against-body measures.
@@ -444,6 +454,15 @@ fn eval(what: EvalCmd, json: bool) -> anyhow::Result<()> {
     let report = match what {
         EvalCmd::Reactions { trials, punches, seed, bout_seconds } => {
             return eval_reactions(trials, punches, seed, bout_seconds, json);
+        }
+        EvalCmd::Blows { seconds, seed } => {
+            let stop = Stop::install()?;
+            let report = spidar_lab::eval_blows::eval_blows(seconds, seed, |t| {
+                stopped_eval(&stop, t as usize, seconds as usize, "seconds");
+                term::progress(&format!("  boxed {t:.0}/{seconds:.0} s"));
+            })?;
+            term::progress_done();
+            (serde_json::json!({ "command": "eval blows", "report": report }), report.to_string())
         }
         EvalCmd::Poses { out } => {
             let report = spidar_lab::eval_poses::eval_poses(&out)?;

@@ -43,6 +43,7 @@ use glam::DVec3;
 use spidar_device::{DeviceError, Input, Output};
 use spidar_msg::{ContactModel, HandSample, HandState, HANDS, MAX_PROXIES};
 
+use crate::blow::{BlowFeel, BlowParams};
 pub use crate::control::{Command, Event, FaultReason, Lifecycle};
 use crate::kinematics::{GripSolution, Kinematics};
 use crate::local::Passivity;
@@ -76,6 +77,13 @@ pub struct Counters {
     /// Ticks where the force of an avatar-hand contact was scaled down so the rig would not give
     /// the hand back more energy than it put into the contact (`local.rs`).
     pub passivity_limited: [u64; HANDS],
+    /// Landed blows (boxing) whose force reached this hand (`blow.rs`), ticks whose blow push
+    /// was scaled down by its reserve, ticks whose burst was cut by its energy budget, and the
+    /// work the bursts did on the hand, positive parts summed (microjoules).
+    pub blows_felt: [u64; HANDS],
+    pub blow_push_limited: [u64; HANDS],
+    pub blow_burst_cut: [u64; HANDS],
+    pub blow_burst_uj: [u64; HANDS],
     /// Non-finite forces replaced by zero.
     pub non_finite: u64,
     /// Active ticks with a stale (fading) or missing contact model.
@@ -128,6 +136,11 @@ struct HandCore {
     bad_residual_ticks: u32,
     /// Energy reserve of the avatar-hand contact (local model).
     passivity: Passivity,
+    /// The newest landed blow as this hand feels it, its force this tick (rig frame), and the
+    /// work its bursts gave the hand so far (J).
+    blow: BlowFeel,
+    blow_n: DVec3,
+    burst_given_j: f64,
     /// Ticks since this hand's counts were last accepted (1: the previous tick), when that was,
     /// and the string lengths they gave.
     since_accept: u32,
@@ -212,6 +225,9 @@ impl TickCore {
                 safe_pos_m: hr.home_m,
                 bad_residual_ticks: 0,
                 passivity: Passivity::default(),
+                blow: BlowFeel::default(),
+                blow_n: DVec3::ZERO,
+                burst_given_j: 0.0,
                 since_accept: 1,
                 accept_t_s: 0.0,
                 lengths_m: [0.0; 4],
@@ -313,12 +329,15 @@ impl TickCore {
 
     /// Replaces the contact model (the loop keeps only the newest one it received). The energy
     /// the world's bodies put into each avatar-hand contact over the step since the last model
-    /// is credited to that hand's reserve (`local.rs`).
+    /// is credited to that hand's reserve (`local.rs`). A new landed blow starts on both hands
+    /// (`blow.rs`).
     pub fn set_contact_model(&mut self, m: ContactModel) {
         self.counters.models += 1;
         let since_s = self.model.as_ref().map_or(0.0, |old| (m.stamp_s - old.stamp_s).clamp(0.0, 0.01));
+        let blow = BlowParams::default();
         for (h, c) in self.hands.iter_mut().zip(m.hand_contacts.iter()) {
             h.passivity.credit(c.source_w * since_s);
+            h.blow.start(&m.blow, &blow);
         }
         self.model = Some(m);
     }

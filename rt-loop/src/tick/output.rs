@@ -1,7 +1,7 @@
-//! The tick's output phases, per hand: render the contact model at the hand's pose, pass the
-//! force through the safety rules (gain, force limit, the avatar contact's energy reserve),
-//! allocate string tensions and keep the force they produce within the limit, write the volts;
-//! or replay the last output of a held hand.
+//! The tick's output phases, per hand: the landed blow's force, render the contact model at the
+//! hand's pose, pass the force through the safety rules (gain, force limit, the avatar contact's
+//! energy reserve), allocate string tensions and keep the force they produce within the limit,
+//! write the volts; or replay the last output of a held hand.
 //!
 //! Why it exists apart: everything that decides what the strings pull is here, in the order it
 //! runs (render -> safety -> allocate -> produced limit -> volts), each step a function of what
@@ -14,6 +14,7 @@ use spidar_device::{Output, MAX_CHANNELS};
 use spidar_msg::{ContactModel, HandState, MAX_PROXIES};
 
 use super::{Counters, HandCore, HeldHand};
+use crate::blow::BlowParams;
 use crate::local;
 use crate::produced::{self, ProducedLimit};
 use crate::render::{self, Rendered};
@@ -104,6 +105,7 @@ pub(super) fn hand_output(
     // The avatar hand's contact (local model) engages the energy reserve while active.
     let engaged = v.active && v.model.is_some_and(|m| m.hand_contacts[hi].touching());
     h.passivity.observe(pose_ok.then_some(h.pose.pos_m), engaged);
+    blow_phase(hi, h, pose_ok, vel, v, counters);
     let mut hand_impulses = [DVec3::ZERO; MAX_PROXIES];
     let (rendered, want_rig) = render_phase(hi, h, hr, vel, pose_ok, v, &mut hand_impulses);
     if rendered.stiffness_limited {
@@ -166,6 +168,7 @@ pub(super) fn hand_output(
         non_finite: safe.guarded.non_finite,
         reserve_j: h.passivity.reserve_j(),
         passivity_limited: safe.passivity_limited,
+        blow_n: h.blow_n * applied_share(want_rig, alloc.force_n),
         held: false,
     };
     last.some = true;
@@ -189,8 +192,30 @@ fn replay_held(h: &mut HandCore, hr: &HandRig, to: HandOut) {
     *to.rec = HandRecord { held: true, ..h.last.rec };
 }
 
+/// The blow phase: this tick's force of the newest landed blow on the hand (`blow.rs`: its push
+/// and its burst after impact), into `h.blow_n` (rig frame) for the render
+/// phase, counted: a blow felt, a push scaled by its reserve, a burst cut by its budget, the
+/// bursts' work on the hand.
+fn blow_phase(hi: usize, h: &mut HandCore, pose_ok: bool, vel: DVec3, v: &TickView, counters: &mut Counters) {
+    let b = v.model.map(|m| m.blow).unwrap_or_default();
+    let live = v.active && pose_ok && b.seq == h.blow.seq();
+    let dir = v.xf.vector_to_rig(b.dir);
+    let pos = live.then_some(h.pose.pos_m);
+    let p = BlowParams::default();
+    let t = h.blow.tick(&p, pos, vel, dir, v.gain, v.dt_s);
+    h.blow_n = t.force.total_n();
+    if t.burst_work_j > 0.0 {
+        h.burst_given_j += t.burst_work_j;
+        counters.blow_burst_uj[hi] = (h.burst_given_j * 1e6) as u64;
+    }
+    counters.blows_felt[hi] += u64::from(t.newly_felt);
+    counters.blow_push_limited[hi] += u64::from(t.force.push_limited);
+    counters.blow_burst_cut[hi] += u64::from(t.force.burst_cut);
+}
+
 /// The render phase: the force the contact model asks at the hand's pose (rig frame: the
-/// proxies', the avatar hand's contact and the scene's extra force) and each proxy's impulse
+/// proxies', the avatar hand's contact, the scene's extra force and the landed blow's, from the
+/// blow phase) and each proxy's impulse
 /// over the tick (world frame) into `impulses`. Nothing unless active with a trusted pose and a
 /// model.
 pub(super) fn render_phase(
@@ -223,7 +248,7 @@ pub(super) fn render_phase(
     if l.force_n != DVec3::ZERO {
         rendered.contacts = rendered.contacts.saturating_add(1);
     }
-    let want_rig = v.xf.vector_to_rig(rendered.force_n + l.force_n + m.extra_force_n[hi]);
+    let want_rig = v.xf.vector_to_rig(rendered.force_n + l.force_n + m.extra_force_n[hi]) + h.blow_n;
     (rendered, want_rig)
 }
 
@@ -280,8 +305,7 @@ fn hand_impulses_of(
     if rendered.contacts == 0 {
         return;
     }
-    let want_sq = want_rig_n.length_squared();
-    let applied = if want_sq > 0.0 { (output_n.dot(want_rig_n) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+    let applied = applied_share(want_rig_n, output_n);
     let mine = last.impulses.iter_mut().zip(last.contact_impulses.iter_mut());
     for ((m, mc), imp) in mine.zip(impulses.iter()) {
         *m = *imp * applied;
@@ -289,6 +313,18 @@ fn hand_impulses_of(
         if c.is_finite() {
             *mc = c;
         }
+    }
+}
+
+/// The share of the rendered force `want_rig_n` the hand received in `output_n` (the gain, the
+/// clamp, the reserve and the allocation all scale along its direction): 0 to 1, 0 for none.
+fn applied_share(want_rig_n: DVec3, output_n: DVec3) -> f64 {
+    let want_sq = want_rig_n.length_squared();
+    let share = if want_sq > 0.0 { (output_n.dot(want_rig_n) / want_sq).clamp(0.0, 1.0) } else { 0.0 };
+    if share.is_finite() {
+        share
+    } else {
+        0.0
     }
 }
 

@@ -24,7 +24,7 @@ pub mod spar;
 pub mod stance;
 
 use glam::{DMat3, DVec3};
-use spidar_msg::{HandContact, ProxyShape};
+use spidar_msg::{Blow, HandContact, ProxyShape};
 
 use crate::aba::aba;
 use crate::collide::Shape;
@@ -142,6 +142,12 @@ pub struct StepReport {
     pub blocked: [bool; 2],
     /// The virtual human's hand touches the avatar's head or chest.
     pub avatar_hit: bool,
+    /// Sum of the contact forces of the virtual human's hands on the avatar's head and chest (a
+    /// part of `damage_force_n`: the blow's, which the rt-loop renders from `blow`).
+    pub blow_force_n: DVec3,
+    /// The newest blow the virtual human landed on the avatar (its `seq` changes with each new
+    /// one; `in_contact` while its fist is still on the avatar).
+    pub blow: Blow,
 }
 
 impl StepReport {
@@ -171,7 +177,15 @@ pub struct BoxingWorld {
     /// `ws.f_ext`), so a step never computes them twice and never uses stale ones.
     kin_state: State,
     prepared: bool,
+    /// The newest landed blow, and when a fist of the virtual human last touched the avatar's
+    /// head or chest.
+    blow: Blow,
+    blow_touch_s: f64,
 }
+
+/// A touch of the virtual human's fist on the avatar's head or chest that begins at least this
+/// long after the last one is a new blow (the hit counters' rule: a chattering contact is one).
+pub const BLOW_GAP_S: f64 = mind::HIT_GAP_S;
 
 impl BoxingWorld {
     pub fn new(params: BoxerParams) -> Result<BoxingWorld, SimError> {
@@ -222,6 +236,8 @@ impl BoxingWorld {
             hand_pair_k,
             stiffness: [StiffnessEstimate::default(); 2],
             prepared: false,
+            blow: Blow::default(),
+            blow_touch_s: f64::NEG_INFINITY,
         };
         w.begin_step();
         Ok(w)
@@ -283,6 +299,9 @@ impl BoxingWorld {
         // Per hand: the summed force, the stiffness-weighted normal, the summed stiffness and the
         // power the touched bodies put in.
         let mut sums = [(DVec3::ZERO, DVec3::ZERO, 0.0f64, 0.0f64); 2];
+        // The fastest touch of a virtual human's fist on the avatar's head or chest: (relative
+        // speed, point, relative velocity, striking hand's side).
+        let mut strike: Option<(f64, DVec3, DVec3, usize)> = None;
         for c in &self.ws.contacts {
             let (Some(a), Some(b)) = (c.body_a.map(usize::from), c.body_b.map(usize::from)) else {
                 continue;
@@ -305,8 +324,17 @@ impl BoxingWorld {
                     rep.blocked[h] |= vh.hand.contains(&other) || vh.forearm.contains(&other);
                 } else if avatar_bodies.contains(&me) {
                     rep.damage_force_n += f;
-                    if (me == av.head || me == av.chest) && vh.hand.contains(&other) {
+                    let side = vh.hand.iter().position(|&x| x == other);
+                    if let (true, Some(side)) = (me == av.head || me == av.chest, side) {
                         rep.avatar_hit = true;
+                        rep.blow_force_n += f;
+                        let (xo, xm) = (&self.ws.x0[other], &self.ws.x0[me]);
+                        let v_rel = self.ws.point_velocity(other, xo.e * (c.point_m - xo.r))
+                            - self.ws.point_velocity(me, xm.e * (c.point_m - xm.r));
+                        let speed = v_rel.length();
+                        if speed.is_finite() && strike.is_none_or(|s| speed > s.0) {
+                            strike = Some((speed, c.point_m, v_rel, side));
+                        }
                     }
                 }
             }
@@ -343,6 +371,35 @@ impl BoxingWorld {
                 self.stiffness[h] = StiffnessEstimate::default();
             }
         }
+        self.report_blow(strike, rep);
+    }
+
+    /// The blow part of `rep`: a touch of the virtual human's fist on the avatar's head or chest
+    /// (`strike`: its relative speed, point, relative velocity and side) that begins
+    /// [`BLOW_GAP_S`] after the last one is a new blow, measured at this first touching step:
+    /// its direction and speed are the fist's relative to the struck part, its momentum the
+    /// striking hand and forearm's mass times that speed.
+    fn report_blow(&mut self, strike: Option<(f64, DVec3, DVec3, usize)>, rep: &mut StepReport) {
+        let t = self.state.t_s;
+        match strike {
+            Some((speed, point_m, v_rel, side)) => {
+                if t - self.blow_touch_s > BLOW_GAP_S {
+                    let m = &self.model;
+                    let mass = m.bodies[self.vh.hand[side]].mass_kg + m.bodies[self.vh.forearm[side]].mass_kg;
+                    self.blow = Blow {
+                        seq: self.blow.seq + 1,
+                        point_m,
+                        dir: v_rel.normalize_or_zero(),
+                        speed_m_per_s: speed,
+                        momentum_n_s: mass * speed,
+                        in_contact: true,
+                    };
+                }
+                self.blow_touch_s = t;
+            }
+            None => self.blow.in_contact = false,
+        }
+        rep.blow = self.blow;
     }
 
     /// World position of a body's centre of mass (after `begin_step` or `step`).

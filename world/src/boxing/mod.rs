@@ -5,7 +5,9 @@
 //! steps (the avatar's fists collide with the virtual human, who thinks and reaches); and the
 //! scene sends the contact on each avatar hand as a local model (`HandContact`, in the rt-loop's
 //! frame), which the rt-loop renders at 1 kHz and clips to what the rig can push, with the
-//! avatar's damage (contacts on its other parts, attenuated) as the extra force on both hands.
+//! newest blow the virtual human landed on the avatar (`Blow`: the loop renders a push along it
+//! and a burst at impact on both hands) and the avatar's other damage (contacts on its other
+//! parts, attenuated) as the extra force on both hands.
 //! No proxies: the user touches the virtual human only through the avatar's hands.
 //!
 //! The virtual human's decisions (behaviour per hand and body, the deciding prediction, hits)
@@ -40,16 +42,19 @@ impl BoxingScene {
     }
 
     /// The model of the world's newest state: the avatar hands' contacts (the report's, in the
-    /// rt-loop's frame already) and the avatar's damage, attenuated, on both hands.
+    /// rt-loop's frame already), the newest blow the virtual human landed (the loop renders it on
+    /// both hands, `spidar_rt::blow`), and the avatar's other damage (contacts on its parts that
+    /// are not a landed blow), attenuated, on both hands.
     fn model_at(&mut self, t_s: f64) -> ContactModel {
         self.seq += 1;
         let w = &self.world;
-        let damage = w.last.damage_force_n * w.params.damage_attenuation;
+        let damage = (w.last.damage_force_n - w.last.blow_force_n) * w.params.damage_attenuation;
         ContactModel {
             seq: self.seq,
             stamp_s: t_s,
             hand_contacts: w.last.hand_contacts,
             extra_force_n: [damage; HANDS],
+            blow: w.last.blow,
             ..Default::default()
         }
     }

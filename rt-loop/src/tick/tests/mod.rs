@@ -8,6 +8,7 @@ use super::*;
 use crate::tension::Method;
 use spidar_device::{ErrorKind, MAX_CHANNELS};
 
+mod blow;
 mod calibrating;
 mod input;
 mod lifecycle;
