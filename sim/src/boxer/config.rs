@@ -342,8 +342,8 @@ mod tests {
         let e = refused(&text, "skill", "champion");
         assert!(e.contains("novice, amateur, pro"), "{e}");
         // A negative delay (the pro's, the third level).
-        let text = BOXER_RON.replacen("delay_s: 0.15,", "delay_s: -0.15,", 1);
-        refused(&text, "skills.pro.delay_s", "-0.15");
+        let text = BOXER_RON.replacen("delay_s: 0.14,", "delay_s: -0.14,", 1);
+        refused(&text, "skills.pro.delay_s", "-0.14");
         // A field of view over a full turn (the novice's).
         let text = BOXER_RON.replacen("fov_deg: 180.0", "fov_deg: 400.0", 1);
         let e = refused(&text, "skills.novice.fov_deg", "400");

@@ -382,7 +382,7 @@ impl Mind {
         let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
         let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
         let t0 = state.t_s;
-        let av = self.av;
+        let (av, vh) = (self.av, self.vh);
         let acc = self.hand_acc_m_per_s2;
         let mut best: Option<Decision> = None;
         let mut middle_at: Option<usize> = None;
@@ -448,6 +448,22 @@ impl Mind {
                 Some(Priority::High) => return false,
                 Some(Priority::Middle) if middle_at.is_some_and(|k| n >= k + grace) => return false,
                 _ => {}
+            }
+            // Nothing more can happen once nothing moves: both fists (and the user's hands they
+            // follow) at rest and every reach done. Stopping there keeps the longest predictions,
+            // which find nothing, within the budget.
+            let settled = !stance_returning
+                || (stance.returning(s.t_s - t0, stance_speed) - stance.place_m).length() < 1e-3;
+            let body_still = [vh.head, vh.chest]
+                .iter()
+                .all(|&b| ws.point_velocity(b, m.bodies[b].com_m).length() < QUIET_BODY_M_PER_S);
+            if best.is_none()
+                && n >= QUIET_MIN_STEPS
+                && settled
+                && body_still
+                && still(m, ws, s, &av, targets, reaches, acc, decel, t0)
+            {
+                return false;
             }
             let dt_ahead = s.t_s - t0;
             for (h, t) in targets.iter().enumerate() {
@@ -942,6 +958,34 @@ impl Mind {
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A prediction runs at least this many steps before it may stop for want of motion.
+const QUIET_MIN_STEPS: usize = 10;
+/// Below this speed a fist or a hand is at rest (m/s), and the head and the chest (m/s).
+const QUIET_M_PER_S: f64 = 0.2;
+const QUIET_BODY_M_PER_S: f64 = 0.02;
+
+/// In a prediction: both avatar fists and the user's hands they follow (extrapolated) at rest,
+/// and every reach done (holds excepted: they keep a part still).
+#[allow(clippy::too_many_arguments)]
+fn still(
+    m: &Model,
+    ws: &Workspace,
+    s: &State,
+    av: &Parts,
+    targets: &[Option<HandTarget>; 2],
+    reaches: &[Option<Reach>; 3],
+    acc: [DVec3; 2],
+    decel: f64,
+    t0: f64,
+) -> bool {
+    let fists = av.hand.iter().all(|&h| ws.point_velocity(h, m.bodies[h].com_m).length() < QUIET_M_PER_S);
+    let hands = targets.iter().enumerate().all(|(h, t)| {
+        t.is_none_or(|t| extrapolate(&t, acc[h], s.t_s - t0, decel).vel_m_per_s.length() < QUIET_M_PER_S)
+    });
+    let reaching = reaches.iter().flatten().any(|r| !is_hold(r) && !r.done(s.t_s));
+    fists && hands && !reaching
 }
 
 /// A reach that holds its part where it is while a fist is about (it never ends).
