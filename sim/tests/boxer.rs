@@ -335,7 +335,9 @@ fn a_hook_predicted_to_hit_the_head_starts_an_avoidance_and_misses() {
 /// After warm-up a boxing step allocates nothing, predictions, reaches and decisions included.
 #[test]
 fn boxing_steps_with_predictions_do_not_allocate() {
-    let mut w = settled(BoxerParams::default());
+    // At the default skill: the perception's history, the perceived state and the sight's errors
+    // run in every step and prediction.
+    let mut w = settled_seeing(BoxerParams::default());
     w.mind.params.attack_per_step = 0.05;
     let guard = w.com(w.avatar.hand[0]);
     let head = w.com(w.vh.head);
