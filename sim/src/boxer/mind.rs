@@ -296,7 +296,7 @@ impl Mind {
             counter_until_s: f64::NEG_INFINITY,
             refractory_until_s: f64::NEG_INFINITY,
             perceived: Some(State::new(model)),
-            sight_rng: Pcg64Mcg::seed_from_u64(p.seed ^ 0x5eed_0f_5197),
+            sight_rng: Pcg64Mcg::seed_from_u64(p.seed ^ 0x005e_ed0f_5197),
             last_hit_s: f64::NEG_INFINITY,
             last_hitting_s: f64::NEG_INFINITY,
             next_predict_s: 0.0,
