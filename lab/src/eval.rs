@@ -26,7 +26,7 @@ use spidar_device::sim::{Script, SimRig};
 use spidar_msg::{ContactModel, HandSample};
 use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Clock, Rig};
-use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind};
+use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind, SkillLevel};
 
 use spidar_runtime::scripts::{box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind};
 use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
@@ -247,7 +247,8 @@ pub struct PunchOutcome {
     /// The punch started with the virtual human standing by (nothing under way).
     pub from_rest: bool,
     /// From the punch's start to the first motion of the virtual human's head, chest or hands
-    /// over 1 cm (s); and whether that came before the fist touched it.
+    /// over 1 cm once a defence is under way (s); and whether that came before the fist
+    /// touched it.
     pub reaction_s: Option<f64>,
     pub reacted_before_contact: bool,
     /// The farthest the head or chest moved toward the punching fist during the punch and the
@@ -356,6 +357,14 @@ pub struct BoutOutcome {
     pub status: String,
     pub passivity_limited: [u64; 2],
     pub clamped: [u64; 2],
+    /// The virtual human's level of skill.
+    pub skill: &'static str,
+    /// Its attacks: all started, those that were counters, those given up because a prediction
+    /// found them blocked; and when each started (s, scripts' clock).
+    pub attacks: u64,
+    pub counters: u64,
+    pub abandoned: u64,
+    pub attack_starts_s: Vec<f64>,
 }
 
 /// The state of the virtual human and the avatar after one world step.
@@ -400,6 +409,8 @@ fn punch_outcomes_with(
     let end_s = plan.punches.iter().map(|p| p.end_s()).fold(0.0, f64::max) + 0.5;
     let mut frames: Vec<Frame> = Vec::with_capacity((end_s / 0.003) as usize + 16);
     let mut bad = 0;
+    let mut attack_starts_s = Vec::new();
+    let mut was_attacking = false;
     let mut prev_contact = [DVec3::ZERO; 2];
     let mut prev_seq = 0;
     while b.script_t_s() < end_s {
@@ -418,6 +429,11 @@ fn punch_outcomes_with(
         if defending && m.hands.contains(&Behaviour::Attack) {
             bad += 1;
         }
+        let attacking = m.hands.contains(&Behaviour::Attack);
+        if attacking && !was_attacking {
+            attack_starts_s.push(b.script_t_s());
+        }
+        was_attacking = attacking;
         let r = &w.last;
         // The force felt on the first tick that rendered the previous step's model.
         let first = b.consumed.iter().find(|s| s.model_seq == prev_seq);
@@ -444,7 +460,15 @@ fn punch_outcomes_with(
     }
     let punches = plan.punches.iter().map(|p| outcome(p, &frames)).collect();
     let c = b.v.counters();
+    let m = &b.scene.world.mind;
+    let (skill, attacks, counters, abandoned) =
+        (m.skill().level.name(), m.attacks, m.counters, m.attacks_abandoned);
     Ok(BoutOutcome {
+        skill,
+        attacks,
+        counters,
+        abandoned,
+        attack_starts_s,
         active,
         punches,
         attack_during_defence_steps: bad,
@@ -484,10 +508,14 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
     let start = first.vh;
     let mut reference = [start[0], start[1]];
     let mut touched = false;
+    let mut responding = false;
     for (k, f) in win.iter().enumerate() {
         o.peak_m_per_s = o.peak_m_per_s.max(f.speed[h]);
         let contact = f.head[h] || f.chest[h] || f.blocked[h];
-        if o.reaction_s.is_none() && (0..4).any(|i| (f.vh[i] - start[i]).length() > SEEN_M) {
+        // A reaction is the response's motion: counted once a defence is under way (a motion
+        // before it, its own attack or a way back to its guard, is not a reaction to this punch).
+        responding |= f.body == BodyBehaviour::Avoidance || f.hands.contains(&Behaviour::Block);
+        if responding && o.reaction_s.is_none() && (0..4).any(|i| (f.vh[i] - start[i]).length() > SEEN_M) {
             o.reaction_s = Some(f.t_s - t0);
             o.reacted_before_contact = !touched && !contact;
         }
@@ -586,6 +614,51 @@ impl Rates {
 }
 
 impl BoutOutcome {
+    /// Landed share of the punches (not feints) selected by `sel`, and how many there were.
+    pub fn landed_of(&self, sel: impl Fn(&PunchOutcome) -> bool) -> (f64, usize) {
+        let v: Vec<&PunchOutcome> = self.punches.iter().filter(|o| !o.punch.feint && sel(o)).collect();
+        (v.iter().filter(|o| o.landed()).count() as f64 / v.len().max(1) as f64, v.len())
+    }
+
+    /// Punches (not feints) thrown within [`FEINT_PAIR_S`] after a feint ended its way out.
+    pub fn after_feint(&self, o: &PunchOutcome) -> bool {
+        !o.punch.feint
+            && self.punches.iter().any(|f| {
+                let out = f.punch.start_s + f.punch.out_s;
+                f.punch.feint && f.punch.start_s < o.punch.start_s && o.punch.start_s - out <= FEINT_PAIR_S
+            })
+    }
+
+    /// Feint pairs: the landed share of punches thrown within 0.5 s after a feint, and what the
+    /// same punches (each paired with the punches of its kind and aim thrown with no feint
+    /// before) landed without one; and how many there were.
+    pub fn feint_pairs(&self) -> (f64, f64, usize) {
+        let after: Vec<&PunchOutcome> = self.punches.iter().filter(|o| self.after_feint(o)).collect();
+        let mut without = 0.0;
+        for o in &after {
+            let (rate, _) = self.landed_of(|x| {
+                x.punch.kind == o.punch.kind && x.punch.aim == o.punch.aim && !self.after_feint(x)
+            });
+            without += rate;
+        }
+        let n = after.len();
+        let with = after.iter().filter(|o| o.landed()).count() as f64 / n.max(1) as f64;
+        (with, without / n.max(1) as f64, n)
+    }
+
+    /// Blocks that met a fist, and how many of them a counter followed within 1 s.
+    pub fn counters_after_blocks(&self) -> (usize, usize) {
+        let blocks: Vec<f64> = self
+            .punches
+            .iter()
+            .filter(|o| o.blocked && !o.landed())
+            .map(|o| o.punch.start_s + o.block_at_s)
+            .collect();
+        let countered =
+            blocks.iter().filter(|&&t| self.attack_starts_s.iter().any(|&a| a > t && a <= t + 1.0)).count();
+        (blocks.len(), countered)
+    }
+
     /// Rates of the punches (not feints) aimed at `aim`.
     pub fn at(&self, aim: Aim) -> Rates {
         Rates::of(self.punches.iter().filter(|o| !o.punch.feint && o.punch.aim == aim))
@@ -615,6 +688,9 @@ impl BoutOutcome {
     }
 }
 
+/// A punch thrown this soon after a feint's way out is a feint pair's (s).
+pub const FEINT_PAIR_S: f64 = 0.5;
+
 /// The box script of the punch experiment: every kind, head and chest, both hands, 2-7 m/s,
 /// single and in combinations, a fifth feints.
 pub fn punch_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
@@ -627,6 +703,8 @@ pub fn punch_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
 pub struct PunchReport {
     pub active: BoutOutcome,
     pub passive: BoutOutcome,
+    /// The same punches at the other levels of skill (novice, pro).
+    pub other_skills: Vec<BoutOutcome>,
 }
 
 /// `progress(done, total)` is called as punches end (`total` counts each punch twice: thrown at
@@ -638,12 +716,18 @@ pub fn punch_report(
 ) -> anyhow::Result<PunchReport> {
     let plan = punch_plan(punches, seed)?;
     let n = plan.punches.len();
-    let mut run = |active: bool, before: usize| {
-        let params = BoxerParams { active, seed, ..Default::default() };
-        punch_outcomes_with(params, &plan, seed, &mut |over| progress(before + over, 2 * n))
+    let mut run = |params: BoxerParams, before: usize| {
+        punch_outcomes_with(BoxerParams { seed, ..params }, &plan, seed, &mut |over| {
+            progress(before + over, 4 * n)
+        })
     };
-    let active = run(true, 0)?;
-    Ok(PunchReport { active, passive: run(false, n)? })
+    let active = run(BoxerParams::default(), 0)?;
+    let passive = run(BoxerParams { active: false, ..Default::default() }, n)?;
+    let mut other_skills = Vec::new();
+    for (k, level) in [SkillLevel::Novice, SkillLevel::Pro].into_iter().enumerate() {
+        other_skills.push(run(BoxerParams::default().with_skill(level), (2 + k) * n)?);
+    }
+    Ok(PunchReport { active, passive, other_skills })
 }
 
 impl fmt::Display for PunchReport {
@@ -741,6 +825,68 @@ impl fmt::Display for PunchReport {
             "  blocks that met the fist: {} ({out} on its way out); felt on their first tick (at least half of the contact or of \
              4 N): {felt} ({out_felt} of those on the way out); the fist got through after: {through}",
             blocks.len(),
+        )?;
+        writeln!(f, "  landed on the part aimed at, {} (default) skill, active:", a.skill)?;
+        writeln!(f, "    {:<10} {:>14} {:>14} {:>14}", "kind", "head", "chest", "both")?;
+        for kind in PunchKind::ALL {
+            let cell = |aim: Option<Aim>| {
+                let (r, n) = a.landed_of(|o| o.punch.kind == kind && aim.is_none_or(|x| o.punch.aim == x));
+                format!("{:>5.1} % ({n:>3})", 100.0 * r)
+            };
+            writeln!(
+                f,
+                "    {:<10} {:>14} {:>14} {:>14}",
+                kind.name(),
+                cell(Some(Aim::Head)),
+                cell(Some(Aim::Chest)),
+                cell(None)
+            )?;
+        }
+        let (all, n_all) = a.landed_of(|_| true);
+        writeln!(
+            f,
+            "    overall {:.1} % of {n_all} punches (professional boxers land about 20-40 %)",
+            100.0 * all
+        )?;
+        let mut by_skill = vec![(a.skill, all)];
+        by_skill.extend(self.other_skills.iter().map(|b| (b.skill, b.landed_of(|_| true).0)));
+        by_skill.sort_by_key(|(name, _)| SkillLevel::parse(name).map_or(9, |l| l.index()));
+        let rows: Vec<String> = by_skill.iter().map(|(s, r)| format!("{s} {:.1} %", 100.0 * r)).collect();
+        let reactions: Vec<String> = std::iter::once(a)
+            .chain(&self.other_skills)
+            .map(|b| {
+                format!("{} {}", b.skill, b.reaction_median_s().map_or("-".into(), |s| format!("{s:.3} s")))
+            })
+            .collect();
+        writeln!(
+            f,
+            "  landed by skill: {}; reaction median by skill: {}",
+            rows.join(", "),
+            reactions.join(", ")
+        )?;
+        let (with, without, pairs) = a.feint_pairs();
+        let feints: Vec<&PunchOutcome> = a.punches.iter().filter(|o| o.punch.feint).collect();
+        let share = |pick: fn(&PunchOutcome) -> bool| {
+            feints.iter().filter(|o| pick(o)).count() as f64 / feints.len().max(1) as f64
+        };
+        writeln!(
+            f,
+            "  feints: {} drew the start of a defence {:.2} (a block {:.2}, an avoidance {:.2}); punches within {FEINT_PAIR_S} s after a feint landed {:.1} %, the same punches without one {:.1} % ({pairs} pairs)",
+            feints.len(),
+            share(|o| o.block || o.avoidance),
+            share(|o| o.block),
+            share(|o| o.avoidance),
+            100.0 * with,
+            100.0 * without
+        )?;
+        let (blocked, countered) = a.counters_after_blocks();
+        writeln!(
+            f,
+            "  its attacks: {} ({} counters, {} given up when a prediction found them blocked); blocked punches followed by its attack within 1 s: {countered} of {blocked} ({:.2})",
+            a.attacks,
+            a.counters,
+            a.abandoned,
+            countered as f64 / blocked.max(1) as f64
         )?;
         writeln!(
             f,

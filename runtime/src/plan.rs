@@ -115,6 +115,11 @@ pub struct RunArgs {
     /// whatever it runs).
     #[arg(long)]
     pub scene: Option<String>,
+    /// The virtual human's level of skill (boxing scenes): novice, amateur or pro, each a set of
+    /// perception and decision parameters of its boxer file. Default: the file's own (the
+    /// built-in file's is a good amateur). With --world ADDR: give it to `spidar world` instead.
+    #[arg(long)]
+    pub skill: Option<String>,
     /// Where the world runs: `child` (a `spidar world` process started here and restarted if it
     /// dies; the default), `thread` (inside this process), or the address of a world already
     /// running: unix:PATH, udp://HOST:PORT (`spidar world` prints its address).
@@ -218,6 +223,8 @@ pub struct RunPlan {
     pub scene: String,
     /// What --scene said, for a world already running (it must run that scene).
     pub scene_asked: Option<String>,
+    /// What --skill said (the world's scene is loaded at that level).
+    pub skill: Option<String>,
     pub world: WorldPlan,
     pub world_timeout: Duration,
     pub world_priority: Option<u8>,
@@ -263,6 +270,7 @@ impl RunPlan {
             device_kind: a.device,
             scene,
             scene_asked: a.scene,
+            skill: a.skill,
             world,
             world_timeout: Duration::from_secs_f64(a.world_timeout_s),
             world_priority: a.world_priority,
@@ -356,6 +364,11 @@ fn check_world_options(a: &RunArgs, given: &dyn Fn(&str) -> bool) -> anyhow::Res
                 }
             }
             _ => {
+                if a.skill.is_some() {
+                    bail!(
+                        "--skill sets the level of a world this rig starts: give a running world its level with                          `spidar world --skill LEVEL`"
+                    );
+                }
                 if given("world_restarts") {
                     bail!(
                         "--world-restarts applies to --world child only: a world already running is not restarted \

@@ -71,8 +71,11 @@ fn start_world(plan: &RunPlan) -> anyhow::Result<(WorldChoice, String)> {
     // in the world process otherwise (the rig process stays small).
     Ok(match &plan.world {
         WorldPlan::Thread => {
-            let scene = spidar_world::load(scene_arg)?;
-            let name = format!("{scene_arg} ({})", scene.name());
+            let scene = spidar_world::load_with_skill(scene_arg, plan.skill.as_deref())?;
+            let name = match &plan.skill {
+                Some(skill) => format!("{scene_arg} ({}, skill {skill})", scene.name()),
+                None => format!("{scene_arg} ({})", scene.name()),
+            };
             // The live view runs on the real clock only.
             let view = if matches!(plan.clock, Clock::Virtual { .. }) {
                 if plan.view.view.is_some() {
@@ -94,7 +97,16 @@ fn start_world(plan: &RunPlan) -> anyhow::Result<(WorldChoice, String)> {
                 spec.extra.extend(["--priority".into(), p.to_string().into()]);
             }
             spec.extra.extend(plan.view.child_args());
-            (WorldChoice::Child(spec), scene_arg.clone())
+            if let Some(skill) = &plan.skill {
+                // Checked here, so a wrong level is refused before the child starts.
+                spidar_sim::boxer::SkillLevel::parse(skill).map_err(|e| anyhow::anyhow!("--skill: {e}"))?;
+                spec.extra.extend(["--skill".into(), skill.into()]);
+            }
+            let name = match &plan.skill {
+                Some(skill) => format!("{scene_arg} (skill {skill})"),
+                None => scene_arg.clone(),
+            };
+            (WorldChoice::Child(spec), name)
         }
         WorldPlan::Connect(at) => {
             if plan.view.view.is_some() || plan.view.no_view {

@@ -29,6 +29,11 @@ pub struct WorldArgs {
     /// configs/boxer.ron, a crowd scene like configs/scene-crowd.ron or a walls scene.
     #[arg(long, default_value = "boxing")]
     pub scene: String,
+    /// The virtual human's level of skill (boxing scenes): novice, amateur or pro, each a set of
+    /// perception and decision parameters of its boxer file. Default: the file's own (`skill`;
+    /// the built-in file's is a good amateur).
+    #[arg(long)]
+    pub skill: Option<String>,
     /// Where rigs connect: unix:PATH, or udp://HOST:PORT for a rig on another host
     /// (udp://:PORT listens on 127.0.0.1 only; udp://0.0.0.0:PORT on every interface). Default:
     /// unix:$XDG_RUNTIME_DIR/spidar/world.sock, or a new private directory (printed).
@@ -207,9 +212,12 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         return Ok(ServeReport { link: *link.stats(), ..Default::default() });
     }
     if a.scene == spidar_world::spar::NAME {
+        if a.skill.is_some() {
+            anyhow::bail!("--skill sets the virtual human's level; the spar scene has none (two people box each other): drop --skill");
+        }
         return run_spar(a, stop);
     }
-    let scene = spidar_world::load(&a.scene)?;
+    let scene = spidar_world::load_with_skill(&a.scene, a.skill.as_deref())?;
     let step_s = scene.step_s();
     let scene_label = format!("{} ({})", a.scene, scene.name());
     // Created before the world listens: a path that cannot be written is refused before any rig

@@ -76,28 +76,51 @@ pub trait Observer: Send {
     fn after_step(&mut self, step: &StepView<'_>);
 }
 
+fn other_what(kind: spidar_config::FileKind) -> &'static str {
+    match kind {
+        spidar_config::FileKind::CrowdScene => "crowd",
+        _ => "walls",
+    }
+}
+
 /// Builds a scene by name (`boxing`, `boxing-passive`, `crowd`, `walls`) or from a file of any
 /// name that says what it is (its `kind`): a boxer file (the boxing scene with those
 /// parameters), a crowd scene file or a walls scene file.
 pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
+    load_with_skill(name_or_path, None)
+}
+
+/// [`load`], with the virtual human at `skill` (a level of its boxer file: novice, amateur, pro)
+/// instead of the file's own; refused for a scene without a virtual human.
+pub fn load_with_skill(name_or_path: &str, skill: Option<&str>) -> anyhow::Result<Box<dyn Scene>> {
     use spidar_config::FileKind;
+    use spidar_sim::boxer::{BoxerParams, SkillLevel};
+    let level = skill.map(SkillLevel::parse).transpose().map_err(|e| anyhow::anyhow!("--skill: {e}"))?;
+    let boxing = |p: BoxerParams| -> anyhow::Result<Box<dyn Scene>> {
+        let p = match level {
+            Some(l) => p.with_skill(l),
+            None => p,
+        };
+        Ok(Box::new(boxing::BoxingScene::new(p)?))
+    };
+    let no_skill = |what: &str| -> anyhow::Result<Box<dyn Scene>> {
+        anyhow::bail!(
+            "--skill sets the virtual human's level, and the {what} scene has none: leave --skill out"
+        )
+    };
     const TAKES: &str =
         "--scene takes boxing, boxing-passive, crowd, walls, or a boxer, crowd scene or walls \
                          scene file (configs/boxer.ron, configs/scene-crowd.ron, configs/scene-walls.ron)";
     match name_or_path {
+        "walls" | "crowd" if level.is_some() => return no_skill(name_or_path),
         "walls" => return Ok(Box::new(walls::WallsScene::builtin())),
         spar::NAME => anyhow::bail!(
             "scene 'spar' needs two rigs and a world of its own: start `spidar world --scene spar --listen \
              udp://0.0.0.0:7700` and connect each rig with `spidar run --world udp://HOST:7700` (docs/spar.md)"
         ),
         "crowd" => return Ok(Box::new(crowd::CrowdScene::builtin()?)),
-        "boxing" => return Ok(Box::new(boxing::BoxingScene::new(Default::default())?)),
-        "boxing-passive" => {
-            return Ok(Box::new(boxing::BoxingScene::new(spidar_sim::boxer::BoxerParams {
-                active: false,
-                ..Default::default()
-            })?))
-        }
+        "boxing" => return boxing(BoxerParams::default()),
+        "boxing-passive" => return boxing(BoxerParams { active: false, ..Default::default() }),
         _ => {}
     }
     let path = std::path::Path::new(name_or_path);
@@ -107,7 +130,8 @@ pub fn load(name_or_path: &str) -> anyhow::Result<Box<dyn Scene>> {
     let (_, text) = spidar_config::load_file::<serde::de::IgnoredAny>(path)?;
     let kind = spidar_config::peek_kind(&text, name_or_path)?;
     Ok(match kind {
-        FileKind::Boxer => Box::new(boxing::BoxingScene::new(spidar_sim::boxer::load_boxer(path)?)?),
+        FileKind::Boxer => boxing(spidar_sim::boxer::load_boxer(path)?)?,
+        FileKind::CrowdScene | FileKind::WallsScene if level.is_some() => no_skill(other_what(kind))?,
         FileKind::CrowdScene => Box::new(crowd::CrowdScene::load(path)?),
         FileKind::WallsScene => Box::new(walls::WallsScene::load(path)?),
         other => anyhow::bail!(

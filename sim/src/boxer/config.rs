@@ -10,6 +10,7 @@ use serde::Deserialize;
 use spidar_config::{self as config, At, Bound, Checker};
 
 use super::mind::MindParams;
+use super::perceive::{Skill, SkillLevel};
 use super::BoxerParams;
 use crate::SimError;
 
@@ -31,6 +32,35 @@ pub struct BoxerFile {
     pub reach_body_k_n_per_m: f64,
     pub reach_body_d_n_s_per_m: f64,
     pub mind: MindFile,
+    pub skill: String,
+    pub skills: SkillsFile,
+}
+
+/// The levels, each once (an unknown level is an unknown field).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkillsFile {
+    pub novice: SkillFile,
+    pub amateur: SkillFile,
+    pub pro: SkillFile,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkillFile {
+    pub delay_s: f64,
+    pub periphery_delay_s: f64,
+    pub central_deg: f64,
+    pub fov_deg: f64,
+    pub gaze_deg_per_s: f64,
+    pub noise_m: f64,
+    pub speed_noise: f64,
+    pub periphery_noise: f64,
+    pub block_speed_m_per_s: f64,
+    pub counter_chance: f64,
+    pub counter_within_s: f64,
+    pub avoid_chance: f64,
+    pub refractory_s: f64,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -49,7 +79,6 @@ pub struct MindFile {
     pub avoid_lead_s: f64,
     pub lean_m: f64,
     pub block_time_fraction: f64,
-    pub block_speed_m_per_s: f64,
     pub attack_per_step: f64,
     pub attack_min_s: f64,
     pub attack_max_s: f64,
@@ -75,7 +104,7 @@ const TIME: &str = "the mind's decisions and motions span at most a few seconds"
 const REACH: &str = "a boxer's reach and steps stay within a couple of metres";
 
 /// Every number of a boxer file with its bound: (field path, value, bound).
-fn boxer_numbers(f: &BoxerFile) -> [(&'static str, f64, Bound); 34] {
+fn boxer_numbers(f: &BoxerFile) -> [(&'static str, f64, Bound); 33] {
     let m = &f.mind;
     let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
     [
@@ -113,7 +142,6 @@ fn boxer_numbers(f: &BoxerFile) -> [(&'static str, f64, Bound); 34] {
         ("mind.avoid_lead_s", m.avoid_lead_s, b(0.0, 2.0, "s", TIME)),
         ("mind.lean_m", m.lean_m, b(0.0, 0.5, "m", "a body leans by at most half a metre")),
         ("mind.block_time_fraction", m.block_time_fraction, b(0.1, 1.0, "", FRACTION)),
-        ("mind.block_speed_m_per_s", m.block_speed_m_per_s, b(0.0, 20.0, "m/s", SPEED)),
         ("mind.attack_per_step", m.attack_per_step, b(0.0, 1.0, "", "a probability")),
         ("mind.attack_min_s", m.attack_min_s, b(0.05, 5.0, "s", TIME)),
         ("mind.attack_max_s", m.attack_max_s, b(0.05, 5.0, "s", TIME)),
@@ -132,11 +160,79 @@ fn boxer_numbers(f: &BoxerFile) -> [(&'static str, f64, Bound); 34] {
     ]
 }
 
+const DELAY: &str =
+    "a delay is a time since something happened: never negative, and a person's is under a second";
+const ANGLE: &str = "an angle around the eye: a full turn at most";
+
+/// Every number of one skill level with its bound: (field, value, bound).
+fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 13] {
+    let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
+    [
+        ("delay_s", s.delay_s, b(0.0, 1.0, "s", DELAY)),
+        ("periphery_delay_s", s.periphery_delay_s, b(0.0, 1.0, "s", DELAY)),
+        ("central_deg", s.central_deg, b(0.0, 360.0, "deg", ANGLE)),
+        ("fov_deg", s.fov_deg, b(0.0, 360.0, "deg", ANGLE)),
+        ("gaze_deg_per_s", s.gaze_deg_per_s, b(1.0, 1.0e6, "deg/s", "the eyes turn, however slowly")),
+        ("noise_m", s.noise_m, b(0.0, 0.5, "m", "an error of sight, not blindness")),
+        ("speed_noise", s.speed_noise, b(0.0, 1.0, "", "a Weber fraction of the speed")),
+        (
+            "periphery_noise",
+            s.periphery_noise,
+            b(1.0, 20.0, "", "the periphery sees no better than the centre"),
+        ),
+        ("block_speed_m_per_s", s.block_speed_m_per_s, b(0.0, 20.0, "m/s", SPEED)),
+        ("counter_chance", s.counter_chance, b(0.0, 1.0, "", "a probability")),
+        ("counter_within_s", s.counter_within_s, b(0.0, 5.0, "s", TIME)),
+        ("avoid_chance", s.avoid_chance, b(0.0, 1.0, "", "a probability")),
+        ("refractory_s", s.refractory_s, b(0.0, 1.0, "s", DELAY)),
+    ]
+}
+
+/// Checks the levels (each key appears once per level, in the file's order novice, amateur,
+/// pro) and resolves them.
+fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
+    let levels =
+        [(SkillLevel::Novice, &f.novice), (SkillLevel::Amateur, &f.amateur), (SkillLevel::Pro, &f.pro)];
+    let mut out = [Skill::perfect(SkillLevel::Amateur, 0.0); 3];
+    for (k, (level, s)) in levels.into_iter().enumerate() {
+        for (key, v, bound) in skill_numbers(s) {
+            c.within(&At::new(format!("skills.{}.{key}", level.name()), key, k), v, &bound)?;
+        }
+        c.ensure(
+            s.central_deg <= s.fov_deg,
+            &At::new(format!("skills.{}.central_deg", level.name()), "central_deg", k),
+            || {
+                format!(
+                    "{} deg: the central field lies inside the field of view ({} deg)",
+                    s.central_deg, s.fov_deg
+                )
+            },
+        )?;
+        out[k] = Skill {
+            level,
+            delay_s: s.delay_s,
+            periphery_delay_s: s.periphery_delay_s,
+            central_deg: s.central_deg,
+            fov_deg: s.fov_deg,
+            gaze_deg_per_s: s.gaze_deg_per_s,
+            noise_m: s.noise_m,
+            speed_noise: s.speed_noise,
+            periphery_noise: s.periphery_noise,
+            block_speed_m_per_s: s.block_speed_m_per_s,
+            counter_chance: s.counter_chance,
+            counter_within_s: s.counter_within_s,
+            avoid_chance: s.avoid_chance,
+            refractory_s: s.refractory_s,
+        };
+    }
+    Ok(out)
+}
+
 /// Parses and validates boxer text; `origin` names it in errors.
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
     let c = Checker::new(text, origin);
-    c.version(f.version, 3)?;
+    c.version(f.version, 4)?;
     let o = f.user_offset_m;
     c.finite_within(&At::key("user_offset_m"), &[o.0, o.1, o.2], f64::MAX, "m")?;
     for (field, v, bound) in boxer_numbers(&f) {
@@ -147,6 +243,8 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     c.ensure(m.attack_max_s > m.attack_min_s, &At::new("mind.attack_max_s", "attack_max_s", 0), || {
         format!("{} s: must be more than attack_min_s ({} s)", m.attack_max_s, m.attack_min_s)
     })?;
+    let skills = parse_skills(&c, &f.skills)?;
+    let level = SkillLevel::parse(&f.skill).map_err(|e| c.error(&At::key("skill"), e))?;
     Ok(BoxerParams {
         user_offset_m: DVec3::new(o.0, o.1, o.2),
         coupling_k_n_per_m: f.coupling_k_n_per_m,
@@ -172,7 +270,6 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
             avoid_lead_s: m.avoid_lead_s,
             lean_m: m.lean_m,
             block_time_fraction: m.block_time_fraction,
-            block_speed_m_per_s: m.block_speed_m_per_s,
             attack_per_step: m.attack_per_step,
             attack_s: (m.attack_min_s, m.attack_max_s),
             attack_scatter_m: m.attack_scatter_m,
@@ -183,7 +280,9 @@ pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
             stance_return_m_per_s: m.stance_return_m_per_s,
             brace_k_n_per_m: m.brace_k_n_per_m,
             brace_d_n_s_per_m: m.brace_d_n_s_per_m,
+            skill: skills[level.index()],
         },
+        skills,
         active: true,
         seed: 0,
     })
@@ -224,5 +323,47 @@ mod tests {
         assert!(e.message.contains("attack_min_s"));
         let text = BOXER_RON.replacen("hold_s:", "holding_s:", 1);
         assert!(parse_boxer(&text, "b.ron").is_err(), "unknown fields are refused");
+    }
+
+    /// Refuses `text` naming `field` on the line that holds `needle`; returns the message.
+    fn refused(text: &str, field: &str, needle: &str) -> String {
+        let SimError::Config(e) = parse_boxer(text, "b.ron").unwrap_err() else {
+            panic!("not a config error")
+        };
+        assert_eq!((e.field.as_str(), e.origin.as_str()), (field, "b.ron"), "{e}");
+        assert!(text.lines().nth(e.line - 1).unwrap().contains(needle), "line {}: {e}", e.line);
+        e.to_string()
+    }
+
+    #[test]
+    fn skill_levels_are_refused_by_file_line_and_field() {
+        // An unknown level chosen.
+        let text = BOXER_RON.replacen("skill: \"amateur\"", "skill: \"champion\"", 1);
+        let e = refused(&text, "skill", "champion");
+        assert!(e.contains("novice, amateur, pro"), "{e}");
+        // A negative delay (the pro's, the third level).
+        let text = BOXER_RON.replacen("delay_s: 0.14,", "delay_s: -0.14,", 1);
+        refused(&text, "skills.pro.delay_s", "-0.14");
+        // A field of view over a full turn (the novice's).
+        let text = BOXER_RON.replacen("fov_deg: 180.0", "fov_deg: 400.0", 1);
+        let e = refused(&text, "skills.novice.fov_deg", "400");
+        assert!(e.contains("360"), "{e}");
+        // An unknown level among the levels.
+        let text = BOXER_RON.replacen("pro: (", "champion: (", 1);
+        let SimError::Config(e) = parse_boxer(&text, "b.ron").unwrap_err() else {
+            panic!("not a config error")
+        };
+        assert!(e.to_string().contains("champion") && e.line > 0, "{e}");
+    }
+
+    #[test]
+    fn every_level_loads_and_the_default_is_the_amateur() {
+        let p = parse_boxer(BOXER_RON, "configs/boxer.ron").unwrap();
+        assert_eq!(p.skill(), SkillLevel::Amateur);
+        for level in SkillLevel::ALL {
+            let q = p.clone().with_skill(level);
+            assert_eq!(q.skill(), level);
+            assert!(q.mind.skill.delay_s >= 0.1, "{level}: a person's delay");
+        }
     }
 }

@@ -25,6 +25,7 @@ use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+use super::perceive::{Perception, Skill};
 use super::reach::Reach;
 use super::stance::{not_toward, Stance};
 use super::{coupling_force, BoxerParams, HandTarget, Parts, StepReport, AVATAR, BOXER};
@@ -136,6 +137,8 @@ pub struct Defence {
     pub avoiding: bool,
     /// Simulated time it began.
     pub since_s: f64,
+    /// Hits taken when it began (a defence that ends with no more kept the fist off).
+    pub hits_before: u64,
 }
 
 /// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
@@ -174,8 +177,6 @@ pub struct MindParams {
     pub lean_m: f64,
     /// Block reaches finish this fraction of the time to contact.
     pub block_time_fraction: f64,
-    /// A hand can block where it gets in time at this mean speed (m/s).
-    pub block_speed_m_per_s: f64,
     /// Attack decision probability per step while both hands stand by (the lab's 0.004).
     pub attack_per_step: f64,
     /// Attack reach duration range (s).
@@ -197,6 +198,8 @@ pub struct MindParams {
     /// While it guards, the legs brace: a spring toward the stance (N/m) and a damper (N s/m).
     pub brace_k_n_per_m: f64,
     pub brace_d_n_s_per_m: f64,
+    /// The level of skill: its perception and decision parameters.
+    pub skill: Skill,
 }
 
 impl Default for MindParams {
@@ -230,6 +233,20 @@ pub struct Mind {
     /// Hits taken (the avatar's fist on head or chest) and given (its hand on the avatar's).
     pub hits_taken: u64,
     pub hits_given: u64,
+    /// Attacks given up because a prediction found them blocked (Table I classes 3 and 4 with
+    /// no hit of its own after), and attacks started as counters after a defence.
+    pub attacks_abandoned: u64,
+    pub counters: u64,
+    /// What it sees of the avatar ([`Perception`]): the gaze, attention and each fist's sight.
+    pub perception: Perception,
+    /// A counter may start until this simulated time (a defence kept the fist off).
+    counter_until_s: f64,
+    /// No new defence starts before this simulated time (the refractory period after one).
+    refractory_until_s: f64,
+    /// The state its predictions start from (the avatar as seen); taken while one runs.
+    perceived: Option<State>,
+    /// The generator of the sight's errors (apart from the attacks' so either can change alone).
+    sight_rng: Pcg64Mcg,
     /// Simulated time of the last step with the avatar's fist on the head or chest, and with its
     /// hand on the avatar's.
     last_hit_s: f64,
@@ -273,6 +290,13 @@ impl Mind {
             defences_ended: 0,
             hits_taken: 0,
             hits_given: 0,
+            attacks_abandoned: 0,
+            counters: 0,
+            perception: Perception::new(model, p.mind.skill, vh, av),
+            counter_until_s: f64::NEG_INFINITY,
+            refractory_until_s: f64::NEG_INFINITY,
+            perceived: Some(State::new(model)),
+            sight_rng: Pcg64Mcg::seed_from_u64(p.seed ^ 0x005e_ed0f_5197),
             last_hit_s: f64::NEG_INFINITY,
             last_hitting_s: f64::NEG_INFINITY,
             next_predict_s: 0.0,
@@ -293,13 +317,13 @@ impl Mind {
         self.closing_faster_than(model, ws, self.params.trigger_m_per_s)
     }
 
-    /// Is an avatar hand closing on any part of the virtual human faster than `speed_m_per_s`?
+    /// Is an avatar hand closing on any part of the virtual human faster than `speed_m_per_s`,
+    /// as it sees the fists ([`Perception`]; its own parts as they are)?
     pub fn closing_faster_than(&self, model: &Model, ws: &Workspace, speed_m_per_s: f64) -> bool {
         let vh = &self.vh;
         let parts = [vh.head, vh.chest, vh.hand[0], vh.hand[1], vh.forearm[0], vh.forearm[1]];
-        self.av.hand.iter().any(|&h| {
-            let p = ws.com_world(model, h);
-            let v = ws.point_velocity(h, model.bodies[h].com_m);
+        self.perception.seen.iter().any(|seen| {
+            let (p, v) = (seen.pos_m, seen.vel_m_per_s);
             parts.iter().any(|&b| {
                 let to = ws.com_world(model, b) - p;
                 let d = to.length();
@@ -318,10 +342,9 @@ impl Mind {
         let back = self.stance.place_m - self.stance.waist_m(ws);
         let head_guard = self.reaches[2].map_or(head + back, |r| r.home_m);
         let parts = [head, chest, head_guard, chest + back];
-        let near = self.av.hand.iter().any(|&h| {
-            let p = ws.com_world(model, h);
-            parts.iter().any(|&b| (b - p).length() < m)
-        });
+        // The fists as it sees them; a touch it feels at once.
+        let near =
+            self.perception.seen.iter().any(|seen| parts.iter().any(|&b| (b - seen.pos_m).length() < m));
         let fist = |b: Option<u16>| b.is_some_and(|b| self.av.hand.contains(&(b as usize)));
         let boxer = |b: Option<u16>| b.is_some_and(|b| model.bodies[b as usize].articulation == BOXER);
         near || ws
@@ -359,7 +382,7 @@ impl Mind {
         let steps = (self.params.horizon_s / model.dt_s).ceil() as usize;
         let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
         let t0 = state.t_s;
-        let av = self.av;
+        let (av, vh) = (self.av, self.vh);
         let acc = self.hand_acc_m_per_s2;
         let mut best: Option<Decision> = None;
         let mut middle_at: Option<usize> = None;
@@ -426,6 +449,22 @@ impl Mind {
                 Some(Priority::Middle) if middle_at.is_some_and(|k| n >= k + grace) => return false,
                 _ => {}
             }
+            // Nothing more can happen once nothing moves: both fists (and the user's hands they
+            // follow) at rest and every reach done. Stopping there keeps the longest predictions,
+            // which find nothing, within the budget.
+            let settled = !stance_returning
+                || (stance.returning(s.t_s - t0, stance_speed) - stance.place_m).length() < 1e-3;
+            let body_still = [vh.head, vh.chest]
+                .iter()
+                .all(|&b| ws.point_velocity(b, m.bodies[b].com_m).length() < QUIET_BODY_M_PER_S);
+            if best.is_none()
+                && n >= QUIET_MIN_STEPS
+                && settled
+                && body_still
+                && still(m, ws, s, &av, targets, reaches, acc, decel, t0)
+            {
+                return false;
+            }
             let dt_ahead = s.t_s - t0;
             for (h, t) in targets.iter().enumerate() {
                 if let Some(t) = t {
@@ -462,9 +501,17 @@ impl Mind {
         let left = (d.at_s - now_s).max(0.06);
         let (a, p) = (d.hand_start_m, d.hand_at_contact_m);
         let prev = self.defence;
-        let mut def = Defence { av_hand, part, blocking: None, avoiding: false, since_s: now_s };
+        let mut def = Defence {
+            av_hand,
+            part,
+            blocking: None,
+            avoiding: false,
+            since_s: now_s,
+            hits_before: self.hits_taken,
+        };
         if let Some(prev) = prev {
             def.since_s = prev.since_s;
+            def.hits_before = prev.hits_before;
         }
 
         // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
@@ -474,7 +521,11 @@ impl Mind {
         // The body moves too when the contact is close (a fist can glance off a block) or no
         // hand can block in time. The head slips by Fig. 6; the chest cannot move that far and
         // leans only as far as the waist allows, away from the fist.
-        def.avoiding = !block_in_time || left <= self.params.avoid_lead_s || prev.is_some_and(|p| p.avoiding);
+        // Fig. 5 moves the body as well as a hand; how often it does so when a block alone would
+        // do is the skill's (`avoid_chance`), drawn once when a defence begins.
+        let chosen = prev.is_none() && self.rng.random::<f64>() < self.params.skill.avoid_chance;
+        def.avoiding =
+            !block_in_time || left <= self.params.avoid_lead_s || chosen || prev.is_some_and(|p| p.avoiding);
         if let Some((h, target)) = block {
             def.blocking = Some(h);
             // A block under way that already goes there in time is kept (a fresh reach starts
@@ -581,7 +632,7 @@ impl Mind {
     ) -> (f64, Option<(usize, DVec3)>, bool) {
         const N: usize = 12;
         let f = self.params.block_time_fraction;
-        let v = self.params.block_speed_m_per_s;
+        let v = self.params.skill.block_speed_m_per_s;
         // (hand, target, duration, distance, distance over what it can cover)
         let mut best: Option<(usize, DVec3, f64, f64, f64)> = None;
         for h in 0..2 {
@@ -616,10 +667,15 @@ impl Mind {
     /// Ends the defence under way: the blocking hand returns to its guard (its joints' springs
     /// take it there), the body in an unhurried reach back to where the dodge left from.
     fn end_defence(&mut self, model: &Model, ws: &Workspace, now_s: f64, bp: &BoxerParams) {
-        if self.defence.take().is_none() {
+        let Some(def) = self.defence.take() else {
             return;
-        }
+        };
         self.defences_ended += 1;
+        self.refractory_until_s = now_s + self.params.skill.refractory_s;
+        // A defence that kept the fist off (blocked or made it miss) opens a counter, by chance.
+        if self.hits_taken == def.hits_before && self.rng.random::<f64>() < self.params.skill.counter_chance {
+            self.counter_until_s = now_s + self.params.skill.counter_within_s;
+        }
         for h in 0..2 {
             if self.hands[h] == Behaviour::Block {
                 self.hands[h] = Behaviour::Standby;
@@ -659,10 +715,13 @@ impl Mind {
         bp: &BoxerParams,
     ) {
         let now = state.t_s;
-        // The user's hands' acceleration, smoothed (for the extrapolation).
+        // What it sees now: the avatar as it was a perception delay ago.
+        self.perception.observe(model, state, ws, targets);
+        let seen = self.perception.seen_targets();
+        // The user's hands' acceleration as seen, smoothed (for the extrapolation).
         let k = (model.dt_s / ACC_SMOOTH_S).min(1.0);
         for h in 0..2 {
-            let v = targets[h].map(|t| t.vel_m_per_s);
+            let v = seen[h].map(|t| t.vel_m_per_s);
             if let (Some(v), Some(pv)) = (v, self.prev_vel[h]) {
                 let a = (v - pv) / model.dt_s;
                 if a.is_finite() {
@@ -697,7 +756,8 @@ impl Mind {
         // A fist out at its head or chest, or touching it, coming or not: the body does not go
         // back toward it.
         let guarding = approaching || self.fist_at(model, ws, self.params.fist_near_m);
-        if now >= self.next_predict_s && (defending || closing) {
+        let attacking = self.hands.contains(&Behaviour::Attack);
+        if now >= self.next_predict_s && (defending || closing || attacking) {
             self.next_predict_s = now + self.params.predict_every_s;
             // During a defence: what if the virtual human stood by now (its defence's reaches
             // gone, the body and the blocking hand left to their joints)? Otherwise as the paper
@@ -709,9 +769,34 @@ impl Mind {
                 }
                 reaches[2] = None;
             }
-            let d = self.predict_with(model, state, targets, bp, &reaches, self.defence.is_some());
+            // From what it has seen, not from the world as it is.
+            let seen_targets = self.perception.perceived_targets(&mut self.sight_rng);
+            let d = match self.perceived.take() {
+                Some(mut from) => {
+                    self.perception.perceived_state(state, &mut from);
+                    let d =
+                        self.predict_with(model, &from, &seen_targets, bp, &reaches, self.defence.is_some());
+                    self.perceived = Some(from);
+                    d
+                }
+                None => None,
+            };
             match d {
-                Some(d) if d.class == ContactClass::AvatarAttack => self.decide(model, ws, now, &d, bp),
+                // A new defence waits out the refractory period after the last one.
+                Some(d)
+                    if d.class == ContactClass::AvatarAttack
+                        && (defending || now >= self.refractory_until_s) =>
+                {
+                    self.decide(model, ws, now, &d, bp)
+                }
+                Some(d) if d.class == ContactClass::AvatarAttack => self.last_decision = Some(d),
+                Some(d) if self.abandons(&d) => {
+                    self.last_decision = Some(d);
+                    let h = self.vh.hand.iter().position(|&b| b == d.vh_body).unwrap_or(0);
+                    self.hands[h] = Behaviour::Standby;
+                    self.reaches[h] = None;
+                    self.attacks_abandoned += 1;
+                }
                 other => {
                     self.last_decision = other;
                     // The newest prediction no longer finds the fist on the head or chest: the
@@ -757,7 +842,13 @@ impl Mind {
         // fist is closing on it.
         let idle =
             self.hands.iter().all(|&b| b == Behaviour::Standby) && self.defence.is_none() && !approaching;
-        if idle && self.rng.random::<f64>() < self.params.attack_per_step {
+        // A counter: right after a defence that kept the fist off, if the skill chose one.
+        let counter = idle && now <= self.counter_until_s;
+        if counter {
+            self.counter_until_s = f64::NEG_INFINITY;
+            self.counters += 1;
+        }
+        if idle && (counter || self.rng.random::<f64>() < self.params.attack_per_step) {
             let h = if self.rng.random::<f64>() < 0.7 { 1 } else { 0 };
             let hand = self.vh.hand[h];
             let hp = ws.com_world(model, hand);
@@ -803,7 +894,8 @@ impl Mind {
                 .flat_map(|p| self.av.hand.map(|h| (p, h)))
                 .enumerate()
             {
-                toward[k] = (ws.com_world(model, fist) - ws.com_world(model, part)).normalize_or_zero();
+                let at = self.perception.seen[if fist == self.av.hand[0] { 0 } else { 1 }].pos_m;
+                toward[k] = (at - ws.com_world(model, part)).normalize_or_zero();
             }
             let waist = self.stance.waist_m(ws);
             self.stance.follow(waist, &toward, self.params.stance_step_max_m);
@@ -850,10 +942,50 @@ impl Mind {
         }
     }
 
+    /// Does this prediction give up the attack under way: its attacking hand's contact is a block
+    /// (Table I class 3 or 4) and no hit of its own came after it within the middle grace?
+    fn abandons(&self, d: &Decision) -> bool {
+        matches!(d.class, ContactClass::BoxerBlocked | ContactClass::AvatarBlocked)
+            && self.vh.hand.iter().zip(self.hands).any(|(&b, beh)| b == d.vh_body && beh == Behaviour::Attack)
+    }
+
+    /// The level of skill in use.
+    pub fn skill(&self) -> Skill {
+        self.params.skill
+    }
+
     /// Number of hands attacking now (never more than one).
     pub fn attacking(&self) -> usize {
         self.hands.iter().filter(|&&b| b == Behaviour::Attack).count()
     }
+}
+
+/// A prediction runs at least this many steps before it may stop for want of motion.
+const QUIET_MIN_STEPS: usize = 10;
+/// Below this speed a fist or a hand is at rest (m/s), and the head and the chest (m/s).
+const QUIET_M_PER_S: f64 = 0.2;
+const QUIET_BODY_M_PER_S: f64 = 0.02;
+
+/// In a prediction: both avatar fists and the user's hands they follow (extrapolated) at rest,
+/// and every reach done (holds excepted: they keep a part still).
+#[allow(clippy::too_many_arguments)]
+fn still(
+    m: &Model,
+    ws: &Workspace,
+    s: &State,
+    av: &Parts,
+    targets: &[Option<HandTarget>; 2],
+    reaches: &[Option<Reach>; 3],
+    acc: [DVec3; 2],
+    decel: f64,
+    t0: f64,
+) -> bool {
+    let fists = av.hand.iter().all(|&h| ws.point_velocity(h, m.bodies[h].com_m).length() < QUIET_M_PER_S);
+    let hands = targets.iter().enumerate().all(|(h, t)| {
+        t.is_none_or(|t| extrapolate(&t, acc[h], s.t_s - t0, decel).vel_m_per_s.length() < QUIET_M_PER_S)
+    });
+    let reaching = reaches.iter().flatten().any(|r| !is_hold(r) && !r.done(s.t_s));
+    fists && hands && !reaching
 }
 
 /// A reach that holds its part where it is while a fist is about (it never ends).

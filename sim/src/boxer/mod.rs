@@ -19,6 +19,7 @@
 
 pub mod config;
 pub mod mind;
+pub mod perceive;
 pub mod reach;
 pub mod spar;
 pub mod stance;
@@ -38,6 +39,7 @@ use crate::SimError;
 
 pub use config::{load_boxer, parse_boxer, BOXER_RON};
 pub use mind::{Behaviour, BodyBehaviour, ContactClass, Mind, MindParams, Priority};
+pub use perceive::{Perception, Seen, Skill, SkillLevel};
 pub use reach::{min_jerk, Reach};
 
 /// Index of the avatar and of the virtual human in the boxing scene.
@@ -102,8 +104,10 @@ pub struct BoxerParams {
     pub reach_body_d_n_s_per_m: f64,
     /// The virtual human's cognitive model on (active) or off (passive, section 4.2).
     pub active: bool,
-    /// The cognitive model's tunables.
+    /// The cognitive model's tunables, with the skill in use (`mind.skill`).
     pub mind: MindParams,
+    /// Every level of skill of the boxer file, by [`SkillLevel::index`].
+    pub skills: [Skill; 3],
     /// Seed of the attack generator (target and duration).
     pub seed: u64,
 }
@@ -113,6 +117,26 @@ impl Default for BoxerParams {
     fn default() -> Self {
         parse_boxer(BOXER_RON, "configs/boxer.ron (built in)")
             .expect("the built-in boxer file is valid (tested)")
+    }
+}
+
+impl BoxerParams {
+    /// These parameters at another level of skill (the file's `skills`).
+    pub fn with_skill(mut self, level: SkillLevel) -> BoxerParams {
+        self.mind.skill = self.skills[level.index()];
+        self
+    }
+
+    /// These parameters with the paper's perfect perception (no delay, no error, a full view)
+    /// and no counters or forced avoidances: for tests of the decision mechanics alone.
+    pub fn with_perfect_perception(mut self) -> BoxerParams {
+        self.mind.skill = Skill::perfect(self.mind.skill.level, self.mind.skill.block_speed_m_per_s);
+        self
+    }
+
+    /// The level of skill in use.
+    pub fn skill(&self) -> SkillLevel {
+        self.mind.skill.level
     }
 }
 

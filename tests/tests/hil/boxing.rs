@@ -372,52 +372,60 @@ fn the_users_jabs_move_a_passive_virtual_humans_head() {
     assert!(moved > 0.03, "the jabs moved the head only {:.1} mm", moved * 1e3);
 }
 
-/// The issue's numbers, through the product path: straights, hooks and uppercuts with both hands
+/// The issues' numbers, through the product path: straights, hooks and uppercuts with both hands
 /// at about 2-7 m/s, at the head and the chest, single and in combinations, and feints, thrown at
-/// an active and a passive virtual human (the same punches):
-/// - active: at most 30 % land on the head and at most 30 % on the chest; passive: at least 90 %;
-/// - feints start an avoidance at most 20 % of the time;
+/// an active and a passive virtual human (the same punches).
+///
+/// The mechanics, with the paper's perfect perception (issues 6-15):
 /// - the head and chest never move toward the fist by more than 2 cm while it comes out (its own
 ///   attacks, which lean it into the punch it throws, left out): its stance follows the waist away
 ///   from the fists and braces while a fist comes (docs/boxing.md). A passive virtual human, which
 ///   only yields, shows such motions, so the measure can see them;
-/// - no attack is under way while a defence is;
-/// - the first motion over 1 cm comes at most 0.15 s (median) after the punch starts;
 /// - a block that meets the fist on its way out is felt on the first tick that renders it (at
 ///   least half the contact force or the rig's limit), and stops it.
+///
+/// At the default skill, seeing as a person does (issue 23):
+/// - passive: at least 90 % land; active: 10-50 % land overall (people: 20-40 %);
+/// - the first motion of a defence over 1 cm comes 0.15-0.40 s (median) after the punch starts;
+/// - no attack is under way while a defence is, at either perception; some of its attacks are
+///   counters and some are given up when a prediction finds them blocked.
 #[test]
 fn punches_of_every_kind_through_the_rig_meet_the_issues_numbers() {
     let plan = punch_plan(160, 11).unwrap();
-    let run = |active: bool| {
-        punch_outcomes(BoxerParams { active, seed: 11, ..Default::default() }, &plan, 11).unwrap()
-    };
-    let (a, p) = (run(true), run(false));
-    let (ah, ac, ph, pc) = (a.at(Aim::Head), a.at(Aim::Chest), p.at(Aim::Head), p.at(Aim::Chest));
-    let feints = a.feints();
+    let run = |p: BoxerParams| punch_outcomes(BoxerParams { seed: 11, ..p }, &plan, 11).unwrap();
+    let perfect = run(BoxerParams::default().with_perfect_perception());
+    let (a, p) = (run(BoxerParams::default()), run(BoxerParams { active: false, ..Default::default() }));
+    let (ph, pc) = (p.at(Aim::Head), p.at(Aim::Chest));
+    let (landed, n) = a.landed_of(|_| true);
     let react = a.reaction_median_s().unwrap_or(f64::INFINITY);
-    let (_, toward) = a.toward_fist_max_m();
+    let (_, toward) = perfect.toward_fist_max_m();
     let over =
         |b: &spidar_lab::eval::BoutOutcome| b.punches.iter().filter(|o| o.toward_fist_out_m > 0.02).count();
-    let (a_over, p_over) = (over(&a), over(&p));
+    let (perfect_over, a_over, p_over) = (over(&perfect), over(&a), over(&p));
     let limit = rig().hands[0].force_limit_n;
-    let blocks: Vec<_> = a.punches.iter().filter(|o| o.blocked_on_the_way_out()).collect();
+    let blocks: Vec<_> = perfect.punches.iter().filter(|o| o.blocked_on_the_way_out()).collect();
     let unfelt = blocks.iter().filter(|o| !o.block_felt(limit)).count();
     let through = blocks.iter().filter(|o| o.landed_after_block).count();
     eprintln!(
-        "head {:.2} | {:.2} ({} punches), chest {:.2} | {:.2} ({}), feints {:.2} ({}), reaction {react:.3} s, \
-         toward {toward:.3} m (over 2 cm: {a_over} active, {p_over} passive), attack during defence {} steps, blocks {} ({unfelt} unfelt, {through} got through)",
-        ah.head, ph.head, ah.n, ac.chest, pc.chest, ac.n, feints.avoidance, feints.n, a.attack_during_defence_steps,
+        "default skill: landed {landed:.2} of {n}, reaction {react:.3} s, over 2 cm toward the fist {a_over} \
+         (at most {:.3} m), attacks {} (counters {}, given up {}); perfect perception: toward {toward:.3} m \
+         (over 2 cm: {perfect_over}; passive {p_over}), blocks {} ({unfelt} unfelt, {through} got through)",
+        a.toward_fist_max_m().1,
+        a.attacks,
+        a.counters,
+        a.abandoned,
         blocks.len()
     );
-    assert!(ah.n > 30 && ac.n > 30 && feints.n > 15, "a varied bout: {} {} {}", ah.n, ac.n, feints.n);
+    assert!(n > 100, "a varied bout: {n} punches");
     assert!(ph.head >= 0.9 && pc.chest >= 0.9, "passive: head {:.2}, chest {:.2}", ph.head, pc.chest);
-    assert!(ah.head <= 0.3 && ac.chest <= 0.3, "active: head {:.2}, chest {:.2}", ah.head, ac.chest);
-    assert!(feints.avoidance <= 0.2, "feints started an avoidance {:.2} of the time", feints.avoidance);
+    assert!((0.1..=0.5).contains(&landed), "active, default skill: {landed:.2} landed");
+    assert!((0.15..=0.4).contains(&react), "reaction median {react:.3} s");
+    assert!(a.counters > 0 && a.abandoned > 0, "counters {}, given up {}", a.counters, a.abandoned);
     assert!(
         p_over > 0,
         "the passive virtual human never moved over 2 cm toward a fist: the measure sees nothing"
     );
-    let over_2cm: Vec<String> = a
+    let over_2cm: Vec<String> = perfect
         .punches
         .iter()
         .filter(|o| o.toward_fist_out_m > 0.02)
@@ -428,8 +436,7 @@ fn punches_of_every_kind_through_the_rig_meet_the_issues_numbers() {
         "the head or chest moved {toward:.3} m toward a fist; over 2 cm:\n{}",
         over_2cm.join("\n")
     );
-    assert_eq!(a.attack_during_defence_steps, 0);
-    assert!(react <= 0.15, "reaction median {react:.3} s");
+    assert_eq!((a.attack_during_defence_steps, perfect.attack_during_defence_steps), (0, 0));
     assert!(
         blocks.len() > 30 && unfelt == 0,
         "{} blocks met the fist, {unfelt} not felt on their first tick",

@@ -134,12 +134,15 @@ impl BoxingScene {
             .last_decision
             .map_or("none".to_string(), |d| format!("{} on its {}", d.class.name(), part(d.vh_body)));
         format!(
-            "{} body {} hands {}/{} | decided: {decision} | attacks {} avoid {} block {} ended {} | hits taken {} given {} | predictions {} last {:.2} ms",
+            "{} {} body {} hands {}/{} | decided: {decision} | attacks {} (counters {}, given up {}) avoid {} block {} ended {} | hits taken {} given {} | predictions {} last {:.2} ms",
+            m.skill().level,
             if m.active { "active" } else { "passive" },
             format!("{:?}", m.body).to_lowercase(),
             b(m.hands[0]),
             b(m.hands[1]),
             m.attacks,
+            m.counters,
+            m.attacks_abandoned,
             m.avoidances,
             m.blocks,
             m.defences_ended,
