@@ -83,6 +83,14 @@ enum Cmd {
         #[arg(long, global = true)]
         json: bool,
     },
+    /// Studies with people: `reactions` (the boxing paper's Table IV experiment: a page shows
+    /// each participant the virtual human's reactions to straights, the avatar hidden, and asks
+    /// which part was attacked; the answers go to a CSV file and the confusion matrix is printed
+    /// next to the paper's).
+    Study {
+        #[command(subcommand)]
+        what: StudyCmd,
+    },
     /// Play a recording (`run --record`) into the live view (the page gets a playback bar: play,
     /// pause, seek, speed) and print what it holds; with --verify, re-run the rt-loop from its
     /// recorded inputs and check every output bit for bit.
@@ -198,6 +206,15 @@ enum EvalCmd {
         #[arg(long, default_value_t = 60.0, value_parser = bout_seconds)]
         bout_seconds: f64,
     },
+}
+
+#[derive(Subcommand)]
+enum StudyCmd {
+    /// Makes the clips on the path of `spidar run` (straights at the virtual human's left and
+    /// right hand and chest, active and passive), serves the study page (docs/study.md), writes
+    /// each answer to --out as it is given, and prints the confusion matrix of every answer in
+    /// the file next to the paper's Table IV when it stops (Ctrl-C, or --participants).
+    Reactions(spidar_lab::study_page::StudyArgs),
 }
 
 #[derive(clap::Args)]
@@ -405,6 +422,12 @@ fn dispatch(cli: Cli, matches: &ArgMatches) -> anyhow::Result<u8> {
             Ok(0)
         }
         Cmd::Eval { what, json } => eval(what, json).map(|_| 0),
+        Cmd::Study { what: StudyCmd::Reactions(a) } => {
+            let stop = Stop::install()?;
+            let t = spidar_lab::study_page::study_reactions(&a, &|| stop.requested(), |m| errln!("{m}"))?;
+            outln!("{t}");
+            Ok(0)
+        }
         Cmd::Bench { what } => bench(what).map(|_| 0),
         Cmd::Rig { what: RigCmd::Map(a) } => rig_map(&a).map(|_| 0),
     }

@@ -1,11 +1,12 @@
 // The connection to the world: one WebSocket to the frames port the page was served with, the
 // scene description first, then binary frames and JSON status messages. Reconnects after the
 // world restarts; says so through onState. A replay (`spidar replay`) also sends its playback
-// state (onPlayback) and takes the page's commands (`send`).
+// state (onPlayback), the reaction study (`spidar study reactions`) its state (onStudy), and both
+// take the page's commands (`send`).
 
 const MAGIC = 0x31565053; // "SPV1" little-endian
 
-export function connect({ onScene, onRig, onStatus, onFrame, onState, onPlayback }) {
+export function connect({ onScene, onRig, onStatus, onFrame, onState, onPlayback, onStudy }) {
   const meta = document.querySelector('meta[name="spidar-ws-port"]');
   const port = meta ? meta.content : '';
   const host = location.hostname || '127.0.0.1';
@@ -25,6 +26,7 @@ export function connect({ onScene, onRig, onStatus, onFrame, onState, onPlayback
         else if (m.type === 'rig') onRig(m);
         else if (m.type === 'status') onStatus(m);
         else if (m.type === 'playback' && onPlayback) onPlayback(m);
+        else if (m.type === 'study' && onStudy) onStudy(m);
         return;
       }
       const words = new Uint32Array(ev.data, 0, 4);

@@ -12,6 +12,7 @@ import { Rig } from './rig.js';
 import { Cameras, toggleFullScreen } from './cameras.js';
 import { Hud } from './hud.js';
 import { Playback } from './playback.js';
+import { Study } from './study.js';
 import { AgeReporter, stamp } from './age.js';
 import { showTargets } from './place.js';
 import { Headset, Interpolator } from './xr.js';
@@ -70,6 +71,7 @@ let rateSince = performance.now();
 let renders = 0;
 const renderWaiters = [];
 let playback = null; // the playback bar, when the page shows a replay
+let study = null; // the reaction study's panel, when the page serves one
 // Each playback message with the newest frame's time when it came (for tests: frames against the
 // replay's own clock).
 const playbackLog = [];
@@ -93,7 +95,7 @@ function onScene(d) {
   root = new THREE.Group();
   scene.add(root);
   world = new World(desc, root);
-  world.proxyGroup.visible = params.get('proxies') !== '0';
+  world.proxyGroup.visible = params.get('proxies') !== '0' && !study;
   world.hideActor('avatar', avatarHidden);
   for (const a of hiddenActors) world.hideActor(a, true);
   crowd = desc.crowd ? new Crowd(desc, root) : null;
@@ -134,6 +136,25 @@ function onFrame(buffer, layoutId, seq) {
   rateCount++;
 }
 
+// The reaction study: nothing drawn but the virtual human and the scenery (the clips carry no
+// hands, strings, contacts or labels either), from the user's eye, no HUD, no keys but full screen.
+function onStudy(s) {
+  if (!study) {
+    study = new Study(document.getElementById('study'), conn.send);
+    avatarHidden = true;
+    if (world) {
+      world.hideActor('avatar', true);
+      people.hideActor('avatar', true);
+      world.proxyGroup.visible = false;
+    }
+    rig.group.visible = false;
+    document.getElementById('hud').style.display = 'none';
+    labelRenderer.domElement.style.display = 'none';
+    if (!params.get('camera')) { cameraChosen = true; setCamera('eye'); }
+  }
+  study.setState(s);
+}
+
 const conn = connect({
   onScene,
   onRig,
@@ -146,6 +167,7 @@ const conn = connect({
     playbackLog.push({ clock_s: p.clock_s, t_s: p.t_s, frame_t: latest ? latest.t : null, playing: p.playing, speed: p.speed });
     if (playbackLog.length > 400) playbackLog.shift();
   },
+  onStudy,
 });
 
 const ages = new AgeReporter((m) => conn.send(m));
@@ -162,7 +184,8 @@ window.addEventListener('resize', resize);
 resize();
 
 window.addEventListener('keydown', (e) => {
-  if (e.key === 'f') toggleFullScreen();
+  if (e.key === 'f' && !(study && e.target.tagName === 'INPUT')) toggleFullScreen();
+  else if (study) return;
   else if (e.key === 'c') { cameraChosen = true; setCamera(cameras.active === 'eye' ? 'orbit' : 'eye'); }
   else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
   else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); people.hideActor('avatar', avatarHidden); }
@@ -199,6 +222,7 @@ function frameLoop() {
     rig.apply(latest.f, desc.layout);
     applied = latest;
     if (playback) playback.setTime(applied.t);
+    if (study) study.frameDrawn();
   }
   if (now - rateSince >= 1000) {
     hud.setFrameRate((rateCount * 1000) / (now - rateSince));
@@ -255,6 +279,8 @@ window.spidarView = {
   // A replay's state (its last `playback` message) and the bar's text, or null when live.
   playback: () => playback && { ...playback.state, shown: playback.k.time.textContent, button: playback.k.play.textContent },
   playbackLog: () => playbackLog.slice(),
+  // The reaction study's state, the clips shown (with the frames drawn of each) and the answers given, or null.
+  study: () => study && study.report(),
   pause: () => { paused = true; return { seq: applied ? applied.seq : null, t: applied ? applied.t : null }; },
   resume: () => { paused = false; },
   // Resolves after the next two renders (the screen then shows the applied frame).

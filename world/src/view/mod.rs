@@ -35,7 +35,7 @@ use spidar_sim::character::drawn::FigureState;
 
 pub use age::{AgeSummary, Drawn, PictureAges};
 pub use fed::FedView;
-pub use frame::{Layout, MAGIC};
+pub use frame::{Layout, GLOBALS_AT, HANDS_AT, HAND_FLOATS, MAGIC, TENSIONS_AT};
 pub use json::StatusData;
 pub use maker::{FrameFinisher, FrameMaker};
 
