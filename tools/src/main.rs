@@ -83,10 +83,9 @@ enum Cmd {
         #[arg(long, global = true)]
         json: bool,
     },
-    /// Studies with people: `reactions` (the boxing paper's Table IV experiment: a page shows
-    /// each participant the virtual human's reactions to straights, the avatar hidden, and asks
-    /// which part was attacked; the answers go to a CSV file and the confusion matrix is printed
-    /// next to the paper's).
+    /// Studies with people: `reactions` (a page shows each participant the virtual human's
+    /// reactions to straights, the avatar hidden, and asks which part was attacked; the answers go
+    /// to a CSV file and the confusion matrix is printed beside the published one: docs/study.md).
     Study {
         #[command(subcommand)]
         what: StudyCmd,
@@ -213,7 +212,7 @@ enum StudyCmd {
     /// Makes the clips on the path of `spidar run` (straights at the virtual human's left and
     /// right hand and chest, active and passive), serves the study page (docs/study.md), writes
     /// each answer to --out as it is given, and prints the confusion matrix of every answer in
-    /// the file next to the paper's Table IV when it stops (Ctrl-C, or --participants).
+    /// the file beside the published matrix when it stops (Ctrl-C, or --participants).
     Reactions(spidar_lab::study_page::StudyArgs),
 }
 
