@@ -914,7 +914,10 @@ const WATCH_AT_S: [f64; 5] = [0.15, 0.3, 0.45, 0.6, 0.75];
 /// One straight at `target` through the product path and the virtual human's motion it caused
 /// (the observer's features); returns also the mind's counters (predictions, their total ns,
 /// avoidances, blocks).
-fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<(Vec<f64>, [u64; 4])> {
+/// The bout of one Table IV trial on the product path: one straight at `target` (3-5 m/s, a
+/// hand drawn from `seed`), the virtual human's own attacks off; with the punch it throws.
+/// Shared by [`trial`] and `spidar study reactions`' clips.
+pub fn trial_bout(active: bool, target: usize, seed: u64) -> anyhow::Result<(Bout, Punch)> {
     let rig = Rig::default_rig();
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
     let params = BoxerParams { active, seed, ..Default::default() };
@@ -932,6 +935,11 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<(Vec<f64>, [u
     let mut b = Bout::new(params, plan.scripts, seed)?;
     b.scene.world.mind.params.attack_per_step = 0.0;
     let p = plan.punches[0];
+    Ok((b, p))
+}
+
+fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<(Vec<f64>, [u64; 4])> {
+    let (mut b, p) = trial_bout(active, target, seed)?;
     while b.script_t_s() < p.start_s {
         b.tick();
     }
@@ -1052,7 +1060,7 @@ pub fn reactions(
 }
 
 /// Table IV of the paper, for printing next to ours: [active, passive][target][answer].
-const PAPER: [[[f64; 4]; 4]; 2] = [
+pub const PAPER: [[[f64; 4]; 4]; 2] = [
     [[0.88, 0.08, 0.08, 0.0], [0.20, 0.71, 0.0, 0.08], [0.08, 0.0, 0.79, 0.17], [0.0, 0.0, 0.13, 0.88]],
     [[0.63, 0.13, 0.25, 0.0], [0.42, 0.42, 0.08, 0.08], [0.25, 0.42, 0.17, 0.17], [0.13, 0.63, 0.13, 0.13]],
 ];

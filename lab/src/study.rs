@@ -25,24 +25,18 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use rand::seq::SliceRandom;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use spidar_msg::RigInfo;
 use spidar_rt::{Clock, Rig};
-use spidar_runtime::scripts::{box_plan, Aim, PlanOptions, PunchKind};
 use spidar_sim::boxer::BoxerParams;
 use spidar_world::view::{json, FrameMaker, Layout, GLOBALS_AT, HANDS_AT, HAND_FLOATS, TENSIONS_AT};
 use spidar_world::{Scene, StepView};
 
-use crate::eval::{Bout, Confusion, TARGETS};
+use crate::eval::{Confusion, TARGETS};
 
-/// The targets as the script aims them, in [`TARGETS`]' order.
-const TARGET_AIMS: [Aim; 4] = [Aim::LeftHand, Aim::RightHand, Aim::LeftChest, Aim::RightChest];
-
-/// Table IV of the paper: [active, passive][target][answer], and the total correct rates.
-pub const PAPER: [[[f64; 4]; 4]; 2] = [
-    [[0.88, 0.08, 0.08, 0.0], [0.20, 0.71, 0.0, 0.08], [0.08, 0.0, 0.79, 0.17], [0.0, 0.0, 0.13, 0.88]],
-    [[0.63, 0.13, 0.25, 0.0], [0.42, 0.42, 0.08, 0.08], [0.25, 0.42, 0.17, 0.17], [0.13, 0.63, 0.13, 0.13]],
-];
+/// Table IV of the paper ([active, passive][target][answer]: `spidar eval reactions`' table)
+/// and its total correct rates.
+pub use crate::eval::PAPER;
 pub const PAPER_TOTAL: [f64; 2] = [0.80, 0.33];
 
 /// The two conditions, as the CSV names them.
@@ -126,23 +120,7 @@ pub fn make_clips(o: &ClipOptions, mut progress: impl FnMut(usize, usize)) -> an
 /// view's frames of it from `before_s` before the punch starts to `after_s` after, stripped
 /// ([`strip`]).
 pub fn make_clip(active: bool, target: usize, seed: u64, o: &ClipOptions) -> anyhow::Result<Vec<Vec<f32>>> {
-    let rig = Rig::default_rig();
-    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
-    let params = BoxerParams { active, seed, ..Default::default() };
-    let opts = PlanOptions {
-        punches: 1,
-        kinds: vec![PunchKind::Straight],
-        aims: vec![TARGET_AIMS[target]],
-        hands: vec![rng.random_range(0..2usize)],
-        feint_share: 0.0,
-        combo_share: 0.0,
-        speed_m_per_s: (3.0, 5.0),
-        pause_s: (0.5, 0.6),
-    };
-    let plan = box_plan(&rig, &params, seed, &opts)?;
-    let mut b = Bout::new(params, plan.scripts, seed)?;
-    b.scene.world.mind.params.attack_per_step = 0.0;
-    let p = plan.punches[0];
+    let (mut b, p) = crate::eval::trial_bout(active, target, seed)?;
     let look = b.scene.look();
     let avatar: Vec<usize> = look
         .shapes
@@ -153,7 +131,7 @@ pub fn make_clip(active: bool, target: usize, seed: u64, o: &ClipOptions) -> any
         .collect();
     let mut maker = FrameMaker::new(&look);
     let layout = *maker.layout();
-    let info = spidar_rt::status::rig_info(&rig);
+    let info = spidar_rt::status::rig_info(&Rig::default_rig());
     let mut buf = vec![0.0f32; layout.max_words];
     let mut frames = Vec::new();
     let frame_s = 1.0 / o.frame_hz;
