@@ -79,11 +79,16 @@ impl Server {
     pub fn start(opts: &ViewOptions, shared: Arc<Shared>, scene: Scene) -> Result<Server, ViewError> {
         let mut http_listener = bind(opts.addr)?;
         let http_addr = http_listener.local_addr().map_err(ViewError::Thread)?;
-        let ws_want = match http_addr.port() {
-            0 => http_addr,
-            p => SocketAddr::new(
+        // The WebSocket on the next port when a port was asked for; when any port was (0), any
+        // port too: the HTTP port's neighbour may be another program's ephemeral port (seen: a
+        // test's view failing to bind on a loaded CI machine). The page learns the port either way.
+        let ws_want = match opts.addr.port() {
+            0 => SocketAddr::new(http_addr.ip(), 0),
+            _ => SocketAddr::new(
                 http_addr.ip(),
-                p.checked_add(1)
+                http_addr
+                    .port()
+                    .checked_add(1)
                     .ok_or_else(|| ViewError::Address(format!("{http_addr} (no port after it)")))?,
             ),
         };
