@@ -238,17 +238,7 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         )?),
     };
     // The default directory lives as long as the world.
-    let mut _dir = None;
-    let listen = match &a.listen {
-        Some(s) => Endpoint::parse(s)?,
-        None => {
-            let d =
-                PrivateDir::user_default().context("making a private directory for the world's socket")?;
-            let ep = Endpoint::unix(&d.join("world.sock"));
-            _dir = Some(d);
-            ep
-        }
-    };
+    let (listen, _dir) = listen_endpoint(a)?;
     let offer =
         WorldOffer { scene: a.scene.clone(), step_s, rig_lost_after: Duration::from_secs_f64(a.rig_lost_s) };
     let mut link = WorldLink::bind(&listen, offer).with_context(|| format!("listening at {listen}"))?;
@@ -322,17 +312,7 @@ fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         );
     }
     let mut scene = SparScene::new(spidar_sim::boxer::BoxerParams::default())?;
-    let mut _dir = None;
-    let listen = match &a.listen {
-        Some(s) => Endpoint::parse(s)?,
-        None => {
-            let d =
-                PrivateDir::user_default().context("making a private directory for the world's socket")?;
-            let ep = Endpoint::unix(&d.join("world.sock"));
-            _dir = Some(d);
-            ep
-        }
-    };
+    let (listen, _dir) = listen_endpoint(a)?;
     let offer = WorldOffer {
         scene: NAME.into(),
         step_s: scene.step_s(),
@@ -357,4 +337,17 @@ fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     crate::errln!("spidar world: {rep}");
     crate::errln!("spidar world: {}", scene.status());
     Ok(rep)
+}
+
+/// Where a world listens: `--listen`, or `world.sock` in a private directory made for it (the
+/// caller keeps the directory alive as long as the world serves).
+fn listen_endpoint(a: &WorldArgs) -> anyhow::Result<(Endpoint, Option<PrivateDir>)> {
+    Ok(match &a.listen {
+        Some(s) => (Endpoint::parse(s)?, None),
+        None => {
+            let d =
+                PrivateDir::user_default().context("making a private directory for the world's socket")?;
+            (Endpoint::unix(&d.join("world.sock")), Some(d))
+        }
+    })
 }
