@@ -1,28 +1,39 @@
-//! `spidar place`: placing the rig's screen in a minute. The live view's page shows numbered
-//! targets on the screen (`?place=1`); the person holds the right grip's centre on each in turn,
-//! the ball touching the screen, until it is taken; spidar fits the screen's rectangle to where
-//! the rig measured the grip (`spidar_calib::display`) and writes it into the user's rig file as
+//! `spidar calib screen`: placing the rig's screen in a minute. The live view's page shows
+//! numbered targets on the screen (`?place=1`); the person holds the right grip's centre on each
+//! in turn, the ball touching the screen, until it is taken; spidar fits the screen's rectangle to
+//! where the grip was (`spidar_calib::display`) and writes it into the user's rig file as
 //! calibration does.
+//!
+//! Runs on the calibration session's path (`crate::calibration`): the calibrating rt-loop holds
+//! the strings (every string at minimum tension with zero net force, the loop's limits, its rules
+//! for late, corrupt and garbled replies, its fault and fade, its switch-off), on boards on its
+//! real-time thread under the supervisor; this module only reads its tick records through
+//! `spidar_calib::ticks` (a lost board or a stop signal ends the placement, the loop switched off).
+//! The calibrating loop is never homed, so placement homes as `spidar run` does, by itself: the
+//! grips held still at their home points for [`STILL_S`] give the right hand's lengths at counter
+//! zero (`HandGeometry::homed`), and from then on each tick's counts give the grip's place.
 //!
 //! A target is taken when the grip has stayed within [`STILL_M`] for [`STILL_S`] at least
 //! [`APART_M`] from the last one taken: the median of that still stretch is the grip's place.
-//! Runs on `spidar run`'s path: the session's rig loop measures, its telemetry is read here.
 //!
-//! Must never: take a place from a hand whose pose is not valid, or write the rig file itself
-//! (the caller writes what [`place_screen`] returns, through `spidar_calib::display`).
+//! Must never: drive a device itself (outputs are the loop's alone), take a place from a tick the
+//! loop did not take (late, bad, jumped or faulted: no sample), or write the rig file itself (the
+//! caller writes what [`place_screen`] returns, through `spidar_calib::display`).
 
 use std::collections::VecDeque;
-use std::time::{Duration, Instant};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
 
-use anyhow::bail;
+use anyhow::{bail, Context};
 use glam::DVec3;
 use spidar_calib::display::{fit_screen, Placement, TARGETS};
+use spidar_calib::model::HandGeometry;
+use spidar_calib::ticks::{LoopStats, StopCheck, TickSource, Ticks};
 use spidar_device::sim::{Script, Segment};
-use spidar_device::Device;
-use spidar_rt::telemetry::TickRecord;
+use spidar_rt::kinematics::Kinematics;
 use spidar_rt::Rig;
-
-use crate::session::{LiveOptions, LiveSession, WorldChoice};
 
 /// Still: every sample of the last [`STILL_S`] within this of their median (m).
 pub const STILL_M: f64 = 0.003;
@@ -80,21 +91,31 @@ impl Holds {
     }
 }
 
-/// The simulated rig's person placing `truth` (rig frame): the right grip's centre reached to each
-/// target, the ball touching the screen, and held there 1.8 s (aimed `aim_off_m[k]` beside the
-/// target: a person who saw the grip land beside it aims again), the left held at home.
+/// The simulated rig's person placing `truth` (rig frame): both grips held still at home while
+/// placement homes ([`STILL_S`] and a half), then the right grip's centre reached calmly to each
+/// target, the ball touching the screen, and held there 1.8 s (aimed `aim_off_m[k]` beside the target: a
+/// person who saw the grip land beside it aims again), the left held at home.
 pub fn scripted_person(rig: &Rig, truth: &spidar_rt::display::Display, aim_off_m: [DVec3; 5]) -> [Script; 2] {
     let r = rig.hands[HAND].grip_radius_m;
     let mut segments = Vec::new();
+    let home = rig.hands[HAND].home_m;
+    let mut from = home;
+    // A calm reach, as calibration's simulated user moves (under 1 m/s): the calibrating loop
+    // takes a string that steps further than `reply_jump_m` in a tick for a garbled count.
+    let reach = |from: DVec3, to: DVec3| Segment::Reach {
+        to_m: to.to_array(),
+        duration_s: 0.3 + 2.0 * from.distance(to),
+    };
     for (k, &(a, b)) in TARGETS.iter().enumerate() {
         let p = target_grip_m(truth, (a, b), r) + aim_off_m[k];
-        segments.push(Segment::Reach { to_m: p.to_array(), duration_s: 1.0 });
+        segments.push(reach(from, p));
         segments.push(Segment::Hold { at_m: p.to_array(), for_s: 1.8 });
+        from = p;
     }
-    segments.push(Segment::Reach { to_m: rig.hands[HAND].home_m.to_array(), duration_s: 1.0 });
+    segments.push(reach(from, home));
     [
         Script::hold(rig.hands[1 - HAND].home_m).with_start_hold(1.0),
-        Script::from_segments(segments, false).with_start_hold(1.0),
+        Script::from_segments(segments, false).with_start_hold(STILL_S * 1.5),
     ]
 }
 
@@ -103,45 +124,58 @@ pub fn target_grip_m(d: &spidar_rt::display::Display, (a, b): (f64, f64), grip_r
     d.lower_left_m + d.right * a * d.width_m + d.up * b * d.height_m + d.normal() * grip_radius_m
 }
 
-/// A world to show the targets in: an empty scene (nothing to touch while placing) stepped on a
-/// thread of this process, with the live view at `view` (None: no view).
-pub fn placement_world(view: Option<std::net::SocketAddr>) -> anyhow::Result<(WorldChoice, Option<String>)> {
-    use spidar_world::Scene;
-    let empty = spidar_world::walls::WallsScene::from_str(
-        "(kind: \"walls-scene\", version: 1, name: \"placing the screen\", step_s: 0.003, planes: [], spheres: [])",
-        "the placement's empty scene",
-    )?;
-    let look = empty.look();
-    let name = empty.name().to_string();
-    let mut stepper = spidar_world::host::Stepper::new(Box::new(empty));
-    let mut url = None;
-    if let Some(addr) = view {
+/// The page with the targets: an empty scene (nothing to touch while placing) stepped on a thread
+/// of this process, serving the live view. It only shows the targets: the grips are the
+/// calibrating loop's, which has no world.
+pub struct PlacementView {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<()>>,
+    /// The page to open full screen on the rig's screen.
+    pub url: String,
+}
+
+impl PlacementView {
+    /// Serves the view at `addr` for `rig` (its screen and eye, if the rig file has them).
+    pub fn start(rig: &Rig, addr: std::net::SocketAddr) -> anyhow::Result<PlacementView> {
+        use spidar_world::Scene;
+        let empty = spidar_world::walls::WallsScene::from_str(
+            "(kind: \"walls-scene\", version: 1, name: \"placing the screen\", step_s: 0.003, planes: [], spheres: [])",
+            "the placement's empty scene",
+        )?;
+        let look = empty.look();
+        let name = empty.name().to_string();
+        let mut stepper = spidar_world::host::Stepper::new(Box::new(empty));
         let v = spidar_world::view::View::start(
             &name,
             &look,
             &spidar_world::view::ViewOptions { addr, ..Default::default() },
         )?;
-        url = Some(format!("{}/?place=1&camera=eye", v.url()));
+        let url = format!("{}/?place=1&camera=eye", v.url());
         stepper.add_observer(Box::new(v));
+        let info = spidar_rt::status::rig_info(rig);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = stop.clone();
+        let step = Duration::from_secs_f64(stepper.step_s());
+        let handle = std::thread::Builder::new()
+            .name("spidar-place-view".into())
+            .spawn(move || {
+                let start = std::time::Instant::now();
+                while !stopped.load(Ordering::Relaxed) {
+                    stepper.step(start.elapsed().as_secs_f64(), &[], Some(&info), None);
+                    std::thread::sleep(step);
+                }
+            })
+            .context("starting the placement page's thread")?;
+        Ok(PlacementView { stop, handle: Some(handle), url })
     }
-    Ok((WorldChoice::Thread(stepper), url))
 }
 
-/// The session's options while placing: no status line, the rig loop at normal priority unless
-/// `rt` says otherwise.
-pub fn placement_options(rt: spidar_rt::rt_thread::RtOptions) -> LiveOptions {
-    LiveOptions {
-        seconds: None,
-        rt,
-        spin_ns: 0,
-        status_every: None,
-        stop: crate::signals::Stop::detached(),
-        scene_name: "placing the screen".into(),
-        script_name: "placing the screen".into(),
-        connect_timeout: Duration::from_secs(30),
-        world_priority: None,
-        supervisor: None,
-        recorder: None,
+impl Drop for PlacementView {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
     }
 }
 
@@ -163,67 +197,159 @@ pub fn demo_screen(rig: &Rig) -> anyhow::Result<spidar_rt::display::Display> {
     validate(&f, rig.eye_m).map_err(|r| anyhow::anyhow!("{}: {}", r.field, r.message))
 }
 
-/// Runs a session on `dev` until the grip was held at every target (or `timeout`), then fits the
-/// screen. `say` gets what to tell the person.
-pub fn place_screen<D: Device + 'static>(
-    dev: D,
+/// Homing while placing: the right grip's counts held still for [`STILL_S`] (every string within
+/// [`STILL_M`] of its median) at its home point.
+struct StillCounts {
+    window: VecDeque<[f64; 4]>,
+    len: usize,
+    pushed: u64,
+    tolerance_counts: [f64; 4],
+}
+
+impl StillCounts {
+    fn new(rig: &Rig) -> StillCounts {
+        let hr = &rig.hands[HAND];
+        let len = (STILL_S / rig.period_s).round().max(1.0) as usize;
+        StillCounts {
+            window: VecDeque::with_capacity(len + 1),
+            len,
+            pushed: 0,
+            tolerance_counts: std::array::from_fn(|i| STILL_M / hr.metres_per_count[i].abs()),
+        }
+    }
+
+    /// Takes one tick's counts; the median counts once the last [`STILL_S`] were still.
+    fn push(&mut self, counts: [f64; 4]) -> Option<[f64; 4]> {
+        self.window.push_back(counts);
+        if self.window.len() > self.len {
+            self.window.pop_front();
+        }
+        self.pushed += 1;
+        // Judged every 50 ticks once full: the medians sort the window.
+        if self.window.len() < self.len || self.pushed % 50 != 0 {
+            return None;
+        }
+        let median: [f64; 4] = std::array::from_fn(|i| {
+            let mut v: Vec<f64> = self.window.iter().map(|c| c[i]).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        });
+        let still =
+            self.window.iter().all(|c| (0..4).all(|i| (c[i] - median[i]).abs() <= self.tolerance_counts[i]));
+        still.then_some(median)
+    }
+}
+
+/// How a placement runs.
+#[derive(Clone)]
+pub struct PlaceOptions {
+    /// Give up when the targets were not all taken within this long of the loop's time.
+    pub timeout_s: f64,
+    /// The board counts as lost after this long without a good reply.
+    pub lost_after_s: f64,
+    /// Polled every tick: a stop signal ends the placement (the loop switched off).
+    pub stop: Option<StopCheck>,
+}
+
+impl Default for PlaceOptions {
+    fn default() -> Self {
+        PlaceOptions { timeout_s: 600.0, lost_after_s: 2.0, stop: None }
+    }
+}
+
+/// What a placement found, and what the calibrating loop showed meanwhile.
+pub struct Placed<S> {
+    pub placement: Placement,
+    /// The loop's records as placement read them (ticks, replies left out, faulted ticks).
+    pub stats: LoopStats,
+    /// The loop, ended (its counters).
+    pub source: S,
+}
+
+/// Places the screen on `source`, a calibrating loop already running (`crate::calibration`): homes
+/// the right grip, takes a place at every target, ends the loop (its switch-off, also after an
+/// error or a stop), then fits the screen. `say` gets what to tell the person.
+pub fn place_screen<S: TickSource>(
+    source: S,
     rig: &Rig,
-    world: WorldChoice,
-    opts: &LiveOptions,
-    timeout: Duration,
+    opts: &PlaceOptions,
     say: &mut dyn FnMut(String),
-) -> anyhow::Result<Placement> {
-    let mut s = LiveSession::start(dev, rig, world, opts)?;
-    let mut holds = Holds::starting_at(rig.hands[HAND].home_m);
-    say(format!(
-        "hold the right grip's centre on target 1 of {} (the ball touching the screen) until it is taken",
-        TARGETS.len()
-    ));
-    let until = Instant::now() + timeout;
-    let mut lines = Vec::new();
-    while holds.taken.len() < TARGETS.len() && Instant::now() < until {
-        let mut took = Vec::new();
-        let alive = s.poll(
-            &mut |r: &TickRecord| {
-                let h = &r.hands[HAND];
-                if let Some(p) = holds.push(r.t_s, h.pos_rig_m, h.valid) {
-                    took.push(p);
-                }
-            },
-            &mut |l| lines.push(l),
-        );
-        for l in lines.drain(..) {
-            say(l);
-        }
-        for p in took {
-            let k = holds.taken.len();
-            say(format!("target {k} taken at ({:.3}, {:.3}, {:.3}) m", p.x, p.y, p.z));
-            if k < TARGETS.len() {
-                say(format!("now target {}", k + 1));
-            }
-        }
-        if !alive {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(5));
+) -> anyhow::Result<Placed<S>> {
+    let mut ticks = Ticks::new(source, rig, opts.lost_after_s);
+    if let Some(stop) = &opts.stop {
+        ticks.set_stop(stop.clone());
     }
-    s.request_stop();
-    while s.poll(&mut |_| {}, &mut |_| {}) {
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    let _ = s.finish(0, &mut |_| {});
-    if holds.taken.len() < TARGETS.len() {
-        bail!(
-            "{} of {} targets taken before the time ran out: hold the grip still on each target for {STILL_S} s",
-            holds.taken.len(),
-            TARGETS.len()
-        );
-    }
+    let held = hold_targets(&mut ticks, rig, opts.timeout_s, say);
+    let off = ticks.switch_off();
+    let stats = ticks.stats();
+    say(format!("loop: {stats}"));
+    let taken = match (held, off) {
+        (Ok(t), Ok(())) => t,
+        (Ok(_), Err(e)) => return Err(anyhow::Error::new(e).context("switching the outputs off")),
+        (Err(e), Ok(())) => return Err(e.context("outputs switched off")),
+        (Err(e), Err(o)) => {
+            return Err(
+                e.context(format!("switching the outputs off failed ({o}): power the amplifiers down"))
+            )
+        }
+    };
+    let source = ticks.finish()?;
     let (sep, stereo) =
         rig.display.map_or((spidar_rt::display::DEFAULT_EYE_SEPARATION_M, Default::default()), |d| {
             (d.eye_separation_m, d.stereo)
         });
-    Ok(fit_screen(&TARGETS, &holds.taken, rig.hands[HAND].grip_radius_m, rig.eye_m, sep, stereo)?)
+    let placement = fit_screen(&TARGETS, &taken, rig.hands[HAND].grip_radius_m, rig.eye_m, sep, stereo)?;
+    Ok(Placed { placement, stats, source })
+}
+
+/// Reads the loop until the grip was held at every target (or `timeout_s` of ticks): the places.
+fn hold_targets<S: TickSource>(
+    ticks: &mut Ticks<S>,
+    rig: &Rig,
+    timeout_s: f64,
+    say: &mut dyn FnMut(String),
+) -> anyhow::Result<Vec<DVec3>> {
+    let hr = &rig.hands[HAND];
+    let kin = Kinematics::new(hr.anchors_m).context("the right hand's anchors")?;
+    let mut home = StillCounts::new(rig);
+    let mut geometry: Option<HandGeometry> = None;
+    let mut holds = Holds::starting_at(hr.home_m);
+    say(format!("hold the right grip still at its home point for {STILL_S} s: placement homes it"));
+    let max_ticks = (timeout_s / rig.period_s).ceil() as u64;
+    for n in 0..max_ticks {
+        // A tick the loop did not take (late, bad, jumped, faulted) gives no sample: left out.
+        let Some(counts) = ticks.tick()?.hands[HAND] else { continue };
+        let counts = counts.map(|c| c as f64);
+        let Some(g) = &geometry else {
+            if let Some(median) = home.push(counts) {
+                geometry = Some(HandGeometry::homed(hr, &median, hr.home_m));
+                say(format!(
+                    "homed; hold the right grip's centre on target 1 of {} (the ball touching the screen) until it is taken",
+                    TARGETS.len()
+                ));
+            }
+            continue;
+        };
+        let pose = kin.solve(&g.lengths(&counts), 20);
+        if let Some(p) = holds.push(n as f64 * rig.period_s, pose.pos_m, pose.valid) {
+            let k = holds.taken.len();
+            say(format!("target {k} taken at ({:.3}, {:.3}, {:.3}) m", p.x, p.y, p.z));
+            if k == TARGETS.len() {
+                return Ok(holds.taken);
+            }
+            say(format!("now target {}", k + 1));
+        }
+    }
+    match geometry {
+        None => bail!(
+            "the right grip was never still at its home point for {STILL_S} s within {timeout_s:.0} s: hold it there first"
+        ),
+        Some(_) => bail!(
+            "{} of {} targets taken before the time ran out: hold the grip still on each target for {STILL_S} s",
+            holds.taken.len(),
+            TARGETS.len()
+        ),
+    }
 }
 
 #[cfg(test)]

@@ -369,8 +369,10 @@ fn rig_hint(src: &RigSource) -> String {
 pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
     // On boards the same supervisor as `spidar run` watches this process: in the supervisor the
     // command ends here, with the status it gives.
-    if let CalibCmd::Home { dev: d, .. } | CalibCmd::Record { dev: d, .. } | CalibCmd::Verify { dev: d, .. } =
-        &cmd
+    if let CalibCmd::Home { dev: d, .. }
+    | CalibCmd::Screen { dev: d, .. }
+    | CalibCmd::Record { dev: d, .. }
+    | CalibCmd::Verify { dev: d, .. } = &cmd
     {
         check_device_args(d)?;
         if let Some(code) = calibration::supervise_boards(d.device, &d.hw, d.rig.as_deref(), &rt_options(d))?
@@ -402,20 +404,15 @@ pub fn run(cmd: CalibCmd) -> anyhow::Result<u8> {
 
 fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
     use spidar_runtime::placement::{
-        demo_screen, place_screen, placement_options, placement_world, scripted_person,
+        demo_screen, place_screen, scripted_person, PlaceOptions, PlacementView,
     };
     check_device_args(d)?;
     let src = rigpath::calibration_target(d.rig.as_deref(), true)?;
     let (rig, text) = src.load()?;
-    let (world, url) = placement_world(Some(spidar_world::view::parse_addr(view)?))?;
-    eprintln!(
-        "spidar calib screen: rig file {}; open {} full screen on the rig's screen",
-        src.describe(),
-        url.unwrap_or_default()
-    );
-    let opts = placement_options(spidar_rt::rt_thread::RtOptions::default());
-    let (timeout, say) = (std::time::Duration::from_secs(600), &mut |l: String| eprintln!("{l}"));
-    let p = match d.hw.choice(d.device, &rig)? {
+    let stop = stop_signals()?;
+    // The calibration session's loop: on boards on its real-time thread under the supervisor; on
+    // the simulated rig (the rig file's truth, a scripted person) on the virtual clock.
+    let (lp, name) = match d.hw.choice(d.device, &rig)? {
         None => {
             let truth = match rig.display {
                 Some(t) => t,
@@ -423,12 +420,34 @@ fn screen(d: &DeviceArgs, view: &str, write: bool) -> anyhow::Result<()> {
             };
             let scripts = scripted_person(&rig, &truth, [DVec3::ZERO; 5]);
             let dev = spidar_runtime::session::sim_device(&rig, scripts, &Default::default())?;
-            place_screen(dev, &rig, world, &opts, timeout, say)?
+            let lp = spidar_calib::ticks::VirtualLoop::start(dev, &rig, false)?;
+            (CalibLoop::Sim(lp), "the simulated rig (a scripted person places the screen)".to_string())
         }
-        Some(choice) => {
-            place_screen(spidar_runtime::hardware::open_hardware(&choice)?, &rig, world, &opts, timeout, say)?
-        }
+        Some(_) => calibration::start_loop(d.device, &d.hw, &sim_truth(d), &rig, &rt_options(d), &stop)?,
     };
+    let page = PlacementView::start(&rig, spidar_world::view::parse_addr(view)?)?;
+    eprintln!(
+        "spidar calib screen: {name}; rig file {}; open {} full screen on the rig's screen",
+        src.describe(),
+        page.url
+    );
+    let check = stop.clone();
+    let opts = PlaceOptions {
+        timeout_s: 600.0,
+        lost_after_s: d.lost_after_s,
+        stop: Some(Arc::new(move || check.requested())),
+    };
+    let placed = place_screen(lp, &rig, &opts, &mut |l: String| eprintln!("{l}"))?;
+    drop(page);
+    if let Some(c) = placed.source.counters() {
+        eprintln!(
+            "the loop counted {} late or bad replies, {} count jumps, {} faults",
+            c.late_replies,
+            c.count_jumps[0] + c.count_jumps[1],
+            c.faults
+        );
+    }
+    let p = placed.placement;
     let dsp = &p.display;
     println!(
         "screen: {:.3} x {:.3} m, lower left ({:.4}, {:.4}, {:.4}) m, facing ({:.3}, {:.3}, {:.3}); targets off the fit: rms {:.1} mm, worst {:.1} mm",
