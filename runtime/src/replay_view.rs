@@ -8,6 +8,13 @@
 //! `{"cmd":"seek","t_s":12.5}`, `{"cmd":"speed","x":2}`. The replay answers with a `playback`
 //! message (position, range, playing, speed, how the file ends) whenever something changed and
 //! four times a second.
+//!
+//! The screen: the world recording keeps the rig's geometry but not its `display` section; the
+//! rig file the session ran with is attached to the rig's recording next to it (`rig.ron`), and
+//! its screen (in the world frame, as the live world had it) is given to every frame's rig
+//! geometry, so a replay draws the user's-eye view through the same screen, mono or stereo, as
+//! the live page did. Without the rig's recording (or a screen in its rig file) the replay draws
+//! the user's eye without one.
 
 use std::path::Path;
 use std::sync::mpsc::{sync_channel, Receiver};
@@ -47,6 +54,26 @@ pub struct Replay {
     applied: u64,
     ends: String,
     file: String,
+    /// The screen of the rig file the session ran with (world frame), if it had one.
+    display: Option<spidar_msg::DisplayInfo>,
+}
+
+/// The screen of the rig file attached to the rig's recording next to `world_file` (its stem's
+/// `.mcap`), in the world frame as the session's world had it; None without one (no such file,
+/// no rig file attached, or no `display` section). A rig file that does not load says so.
+pub fn recorded_screen(world_file: &Path) -> Option<spidar_msg::DisplayInfo> {
+    let name = world_file.file_name()?.to_string_lossy().into_owned();
+    let rig_file = world_file.with_file_name(format!("{}.mcap", name.strip_suffix(".world.mcap")?));
+    // The attachments come first in the file: read up to the first message.
+    let rec = spidar_record::reader::read(&rig_file, |_, _| Ok(spidar_record::reader::Flow::Stop)).ok()?;
+    let text = rec.rig_text()?;
+    match spidar_rt::Rig::from_str(&text, &format!("rig.ron attached to {}", rig_file.display())) {
+        Ok(rig) => rig.display.is_some().then(|| spidar_rt::status::rig_info(&rig).display),
+        Err(e) => {
+            crate::errln!("spidar replay: the screen is not drawn: {e}");
+            None
+        }
+    }
 }
 
 impl Replay {
@@ -82,6 +109,7 @@ impl Replay {
             applied: 0,
             ends,
             file,
+            display: recorded_screen(world_file),
         };
         r.publish_frame();
         r.publish_playback();
@@ -123,7 +151,12 @@ impl Replay {
 
     fn publish_frame(&mut self) {
         let f = self.player.frame();
-        let (status, info) = (f.status(), f.rig_info());
+        let (status, mut info) = (f.status(), f.rig_info());
+        if let (Some(i), Some(d)) = (info.as_mut(), self.display) {
+            if !i.display.present {
+                i.display = d;
+            }
+        }
         self.view.publish(Some(&f.frame), Some(&status), info.as_ref(), None);
     }
 

@@ -351,3 +351,94 @@ fn display_placement_a_fault_is_the_loops_faded_counted_and_left_out() {
     let last = records.last().unwrap();
     assert_ne!(last.state, spidar_rt::Lifecycle::Faulted, "the fault cleared by itself");
 }
+
+/// `spidar run --virtual --record PATH` of `seconds` on the boxing scene with the hold script, on
+/// the rig file `rig_file` (attached to the rig's recording); returns the world's recording.
+fn record_on(rig_file: &std::path::Path, path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
+    use spidar_runtime::recording::{create, session_info, start_world_recording};
+    use spidar_runtime::session::{load_scripts, run_virtual, sim_device, SimOptions, VirtualOptions};
+    let r = Rig::load(rig_file).unwrap();
+    let dev = sim_device(&r, load_scripts("hold", &r, 1).unwrap(), &SimOptions::default()).unwrap();
+    let info = session_info(Some(rig_file), "boxing", "hold", "Sim", 1, true).unwrap();
+    let recorder = create(path, &info).unwrap();
+    let scene = spidar_world::load("boxing").unwrap();
+    let wpath = spidar_record::world::world_path(path);
+    let (wrec, obs) =
+        start_world_recording(&wpath, "boxing", &*scene, true, Some(recorder.start_unix_ns())).unwrap();
+    let opts = VirtualOptions {
+        seconds,
+        stop: spidar_runtime::signals::Stop::detached(),
+        progress: false,
+        device: "Sim".into(),
+        scene_name: "boxing".into(),
+        script_name: "hold".into(),
+        supervisor: None,
+        recorder: Some(recorder),
+        observers: vec![Box::new(obs)],
+    };
+    let sum = run_virtual(dev, &r, scene, opts).unwrap();
+    assert!(sum.counters.active_ticks > 1000, "{sum}");
+    let w = wrec.finish();
+    assert_eq!((w.dropped, w.write_failed), (0, 0), "{w}");
+    wpath
+}
+
+/// `GET path` from a view server at `url`: the JSON it answers.
+fn get_json(url: &str, path: &str) -> Value {
+    use std::io::{Read, Write};
+    let host = url.trim_start_matches("http://").trim_end_matches('/');
+    let mut c = std::net::TcpStream::connect(host).unwrap();
+    write!(c, "GET {path} HTTP/1.0\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+    let mut text = String::new();
+    c.read_to_string(&mut text).unwrap();
+    let body = &text[text.find("\r\n\r\n").expect("an HTTP answer") + 4..];
+    serde_json::from_str(body).unwrap()
+}
+
+/// `spidar replay` keeps the screen: a session recorded on the rig file with the off-centre,
+/// tilted screen, replayed into chromium, is drawn through that screen exactly as the live page
+/// draws it (the same checks as `display_draws_the_rig_frame_through_the_screen_from_the_eye`, on
+/// the replay's page: for both grips and the virtual human's head, for each eye in each stereo
+/// format, the replayed frame's off-axis projection within 2 px of where the eye's ray crosses the
+/// screen, as the live one's is). Without the screen the replay would draw a plain 70 degree
+/// perspective, and every check would miss by far more.
+#[test]
+fn display_replay_draws_through_the_recorded_screen_as_the_live_view() {
+    let _one = one_at_a_time();
+    if !browser_here("display_replay_draws_through_the_recorded_screen_as_the_live_view") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("spidar-display-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rig_file = dir.join("rig.ron");
+    std::fs::write(&rig_file, screen_rig_text()).unwrap();
+    let world = record_on(&rig_file, &dir.join("screen.mcap"), 8.0);
+    // The rig file goes away: the replay has only the recording.
+    std::fs::remove_file(&rig_file).unwrap();
+    let screen = spidar_runtime::replay_view::recorded_screen(&world).expect("the recorded screen");
+    assert_eq!(screen, spidar_rt::status::rig_info(&screen_rig()).display);
+    let o = spidar_runtime::replay_view::ReplayOptions {
+        view: spidar_world::view::ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() },
+        from_s: None,
+        speed: 1.0,
+        play: true,
+    };
+    let replay = spidar_runtime::replay_view::Replay::start(&world, &o).unwrap();
+    let url = replay.url().to_string();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let s = stop.clone();
+    let thread =
+        std::thread::spawn(move || replay.run(&|| s.load(std::sync::atomic::Ordering::Relaxed)).unwrap());
+    let scene = get_json(&url, "/scene.json");
+    let off: Vec<f64> =
+        scene["link_offset_m"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    let link_offset_m = DVec3::new(off[0], off[1], off[2]);
+    let rig = screen_rig();
+    node_script("display.mjs", &["screen", &url], |q| match q["ask"].as_str().unwrap() {
+        "screen_pixels" => screen_pixels(&rig, link_offset_m, q),
+        other => json!({"error": format!("unknown question {other}")}),
+    });
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    thread.join().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
