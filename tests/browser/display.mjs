@@ -419,6 +419,10 @@ async function crowdPeople(browser) {
   // (The pieces are drawn about the figure's joints, which lie down to the floor itself: a piece
   // may sink into it by up to its own thickness, the thigh's 7.5 cm at most.)
   check(lying.high < 0.5 && lying.low > -0.08, `its person lies on the floor: every piece but the shoes between ${lying.low.toFixed(3)} and ${lying.high.toFixed(2)} m high (shoes down to ${lying.shoeLow.toFixed(3)} m)`);
+  // The shoes turn at the ankles as a lying person's feet do: none goes into the floor by more
+  // than 1 cm, lying face down or on the back (a shoe that kept pointing the body's forward way
+  // went 15 cm into it face down).
+  check(lying.shoeLow > -0.01, `its shoes stay on the floor: their lowest point ${lying.shoeLow.toFixed(3)} m high`);
   // Seen from the side with the eye 0.55 m up looking level: the red (down) person is all below
   // the horizon.
   const sk = skeleton(down[w].f);

@@ -18,6 +18,10 @@ const STATE = 7;
 const PUSH = 8;
 const HEAD_FLOATS = 9;
 const PUSH_FLASH_N = 2.0;
+// The ankle's range (rad): the foot turns up toward the shin's front by 20 degrees at most and
+// points along the shin at most.
+const FLEX_UP = 0.35;
+const POINT = Math.PI / 2;
 
 // A tapered limb along +y from 0 to len (radius r0 at 0, r1 at len) with a ball at 0.
 function limb(len, r0, r1) {
@@ -66,9 +70,10 @@ function piece(name, len) {
   if (/hip/.test(name)) return { g: new THREE.SphereGeometry(0.075, SEGS, 8).translate(0, len, 0) };
   if (/knee/.test(name)) return { g: limb(len, 0.075, 0.058) };
   if (/ankle/.test(name)) {
-    // The shin, and a shoe past the ankle pointing forward.
+    // The shin, and a shoe on the ankle pointing forward, in the ankle's frame (the pieces'
+    // frame moved to the bone's end, turned at the ankle: see `footAt`).
     // (Its sole at the ankle's height below it: the keyframe set's 4 cm.)
-    const shoe = new THREE.BoxGeometry(0.095, 0.06, 0.22).translate(0, len + 0.01, 0.05);
+    const shoe = new THREE.BoxGeometry(0.095, 0.06, 0.22).translate(0, 0.01, 0.05);
     return { g: limb(len, 0.058, 0.046), shoe };
   }
   return { g: limb(len, 0.045, 0.04) };
@@ -114,6 +119,9 @@ export class CrowdPeople {
     this.y = new THREE.Vector3();
     this.z = new THREE.Vector3();
     this.fwd = new THREE.Vector3();
+    this.footY = new THREE.Vector3();
+    this.footZ = new THREE.Vector3();
+    this.footM = new THREE.Matrix4();
     this.q = new THREE.Quaternion();
     this.colour = new THREE.Color();
     this.visible = true;
@@ -145,7 +153,7 @@ export class CrowdPeople {
         this.z.normalize();
         this.x.crossVectors(this.y, this.z);
         this.m.makeBasis(this.x, this.y, this.z).setPosition(this.a);
-        for (const m of p.meshes) m.setMatrixAt(i, this.m);
+        for (const m of p.meshes) m.setMatrixAt(i, m.userData.shoe ? this.footAt(this.b) : this.m);
       }
       const state = f[o + STATE] | 0;
       const shown = state + (f[o + PUSH] > PUSH_FLASH_N ? 0.5 : 0);
@@ -166,10 +174,38 @@ export class CrowdPeople {
     this.coloursChanged = false;
   }
 
+  // The shoe's frame at the ankle `ankle`, from the shin's (x across, y along the shin away from
+  // the knee, z forward): the foot turned about the ankle's axis (x) by the least angle, within
+  // the ankle's range (FLEX_UP toward the shin's front, POINT toward its line), that keeps its
+  // toes from pointing below level; where none does, as far as the range lets. Standing the toes
+  // point level or up: unturned. A person lying face down has the tops of the feet on the floor,
+  // the toes along the shins: a shoe that kept pointing the body's forward way went into it.
+  footAt(ankle) {
+    const { x, y, z } = this;
+    let t = 0;
+    if (z.y < 0) {
+      // The toes' height along z cos u + y sin u is zero at t1 and t1 +- pi.
+      const t1 = Math.atan(-z.y / y.y);
+      t = Infinity;
+      for (let k = -1; k <= 1; k++) {
+        const u = t1 + k * Math.PI;
+        if (u >= -FLEX_UP && u <= POINT && Math.abs(u) < Math.abs(t)) t = u;
+      }
+      if (t === Infinity) {
+        const toes = (u) => z.y * Math.cos(u) + y.y * Math.sin(u);
+        t = toes(POINT) >= toes(-FLEX_UP) ? POINT : -FLEX_UP;
+      }
+    }
+    const [c, s] = [Math.cos(t), Math.sin(t)];
+    this.footY.copy(y).multiplyScalar(c).addScaledVector(z, -s);
+    this.footZ.copy(z).multiplyScalar(c).addScaledVector(y, s);
+    return this.footM.makeBasis(x, this.footY, this.footZ).setPosition(ankle);
+  }
+
   // For tests: character i's joints as its pieces draw them (scene frame), each joint from the
   // pieces that start and end there; and the lowest and highest point of all its pieces but the
   // shoes, and of its shoes (the drawn figure has no foot joint: a shoe points the body's forward
-  // way, into the floor when the figure lies face down).
+  // way, turned at the ankle no further than level).
   drawn(i) {
     const ends = this.joints.map(() => []);
     const m = new THREE.Matrix4();
