@@ -226,7 +226,7 @@ impl StillCounts {
         }
         self.pushed += 1;
         // Judged every 50 ticks once full: the medians sort the window.
-        if self.window.len() < self.len || self.pushed % 50 != 0 {
+        if self.window.len() < self.len || !self.pushed.is_multiple_of(50) {
             return None;
         }
         let median: [f64; 4] = std::array::from_fn(|i| {
@@ -355,6 +355,21 @@ fn hold_targets<S: TickSource>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn homing_waits_for_a_still_second_and_gives_its_median_counts() {
+        let rig = Rig::default_rig();
+        let mut home = StillCounts::new(&rig);
+        let per_tick = 1e-3 / rig.hands[HAND].metres_per_count[0].abs(); // 1 m/s in counts a tick
+                                                                         // Moving: never still.
+        assert!((0..3000).all(|k| home.push([k as f64 * per_tick, 0.0, 0.0, 0.0]).is_none()));
+        // Then still, with one count of noise: homed within a second and a block of 50 ticks.
+        let base = 3000.0 * per_tick;
+        let got = (0..1100).find_map(|k| home.push([base + (k % 2) as f64, 7.0, -3.0, 0.0]).map(|m| (k, m)));
+        let (k, m) = got.expect("homed");
+        assert!((999..1050).contains(&k), "homed after {k} ticks");
+        assert!((m[0] - base).abs() <= 1.0 && m[1] == 7.0 && m[2] == -3.0, "{m:?}");
+    }
 
     #[test]
     fn a_place_is_taken_after_a_still_second_and_not_twice() {
