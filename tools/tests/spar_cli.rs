@@ -209,3 +209,84 @@ fn the_live_view_shows_both_seats_from_either_persons_eye() {
 fn word_after(text: &str, key: &str) -> String {
     text[text.find(key).unwrap() + key.len()..].split_whitespace().next().unwrap().to_string()
 }
+
+/// A bout recorded by the world (`spidar world --scene spar --record`) and by each rig (`spidar
+/// run --record` with `--world` at the spar world), read back: the world's file describes both
+/// seats' bodies, its frames move both (their gloves and heads where two people box: seat 1 in
+/// front), carry contacts between them and the hits; each rig's file holds its own ticks and the
+/// models it received.
+#[test]
+fn a_bout_is_recorded_by_the_world_and_by_each_rig() {
+    use spidar_record::play::ViewTrack;
+    let dir = std::env::temp_dir().join(format!("spidar-spar-rec-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, r0, r1) = (dir.join("bout.world.mcap"), dir.join("seat0.mcap"), dir.join("seat1.mcap"));
+    let world = World::start("udp://127.0.0.1:0", &["--no-view", "--record", w.to_str().unwrap()]);
+    let a = rig(&world.at, "1", "8", &["--record", r0.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(500));
+    let b = rig(&world.at, "2", "7", &["--record", r1.to_str().unwrap()]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    let said = world.stop();
+    check_rigs(&a, &b);
+    assert!(said.contains("spidar world: recording"), "{said}");
+
+    let track = ViewTrack::open(&w).unwrap();
+    let desc: serde_json::Value = serde_json::from_str(&track.description).unwrap();
+    assert_eq!(desc["name"], "spar");
+    let names: Vec<&str> =
+        desc["humanoids"].as_array().unwrap().iter().map(|h| h["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["seat 0", "seat 1"]);
+    let shape = |name: &str| {
+        desc["shapes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .position(|s| s["name"] == name)
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    let l = &desc["layout"];
+    let at = |k: &str| l[k].as_u64().unwrap() as usize;
+    let pos = |f: &[f32], k: usize| {
+        let o = at("shapes_at") + k * at("shape_floats");
+        glam::DVec3::new(f[o] as f64, f[o + 1] as f64, f[o + 2] as f64)
+    };
+    let heads = [shape("seat 0/head"), shape("seat 1/head")];
+    let gloves: Vec<usize> = desc["shapes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s["name"].as_str().unwrap().contains("hand"))
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(gloves.len(), 4, "two gloves per seat: {gloves:?}");
+    let (mut first, mut moved, mut contacts, mut forced) = (None::<Vec<f32>>, [0.0f64; 4], 0usize, 0.0f32);
+    let n = 60;
+    for i in 0..=n {
+        let t = track.first_t_s + (track.last_t_s - track.first_t_s) * i as f64 / n as f64;
+        let f = track.frame_at(t).unwrap();
+        let w = &f.frame;
+        assert!(pos(w, heads[1]).z < pos(w, heads[0]).z - 0.5, "seat 1 stands in front of seat 0 at {t} s");
+        let f0 = first.get_or_insert_with(|| w.clone());
+        for (g, m) in gloves.iter().zip(moved.iter_mut()) {
+            *m = m.max((pos(w, *g) - pos(f0, *g)).length());
+        }
+        contacts += w.len().saturating_sub(at("contacts_at")) / at("contact_floats");
+        for g in &gloves {
+            forced = forced.max(w[at("shape_force_at") + g]);
+        }
+    }
+    assert!(moved.iter().all(|&m| m > 0.05), "every glove moved in the recording: {moved:?} m");
+    assert!(contacts > 0 && forced > 0.5, "contacts recorded: {contacts}, most force on a glove {forced} N");
+    let last = track.frame_at(track.last_t_s).unwrap();
+    assert!(last.counters[0] + last.counters[1] >= 1.0, "hits recorded: {:?}", &last.counters[..2]);
+
+    for (name, path, out) in [("seat 0", &r0, &a), ("seat 1", &r1, &b)] {
+        let s = spidar_record::summary::summarize(path).unwrap();
+        let models = number_after(&String::from_utf8_lossy(&out.stdout), "link").unwrap();
+        assert!(s.active_ticks > 3000, "{name}: {} active ticks recorded", s.active_ticks);
+        assert!(s.models as f64 > 0.9 * models, "{name}: {} of {models} models recorded", s.models);
+        assert!(s.hits[0] + s.hits[1] >= 1, "{name}: no contact onset recorded");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
