@@ -107,11 +107,80 @@ fn check_rigs(a: &std::process::Output, b: &std::process::Output) {
     }
 }
 
+/// The default rig file's force limit per hand (configs/rig-spidar-h.ron, `force_limit_n`).
+const FORCE_LIMIT_N: f64 = 4.0;
+
+/// How a rig's felt force compared with the contact force its loop asked, over a bout.
+#[derive(Debug, Default)]
+struct Felt {
+    /// Hand-ticks active, tracked and touching.
+    touching: u64,
+    /// Of those, renderable as asked (within the limit), and the worst relative error there.
+    as_asked: u64,
+    as_asked_worst: f64,
+    /// Of those, above the limit but otherwise renderable: felt against the asked force clamped
+    /// to the limit along its own direction.
+    clamped: u64,
+    clamped_worst: f64,
+}
+
+/// Per tick of a rig's recording: the force the strings produce (`output_n`, what the allocated
+/// tensions pull) against the rendered contact force the loop asked (`rendered_n`, its local
+/// model of the avatar-hand contact), where the rig can render it: active at full gain, the hand
+/// tracked and touching, no blow in it, not scaled by the energy reserve, not stiffness-limited,
+/// not held, exactly allocatable, above 0.05 N. Above the limit, the asked force clamped to it.
+fn felt_against_asked(path: &std::path::Path) -> Felt {
+    use spidar_record::reader::{read, Flow, Msg};
+    use spidar_rt::tension::Method;
+    let mut f = Felt::default();
+    read(path, |_, m| {
+        if let Msg::Tick(t) = m {
+            for h in &t.hands {
+                if h.contacts == 0 || !h.valid || t.gain == 0.0 {
+                    continue;
+                }
+                f.touching += 1;
+                let asked = h.rendered_n.length();
+                let renderable = t.gain == 1.0
+                    && h.blow_n == glam::DVec3::ZERO
+                    && !h.passivity_limited
+                    && !h.stiffness_limited
+                    && !h.held
+                    && h.method == Method::Exact
+                    && asked > 0.05;
+                if !renderable {
+                    continue;
+                }
+                let want = h.rendered_n * (FORCE_LIMIT_N / asked).min(1.0);
+                let err = (h.output_n - want).length() / want.length();
+                if h.clamped {
+                    f.clamped += 1;
+                    f.clamped_worst = f.clamped_worst.max(err);
+                } else {
+                    f.as_asked += 1;
+                    f.as_asked_worst = f.as_asked_worst.max(err);
+                }
+            }
+        }
+        Ok(Flow::Continue)
+    })
+    .unwrap();
+    f
+}
+
+/// A bout through `listen`: two rigs (recording their ticks) and the world, as processes.
 fn bout(listen: &str) {
+    let dir = std::env::temp_dir().join(format!(
+        "spidar-spar-bout-{}-{}",
+        std::process::id(),
+        listen.starts_with("udp") as u8
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (r0, r1) = (dir.join("seat0.mcap"), dir.join("seat1.mcap"));
     let world = World::start(listen, &["--no-view"]);
-    let a = rig(&world.at, "1", "9", &[]);
+    let a = rig(&world.at, "1", "9", &["--record", r0.to_str().unwrap()]);
     std::thread::sleep(Duration::from_millis(500));
-    let b = rig(&world.at, "2", "7", &[]);
+    let b = rig(&world.at, "2", "7", &["--record", r1.to_str().unwrap()]);
     let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
     std::thread::sleep(Duration::from_millis(300));
     let world_err = world.stop();
@@ -130,6 +199,30 @@ fn bout(listen: &str) {
     let hits0 = number_after(&world_err, "seat 0: a standing opponent (").unwrap();
     let hits1 = number_after(&world_err, "seat 1: a standing opponent (").unwrap();
     assert!(hits0 + hits1 >= 1.0, "no punch landed: {world_err}");
+    // Each user's hand feels the other's blocks and blows as the loop renders them: within 5 %
+    // of the contact force asked where the rig can render it, of the asked force clamped to 4 N
+    // where it is above the limit. Most punches are far above 4 N.
+    for (name, path) in [("seat 0", &r0), ("seat 1", &r1)] {
+        let f = felt_against_asked(path);
+        let pct = |n: u64| 100.0 * n as f64 / f.touching.max(1) as f64;
+        eprintln!(
+            "{listen} {name}: {} touching hand-ticks; felt against asked on {} ({:.1} %), worst {:.2} %; \
+             against asked clamped to 4 N on {} ({:.1} %), worst {:.2} %",
+            f.touching,
+            f.as_asked,
+            pct(f.as_asked),
+            100.0 * f.as_asked_worst,
+            f.clamped,
+            pct(f.clamped),
+            100.0 * f.clamped_worst
+        );
+        assert!(f.as_asked >= 3 && f.clamped >= 100, "{name}: too few hand-ticks to compare: {f:?}");
+        assert!(
+            f.as_asked_worst <= 0.05 && f.clamped_worst <= 0.05,
+            "{name}: felt off the asked force: {f:?}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
