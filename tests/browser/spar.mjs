@@ -9,27 +9,33 @@ const [url] = process.argv.slice(2);
 const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-// Blue dominant: seat 0's body.
-function blue(page, rect) {
-  return page.evaluate((rect) => {
+// Pixels in `rect` (CSS px) of a kind: 'blue' (blue dominant: seat 0's body) or 'coloured'
+// (any clear colour, not the grey floor or the dark sky: a body in its colour, skin, or a part
+// flashing where it was hit).
+function count(page, kind, rect) {
+  return page.evaluate((kind, rect) => {
     const src = document.querySelector('#view canvas');
     const c = document.createElement('canvas');
     c.width = src.width; c.height = src.height;
     const g = c.getContext('2d', { willReadFrequently: true });
     g.drawImage(src, 0, 0);
     const s = src.width / src.clientWidth;
-    const x0 = Math.max(0, Math.floor(rect.x * s)); const y0 = Math.max(0, Math.floor(rect.y * s));
-    const x1 = Math.min(c.width, Math.ceil((rect.x + rect.w) * s)); const y1 = Math.min(c.height, Math.ceil((rect.y + rect.h) * s));
+    const r = rect ?? { x: 0, y: 0, w: src.clientWidth, h: src.clientHeight };
+    const x0 = Math.max(0, Math.floor(r.x * s)); const y0 = Math.max(0, Math.floor(r.y * s));
+    const x1 = Math.min(c.width, Math.ceil((r.x + r.w) * s)); const y1 = Math.min(c.height, Math.ceil((r.y + r.h) * s));
     const d = g.getImageData(0, 0, c.width, c.height).data;
+    const is = kind === 'blue'
+      ? (R, G, B) => B >= 70 && B > 1.4 * R && B > 1.1 * G
+      : (R, G, B) => Math.max(R, G, B) - Math.min(R, G, B) > 40;
     let n = 0;
     for (let y = y0; y < y1; y++) {
       for (let x = x0; x < x1; x++) {
         const i = (y * c.width + x) * 4;
-        if (d[i + 2] >= 70 && d[i + 2] > 1.4 * d[i] && d[i + 2] > 1.1 * d[i + 1]) n++;
+        if (is(d[i], d[i + 1], d[i + 2])) n++;
       }
     }
     return n;
-  }, rect);
+  }, kind, rect);
 }
 
 // The names of a seat's shapes of one part (`hand`, `head`), left first, from the description's
@@ -89,11 +95,16 @@ await run(async (browser) => {
   // 2. Both bodies drawn from the orbit camera: red (seat 1) at its head, blue (seat 0) at its.
   await pause(p);
   const H = await p.evaluate((n) => n.map((x) => spidarView.shape(x)), heads);
-  check(H[1].pos[2] < H[0].pos[2] - 0.5, `seat 1 stands in front of seat 0 (heads at z ${H[1].pos[2].toFixed(2)} and ${H[0].pos[2].toFixed(2)} m)`);
-  const red = await pixels(p, RED, around(H[1].screen, 30));
-  const bl = await blue(p, around(H[0].screen, 30));
-  check(red.n > 150, `seat 1's head is drawn (${red.n} red pixels)`);
-  check(bl > 150, `seat 0's head is drawn (${bl} blue pixels)`);
+  const waists = await p.evaluate((n) => n.map((x) => spidarView.shape(x).pos), [0, 1].map((s) => parts(desc, s, 'waist')[0]));
+  check(waists[1][2] < waists[0][2] - 0.5, `seat 1 stands in front of seat 0 (waists at z ${waists[1][2].toFixed(2)} and ${waists[0][2].toFixed(2)} m)`);
+  // A head that was just hit flashes (near white, then back to its colour): drawn, in any colour.
+  for (const seat of [0, 1]) {
+    const n = await count(p, 'coloured', around(H[seat].screen, 30));
+    check(n > 150, `seat ${seat}'s head is drawn (${n} coloured pixels within 30 px of it)`);
+  }
+  const red = (await pixels(p, RED)).n;
+  const bl = await count(p, 'blue');
+  check(red > 2000 && bl > 2000, `both bodies are drawn in their colours (${red} red pixels, ${bl} blue)`);
   const people = await p.evaluate(() => { spidarView.setBodies(true); return [spidarView.personJoints('seat 0'), spidarView.personJoints('seat 1')]; });
   check(people.every((j) => j && Object.keys(j).length >= 8), 'both seats are drawn as people too');
 
@@ -105,8 +116,9 @@ await run(async (browser) => {
     const other = await e.evaluate((n) => spidarView.shape(n), heads[1 - seat]);
     const sc = other.screen;
     check(sc.z < 1 && Math.abs(sc.x - 400) < 200 && Math.abs(sc.y - 300) < 250, `from seat ${seat}'s eye seat ${1 - seat}'s head is in view (${sc.x.toFixed(0)}, ${sc.y.toFixed(0)})`);
-    const n = seat === 0 ? (await pixels(e, RED, around(sc, 40))).n : await blue(e, around(sc, 40));
-    check(n > 300, `from seat ${seat}'s eye seat ${1 - seat}'s head is drawn (${n} pixels of its colour)`);
+    const n = await count(e, 'coloured', around(sc, 40));
+    const colour = seat === 0 ? (await pixels(e, RED)).n : await count(e, 'blue');
+    check(n > 300 && colour > 3000, `from seat ${seat}'s eye seat ${1 - seat}'s head is drawn (${n} coloured pixels within 40 px) and its body in its colour (${colour} pixels)`);
     await e.close();
     await sleep(100);
   }
