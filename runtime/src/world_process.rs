@@ -301,21 +301,33 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     Ok(rep)
 }
 
-/// `spidar world --scene spar`: two seats, one rig each (docs/spar.md). No live view or
-/// recording of its own yet: each rig records its own channels (`spidar run --record`).
+/// `spidar world --scene spar`: two seats, one rig each (docs/spar.md), with the live view of
+/// both bodies and the world's recording (`--record`); each rig records its own channels with
+/// `spidar run --record`.
 fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     use spidar_world::spar::{serve_spar, SparScene, NAME};
-    if a.record.is_some() || a.view.foxglove.is_some() || a.view.view.is_some() || a.lockstep {
+    if a.view.foxglove.is_some() || a.lockstep {
         bail!(
-            "--scene spar has no --record, --view, --foxglove or --lockstep of its own yet: record each rig with \
-             `spidar run --record FILE.mcap`, and leave those options out of `spidar world`"
+            "--scene spar has no --foxglove or --lockstep of its own yet: watch it with --view, record it with \
+             --record, and leave those options out of `spidar world`"
         );
     }
     let mut scene = SparScene::new(spidar_sim::boxer::BoxerParams::default())?;
+    // Created before the world listens: a path that cannot be written is refused first.
+    let recording = match &a.record {
+        Some(path) => Some(crate::recording::start_world_recording(
+            path,
+            NAME,
+            &scene,
+            false,
+            a.record_start_unix_ns.or_else(|| Some(spidar_link::sock::realtime_ns() as u64)),
+        )?),
+        None => None,
+    };
     let (listen, _dir) = listen_endpoint(a)?;
     let offer = WorldOffer {
         scene: NAME.into(),
-        step_s: scene.step_s(),
+        step_s: spidar_world::Scene::step_s(&scene),
         rig_lost_after: Duration::from_secs_f64(a.rig_lost_s),
     };
     let mut link = WorldLink::bind_seats(&listen, offer, spidar_sim::boxer::spar::SEATS)
@@ -332,8 +344,23 @@ fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
         "spidar world: connect two rigs, each with `spidar run --world {at}` (the first takes seat 0, the avatar; \
          the second seat 1, in front of it); waiting for rigs"
     );
+    let mut observers: Vec<Box<dyn Observer>> = Vec::new();
+    if let Some(v) = start_view(&a.view, &scene)? {
+        crate::errln!("spidar world: the view shows seat 1's eye with ?seat=1 (camera: eye)");
+        observers.push(Box::new(v));
+    }
+    let recording = recording.map(|(rec, observer)| {
+        observers.push(Box::new(observer));
+        rec
+    });
     let stop_fn = || stop.requested();
-    let rep = serve_spar(&mut scene, &mut link, &stop_fn, &mut |line| crate::errln!("spidar world: {line}"));
+    let rep = serve_spar(&mut scene, &mut link, &mut observers, &stop_fn, &mut |line| {
+        crate::errln!("spidar world: {line}")
+    });
+    drop(observers);
+    if let Some(r) = recording {
+        crate::errln!("spidar world: recording {}", r.finish());
+    }
     crate::errln!("spidar world: {rep}");
     crate::errln!("spidar world: {}", scene.status());
     Ok(rep)

@@ -4,7 +4,7 @@
 //! both rigs' hands, models received), the world says who joined and who boxes whom, and punches
 //! land. The waits are generous bounds for a loaded machine; the runs use the normal scheduler.
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
@@ -18,38 +18,82 @@ fn number_after(text: &str, key: &str) -> Option<f64> {
     s.parse().ok()
 }
 
-fn bout(listen: &str) {
-    let mut world = Command::new(BIN)
-        .args(["world", "--scene", "spar", "--listen", listen])
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(world.stdout.take().unwrap()).read_line(&mut first).unwrap();
-    let at = first.trim().rsplit(' ').next().unwrap().to_string();
-    assert!(first.contains("scene spar (two seats) listening on"), "{first}");
-    let rig = |seed: &str, seconds: &str| {
-        Command::new(BIN)
-            .args(["run", "--world", &at, "--script", "box", "--no-rt", "--seed", seed, "--seconds", seconds])
+/// A `spidar world --scene spar` process: where it listens, and its stderr as it comes.
+struct World {
+    child: std::process::Child,
+    at: String,
+    err: std::sync::mpsc::Receiver<String>,
+    said: String,
+}
+
+impl World {
+    fn start(listen: &str, extra: &[&str]) -> World {
+        let mut child = Command::new(BIN)
+            .args(["world", "--scene", "spar", "--listen", listen])
+            .args(extra)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
-            .unwrap()
-    };
-    let a = rig("1", "9");
-    std::thread::sleep(Duration::from_millis(500));
-    let b = rig("2", "7");
-    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
-    std::thread::sleep(Duration::from_millis(300));
-    // SAFETY: kill(2) on our own child.
-    unsafe { libc::kill(world.id() as i32, libc::SIGINT) };
-    let mut world_err = String::new();
-    world.stderr.take().unwrap().read_to_string(&mut world_err).unwrap();
-    assert!(world.wait().unwrap().success(), "{world_err}");
-    for (name, o) in [("seat 0", &a), ("seat 1", &b)] {
+            .unwrap();
+        let mut first = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut first).unwrap();
+        assert!(first.contains("scene spar (two seats) listening on"), "{first}");
+        let at = first.trim().rsplit(' ').next().unwrap().to_string();
+        let (tx, err) = std::sync::mpsc::channel();
+        let stderr = child.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            for l in BufReader::new(stderr).lines().map_while(Result::ok) {
+                let _ = tx.send(l);
+            }
+        });
+        World { child, at, err, said: String::new() }
+    }
+
+    /// The first line of stderr with `needle` in it (waiting up to a minute).
+    fn line_with(&mut self, needle: &str) -> String {
+        loop {
+            let l = self
+                .err
+                .recv_timeout(Duration::from_secs(60))
+                .unwrap_or_else(|_| panic!("the world never said '{needle}': {}", self.said));
+            self.said.push_str(&l);
+            self.said.push('\n');
+            if l.contains(needle) {
+                return l;
+            }
+        }
+    }
+
+    /// Stops it (SIGINT) and returns all it said on stderr.
+    fn stop(mut self) -> String {
+        // SAFETY: kill(2) on our own child.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+        let ok = self.child.wait().unwrap().success();
+        while let Ok(l) = self.err.recv_timeout(Duration::from_secs(10)) {
+            self.said.push_str(&l);
+            self.said.push('\n');
+        }
+        assert!(ok, "{}", self.said);
+        self.said
+    }
+}
+
+/// A simulated rig with the `box` script's user (its own seed) at the world `at`.
+fn rig(at: &str, seed: &str, seconds: &str, extra: &[&str]) -> std::process::Child {
+    Command::new(BIN)
+        .args(["run", "--world", at, "--script", "box", "--no-rt", "--seed", seed, "--seconds", seconds])
+        .args(extra)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Each rig ended well, boxed in the spar scene, received models and felt the other's body.
+fn check_rigs(a: &std::process::Output, b: &std::process::Output) {
+    for (name, o) in [("seat 0", a), ("seat 1", b)] {
         let out = String::from_utf8_lossy(&o.stdout);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{name}: {out}\n{err}");
@@ -61,6 +105,86 @@ fn bout(listen: &str) {
         // The box script punches with either hand: each rig felt the other's body or guard.
         assert!(left.max(right) > 0.5, "{name} felt nothing: {out}");
     }
+}
+
+/// The default rig file's force limit per hand (configs/rig-spidar-h.ron, `force_limit_n`).
+const FORCE_LIMIT_N: f64 = 4.0;
+
+/// How a rig's felt force compared with the contact force its loop asked, over a bout.
+#[derive(Debug, Default)]
+struct Felt {
+    /// Hand-ticks active, tracked and touching.
+    touching: u64,
+    /// Of those, renderable as asked (within the limit), and the worst relative error there.
+    as_asked: u64,
+    as_asked_worst: f64,
+    /// Of those, above the limit but otherwise renderable: felt against the asked force clamped
+    /// to the limit along its own direction.
+    clamped: u64,
+    clamped_worst: f64,
+}
+
+/// Per tick of a rig's recording: the force the strings produce (`output_n`, what the allocated
+/// tensions pull) against the rendered contact force the loop asked (`rendered_n`, its local
+/// model of the avatar-hand contact), where the rig can render it: active at full gain, the hand
+/// tracked and touching, no blow in it, not scaled by the energy reserve, not stiffness-limited,
+/// not held, exactly allocatable, above 0.05 N. Above the limit, the asked force clamped to it.
+fn felt_against_asked(path: &std::path::Path) -> Felt {
+    use spidar_record::reader::{read, Flow, Msg};
+    use spidar_rt::tension::Method;
+    let mut f = Felt::default();
+    read(path, |_, m| {
+        if let Msg::Tick(t) = m {
+            for h in &t.hands {
+                if h.contacts == 0 || !h.valid || t.gain == 0.0 {
+                    continue;
+                }
+                f.touching += 1;
+                let asked = h.rendered_n.length();
+                let renderable = t.gain == 1.0
+                    && h.blow_n == glam::DVec3::ZERO
+                    && !h.passivity_limited
+                    && !h.stiffness_limited
+                    && !h.held
+                    && h.method == Method::Exact
+                    && asked > 0.05;
+                if !renderable {
+                    continue;
+                }
+                let want = h.rendered_n * (FORCE_LIMIT_N / asked).min(1.0);
+                let err = (h.output_n - want).length() / want.length();
+                if h.clamped {
+                    f.clamped += 1;
+                    f.clamped_worst = f.clamped_worst.max(err);
+                } else {
+                    f.as_asked += 1;
+                    f.as_asked_worst = f.as_asked_worst.max(err);
+                }
+            }
+        }
+        Ok(Flow::Continue)
+    })
+    .unwrap();
+    f
+}
+
+/// A bout through `listen`: two rigs (recording their ticks) and the world, as processes.
+fn bout(listen: &str) {
+    let dir = std::env::temp_dir().join(format!(
+        "spidar-spar-bout-{}-{}",
+        std::process::id(),
+        listen.starts_with("udp") as u8
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (r0, r1) = (dir.join("seat0.mcap"), dir.join("seat1.mcap"));
+    let world = World::start(listen, &["--no-view"]);
+    let a = rig(&world.at, "1", "9", &["--record", r0.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(500));
+    let b = rig(&world.at, "2", "7", &["--record", r1.to_str().unwrap()]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    std::thread::sleep(Duration::from_millis(300));
+    let world_err = world.stop();
+    check_rigs(&a, &b);
     assert!(
         world_err.contains("seat 0: the rig at") && world_err.contains("joined, boxing a standing opponent")
     );
@@ -75,6 +199,31 @@ fn bout(listen: &str) {
     let hits0 = number_after(&world_err, "seat 0: a standing opponent (").unwrap();
     let hits1 = number_after(&world_err, "seat 1: a standing opponent (").unwrap();
     assert!(hits0 + hits1 >= 1.0, "no punch landed: {world_err}");
+    // Each user's hand feels the other's blocks and blows as the loop renders them: within 5 %
+    // of the contact force asked where the rig can render it, of the asked force clamped to 4 N
+    // where it is above the limit. Most punches are far above 4 N.
+    for (name, path) in [("seat 0", &r0), ("seat 1", &r1)] {
+        let f = felt_against_asked(path);
+        let pct = |n: u64| 100.0 * n as f64 / f.touching.max(1) as f64;
+        eprintln!(
+            "{listen} {name}: {} touching hand-ticks; felt against asked on {} ({:.1} %), worst {:.2} %; \
+             against asked clamped to 4 N on {} ({:.1} %), worst {:.2} %",
+            f.touching,
+            f.as_asked,
+            pct(f.as_asked),
+            100.0 * f.as_asked_worst,
+            f.clamped,
+            pct(f.clamped),
+            100.0 * f.clamped_worst
+        );
+        // Below the limit is rare and depends on the bout's timing (0-15 hand-ticks a bout).
+        assert!(f.as_asked + f.clamped >= 100, "{name}: too few hand-ticks to compare: {f:?}");
+        assert!(
+            f.as_asked_worst <= 0.05 && f.clamped_worst <= 0.05,
+            "{name}: felt off the asked force: {f:?}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -89,4 +238,157 @@ fn two_rigs_spar_through_one_world_over_a_unix_socket() {
 #[test]
 fn two_rigs_spar_through_one_world_over_udp() {
     bout("udp://127.0.0.1:0");
+}
+
+fn browser_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/browser")
+}
+
+/// True when node, chromium and `npm ci` in tests/browser are here; else says so loudly and
+/// returns false, unless `SPIDAR_BROWSER_TESTS=required`, which makes it a failure.
+fn browser_here(test: &str) -> bool {
+    let chromium = std::env::var("SPIDAR_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
+    let why = if !std::path::Path::new(&chromium).exists() {
+        format!("no chromium at {chromium} (apt-get install chromium, or set SPIDAR_CHROMIUM)")
+    } else if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
+        "no node on PATH".into()
+    } else if !browser_dir().join("node_modules/puppeteer-core").exists() {
+        format!("no puppeteer-core: run npm ci in {}", browser_dir().display())
+    } else {
+        return true;
+    };
+    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
+        panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
+    }
+    eprintln!("\n*** SKIPPED {test}: {why}. The spar view's browser test did not run. ***\n");
+    false
+}
+
+/// The live view of a bout over UDP, watched by chromium (tests/browser/spar.mjs): both bodies
+/// drawn where the world's frames put them, following the rigs (seat 0's gloves near its user's
+/// hands, both seats' gloves moving as their users punch), each seat's eye looking at the other.
+#[test]
+fn the_live_view_shows_both_seats_from_either_persons_eye() {
+    if !browser_here("the_live_view_shows_both_seats_from_either_persons_eye") {
+        return;
+    }
+    let mut world = World::start("udp://127.0.0.1:0", &["--view", "127.0.0.1:0"]);
+    let line = world.line_with("live view at ");
+    let url = word_after(&line, "live view at ");
+    let a = rig(&world.at, "1", "90", &[]);
+    std::thread::sleep(Duration::from_millis(500));
+    let b = rig(&world.at, "2", "90", &[]);
+    world.line_with("joined, boxing the person at seat 0");
+    let node = Command::new("node")
+        .args(["spar.mjs", &url])
+        .current_dir(browser_dir())
+        .stdin(Stdio::null())
+        .output()
+        .expect("starting node");
+    let out = String::from_utf8_lossy(&node.stdout).into_owned();
+    for mut r in [a, b] {
+        // SAFETY: kill(2) on our own child.
+        unsafe { libc::kill(r.id() as i32, libc::SIGINT) };
+        r.wait().unwrap();
+    }
+    world.stop();
+    assert!(
+        out.contains("RESULT ok"),
+        "the browser test failed:\n{out}\n{}",
+        String::from_utf8_lossy(&node.stderr)
+    );
+}
+
+/// The word after `key` in `text`.
+fn word_after(text: &str, key: &str) -> String {
+    text[text.find(key).unwrap() + key.len()..].split_whitespace().next().unwrap().to_string()
+}
+
+/// A bout recorded by the world (`spidar world --scene spar --record`) and by each rig (`spidar
+/// run --record` with `--world` at the spar world), read back: the world's file describes both
+/// seats' bodies, its frames move both (their gloves and heads where two people box: seat 1 in
+/// front), carry contacts between them and the hits; each rig's file holds its own ticks and the
+/// models it received.
+#[test]
+fn a_bout_is_recorded_by_the_world_and_by_each_rig() {
+    use spidar_record::play::ViewTrack;
+    let dir = std::env::temp_dir().join(format!("spidar-spar-rec-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, r0, r1) = (dir.join("bout.world.mcap"), dir.join("seat0.mcap"), dir.join("seat1.mcap"));
+    let world = World::start("udp://127.0.0.1:0", &["--no-view", "--record", w.to_str().unwrap()]);
+    let a = rig(&world.at, "1", "8", &["--record", r0.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(500));
+    let b = rig(&world.at, "2", "7", &["--record", r1.to_str().unwrap()]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    let said = world.stop();
+    check_rigs(&a, &b);
+    assert!(said.contains("spidar world: recording"), "{said}");
+
+    let track = ViewTrack::open(&w).unwrap();
+    let desc: serde_json::Value = serde_json::from_str(&track.description).unwrap();
+    assert_eq!(desc["name"], "spar");
+    let names: Vec<&str> =
+        desc["humanoids"].as_array().unwrap().iter().map(|h| h["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["seat 0", "seat 1"]);
+    let shape = |name: &str| {
+        desc["shapes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .position(|s| s["name"] == name)
+            .unwrap_or_else(|| panic!("no {name}"))
+    };
+    let l = &desc["layout"];
+    let at = |k: &str| l[k].as_u64().unwrap() as usize;
+    let pos = |f: &[f32], k: usize| {
+        let o = at("shapes_at") + k * at("shape_floats");
+        glam::DVec3::new(f[o] as f64, f[o + 1] as f64, f[o + 2] as f64)
+    };
+    // A seat's solid of one part (the first, for hands the left).
+    let part = |seat: usize, part: &str| {
+        let h = &desc["humanoids"][seat];
+        h["segments"].as_array().unwrap().iter().find(|s| s["part"] == part).unwrap()["shape"]
+            .as_u64()
+            .unwrap() as usize
+    };
+    let waists = [part(0, "waist"), part(1, "waist")];
+    assert_eq!(waists, [shape("seat 0/waist"), shape("seat 1/waist")]);
+    let gloves: Vec<usize> = desc["shapes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s["name"].as_str().unwrap().contains("hand"))
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(gloves.len(), 4, "two gloves per seat: {gloves:?}");
+    let (mut first, mut moved, mut contacts, mut forced) = (None::<Vec<f32>>, [0.0f64; 4], 0usize, 0.0f32);
+    let n = 60;
+    for i in 0..=n {
+        let t = track.first_t_s + (track.last_t_s - track.first_t_s) * i as f64 / n as f64;
+        let f = track.frame_at(t).unwrap();
+        let w = &f.frame;
+        assert!(pos(w, waists[1]).z < pos(w, waists[0]).z - 0.5, "seat 1 stands in front of seat 0 at {t} s");
+        let f0 = first.get_or_insert_with(|| w.clone());
+        for (g, m) in gloves.iter().zip(moved.iter_mut()) {
+            *m = m.max((pos(w, *g) - pos(f0, *g)).length());
+        }
+        contacts += w.len().saturating_sub(at("contacts_at")) / at("contact_floats");
+        for g in &gloves {
+            forced = forced.max(w[at("shape_force_at") + g]);
+        }
+    }
+    assert!(moved.iter().all(|&m| m > 0.05), "every glove moved in the recording: {moved:?} m");
+    assert!(contacts > 0 && forced > 0.5, "contacts recorded: {contacts}, most force on a glove {forced} N");
+    let last = track.frame_at(track.last_t_s).unwrap();
+    assert!(last.counters[0] + last.counters[1] >= 1.0, "hits recorded: {:?}", &last.counters[..2]);
+
+    for (name, path, out) in [("seat 0", &r0, &a), ("seat 1", &r1, &b)] {
+        let s = spidar_record::summary::summarize(path).unwrap();
+        let models = number_after(&String::from_utf8_lossy(&out.stdout), "link").unwrap();
+        assert!(s.active_ticks > 3000, "{name}: {} active ticks recorded", s.active_ticks);
+        assert!(s.models as f64 > 0.9 * models, "{name}: {} of {models} models recorded", s.models);
+        assert!(s.hits[0] + s.hits[1] >= 1, "{name}: no contact onset recorded");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

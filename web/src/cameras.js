@@ -33,9 +33,12 @@ export class Cameras {
 
   // Places both cameras for a scene: the eye at `eyeM` looking at the focus; the orbit camera to
   // the side (boxing) or behind and above the user (a crowd).
+  // A scene with a person per seat (spar) has an eye per seat: `?seat=N` picks whose.
   place(desc, eyeM) {
-    this.focus.fromArray(desc.focus_m);
-    const eye = eyeM ?? [desc.link_offset_m[0], 1.45 + desc.link_offset_m[1], 0.4 + desc.link_offset_m[2]];
+    const seat = desc.eyes && desc.eyes.length
+      ? desc.eyes[Number(new URLSearchParams(location.search).get('seat')) || 0] ?? desc.eyes[0] : null;
+    this.focus.fromArray(seat ? seat.focus_m : desc.focus_m);
+    const eye = seat ? seat.eye_m : eyeM ?? [desc.link_offset_m[0], 1.45 + desc.link_offset_m[1], 0.4 + desc.link_offset_m[2]];
     this.eye.position.fromArray(eye);
     this.eye.lookAt(this.focus);
     if (desc.crowd) {

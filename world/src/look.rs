@@ -120,6 +120,16 @@ pub struct LookBodyJoint {
     pub at_child_m: DVec3,
 }
 
+/// A person's eye in a scene with more than one (the spar scene's seats): the user's-eye camera
+/// of the page asked for seat `i` (`?seat=i`) stands at `eye_m` looking at `focus_m`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LookEye {
+    pub name: String,
+    /// Scene frame.
+    pub eye_m: DVec3,
+    pub focus_m: DVec3,
+}
+
 /// The description of a scene for the view, built once.
 #[derive(Clone, Debug)]
 pub struct Look {
@@ -138,6 +148,9 @@ pub struct Look {
     pub focus_m: DVec3,
     /// Bodies drawn as people (their shapes stay drawable as they are, a toggle).
     pub humanoids: Vec<LookHumanoid>,
+    /// The people's eyes, one per seat, when the scene has several (else empty: the one user's
+    /// eye is the rig's, or in front of `focus_m`).
+    pub eyes: Vec<LookEye>,
 }
 
 impl Default for Look {
@@ -151,6 +164,7 @@ impl Default for Look {
             link_offset_m: DVec3::ZERO,
             focus_m: DVec3::new(0.0, 1.3, -1.0),
             humanoids: Vec::new(),
+            eyes: Vec::new(),
         }
     }
 }

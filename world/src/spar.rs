@@ -8,6 +8,11 @@
 //! boxing scene attenuates them, on both hands. Each rig renders them at 1 kHz and keeps them
 //! passive with its energy reserve (`spidar_rt::local`), whatever the network between them does.
 //!
+//! The scene is also a [`Scene`] for what watches it: its look ([`SparScene::look`]) draws both
+//! bodies as people (seat 0 blue, seat 1 red) with an eye per seat, so the live view shows the
+//! bout from either person's eye or an orbit, and the world's recording holds both bodies and
+//! their contacts.
+//!
 //! A seat with nobody at it (not joined yet, dropped out) is a standing opponent holding its
 //! guard; [`serve_spar`] says so when it happens. With nobody at either seat the world pauses.
 //!
@@ -15,13 +20,17 @@
 
 use std::time::{Duration, Instant};
 
+use glam::DVec3;
 use spidar_link::sock::realtime_ns;
 use spidar_link::world::{rig_time_now, Arrived, WorldEvent, WorldLink};
 use spidar_msg::{ContactModel, HandSample, HANDS};
 use spidar_sim::boxer::spar::{SparWorld, SEATS};
-use spidar_sim::boxer::{BoxerParams, HandTarget};
+use spidar_sim::boxer::{BoxerParams, HandTarget, AVATAR, BOXER};
 
+use crate::boxing::look::{humanoid, AVATAR_COLOUR, AVATAR_GLOVE, FLOOR_COLOUR, VH_COLOUR, VH_GLOVE};
 use crate::host::ServeReport;
+use crate::look::{quat, DrawnContact, Look, LookEye, LookShape, Poses};
+use crate::{Observer, Scene, StepView};
 
 /// The scene's name, as `--scene` takes it.
 pub const NAME: &str = "spar";
@@ -104,6 +113,110 @@ impl SparScene {
     }
 }
 
+/// Where a seat's user's eye is in their rig frame when the rig says nothing (the view page's
+/// default eye: above and behind the grips).
+const EYE_RIG_M: DVec3 = DVec3::new(0.0, 1.45, 0.4);
+
+/// The counters the heads-up display shows, in the order [`SparScene::pose`] writes them.
+const COUNTERS: [&str; 2] = ["seat 0 hits landed", "seat 1 hits landed"];
+
+/// The actor a seat's body is drawn as (its shapes are `seat N/part`).
+pub fn actor(seat: usize) -> &'static str {
+    ["seat 0", "seat 1"][seat]
+}
+
+impl Scene for SparScene {
+    fn name(&self) -> &str {
+        NAME
+    }
+
+    fn step_s(&self) -> f64 {
+        self.world.dt_s()
+    }
+
+    /// Stepped as a one-rig scene, the rig takes seat 0 and boxes whoever is at seat 1 (a
+    /// standing opponent unless [`SparScene::set_present`] says otherwise).
+    fn step(&mut self, t_s: f64, samples: &[HandSample]) -> ContactModel {
+        if !self.present[0] {
+            self.set_present(0, true);
+        }
+        let [m, _] = SparScene::step(self, [samples, &[]], [t_s, 0.0]);
+        m
+    }
+
+    fn status(&self) -> String {
+        SparScene::status(self)
+    }
+
+    /// Both bodies as their collision shapes and as people, seat 0's in blue, seat 1's in red
+    /// (gloves darker), and each seat's eye looking at the other's head.
+    fn look(&self) -> Look {
+        let w = &self.world.world;
+        let m = &w.model;
+        let seat_of =
+            |b: usize| (0..SEATS).find(|&s| m.articulations[[AVATAR, BOXER][s]].bodies.contains(&b));
+        let shapes = m
+            .shapes
+            .iter()
+            .map(|s| {
+                let (actor, colour, glove) = match s.body.and_then(seat_of) {
+                    Some(0) => (actor(0), AVATAR_COLOUR, AVATAR_GLOVE),
+                    Some(_) => (actor(1), VH_COLOUR, VH_GLOVE),
+                    None if s.body.is_some() => ("body", AVATAR_COLOUR, AVATAR_COLOUR),
+                    None => ("scenery", FLOOR_COLOUR, FLOOR_COLOUR),
+                };
+                let is_glove = s.body.is_some_and(|b| self.world.bodies.iter().any(|p| p.hand.contains(&b)));
+                LookShape {
+                    name: format!("{actor}/{}", s.name.rsplit('.').next().unwrap_or(&s.name)),
+                    shape: s.shape,
+                    colour: if is_glove { glove } else { colour },
+                    proxy: None,
+                }
+            })
+            .collect();
+        let head = |seat: usize| w.com(self.world.bodies[seat].head) - DVec3::new(0.0, 0.1, 0.0);
+        let eyes = (0..SEATS)
+            .map(|seat| LookEye {
+                name: actor(seat).into(),
+                eye_m: self.world.frames[seat].to_sim(EYE_RIG_M),
+                focus_m: head(1 - seat),
+            })
+            .collect();
+        Look {
+            shapes,
+            counters: COUNTERS.iter().map(|c| c.to_string()).collect(),
+            link_offset_m: w.params.user_offset_m,
+            focus_m: head(1),
+            humanoids: vec![
+                humanoid(m, AVATAR, actor(0), AVATAR_COLOUR),
+                humanoid(m, BOXER, actor(1), VH_COLOUR),
+            ],
+            eyes,
+            ..Look::default()
+        }
+    }
+
+    /// Every shape's pose, the contacts between the bodies (the part hit flashes), the hits.
+    fn pose(&self, out: &mut Poses<'_>) {
+        let w = &self.world.world;
+        for (k, p) in w.ws.shape_pose.iter().enumerate() {
+            out.shape(k, p.pos_m, quat(&p.rot));
+        }
+        for c in &w.ws.contacts {
+            if c.body_a.is_none() || c.body_b.is_none() {
+                continue;
+            }
+            let f = c.force_n.length();
+            out.shape_force(c.shape_a as usize, f);
+            out.shape_force(c.shape_b as usize, f);
+            out.contact(DrawnContact { point_m: c.point_m, force_n: c.force_n });
+        }
+        for (i, h) in self.world.hits.iter().enumerate() {
+            out.counter(i, *h as f64);
+        }
+    }
+}
+
 /// What the spar world says about an event on its link.
 pub fn describe(e: &WorldEvent, present: [bool; SEATS]) -> String {
     let other = |seat: usize| {
@@ -134,10 +247,12 @@ pub fn describe(e: &WorldEvent, present: [bool; SEATS]) -> String {
 
 /// Runs the two-seat world on this clock until `stop()` says so; `say` gets one line per event.
 /// Each seat's model is stamped with its rig's time now (its newest sample plus the time since it
-/// arrived), so each rig sees the model's true age on its own clock.
+/// arrived), so each rig sees the model's true age on its own clock. The `observers` (the live
+/// view, the world's recording) see every step at world time, with seat 0's samples and model.
 pub fn serve_spar(
     scene: &mut SparScene,
     link: &mut WorldLink,
+    observers: &mut [Box<dyn Observer>],
     stop: &dyn Fn() -> bool,
     say: &mut dyn FnMut(&str),
 ) -> ServeReport {
@@ -199,6 +314,17 @@ pub fn serve_spar(
         let models = scene.step([&samples[0], &samples[1]], stamps);
         rep.max_step_s = rep.max_step_s.max(t0.elapsed().as_secs_f64());
         rep.steps += 1;
+        let view = StepView {
+            t_s: scene.world.t_s(),
+            scene: &*scene,
+            samples: &samples[0],
+            model: &models[0],
+            rig_info: None,
+            rig_status: None,
+        };
+        for o in observers.iter_mut() {
+            o.after_step(&view);
+        }
         for seat in 0..SEATS {
             if anchor[seat].is_some() {
                 link.send_model_to(seat, &models[seat], &mut events);

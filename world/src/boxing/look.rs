@@ -11,11 +11,11 @@ use crate::look::{
     quat, DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
 };
 
-const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
-const AVATAR_GLOVE: [u8; 3] = [30, 60, 150];
-const VH_COLOUR: [u8; 3] = [205, 70, 55];
-const VH_GLOVE: [u8; 3] = [140, 25, 20];
-const FLOOR_COLOUR: [u8; 3] = [120, 120, 115];
+pub(crate) const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
+pub(crate) const AVATAR_GLOVE: [u8; 3] = [30, 60, 150];
+pub(crate) const VH_COLOUR: [u8; 3] = [205, 70, 55];
+pub(crate) const VH_GLOVE: [u8; 3] = [140, 25, 20];
+pub(crate) const FLOOR_COLOUR: [u8; 3] = [120, 120, 115];
 const SKIN: [u8; 3] = [224, 172, 138];
 
 /// The counters the heads-up display shows, in the order [`pose`] writes them.
@@ -73,13 +73,19 @@ pub(crate) fn look(scene: &BoxingScene) -> Look {
             humanoid(m, BOXER, "virtual human", VH_COLOUR),
             humanoid(m, AVATAR, "avatar", AVATAR_COLOUR),
         ],
+        eyes: Vec::new(),
     }
 }
 
 /// An articulated upper body as a person: each body's (first) shape a segment, each joint where
 /// the model puts it: at the child body's origin, which sits at `x_tree`'s translation in its
 /// parent's frame (both moved into the shapes' own frames).
-fn humanoid(m: &spidar_sim::model::Model, articulation: usize, name: &str, colour: [u8; 3]) -> LookHumanoid {
+pub(crate) fn humanoid(
+    m: &spidar_sim::model::Model,
+    articulation: usize,
+    name: &str,
+    colour: [u8; 3],
+) -> LookHumanoid {
     use spidar_sim::model::{Part, Side};
     let shape_of = |body: usize| m.shapes.iter().position(|s| s.body == Some(body));
     // A point of a body's frame in its shape's frame.

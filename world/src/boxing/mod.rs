@@ -20,7 +20,7 @@ use spidar_sim::boxer::{BoxerParams, BoxingWorld, HandTarget};
 
 use crate::Scene;
 
-mod look;
+pub(crate) mod look;
 
 pub struct BoxingScene {
     pub world: BoxingWorld,

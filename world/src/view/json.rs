@@ -108,6 +108,7 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
                 "at_parent_m": v3(j.at_parent_m), "at_child_m": v3(j.at_child_m),
             })).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
+        "eyes": look.eyes.iter().map(|e| json!({"name": e.name, "eye_m": v3(e.eye_m), "focus_m": v3(e.focus_m)})).collect::<Vec<_>>(),
     })
     .to_string()
 }
