@@ -172,19 +172,23 @@ mod tests {
     }
 
     #[test]
-    fn the_shipped_rigs_upper_back_strings_cross_above_the_homes() {
+    fn the_shipped_rigs_back_strings_cross_near_the_homes_and_part_when_the_hands_do() {
+        // The shipped rig is nearly mirror-symmetric: with both grips at home each hand's back
+        // strings (1 upper, 3 lower) cross the other hand's within a millimetre (the upper pair
+        // 18 cm above the homes, `spidar rig map`).
         let info = info();
         let arm = Forearm::default();
+        let (up, low) = (info.anchors_m[0][1], info.anchors_m[1][1]);
+        let d = segment_distance(info.home_m[0], up, info.home_m[1], low).0;
+        assert!(d < 0.001, "{d}");
         let home = info.home_m.map(Some);
-        assert_eq!(
-            near_mask(&info.anchors_m, home, DEFAULT_NEAR_M, &arm) & 0xff,
-            0,
-            "no strings near at home"
-        );
-        // Both grips 18 cm above home: the upper-back strings (left 1, right 1) come within 1 cm.
-        let up = info.home_m.map(|p| Some(p + DVec3::new(0.0, 0.18, 0.0)));
-        let m = near_mask(&info.anchors_m, up, DEFAULT_NEAR_M, &arm) & 0xff;
-        assert_eq!(m, near_string_bit(0, 1) | near_string_bit(1, 1), "{m:#x}");
+        let back =
+            near_string_bit(0, 1) | near_string_bit(0, 3) | near_string_bit(1, 1) | near_string_bit(1, 3);
+        assert_eq!(near_mask(&info.anchors_m, home, DEFAULT_NEAR_M, &arm) & 0xff, back);
+        // The right grip 10 cm further right, 10 cm up: the strings part, none is near.
+        let apart = [home[0], Some(info.home_m[1] + DVec3::new(0.1, 0.1, 0.0))];
+        let m = near_mask(&info.anchors_m, apart, DEFAULT_NEAR_M, &arm) & 0xff;
+        assert_eq!(m, 0, "{m:#x}");
     }
 
     #[test]
@@ -195,13 +199,15 @@ mod tests {
         words[3] = f32::from_bits(1 << 20);
         words[GLOBALS_AT + 3] = 3.0;
         for h in 0..HANDS {
-            let p = info.home_m[h] + DVec3::new(0.0, 0.18, 0.0);
+            let p = info.home_m[h];
             words[HANDS_AT + h * HAND_FLOATS..][..3].copy_from_slice(&[p.x as f32, p.y as f32, p.z as f32]);
         }
         let mut bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
         near.mark(&mut bytes);
         let flags = u32::from_le_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]);
-        assert_eq!(flags & 0xff, near_string_bit(0, 1) | near_string_bit(1, 1));
+        let back =
+            near_string_bit(0, 1) | near_string_bit(0, 3) | near_string_bit(1, 1) | near_string_bit(1, 3);
+        assert_eq!(flags & 0xff, back);
         assert_eq!(flags & (1 << 20), 1 << 20, "other flags are kept");
         // The workspace: the feasible cells are those where the map's exact margin meets the limit.
         let w = workspace(&info, 0, WORKSPACE_STEP_M);
@@ -211,11 +217,12 @@ mod tests {
             w.cells.len(),
             w.grid.len()
         );
-        let home_cell = w
-            .grid
-            .points()
-            .min_by(|a, b| (a.1 - info.home_m[0]).length().total_cmp(&(b.1 - info.home_m[0]).length()));
-        assert!(w.cells.contains(&(home_cell.unwrap().0 as u32)), "the home's cell is feasible");
+        // Where the boxing scene's head target is (43 cm forward, 18 cm up of the rig origin: about
+        // 10 N in every direction) the limit holds.
+        let head = info.home_m[0] + DVec3::new(0.15, 0.18, -0.43);
+        let head_cell =
+            w.grid.points().min_by(|a, b| (a.1 - head).length().total_cmp(&(b.1 - head).length()));
+        assert!(w.cells.contains(&(head_cell.unwrap().0 as u32)), "the head target's cell is feasible");
         for (i, p) in w.grid.points() {
             let (lo, hi, limit) = (info.tension_min_n[0], info.tension_max_n[0], info.force_limit_n[0]);
             let m = capacity(&info.anchors_m[0], p, lo, hi).margin_n;
