@@ -321,17 +321,55 @@ impl HandMap {
     }
 }
 
+/// A place a hand is asked to push at: a home, or a scene's contact (the point of a wall, ball or
+/// the virtual human's head nearest the hand's home), rig frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Site {
+    /// What it is (`home`, `walls: front wall`, `boxing: boxer/head`).
+    pub label: String,
+    pub hand: usize,
+    pub point_m: DVec3,
+}
+
+/// A site and the capacity there, computed exactly (not read off the grid).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SiteMargin {
+    pub site: Site,
+    pub capacity: Capacity,
+    /// The force limit can be rendered there in every direction.
+    pub limit_met: bool,
+}
+
 /// The map of a rig: both hands.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RigMap {
     pub hands: Vec<HandMap>,
     pub options: MapOptions,
+    /// The homes and the scenes' contacts given to [`RigMap::with_sites`], with their margins.
+    pub sites: Vec<SiteMargin>,
+}
+
+impl RigMap {
+    /// Adds each hand's home and `sites` (rig frame) with the capacity margin at each.
+    pub fn with_sites(mut self, sites: &[Site]) -> RigMap {
+        let homes = self.hands.iter().map(|h| Site { label: "home".into(), hand: h.hand, point_m: h.home_m });
+        let all: Vec<Site> = homes.chain(sites.iter().cloned()).collect();
+        self.sites = all
+            .into_iter()
+            .filter_map(|site| {
+                let h = self.hands.get(site.hand)?;
+                let capacity = capacity(&h.anchors_m, site.point_m, h.tension_n.0, h.tension_n.1);
+                Some(SiteMargin { limit_met: capacity.margin_n >= h.force_limit_n, capacity, site })
+            })
+            .collect();
+        self
+    }
 }
 
 /// Maps every hand of `rig`.
 pub fn map_rig(rig: &Rig, options: &MapOptions) -> RigMap {
     let hands = (0..rig.hands.len()).map(|h| map_hand(rig, h, options)).collect();
-    RigMap { hands, options: *options }
+    RigMap { hands, options: *options, sites: Vec::new() }
 }
 
 fn map_hand(rig: &Rig, h: usize, o: &MapOptions) -> HandMap {

@@ -91,6 +91,7 @@ pub fn report(map: &RigMap, rig_name: &str) -> String {
     for h in &map.hands {
         hand_report(&mut s, h, map);
     }
+    sites_report(&mut s, map);
     s
 }
 
@@ -159,6 +160,174 @@ fn interference_report(s: &mut String, label: &str, what: &str, i: &Interference
             v3(t.grip_m),
             v3(t.at_m)
         );
+    }
+}
+
+fn sites_report(s: &mut String, map: &RigMap) {
+    if map.sites.is_empty() {
+        return;
+    }
+    let _ = writeln!(s, "  sites        capacity margin at the homes and the scenes' contacts (exact):");
+    for m in &map.sites {
+        let h = &map.hands[m.site.hand];
+        let _ = writeln!(
+            s,
+            "    {:<6} {:<34} {}: {:>6.2} N in every direction, {:+.2} N against the limit ({})",
+            h.label,
+            m.site.label,
+            v3(m.site.point_m),
+            m.capacity.margin_n,
+            m.capacity.margin_n - h.force_limit_n,
+            if m.limit_met { "met" } else { "NOT met" }
+        );
+    }
+}
+
+/// The map for other tools (`spidar rig map --json`): per hand its grid, the capacity margin and
+/// the feasible flag per cell, the string clearances; the sites with their margins.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MapJson {
+    pub kind: &'static str,
+    pub version: u32,
+    pub rig: String,
+    pub step_m: f64,
+    pub reach_m: f64,
+    pub string_clearance_m: f64,
+    pub forearm: ForearmJson,
+    pub hands: Vec<HandJson>,
+    pub sites: Vec<SiteJson>,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ForearmJson {
+    pub toward_elbow: [f64; 3],
+    pub wrist_m: f64,
+    pub elbow_m: f64,
+    pub radius_m: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct HandJson {
+    pub label: String,
+    pub force_limit_n: f64,
+    pub tension_n: [f64; 2],
+    pub anchors_m: [[f64; 3]; 4],
+    pub home_m: [f64; 3],
+    /// Centre of cell (0, 0, 0), spacing and cell counts; cells in x-fastest order.
+    pub grid_origin_m: [f64; 3],
+    pub grid_step_m: f64,
+    pub grid_n: [usize; 3],
+    /// Capacity margin per cell, N (to 0.01 N).
+    pub margin_n: Vec<f64>,
+    /// The force limit met per cell (margin >= limit).
+    pub feasible: Vec<bool>,
+    pub feasible_volume_m3: f64,
+    pub frame_fraction: f64,
+    pub reach_fraction: f64,
+    pub forearm: InterferenceJson,
+    pub strings: InterferenceJson,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct InterferenceJson {
+    /// Per string: its smallest clearance over the reach, and at home, m.
+    pub min_clearance_m: [f64; 4],
+    pub at_home_m: [f64; 4],
+    pub touching_positions: usize,
+    pub positions: usize,
+    /// The tightest touch per string: grip position, point on the string, clearance.
+    pub worst: Vec<TouchJson>,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TouchJson {
+    pub string: usize,
+    pub grip_m: [f64; 3],
+    pub at_m: [f64; 3],
+    pub clearance_m: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SiteJson {
+    pub hand: usize,
+    pub label: String,
+    pub point_m: [f64; 3],
+    pub margin_n: f64,
+    pub weakest: [f64; 3],
+    pub limit_met: bool,
+}
+
+fn interference_json(i: &Interference) -> InterferenceJson {
+    InterferenceJson {
+        min_clearance_m: i.min_clearance_m,
+        at_home_m: i.at_home_m,
+        touching_positions: i.touching_positions,
+        positions: i.positions,
+        worst: i
+            .worst
+            .iter()
+            .flatten()
+            .map(|t| TouchJson {
+                string: t.string,
+                grip_m: t.grip_m.to_array(),
+                at_m: t.at_m.to_array(),
+                clearance_m: t.clearance_m,
+            })
+            .collect(),
+    }
+}
+
+/// [`MapJson`] of `map`.
+pub fn to_json(map: &RigMap, rig_name: &str) -> MapJson {
+    let o = &map.options;
+    let hands = map
+        .hands
+        .iter()
+        .map(|h| HandJson {
+            label: h.label.clone(),
+            force_limit_n: h.force_limit_n,
+            tension_n: [h.tension_n.0, h.tension_n.1],
+            anchors_m: h.anchors_m.map(|a| a.to_array()),
+            home_m: h.home_m.to_array(),
+            grid_origin_m: h.grid.origin_m.to_array(),
+            grid_step_m: h.grid.step_m,
+            grid_n: h.grid.n,
+            margin_n: h.margin_n.iter().map(|m| (m * 100.0).round() / 100.0).collect(),
+            feasible: h.margin_n.iter().map(|m| *m >= h.force_limit_n).collect(),
+            feasible_volume_m3: h.feasible_volume_m3,
+            frame_fraction: h.frame_fraction(),
+            reach_fraction: h.reach_fraction(),
+            forearm: interference_json(&h.forearm),
+            strings: interference_json(&h.strings),
+        })
+        .collect();
+    let sites = map
+        .sites
+        .iter()
+        .map(|m| SiteJson {
+            hand: m.site.hand,
+            label: m.site.label.clone(),
+            point_m: m.site.point_m.to_array(),
+            margin_n: m.capacity.margin_n,
+            weakest: m.capacity.weakest.to_array(),
+            limit_met: m.limit_met,
+        })
+        .collect();
+    MapJson {
+        kind: "rig-map",
+        version: 1,
+        rig: rig_name.to_string(),
+        step_m: o.step_m,
+        reach_m: o.reach_m,
+        string_clearance_m: o.string_clearance_m,
+        forearm: ForearmJson {
+            toward_elbow: o.forearm.toward_elbow.to_array(),
+            wrist_m: o.forearm.wrist_m,
+            elbow_m: o.forearm.elbow_m,
+            radius_m: o.forearm.radius_m,
+        },
+        hands,
+        sites,
     }
 }
 
@@ -266,6 +435,18 @@ pub fn slices_svg(map: &RigMap, path: &Path) -> Result<(), CalibError> {
             let p = (other.home_m.x, if slice.vertical { other.home_m.y } else { other.home_m.z });
             let style = if j == k / 2 { BLACK.filled() } else { BLACK.stroke_width(1) };
             chart.draw_series(std::iter::once(Circle::new(p, 4, style))).map_err(|e| err(e.to_string()))?;
+        }
+        // This hand's scene contacts, projected onto the slice: a cross, red where the limit is
+        // not met there, with its label.
+        for m in map.sites.iter().filter(|m| m.site.hand == k / 2 && m.site.label != "home") {
+            let q = m.site.point_m;
+            let p = (q.x, if slice.vertical { q.y } else { q.z });
+            let colour = if m.limit_met { BLACK } else { RED };
+            let style = colour.stroke_width(2);
+            chart.draw_series(std::iter::once(Cross::new(p, 6, style))).map_err(|e| err(e.to_string()))?;
+            let text =
+                Text::new(format!("{} {:.1} N", m.site.label, m.capacity.margin_n), p, ("sans-serif", 11));
+            chart.draw_series(std::iter::once(text)).map_err(|e| err(e.to_string()))?;
         }
     }
     root.present().map_err(|e| err(e.to_string()))?;

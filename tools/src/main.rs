@@ -10,6 +10,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 mod calib;
+mod rigsites;
 
 use clap::parser::ValueSource;
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -144,6 +145,14 @@ struct RigMapArgs {
     /// Strings of the two hands closer than this count as touching, mm.
     #[arg(long, default_value_t = 10.0)]
     string_clearance_mm: f64,
+    /// Scenes whose contacts are marked and given their margin: boxing (the virtual human's head,
+    /// chest and gloves), walls (its walls and ball), a boxer or walls scene file; `none`.
+    #[arg(long, value_delimiter = ',', default_values_t = ["boxing".to_string(), "walls".to_string()])]
+    scenes: Vec<String>,
+    /// Write the map as JSON to this file (grid, margin and feasible flag per cell, string
+    /// clearances, the sites' margins), for other tools.
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -462,11 +471,19 @@ fn rig_map(a: &RigMapArgs) -> anyhow::Result<()> {
         string_clearance_m: in_range("--string-clearance-mm", a.string_clearance_mm, 0.0, 200.0)? * 1e-3,
     };
     let rig = spidar_runtime::rigpath::load_rig(a.rig.as_deref(), &[])?;
-    let map = map_rig(&rig, &options);
+    let sites = rigsites::scene_sites(&rig, &a.scenes)?;
+    let map = map_rig(&rig, &options).with_sites(&sites);
     outln!("{}", report(&map, &rig.name).trim_end());
     if let Some(svg) = &a.svg {
         slices_svg(&map, svg)?;
         outln!("  slices       {}", svg.display());
+    }
+    if let Some(path) = &a.json {
+        let text = serde_json::to_string(&spidar_calib::rigmap_plot::to_json(&map, &rig.name))?;
+        std::fs::write(path, text).map_err(|e| {
+            anyhow::anyhow!("{}: {e}: check the folder exists and is writable", path.display())
+        })?;
+        outln!("  json         {}", path.display());
     }
     Ok(())
 }

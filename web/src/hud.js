@@ -5,7 +5,7 @@
 const fmtDur = (s) => (!Number.isFinite(s) ? '-' : s < 1e-3 ? `${(s * 1e6).toFixed(1)} us` : `${(s * 1e3).toFixed(2)} ms`);
 
 export class Hud {
-  constructor(el, { onCamera, onFullScreen }) {
+  constructor(el, { onCamera, onFullScreen, onToggle }) {
     this.el = el;
     el.innerHTML = `
       <div class="title"><span data-hud="scene">spidar</span> <span data-hud="connection" class="bad">connecting</span></div>
@@ -16,11 +16,13 @@ export class Hud {
       <div class="row" data-hud="counters"></div>
       <div class="row" id="legend"></div>
       <div class="row">viewers <span data-hud="viewers">-</span> &middot; frames <span data-hud="frame_rate">-</span>/s &middot; picture age p99 <span data-hud="picture_age">-</span></div>
-      <div class="row"><button data-cam="eye">user's eye</button><button data-cam="orbit">orbit</button><button data-full>full screen</button></div>`;
+      <div class="row"><button data-cam="eye">user's eye</button><button data-cam="orbit">orbit</button><button data-full>full screen</button></div>
+      <div class="row"><button data-toggle="workspace" title="key w: where each hand can be pushed with the force limit in every direction">workspace</button><button data-toggle="near" class="on" title="key n: strings near another hand's string (magenta) or a forearm (orange)">near strings</button></div>`;
     this.k = {};
     for (const e of el.querySelectorAll('[data-hud]')) this.k[e.dataset.hud] = e;
     for (const b of el.querySelectorAll('[data-cam]')) b.onclick = () => onCamera(b.dataset.cam);
     el.querySelector('[data-full]').onclick = onFullScreen;
+    for (const b of el.querySelectorAll('[data-toggle]')) b.onclick = () => onToggle && onToggle(b.dataset.toggle);
     this.counterEls = [];
   }
 
@@ -53,6 +55,12 @@ export class Hud {
   setConnection(state) {
     this.k.connection.textContent = state;
     this.k.connection.className = state === 'connected' ? 'ok' : 'bad';
+  }
+
+  // Shows a toggle's state on its button.
+  setToggle(name, on) {
+    const b = this.el.querySelector(`[data-toggle="${name}"]`);
+    if (b) b.classList.toggle('on', on);
   }
 
   setCamera(name) {

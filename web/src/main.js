@@ -47,7 +47,15 @@ headset.showMarkers(params.get('xrmarkers') !== '0');
 const hud = new Hud(document.getElementById('hud'), {
   onCamera: (c) => { cameraChosen = true; setCamera(c); },
   onFullScreen: toggleFullScreen,
+  onToggle: (t) => toggleRig(t),
 });
+// The rig's toggles (HUD buttons, keys `w` and `n`): the feasible workspace, the near strings.
+function toggleRig(t) {
+  if (t === 'workspace') rig.setWorkspaceShown(!rig.showWorkspace);
+  else if (t === 'near') rig.setNearShown(!rig.showNear);
+  hud.setToggle('workspace', rig.showWorkspace);
+  hud.setToggle('near', rig.showNear);
+}
 if (params.get('hud') === '0') document.getElementById('hud').style.display = 'none';
 if (params.get('place') === '1') showTargets(document.body);
 
@@ -190,6 +198,8 @@ window.addEventListener('keydown', (e) => {
   else if (e.key === 'p' && world) world.proxyGroup.visible = !world.proxyGroup.visible;
   else if (e.key === 'a' && world) { avatarHidden = !avatarHidden; world.hideActor('avatar', avatarHidden); people.hideActor('avatar', avatarHidden); }
   else if (e.key === 'b') setBodies(!asPeople);
+  else if (e.key === 'w') toggleRig('workspace');
+  else if (e.key === 'n') toggleRig('near');
   else if (e.key === ' ') paused = !paused;
 });
 
@@ -299,6 +309,9 @@ window.spidarView = {
     return cameras.screen.project(p, r.width, r.height).map((e) => ({ ...e, x: e.x + r.left, y: e.y + r.top }));
   },
   rigInfo: () => rigInfo,
+  // The rig's workspace clouds and near strings as drawn (see rig.js), and its toggles.
+  rigView: () => rig.report(),
+  toggleRig,
   // The headset: its state, entering a session, registering with the controllers on the grips.
   xr: { state: () => headset.state(), enter: () => headset.enter(), register: () => headset.register(),
     // The headset's blend of two frames (words) that came `gapMs` apart, `sinceMs` after the second.

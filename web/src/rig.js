@@ -1,12 +1,18 @@
 // The rig: its frame (the box through the string anchors), the user's two grips at their measured
 // positions, the eight strings from the anchors to the grips coloured by tension (grey at the
-// minimum, red at the maximum), and the force each hand feels as an arrow.
+// minimum, red at the maximum), and the force each hand feels as an arrow. Toggled from the HUD:
+// each hand's force-feasible workspace (the cells where the force limit can be rendered in every
+// direction, sent with the rig) as translucent points in the hand's colour (key `w`), and the
+// strings that come near another hand's string (magenta) or a forearm (orange), as the frame's
+// header flags mark them (key `n`, on by default).
 import * as THREE from 'three';
 import { arrowLength } from './world.js';
 
 const HANDS = 2;
 const STRINGS = 4;
 const GRIP_COLOURS = [0xf2c14e, 0x63c7d6];
+const NEAR_STRING = 0xff2bd6;
+const NEAR_FOREARM = 0xff8c00;
 
 export class Rig {
   constructor(root) {
@@ -41,7 +47,61 @@ export class Rig {
     this.c = new THREE.Color();
     this.lo = new THREE.Color(0x9aa0a6);
     this.hi = new THREE.Color(0xff3b2f);
+    this.nearString = new THREE.Color(NEAR_STRING);
+    this.nearForearm = new THREE.Color(NEAR_FOREARM);
     this.v = new THREE.Vector3();
+    this.workspaces = [];
+    this.showWorkspace = false;
+    this.showNear = true;
+    this.near = new Array(HANDS * STRINGS).fill(null);
+  }
+
+  // Each hand's feasible cells as a point cloud (built once per rig geometry).
+  buildWorkspaces(info) {
+    for (const w of this.workspaces) { this.group.remove(w); w.geometry.dispose(); w.material.dispose(); }
+    this.workspaces = (info.workspace || []).map((ws, h) => {
+      const pos = new Float32Array(ws.cells.length * 3);
+      const [nx, ny] = ws.n;
+      ws.cells.forEach((c, k) => {
+        const i = c % nx;
+        const j = Math.floor(c / nx) % ny;
+        const l = Math.floor(c / (nx * ny));
+        pos[k * 3] = ws.origin_m[0] + i * ws.step_m;
+        pos[k * 3 + 1] = ws.origin_m[1] + j * ws.step_m;
+        pos[k * 3 + 2] = ws.origin_m[2] + l * ws.step_m;
+      });
+      const g = new THREE.BufferGeometry();
+      g.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+      const m = new THREE.PointsMaterial({ color: GRIP_COLOURS[h], size: ws.step_m * 0.5, transparent: true, opacity: 0.18, depthWrite: false });
+      const p = new THREE.Points(g, m);
+      p.visible = this.showWorkspace;
+      p.userData.cells = ws.cells.length;
+      this.group.add(p);
+      return p;
+    });
+  }
+
+  setWorkspaceShown(on) {
+    this.showWorkspace = on;
+    for (const w of this.workspaces) w.visible = on;
+  }
+
+  setNearShown(on) {
+    this.showNear = on;
+  }
+
+  // For tests: the workspace clouds (cells, drawn) and each string's highlight (null, 'string' or
+  // 'forearm') with its drawn colour.
+  report() {
+    return {
+      workspace: this.workspaces.map((w) => ({ cells: w.userData.cells, visible: w.visible && this.group.visible })),
+      showNear: this.showNear,
+      near: this.near.slice(),
+      colours: Array.from({ length: HANDS * STRINGS }, (_, i) => {
+        const k = (i * 2 + 1) * 3;
+        return [this.strCol[k], this.strCol[k + 1], this.strCol[k + 2]];
+      }),
+    };
   }
 
   setInfo(info) {
@@ -56,10 +116,12 @@ export class Rig {
       for (let s = 0; s < STRINGS; s++) this.strPos.set(info.anchors_m[h][s], ((h * STRINGS + s) * 2) * 3);
     }
     this.strings.visible = true;
+    this.buildWorkspaces(info);
   }
 
   apply(f, L) {
     const valid = f[L.globals_at + 3] | 0;
+    const flags = new Uint32Array(f.buffer, f.byteOffset, 4)[3];
     for (let h = 0; h < HANDS; h++) {
       const o = L.hands_at + h * L.hand_floats;
       const on = (valid >> h) & 1;
@@ -83,7 +145,11 @@ export class Rig {
         this.strPos[k] = f[o]; this.strPos[k + 1] = f[o + 1]; this.strPos[k + 2] = f[o + 2];
         const t = f[L.tensions_at + h * STRINGS + s];
         const x = Number.isFinite(t) && hi > lo ? Math.min(1, Math.max(0, (t - lo) / (hi - lo))) : 0;
-        this.c.copy(this.lo).lerp(this.hi, Math.sqrt(x));
+        const i = h * STRINGS + s;
+        this.near[i] = !on ? null : (flags >> i) & 1 ? 'string' : (flags >> (8 + i)) & 1 ? 'forearm' : null;
+        if (this.showNear && this.near[i] === 'string') this.c.copy(this.nearString);
+        else if (this.showNear && this.near[i] === 'forearm') this.c.copy(this.nearForearm);
+        else this.c.copy(this.lo).lerp(this.hi, Math.sqrt(x));
         for (const e of [k - 3, k]) { this.strCol[e] = this.c.r; this.strCol[e + 1] = this.c.g; this.strCol[e + 2] = this.c.b; }
       }
     }

@@ -113,8 +113,22 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
     .to_string()
 }
 
-/// The rig's geometry in the scene frame.
-pub fn rig(info: &RigInfo, offset: DVec3) -> String {
+/// The rig's geometry in the scene frame, with each hand's force-feasible workspace (cells of a
+/// grid, see [`super::rigview`]) and what makes a string near (the flags of the frames).
+pub fn rig(info: &RigInfo, offset: DVec3, strings_near_m: f64) -> String {
+    use super::rigview::{workspace, WORKSPACE_STEP_M};
+    let workspaces: Vec<Value> = (0..info.anchors_m.len())
+        .map(|h| {
+            let w = workspace(info, h, WORKSPACE_STEP_M);
+            json!({
+                "origin_m": v3(w.grid.origin_m + offset),
+                "step_m": w.grid.step_m,
+                "n": w.grid.n,
+                "cells": w.cells,
+            })
+        })
+        .collect();
+    let arm = spidar_calib::rigmap::Forearm::default();
     let anchors: Vec<Vec<[f64; 3]>> =
         info.anchors_m.iter().map(|h| h.iter().map(|a| v3(*a + offset)).collect()).collect();
     json!({
@@ -128,6 +142,14 @@ pub fn rig(info: &RigInfo, offset: DVec3) -> String {
         "grip_radius_m": info.grip_radius_m,
         "eye_m": v3(info.eye_m + offset),
         "display": display(&info.display, offset),
+        "workspace": workspaces,
+        "strings_near_m": strings_near_m,
+        "forearm": {
+            "toward_elbow": v3(arm.toward_elbow),
+            "wrist_m": arm.wrist_m,
+            "elbow_m": arm.elbow_m,
+            "radius_m": arm.radius_m,
+        },
     })
     .to_string()
 }

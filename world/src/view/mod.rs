@@ -19,6 +19,7 @@ mod fed;
 mod frame;
 pub mod json;
 mod maker;
+pub mod rigview;
 mod server;
 mod tls;
 pub use tls::TlsIdentity;
@@ -89,6 +90,9 @@ pub struct ViewOptions {
     /// Serve the page over HTTPS and the frames over secure WebSockets with this certificate
     /// (None: plain HTTP and WebSockets).
     pub tls: Option<TlsIdentity>,
+    /// Strings closer than this to another hand's string or to a forearm are highlighted, m
+    /// (default [`rigview::DEFAULT_NEAR_M`]).
+    pub strings_near_m: f64,
 }
 
 impl Default for ViewOptions {
@@ -100,6 +104,7 @@ impl Default for ViewOptions {
             max_viewers: 8,
             write_timeout: Duration::from_secs(2),
             tls: None,
+            strings_near_m: rigview::DEFAULT_NEAR_M,
         }
     }
 }

@@ -22,6 +22,7 @@ use spidar_sim::character::drawn::FigureState;
 use tungstenite::protocol::WebSocketConfig;
 use tungstenite::{Bytes, Message, WebSocket};
 
+use super::rigview::NearStrings;
 use super::{json, FrameFinisher, FrameSenderEnds, Shared, ViewError, ViewOptions, BUNDLE_JS, INDEX_HTML};
 
 /// What the threads serve of a scene: its description (the `scene` message), the names of its
@@ -136,7 +137,7 @@ impl Server {
         }
         {
             let status_every = Duration::from_secs_f64(1.0 / opts.status_hz.max(0.1));
-            let texts = Texts { counter_names, offset, status_every };
+            let texts = Texts { counter_names, offset, status_every, strings_near_m: opts.strings_near_m };
             threads.push(spawn(
                 "spidar-view-frames",
                 Box::new(move || broadcast(shared, latest, viewers, frames, finisher, texts)),
@@ -361,11 +362,19 @@ struct Texts {
     counter_names: Vec<String>,
     offset: DVec3,
     status_every: Duration,
+    /// Strings closer than this to another hand's string or a forearm are marked in the frames.
+    strings_near_m: f64,
 }
 
 /// The newest queued frame, finished (its figures drawn) and as bytes; every buffer goes back to
 /// the free ones (older frames queued behind it are skipped and counted).
-fn newest_frame(frames: &FrameSenderEnds, finisher: &FrameFinisher, shared: &Shared) -> Option<Bytes> {
+/// With the rig known (`near`), the frame's header marks its near strings.
+fn newest_frame(
+    frames: &FrameSenderEnds,
+    finisher: &FrameFinisher,
+    shared: &Shared,
+    near: Option<&NearStrings>,
+) -> Option<Bytes> {
     let mut newest = None;
     while let Ok(b) = frames.full.try_recv() {
         if let Some(old) = newest.replace(b) {
@@ -378,6 +387,9 @@ fn newest_frame(frames: &FrameSenderEnds, finisher: &FrameFinisher, shared: &Sha
     let states: &[FigureState] = if b.figures_pending { &b.states } else { &[] };
     finisher.to_bytes(&b.words[..b.len], states, &mut bytes);
     let _ = frames.free.try_send(b);
+    if let Some(n) = near {
+        n.mark(&mut bytes);
+    }
     Some(Bytes::from(bytes))
 }
 
@@ -398,7 +410,8 @@ fn broadcast(
     }
     let _done = Done(&shared);
     let c = &shared.counters;
-    let Texts { counter_names, offset, status_every } = texts;
+    let Texts { counter_names, offset, status_every, strings_near_m } = texts;
+    let mut near: Option<NearStrings> = None;
     let mut last_status = Instant::now() - status_every;
     loop {
         // Poll: the stepping thread never wakes anyone.
@@ -411,7 +424,7 @@ fn broadcast(
         }
         shared.fresh.store(false, Ordering::Relaxed);
         // Outside the mailbox's lock: computing a crowd's figures takes a while.
-        let frame = newest_frame(&frames, &finisher, &shared);
+        let frame = newest_frame(&frames, &finisher, &shared, near.as_ref());
         let (status, rig, playback, stopping) = {
             let Ok(mut mb) = shared.mailbox.lock() else { return };
             let status = mb.status_fresh.then_some(mb.status);
@@ -421,7 +434,11 @@ fn broadcast(
             (status, rig, mb.playback.take(), shared.stop.load(Ordering::Relaxed))
         };
         let viewer_count = c.viewers.load(Ordering::Relaxed);
-        let rig_json = rig.map(|r| json::rig(&r, offset));
+        if let Some(r) = &rig {
+            near = Some(NearStrings::new(r, offset, strings_near_m));
+        }
+        // Once per rig geometry: the workspace cells take a few milliseconds.
+        let rig_json = rig.map(|r| json::rig(&r, offset, strings_near_m));
         let status_json =
             status.filter(|s| s.ended || stopping || last_status.elapsed() >= status_every).map(|s| {
                 last_status = Instant::now();
