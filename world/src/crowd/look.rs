@@ -56,6 +56,7 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
         link_offset_m: DVec3::ZERO,
         focus_m: DVec3::new(0.0, 1.0, -2.0),
         humanoids: Vec::new(),
+        gazes: Vec::new(),
     }
 }
 
