@@ -200,17 +200,18 @@ pub fn export_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> 
 }
 
 /// Writes one CSV file per spidar channel of a world recording (`world_step.csv`,
-/// `world_boxer.csv`, `world_crowd.csv`, `world_event.csv`) into `dir`; the Foxglove drawing
+/// `world_boxer.csv`, `world_crowd.csv`, `world_event.csv`, `world_gaze.csv`) into `dir`; the Foxglove drawing
 /// channels (`/world/tf`, `/world/scene`) are listed as skipped. A world recording is small: one
 /// thread.
 pub fn export_world_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordError> {
-    use crate::world::{self, BoxerMsg, CrowdMsg, WorldEventMsg, WorldMsg, WorldStep};
+    use crate::world::{self, BoxerMsg, CrowdMsg, GazeMsg, WorldEventMsg, WorldMsg, WorldStep};
     std::fs::create_dir_all(dir).map_err(|e| RecordError::Create { path: dir.to_path_buf(), cause: e })?;
     let mut sinks = [
         Sink::new::<WorldStep>(dir, world::TOPIC_STEP)?,
         Sink::new::<BoxerMsg>(dir, world::TOPIC_BOXER)?,
         Sink::new::<CrowdMsg>(dir, world::TOPIC_CROWD)?,
         Sink::new::<WorldEventMsg>(dir, world::TOPIC_WORLD_EVENT)?,
+        Sink::new::<GazeMsg>(dir, world::TOPIC_GAZE)?,
     ];
     let mut skipped: Vec<String> = Vec::new();
     let recording = reader::read(path, |_, m| {
@@ -230,6 +231,7 @@ pub fn export_world_csv(path: &Path, dir: &Path) -> Result<ExportReport, RecordE
             WorldMsg::Boxer(x) => sinks[1].row(x.as_ref())?,
             WorldMsg::Crowd(x) => sinks[2].row(&x)?,
             WorldMsg::Event(x) => sinks[3].row(&x)?,
+            WorldMsg::Gaze(x) => sinks[4].row(&x)?,
             WorldMsg::Drawing => {
                 if !skipped.contains(&channel.topic) {
                     skipped.push(channel.topic.clone());

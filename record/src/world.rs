@@ -16,7 +16,8 @@
 //! view's scene description (attachment `view.json`).
 //!
 //! Channels (see docs/recording.md): `/world/tf`, `/world/scene`, `/world/step`,
-//! `/world/boxer`, `/world/crowd`, `/world/event`, `/world/view`.
+//! `/world/boxer`, `/world/gaze` (where the virtual human looks, with `/world/gaze/drawn`, an
+//! arrow for Foxglove), `/world/crowd`, `/world/event`, `/world/view`.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -32,7 +33,7 @@ use mcap::{Attachment, Writer};
 use spidar_msg::{RigInfo, RigState, RigStatus, HANDS, STRINGS};
 use spidar_sim::character::drawn::FigureState;
 use spidar_sim::collide::Shape;
-use spidar_world::decisions::{Decisions, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
+use spidar_world::decisions::{Decisions, Gaze, Prediction, ReachTarget, BODY_BEHAVIOURS, HAND_BEHAVIOURS};
 use spidar_world::look::{
     Look, LookShape, CHARACTER_HEAD_FLOATS, CHARACTER_STATE, JOINT_FLOATS, MAX_COUNTERS, SHAPE_FLOATS,
 };
@@ -53,6 +54,11 @@ pub const TOPIC_LABELS: &str = "/world/labels";
 pub const TOPIC_SKELETONS: &str = "/world/skeletons";
 pub const TOPIC_STEP: &str = "/world/step";
 pub const TOPIC_BOXER: &str = "/world/boxer";
+/// Where the virtual human looks, every step (scenes with one).
+pub const TOPIC_GAZE: &str = "/world/gaze";
+/// The same gaze drawn for Foxglove's 3D panel: an arrow from the eyes to the point looked at,
+/// at the view's display rate.
+pub const TOPIC_GAZE_DRAWN: &str = "/world/gaze/drawn";
 pub const TOPIC_CROWD: &str = "/world/crowd";
 pub const TOPIC_WORLD_EVENT: &str = "/world/event";
 pub const TOPIC_VIEW: &str = "/world/view";
@@ -222,6 +228,31 @@ impl Field for BoxerMsg {
             c.csv(out);
         }
         d.last_predict_s.csv(out);
+    }
+}
+
+/// Where the virtual human looks after a step, as `/world/gaze`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GazeMsg {
+    pub t_s: f64,
+    pub eye_m: DVec3,
+    pub dir: DVec3,
+    pub at_m: DVec3,
+    pub attended: u8,
+}
+message!(GazeMsg = "spidar/Gaze" {
+    t_s: f64,
+    /// the eyes (the head's centre), the unit direction they point, the point looked at (scene frame)
+    eye_m: DVec3,
+    dir: DVec3,
+    at_m: DVec3,
+    /// the avatar's fist attention is on: 0 none, 1 left, 2 right
+    attended: u8,
+});
+
+impl GazeMsg {
+    pub fn of(t_s: f64, g: &Gaze) -> GazeMsg {
+        GazeMsg { t_s, eye_m: g.eye_m, dir: g.dir, at_m: g.at_m, attended: g.attended }
     }
 }
 
@@ -494,6 +525,8 @@ pub fn channels() -> Vec<ChannelSpec> {
         ChannelSpec::of::<ViewFrameMsg>(TOPIC_VIEW),
         ChannelSpec::of::<SceneUpdate>(TOPIC_LABELS),
         ChannelSpec::of::<SceneUpdate>(TOPIC_SKELETONS),
+        ChannelSpec::of::<GazeMsg>(TOPIC_GAZE),
+        ChannelSpec::of::<SceneUpdate>(TOPIC_GAZE_DRAWN),
     ]
 }
 
@@ -502,6 +535,7 @@ pub fn channels() -> Vec<ChannelSpec> {
 pub enum WorldMsg {
     Step(WorldStep),
     Boxer(Box<BoxerMsg>),
+    Gaze(GazeMsg),
     Crowd(CrowdMsg),
     Event(WorldEventMsg),
     /// `/world/tf`, `/world/scene` (for Foxglove) and `/world/view` (for `spidar replay`) are
@@ -521,9 +555,12 @@ pub fn decode(topic: &str, schema: &str, data: &[u8]) -> Option<Result<WorldMsg,
     Some(match topic {
         TOPIC_STEP => one(schema, data, WorldMsg::Step),
         TOPIC_BOXER => one(schema, data, |b| WorldMsg::Boxer(Box::new(b))),
+        TOPIC_GAZE => one(schema, data, WorldMsg::Gaze),
         TOPIC_CROWD => one(schema, data, WorldMsg::Crowd),
         TOPIC_WORLD_EVENT => one(schema, data, WorldMsg::Event),
-        TOPIC_TF | TOPIC_SCENE | TOPIC_LABELS | TOPIC_SKELETONS | TOPIC_VIEW => Ok(WorldMsg::Drawing),
+        TOPIC_TF | TOPIC_SCENE | TOPIC_LABELS | TOPIC_SKELETONS | TOPIC_VIEW | TOPIC_GAZE_DRAWN => {
+            Ok(WorldMsg::Drawing)
+        }
         _ => return None,
     })
 }
@@ -881,8 +918,37 @@ const EVENT: usize = 5;
 const VIEW: usize = 6;
 const LABELS: usize = 7;
 const SKELETONS: usize = 8;
+const GAZE: usize = 9;
+const GAZE_DRAWN: usize = 10;
 
 use crate::writer::describe;
+
+/// The gaze as an arrow in the world frame, from the eyes to the point looked at (yellow, the
+/// brighter while a fist is attended).
+fn gaze_arrow(g: &Gaze, stamp: Time) -> SceneUpdate {
+    let len = (g.at_m - g.eye_m).length();
+    // A Foxglove arrow points along its pose's +x.
+    let rot = DQuat::from_rotation_arc(DVec3::X, g.dir.normalize_or(DVec3::NEG_Z));
+    let a = if g.attended > 0 { 1.0 } else { 0.5 };
+    SceneUpdate {
+        entities: vec![SceneEntity {
+            timestamp: stamp,
+            frame_id: WORLD_FRAME.into(),
+            id: "gaze/virtual_human".into(),
+            frame_locked: false,
+            arrows: vec![ArrowPrimitive {
+                pose: pose(g.eye_m, rot),
+                shaft_length: (len - 0.04).max(0.0),
+                shaft_diameter: 0.008,
+                head_length: 0.04,
+                head_diameter: 0.025,
+                color: Color { r: 1.0, g: 0.85, b: 0.1, a },
+            }],
+            ..Default::default()
+        }],
+        ..Default::default()
+    }
+}
 
 fn pose(pos: DVec3, q: DQuat) -> Pose {
     Pose {
@@ -1271,6 +1337,15 @@ impl WorldWriter {
     fn write_decisions(&mut self, mut ok: bool, s: &Snap) -> bool {
         if let Some(d) = s.decisions {
             ok = ok && self.put(BOXER, s.t_s, &BoxerMsg { t_s: s.t_s, d });
+            ok = ok && self.put(GAZE, s.t_s, &GazeMsg::of(s.t_s, &d.gaze));
+            if s.view {
+                ok = ok
+                    && self.put(
+                        GAZE_DRAWN,
+                        s.t_s,
+                        &gaze_arrow(&d.gaze, Time::from_ns(self.ch.log_ns(s.t_s))),
+                    );
+            }
             let p = self.prev.unwrap_or_default();
             let mut events = Vec::new();
             if d.hits_taken > p.hits_taken {
@@ -1408,6 +1483,9 @@ pub struct WorldSummary {
     pub attack_steps: [u64; 2],
     pub block_steps: [u64; 2],
     pub avoid_steps: u64,
+    /// Steps with the virtual human's gaze recorded, and of those with a fist attended.
+    pub gaze_steps: u64,
+    pub gaze_attended_steps: u64,
     pub hits_taken: u64,
     pub hits_given: u64,
     pub events: u64,
@@ -1447,6 +1525,10 @@ pub fn summarize(path: &Path) -> Result<WorldSummary, RecordError> {
                 }
                 s.avoid_steps += u64::from(b.d.body == 1);
                 s.boxer = Some(b.d);
+            }
+            WorldMsg::Gaze(g) => {
+                s.gaze_steps += 1;
+                s.gaze_attended_steps += u64::from(g.attended > 0);
             }
             WorldMsg::Crowd(c) => {
                 s.characters = c.states.len();
@@ -1496,6 +1578,13 @@ impl std::fmt::Display for WorldSummary {
                 self.block_steps[1],
                 self.avoid_steps
             )?;
+            if self.gaze_steps > 0 {
+                writeln!(
+                    f,
+                    "  its gaze      {} steps, a fist attended in {}",
+                    self.gaze_steps, self.gaze_attended_steps
+                )?;
+            }
         }
         if self.characters > 0 {
             writeln!(

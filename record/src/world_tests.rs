@@ -91,6 +91,8 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
             want(TOPIC_BOXER, "spidar/Boxer"),
             want(TOPIC_CROWD, "spidar/Crowd"),
             want(TOPIC_WORLD_EVENT, "spidar/WorldEvent"),
+            want(TOPIC_GAZE, "spidar/Gaze"),
+            want(TOPIC_GAZE_DRAWN, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_LABELS, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_SCENE, "foxglove_msgs/msg/SceneUpdate"),
             want(TOPIC_SKELETONS, "foxglove_msgs/msg/SceneUpdate"),
@@ -117,9 +119,10 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
             _ => {}
         }
     }
-    for t in [TOPIC_STEP, TOPIC_TF, TOPIC_BOXER] {
+    for t in [TOPIC_STEP, TOPIC_TF, TOPIC_BOXER, TOPIC_GAZE] {
         assert_eq!(per_topic[t], 600, "{t}: one per step");
     }
+    assert_eq!(per_topic[TOPIC_GAZE_DRAWN], per_topic[TOPIC_VIEW], "the gaze's arrow at the view's rate");
     assert!(!per_topic.contains_key(TOPIC_CROWD), "no crowd in boxing");
     assert!(per_topic[TOPIC_WORLD_EVENT] >= 3, "the first behaviours at least: {per_topic:?}");
     // Every body has its frame, and the first scene update draws every one in its frame.
@@ -164,6 +167,82 @@ fn the_mcap_crates_reader_lists_the_world_channels_and_schemas_and_the_drawing_d
     assert_eq!((w.steps, w.recording.ending.clone()), (600, Some(Ending::Complete)));
     assert_eq!(w.recording.meta("role"), "world");
     assert!(w.boxer.is_some());
+}
+
+/// The virtual human's gaze on `/world/gaze` is what the scene had at each step, read back
+/// exactly (the same bout stepped again without a recorder: the boxing world is deterministic);
+/// it turns to the jabbing fist; the CSV export has it; `/world/gaze/drawn` is an arrow from the
+/// eyes along the gaze, as long as the distance to the point looked at.
+#[test]
+fn the_virtual_humans_gaze_is_recorded_step_by_step_and_read_back() {
+    struct Gazes(std::sync::Arc<std::sync::Mutex<Vec<GazeMsg>>>);
+    impl spidar_world::Observer for Gazes {
+        fn after_step(&mut self, s: &spidar_world::StepView<'_>) {
+            let d = s.scene.decisions().unwrap();
+            self.0.lock().unwrap().push(GazeMsg::of(s.t_s, &d.gaze));
+        }
+    }
+    let p = temp("gaze.world.mcap");
+    let (_, _, rep) = record_scene("boxing", &p, 900);
+    assert_eq!((rep.steps, rep.dropped), (900, 0), "{rep}");
+    let truth = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let mut st = Stepper::new(spidar_world::load("boxing").unwrap());
+    st.add_observer(Box::new(Gazes(truth.clone())));
+    let geometry = spidar_rt::status::rig_info(&spidar_rt::rig::Rig::default_rig());
+    for k in 0..900 {
+        let t = st.step_s() * (k + 1) as f64;
+        st.step(t, &[sample(k, t)], Some(&geometry), Some(&rig_status(k)));
+    }
+    let (mut read, mut arrows) = (Vec::new(), Vec::new());
+    reader::read(&p, |_, m| {
+        let reader::Msg::Other { channel, data, .. } = m else { return Ok(reader::Flow::Continue) };
+        match channel.topic.as_str() {
+            TOPIC_GAZE => match decode(&channel.topic, &channel.schema, data) {
+                Some(Ok(WorldMsg::Gaze(g))) => read.push(g),
+                other => panic!("{other:?}"),
+            },
+            TOPIC_GAZE_DRAWN => arrows.push(cdr::decode::<SceneUpdate>(data).unwrap()),
+            _ => {}
+        }
+        Ok(reader::Flow::Continue)
+    })
+    .unwrap();
+    let truth = truth.lock().unwrap();
+    assert_eq!(read.len(), 900);
+    assert_eq!(read, *truth, "every step's gaze, exactly");
+    let attended = read.iter().filter(|g| g.attended == 1).count();
+    assert!(attended > 20, "the left fist's jabs are attended: {attended} steps");
+    assert!(read.iter().all(|g| (g.dir.length() - 1.0).abs() < 1e-9));
+    // The arrows: at the view's rate, each from the eyes of a recorded step, along its gaze.
+    assert!(arrows.len() >= 900 / 6 - 1, "{} arrows", arrows.len());
+    for u in &arrows {
+        let e = &u.entities[0];
+        let a = &e.arrows[0];
+        let eye = DVec3::new(a.pose.position.x, a.pose.position.y, a.pose.position.z);
+        let g = read
+            .iter()
+            .find(|g| (g.eye_m - eye).length() < 1e-12)
+            .expect("an arrow from a recorded step's eyes");
+        let q = glam::DQuat::from_xyzw(
+            a.pose.orientation.x,
+            a.pose.orientation.y,
+            a.pose.orientation.z,
+            a.pose.orientation.w,
+        );
+        assert!((q * DVec3::X - g.dir).length() < 1e-9, "along the gaze");
+        assert!((a.shaft_length + a.head_length - (g.at_m - g.eye_m).length()).abs() < 1e-9);
+        assert_eq!(e.frame_id, WORLD_FRAME);
+    }
+    let w = summarize(&p).unwrap();
+    assert_eq!(
+        (w.gaze_steps, w.gaze_attended_steps),
+        (900, read.iter().filter(|g| g.attended > 0).count() as u64)
+    );
+    assert!(w.to_string().contains("its gaze"), "{w}");
+    let dir = temp("gaze-csv");
+    let rep = crate::export::export_world_csv(&p, &dir).unwrap();
+    let csv = std::fs::read_to_string(dir.join("world_gaze.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 901, "a header and a row per step: {:?}", rep.files);
 }
 
 #[test]
@@ -416,6 +495,7 @@ fn docs_list_every_world_schema_as_implemented() {
     for (name, text) in [
         ("spidar/WorldStep", cdr::schema_text::<WorldStep>()),
         ("spidar/Boxer", cdr::schema_text::<BoxerMsg>()),
+        ("spidar/Gaze", cdr::schema_text::<GazeMsg>()),
         ("spidar/Crowd", cdr::schema_text::<CrowdMsg>()),
         ("spidar/WorldEvent", cdr::schema_text::<WorldEventMsg>()),
         ("spidar/ViewFrame", cdr::schema_text::<ViewFrameMsg>()),

@@ -143,11 +143,16 @@ async function people(browser) {
   const { t_punch } = await ask({ ask: 'punch' });
   await page.waitForFunction((t) => spidarView.state().t >= t, { timeout: 60000, polling: 50 }, t_punch + 0.45);
   await checkAll('after a punch');
-  // The eyes: without a gaze in the frame they look straight ahead of the head.
+  // The eyes: the scene sends the virtual human's gaze (its vision model's); they look at the
+  // frame's point looked at (when it is within the eyes' 35 degrees of the head's forward).
   await pause(page);
   const ahead = await page.evaluate(() => {
     const h = spidarView.shape('virtual human/head');
-    return { eyes: spidarView.personEyes('virtual human'), quat: h.frame.slice(3, 7), pos: h.pos };
+    const L = spidarView.desc().layout;
+    const f = spidarView.frameWords();
+    return { eyes: spidarView.personEyes('virtual human'), quat: h.frame.slice(3, 7), pos: h.pos,
+      gazeAt: L.gaze_at, looked: L.gaze_at === undefined ? null : f.slice(L.gaze_at + 6, L.gaze_at + 9),
+      gazes: (spidarView.desc().gaze || []).length };
   });
   const rot = (q, v) => { // v turned by the unit quaternion q (x, y, z, w)
     const [x, y, z, w] = q; const [a, b, c] = v;
@@ -157,28 +162,29 @@ async function people(browser) {
   const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
   const norm = (a) => { const n = Math.hypot(...a); return a.map((x) => x / n); };
   const headAhead = rot(ahead.quat, [0, 0, -1]);
+  check(ahead.gazes === 1 && ahead.looked !== null, `the scene describes the virtual human's gaze (${ahead.gazes}, at word ${ahead.gazeAt})`);
   for (const e of ahead.eyes) {
-    const deg = Math.acos(Math.min(1, dot(norm(e.dir), headAhead))) * 180 / Math.PI;
-    check(deg < 1, `no gaze sent: an eye looks along the head's own forward (${deg.toFixed(2)} degrees off)`);
+    const want = norm(ahead.looked.map((t, i) => t - e.at[i]));
+    const off = Math.acos(Math.min(1, dot(want, headAhead))) * 180 / Math.PI;
+    const deg = Math.acos(Math.min(1, dot(norm(e.dir), want))) * 180 / Math.PI;
+    const clamped = Math.acos(Math.min(1, dot(norm(e.dir), headAhead))) * 180 / Math.PI;
+    check(off < 34 ? deg < 1 : Math.abs(clamped - 35) < 1,
+      `the scene's gaze: an eye looks at the point the frame says the virtual human looks at (${deg.toFixed(2)} degrees off; that point ${off.toFixed(1)} degrees off the head's forward)`);
   }
-  // With a gaze (a frame of the test's making: the scene's gaze entry and 9 numbers per looker),
-  // both eyes turn to the attended point.
+  // With a gaze of the test's making (the frame's 9 gaze numbers replaced), both eyes turn to it.
   const target = [ahead.pos[0] + 0.35, ahead.pos[1] - 0.15, ahead.pos[2] + 1.2];
-  const eyes = await page.evaluate(async (target) => {
+  const made = await page.evaluate(async (target) => {
     const desc = JSON.parse(JSON.stringify(spidarView.desc()));
     const f = spidarView.frameWords();
     const L = desc.layout;
     const head = desc.shapes.findIndex((s) => s.name === 'virtual human/head');
-    desc.gaze = [{ name: 'virtual human', head_shape: head }];
     L.id = (L.id ^ 0x5a5a5a) >>> 0;
     const o = L.shapes_at + head * L.shape_floats;
     const mid = f.slice(o, o + 3);
     const dir = target.map((t, i) => t - mid[i]);
     const n = Math.hypot(...dir);
     const gaze = [...mid, ...dir.map((d) => d / n), ...target];
-    const words = [...f.slice(0, L.contacts_at), ...gaze, ...f.slice(L.contacts_at)];
-    L.gaze_at = L.contacts_at;
-    L.contacts_at += 9;
+    const words = [...f.slice(0, L.gaze_at), ...gaze, ...f.slice(L.gaze_at + L.gaze_floats)];
     const fw = new Float32Array(words);
     new Uint32Array(fw.buffer)[1] = L.id;
     spidarView.resume();
@@ -186,9 +192,10 @@ async function people(browser) {
     await new Promise((r) => setTimeout(r, 300));
     await spidarView.rendered();
     spidarView.pause();
-    return spidarView.personEyes('virtual human');
+    return { eyes: spidarView.personEyes('virtual human'), headNamed: desc.gaze[0].head_shape === head };
   }, target);
-  for (const e of eyes) {
+  check(made.headNamed, "the scene's gaze names the virtual human's head");
+  for (const e of made.eyes) {
     const want = norm(target.map((t, i) => t - e.at[i]));
     const deg = Math.acos(Math.min(1, dot(norm(e.dir), want))) * 180 / Math.PI;
     check(deg < 1, `gaze sent: an eye looks at the attended point (${deg.toFixed(2)} degrees off)`);

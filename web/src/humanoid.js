@@ -37,6 +37,7 @@ export class Humanoids {
     this.people = (desc.humanoids || []).map((h) => this.build(h, desc, root));
     this.gaze = (desc.gaze || []).map((g, i) => ({ ...g, index: i }));
     this.gazeAt = desc.layout.gaze_at;
+    this.gazeFloats = desc.layout.gaze_floats || 9;
     this.shown = true;
     this.tmp = [new THREE.Vector3(), new THREE.Vector3(), new THREE.Vector3(), new THREE.Vector3()];
     this.q = new THREE.Quaternion();
@@ -197,15 +198,16 @@ export class Humanoids {
     }
   }
 
-  // The eyes turn toward the attended point the frame's gaze gives for this body's head (at most
-  // 35 degrees from straight ahead), else look straight ahead.
+  // The eyes turn toward the point looked at that the frame's gaze gives for this body's head
+  // (eyes xyz, direction xyz, point xyz; at most 35 degrees from straight ahead), else look
+  // straight ahead.
   eyes(p, f) {
     if (!p.head) return;
     const g = this.gaze.find((x) => x.head_shape === p.head.shape);
     const [target, local] = this.tmp;
     for (const eye of p.head.eyes) {
       if (!g || this.gazeAt === undefined) { eye.quaternion.identity(); continue; }
-      const o = this.gazeAt + 9 * g.index;
+      const o = this.gazeAt + this.gazeFloats * g.index;
       target.set(f[o + 6], f[o + 7], f[o + 8]);
       p.head.group.updateMatrixWorld();
       local.copy(target);

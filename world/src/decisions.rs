@@ -1,5 +1,5 @@
 //! What a scene's minds decided, as plain data for recordings: the virtual human's behaviour per
-//! hand and body, its latest prediction and its reach targets, and its counters.
+//! hand and body, its latest prediction and its reach targets, its counters, and its gaze.
 //!
 //! Copied on the stepping thread after a step ([`crate::Scene::decisions`]): plain `Copy` data, no
 //! allocation.
@@ -42,6 +42,19 @@ pub struct Prediction {
     pub at_s: f64,
 }
 
+/// Where the virtual human looks (its vision model's gaze, `spidar_sim::boxer::Perception`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Gaze {
+    /// The eyes (the head's centre) and the unit direction they point (scene frame).
+    pub eye_m: DVec3,
+    pub dir: DVec3,
+    /// The point looked at: along `dir`, as far as what attention is on (the attended fist as
+    /// seen, or the avatar's upper chest when no fist threatens).
+    pub at_m: DVec3,
+    /// The avatar's fist attention is on: 0 none, 1 left, 2 right.
+    pub attended: u8,
+}
+
 /// The virtual human's state of mind after a step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Decisions {
@@ -64,4 +77,6 @@ pub struct Decisions {
     pub hits_given: u64,
     /// Wall time of the latest prediction (s).
     pub last_predict_s: f64,
+    /// Where it looks.
+    pub gaze: Gaze,
 }

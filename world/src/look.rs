@@ -27,6 +27,8 @@ pub const CHARACTER_PUSH: usize = 8;
 pub const JOINT_FLOATS: usize = 3;
 /// Numbers per contact: point (3), force on the body named first (3).
 pub const CONTACT_FLOATS: usize = 6;
+/// Numbers per gaze in a frame: the eyes xyz, the unit direction xyz, the point looked at xyz.
+pub const GAZE_FLOATS: usize = 9;
 /// Most contacts one frame carries (the scene's own and the rig's rendered ones).
 pub const MAX_CONTACTS: usize = 32;
 /// Most counters a scene shows.
@@ -130,6 +132,14 @@ pub struct LookEye {
     pub focus_m: DVec3,
 }
 
+/// A body that looks somewhere: its head's shape (the page turns that head's eyes to the frame's
+/// point looked at).
+#[derive(Clone, Debug)]
+pub struct LookGaze {
+    pub name: String,
+    pub head_shape: usize,
+}
+
 /// The description of a scene for the view, built once.
 #[derive(Clone, Debug)]
 pub struct Look {
@@ -151,6 +161,8 @@ pub struct Look {
     /// The people's eyes, one per seat, when the scene has several (else empty: the one user's
     /// eye is the rig's, or in front of `focus_m`).
     pub eyes: Vec<LookEye>,
+    /// Bodies whose gaze each frame carries ([`GAZE_FLOATS`] each, [`Poses::gaze`]).
+    pub gazes: Vec<LookGaze>,
 }
 
 impl Default for Look {
@@ -165,6 +177,7 @@ impl Default for Look {
             focus_m: DVec3::new(0.0, 1.3, -1.0),
             humanoids: Vec::new(),
             eyes: Vec::new(),
+            gazes: Vec::new(),
         }
     }
 }
@@ -193,6 +206,7 @@ pub struct Poses<'a> {
     pub(crate) counters: &'a mut [f64],
     pub(crate) characters: &'a mut [f32],
     pub(crate) character_floats: usize,
+    pub(crate) gazes: &'a mut [f32],
     pub(crate) contacts: &'a mut [f32],
     pub(crate) contact_count: &'a mut usize,
     pub(crate) figures_now: bool,
@@ -267,6 +281,17 @@ impl Poses<'_> {
         let n = self.character_floats;
         if let Some(p) = self.characters.get_mut(i * n + CHARACTER_PUSH) {
             *p += push_n as f32;
+        }
+    }
+
+    /// Gaze `i` of the look's `gazes`: the eyes, the unit direction they point and the point
+    /// looked at (scene frame).
+    #[inline]
+    pub fn gaze(&mut self, i: usize, eye_m: DVec3, dir: DVec3, at_m: DVec3) {
+        if let Some(g) = self.gazes.get_mut(i * GAZE_FLOATS..(i + 1) * GAZE_FLOATS) {
+            put3(&mut g[0..3], eye_m);
+            put3(&mut g[3..6], dir);
+            put3(&mut g[6..9], at_m);
         }
     }
 

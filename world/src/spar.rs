@@ -192,6 +192,7 @@ impl Scene for SparScene {
                 humanoid(m, BOXER, actor(1), VH_COLOUR),
             ],
             eyes,
+            gazes: Vec::new(),
             ..Look::default()
         }
     }

@@ -93,7 +93,7 @@ fn session() -> &'static Session {
         let mut out = BufReader::new(node.stdout.take().unwrap());
         let mut first = String::new();
         out.read_line(&mut first).unwrap();
-        assert!(first.contains("\"subscribed\":9"), "{first}");
+        assert!(first.contains("\"subscribed\":11"), "{first}");
         // A rig in lockstep with the world, recorded as `spidar run --record` does.
         let r = rig();
         let dev = sim_device(&r, load_scripts("box", &r, 1).unwrap(), &SimOptions::default()).unwrap();
@@ -151,7 +151,15 @@ fn foxglove_client_receives_live_what_the_recording_holds_and_decodes_it() {
     assert!(received > 2500, "{s}");
     assert_eq!(matched, received, "each message received equals the recording's of its topic and time: {s}");
     assert_eq!(matched, s["recordedFromFirst"].as_u64().unwrap(), "and nothing recorded was missed: {s}");
-    for t in ["/world/tf", "/world/scene", "/world/labels", "/world/boxer", "/world/view"] {
+    for t in [
+        "/world/tf",
+        "/world/scene",
+        "/world/labels",
+        "/world/boxer",
+        "/world/gaze",
+        "/world/gaze/drawn",
+        "/world/view",
+    ] {
         assert!(s["perTopic"][t].as_u64().unwrap_or(0) > 0, "{t}: {s}");
     }
 }

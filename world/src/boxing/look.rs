@@ -1,6 +1,7 @@
 //! The boxing scene's look: the avatar and the virtual human as their collision shapes (blue and
 //! red, gloves darker), the virtual human's behaviour per hand and body (Fig. 5) as labels, the
-//! contacts between the two bodies, and the bout's counters.
+//! contacts between the two bodies, the bout's counters, and where the virtual human looks (its
+//! gaze: the page turns its eyes there).
 
 use glam::DVec3;
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, AVATAR, BOXER};
@@ -8,7 +9,7 @@ use spidar_sim::impulse::proxy_id;
 
 use super::BoxingScene;
 use crate::look::{
-    quat, DrawnContact, Look, LookBodyJoint, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
+    quat, DrawnContact, Look, LookBodyJoint, LookGaze, LookHumanoid, LookLabel, LookSegment, LookShape, Poses,
 };
 
 pub(crate) const AVATAR_COLOUR: [u8; 3] = [70, 120, 215];
@@ -74,6 +75,7 @@ pub(crate) fn look(scene: &BoxingScene) -> Look {
             humanoid(m, AVATAR, "avatar", AVATAR_COLOUR),
         ],
         eyes: Vec::new(),
+        gazes: vec![LookGaze { name: "virtual human".into(), head_shape: shape_of(w.vh.head) }],
     }
 }
 
@@ -158,6 +160,8 @@ pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
         );
     }
     out.label(2, usize::from(mind.body == BodyBehaviour::Avoidance));
+    let g = scene.gaze();
+    out.gaze(0, g.eye_m, g.dir, g.at_m);
     let counts =
         [mind.hits_taken, mind.hits_given, mind.attacks, mind.avoidances, mind.blocks, mind.predictions];
     for (i, v) in counts.iter().enumerate() {
@@ -168,6 +172,7 @@ pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::look::GAZE_FLOATS;
     use crate::Scene;
     use spidar_msg::{HandSample, HandState};
 
@@ -204,5 +209,103 @@ mod tests {
             }
         }
         assert!(worst < 1e-6, "a joint carried by a shape is {worst} m from the simulation's");
+    }
+
+    /// One step of [`gaze_bout`]: the fist attended (if any), and the published gaze's point
+    /// looked at: its distance to the attended fist as seen, the angle between the published
+    /// direction and that fist (degrees), its distance to the avatar's upper chest.
+    struct GazeStep {
+        k: usize,
+        attended: Option<usize>,
+        to_fist_m: f64,
+        fist_deg: f64,
+        to_chest_m: f64,
+    }
+
+    /// A bout of 2.7 s read through the view's frames: the user's hands at rest for 1.2 s, then
+    /// the right one jabs out and back at the virtual human's head (its own attacks off, so
+    /// every motion of the avatar's fists is the user's); with the eyes turning at
+    /// `gaze_deg_per_s` (the default skill's when `None`).
+    fn gaze_bout(gaze_deg_per_s: Option<f64>) -> Vec<GazeStep> {
+        use crate::view::{json, Layout};
+        let mut scene = BoxingScene::new(Default::default()).unwrap();
+        scene.world.mind.params.attack_per_step = 0.0;
+        if let Some(r) = gaze_deg_per_s {
+            scene.world.mind.perception.skill.gaze_deg_per_s = r;
+        }
+        let look = scene.look();
+        let layout = Layout::for_look(&look);
+        let desc: serde_json::Value =
+            serde_json::from_str(&json::scene("boxing", &look, &layout, 60.0)).unwrap();
+        let head_shape = desc["gaze"][0]["head_shape"].as_u64().unwrap() as usize;
+        assert_eq!(scene.world.model.shapes[head_shape].body, Some(scene.world.vh.head));
+        assert_eq!(desc["layout"]["gaze_at"].as_u64(), Some(layout.gaze_at as u64));
+        let mut buf = vec![0.0f32; layout.max_words];
+        let mut counters = [0.0; 8];
+        let mut hands = [HandState { valid: true, ..Default::default() }; 2];
+        let mut out = Vec::new();
+        for k in 0..900 {
+            let s = if k < 400 { 0.0 } else { ((k - 400) as f64 * 0.012).sin().abs() };
+            hands[1].pos_world_m = DVec3::new(0.15, 1.45, -0.3 - 0.35 * s);
+            hands[0].pos_world_m = DVec3::new(-0.15, 1.4, -0.3);
+            let sample = HandSample { hands, t_s: k as f64 * 0.003, ..Default::default() };
+            scene.step(k as f64 * 0.003, std::slice::from_ref(&sample));
+            let mut contacts = 0;
+            scene.pose(&mut layout.poses(&mut buf, &mut counters, &mut contacts, true));
+            let g = &buf[layout.gaze_at..layout.gaze_at + GAZE_FLOATS];
+            let v = |i: usize| DVec3::new(g[i] as f64, g[i + 1] as f64, g[i + 2] as f64);
+            let (eye, dir, at) = (v(0), v(3), v(6));
+            let w = &scene.world;
+            let p = &w.mind.perception;
+            assert!((eye - w.com(w.vh.head)).length() < 1e-4, "the eyes are in the head");
+            assert!((dir.length() - 1.0).abs() < 1e-5 && ((at - eye).normalize() - dir).length() < 1e-4);
+            let fist = p.seen[p.attended.unwrap_or(1)].pos_m;
+            out.push(GazeStep {
+                k,
+                attended: p.attended,
+                to_fist_m: (at - fist).length(),
+                fist_deg: dir.angle_between(fist - eye).to_degrees(),
+                to_chest_m: (at - (w.com(w.avatar.head) + w.com(w.avatar.chest)) * 0.5).length(),
+            });
+        }
+        out
+    }
+
+    /// The frame's gaze is the virtual human's vision model's: from its head, onto the user's
+    /// fist it perceives closing on it (the right one, which jabs), where the fist was seen (its
+    /// perception delay late); at rest on the avatar's upper chest. With eyes that turn at once,
+    /// the published point is the seen fist itself.
+    #[test]
+    fn the_published_gaze_follows_the_perceived_threatening_fist() {
+        // The avatar's hands settle onto the user's from where they start in the first 0.9 s.
+        let steps = gaze_bout(Some(1.0e6));
+        let (rest, jab) = (&steps[300..400], &steps[400..]);
+        assert!(rest.iter().all(|s| s.attended.is_none() && s.to_chest_m < 0.01), "at rest: the upper chest");
+        let attended: Vec<&GazeStep> = jab.iter().filter(|s| s.attended.is_some()).collect();
+        assert!(attended.len() > 30, "the jab is seen closing: {} steps", attended.len());
+        for s in &attended {
+            assert_eq!(s.attended, Some(1), "step {}: the jabbing (right) fist is attended", s.k);
+            // The seen fist moves between the vision model's step and the frame: under a step's.
+            assert!(s.to_fist_m < 0.02, "step {}: {} m off the fist as seen", s.k, s.to_fist_m);
+        }
+    }
+
+    /// With the default skill's eyes (turning at 400 degrees a second) the published gaze
+    /// turns onto the attended fist: over every spell of attention of 60 ms or more (24 degrees
+    /// of turn) the angle to it shrinks by at least 10 degrees (the fist moves too).
+    #[test]
+    fn the_published_gaze_turns_onto_the_fist_at_the_skills_rate() {
+        let steps = gaze_bout(None);
+        let mut spells = 0;
+        for spell in steps[400..].split(|s| s.attended.is_none()).filter(|s| s.len() >= 20) {
+            spells += 1;
+            let (first, last) = (spell[0].fist_deg, spell[spell.len() - 1].fist_deg);
+            assert!(
+                last < first - 10.0,
+                "step {}: the angle went from {first} to {last} degrees",
+                spell[0].k
+            );
+        }
+        assert!(spells >= 2, "each jab is attended: {spells} spells");
     }
 }

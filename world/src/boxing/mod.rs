@@ -107,6 +107,28 @@ impl BoxingScene {
             hits_taken: m.hits_taken,
             hits_given: m.hits_given,
             last_predict_s: m.last_predict_ns as f64 * 1e-9,
+            gaze: self.gaze(),
+        }
+    }
+
+    /// Where the virtual human looks: its eyes, the direction its gaze has turned to, and the
+    /// point on that line as far away as what its attention is on (the attended fist as it was
+    /// seen, else the avatar's upper chest, where a boxer's eyes rest).
+    pub fn gaze(&self) -> crate::decisions::Gaze {
+        let w = &self.world;
+        let p = &w.mind.perception;
+        let looked_at = match p.attended {
+            Some(h) => p.seen[h].pos_m,
+            None => (w.com(w.avatar.head) + w.com(w.avatar.chest)) * 0.5,
+        };
+        // The eyes are the head's centre now (the vision model took it at the step's start).
+        let eye_m = w.com(w.vh.head);
+        let dir = p.gaze_dir.normalize_or(glam::DVec3::NEG_Z);
+        crate::decisions::Gaze {
+            eye_m,
+            dir,
+            at_m: eye_m + dir * (looked_at - eye_m).length(),
+            attended: p.attended.map_or(0, |h| h as u8 + 1),
         }
     }
 

@@ -57,6 +57,7 @@ pub(crate) fn look(scene: &CrowdScene) -> Look {
         focus_m: DVec3::new(0.0, 1.0, -2.0),
         humanoids: Vec::new(),
         eyes: Vec::new(),
+        gazes: Vec::new(),
     }
 }
 

@@ -14,6 +14,7 @@
 //!              characters: body position xyz, body rotation xyzw, control state,       (f32)
 //!                push force (N), then per joint of the drawn figure its position xyz
 //!              proxies (16): kind (0 none, 1 plane, 2 sphere, 3 capsule), a xyz, b xyz, radius
+//!              gazes, one per look gaze: eyes xyz, unit direction xyz, point looked at xyz (f32)
 //!              contacts (up to 32, the count above): point xyz, force xyz               (f32)
 //! ```
 //! A plane proxy's `a` is a point on it and `b` its outward normal; a sphere's `a` its centre; a
@@ -23,7 +24,7 @@
 use glam::DVec3;
 use spidar_msg::{ContactModel, HandState, ProxyShape, HANDS, MAX_PROXIES, STRINGS};
 
-use crate::look::{Look, Poses, CHARACTER_PUSH, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
+use crate::look::{Look, Poses, CHARACTER_PUSH, CONTACT_FLOATS, GAZE_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
 
 /// "SPV1" read as a little-endian u32.
 pub const MAGIC: u32 = u32::from_le_bytes(*b"SPV1");
@@ -49,6 +50,8 @@ pub struct Layout {
     pub labels_at: usize,
     pub characters_at: usize,
     pub proxies_at: usize,
+    pub gazes: usize,
+    pub gaze_at: usize,
     pub contacts_at: usize,
     /// Words of a frame with every contact slot used.
     pub max_words: usize,
@@ -71,6 +74,9 @@ impl Layout {
         for l in &look.labels {
             eat(l.name.as_bytes());
         }
+        for g in &look.gazes {
+            eat(g.name.as_bytes());
+        }
         if let Some(c) = &look.crowd {
             eat(&(c.characters as u64).to_le_bytes());
             for j in &c.joints {
@@ -90,7 +96,9 @@ impl Layout {
         let labels_at = shape_force_at + shapes;
         let characters_at = labels_at + labels;
         let proxies_at = characters_at + characters * character_floats;
-        let contacts_at = proxies_at + MAX_PROXIES * PROXY_FLOATS;
+        let gazes = look.gazes.len();
+        let gaze_at = proxies_at + MAX_PROXIES * PROXY_FLOATS;
+        let contacts_at = gaze_at + gazes * GAZE_FLOATS;
         Layout {
             id,
             shapes,
@@ -102,6 +110,8 @@ impl Layout {
             labels_at,
             characters_at,
             proxies_at,
+            gazes,
+            gaze_at,
             contacts_at,
             max_words: contacts_at + MAX_CONTACTS * CONTACT_FLOATS,
         }
@@ -121,7 +131,7 @@ impl Layout {
         let (shape_force, rest) = rest.split_at_mut(self.shapes);
         let (labels, rest) = rest.split_at_mut(self.labels);
         let (characters, rest) = rest.split_at_mut(self.characters * self.character_floats);
-        let contacts_buf = &mut rest[MAX_PROXIES * PROXY_FLOATS..];
+        let (gazes, contacts_buf) = rest[MAX_PROXIES * PROXY_FLOATS..].split_at_mut(self.gazes * GAZE_FLOATS);
         Poses {
             shapes,
             shape_force,
@@ -129,6 +139,7 @@ impl Layout {
             counters,
             characters,
             character_floats: self.character_floats,
+            gazes,
             contacts: contacts_buf,
             contact_count: contacts,
             figures_now,

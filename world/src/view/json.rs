@@ -8,7 +8,7 @@ use spidar_msg::{RigInfo, RigState, RigStatus};
 use spidar_sim::collide::Shape;
 
 use super::frame::{Layout, GLOBALS_AT, HANDS_AT, HAND_FLOATS, PROXY_FLOATS, STAMP_AT, TENSIONS_AT};
-use crate::look::{Look, LookShape, CONTACT_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
+use crate::look::{Look, LookShape, CONTACT_FLOATS, GAZE_FLOATS, MAX_CONTACTS, SHAPE_FLOATS};
 
 fn v3(v: DVec3) -> [f64; 3] {
     [v.x, v.y, v.z]
@@ -86,6 +86,8 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
             "character_floats": layout.character_floats,
             "proxies_at": layout.proxies_at,
             "proxy_floats": PROXY_FLOATS,
+            "gaze_at": layout.gaze_at,
+            "gaze_floats": GAZE_FLOATS,
             "contacts_at": layout.contacts_at,
             "contact_floats": CONTACT_FLOATS,
             "max_contacts": MAX_CONTACTS,
@@ -109,6 +111,7 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
             })).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "eyes": look.eyes.iter().map(|e| json!({"name": e.name, "eye_m": v3(e.eye_m), "focus_m": v3(e.focus_m)})).collect::<Vec<_>>(),
+        "gaze": look.gazes.iter().map(|g| json!({"name": g.name, "head_shape": g.head_shape})).collect::<Vec<_>>(),
     })
     .to_string()
 }

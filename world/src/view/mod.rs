@@ -483,8 +483,16 @@ mod tests {
             let n: f32 = s[3..7].iter().map(|x| x * x).sum();
             assert!((n - 1.0).abs() < 1e-5, "shape {k}");
         }
-        // Nothing written past the scene's sections but the proxies (all empty here).
-        assert!(buf[l.proxies_at..l.contacts_at].iter().all(|x| *x == 0.0));
+        // Nothing written past the scene's sections but the proxies (all empty here) and the
+        // virtual human's gaze: from its head, a unit direction, a point on that line.
+        assert!(buf[l.proxies_at..l.gaze_at].iter().all(|x| *x == 0.0));
+        assert_eq!((l.gazes, l.contacts_at - l.gaze_at), (1, crate::look::GAZE_FLOATS));
+        let g: Vec<DVec3> = buf[l.gaze_at..l.contacts_at]
+            .chunks(3)
+            .map(|c| DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64))
+            .collect();
+        assert!((g[0] - scene.world.com(scene.world.vh.head)).length() < 1e-5, "the eyes: {g:?}");
+        assert!((g[1].length() - 1.0).abs() < 1e-6 && ((g[2] - g[0]).normalize() - g[1]).length() < 1e-5);
         assert!(buf[l.contacts_at..].iter().all(|x| x.is_nan()));
         // Nothing to finish: a viewer gets the words as written.
         let mut bytes = Vec::new();
