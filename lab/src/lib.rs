@@ -20,3 +20,4 @@ pub mod eval_poses;
 pub mod spar;
 pub mod study;
 pub mod study_page;
+pub mod zwidth;
