@@ -21,3 +21,5 @@ pub mod spar;
 pub mod study;
 pub mod study_page;
 pub mod zwidth;
+pub mod zwidth_plot;
+pub mod zwidth_sweep;
