@@ -180,11 +180,17 @@ pub fn sweep(rig: &Rig, o: &SweepOptions) -> anyhow::Result<ZwidthReport> {
     let (ks, bs) = (o.ks(), o.bs());
     let mut grids = Vec::new();
     let mut bouts = 0;
+    anyhow::ensure!(
+        !o.rates_hz.is_empty(),
+        "no loop rate to sweep: give at least one (e.g. --rates 1000,500)"
+    );
     for &rate in &o.rates_hz {
         anyhow::ensure!(
-            rate.is_finite() && rate >= 100.0,
-            "a loop rate of {rate} Hz: give one of at least 100 Hz"
+            rate.is_finite() && (100.0..=20_000.0).contains(&rate),
+            "a loop rate of {rate} Hz: give rates from 100 to 20000 Hz (e.g. --rates 1000,500)"
         );
+    }
+    for &rate in &o.rates_hz {
         let mut passive = Vec::new();
         for &d in &bs {
             let mut row = Vec::new();
