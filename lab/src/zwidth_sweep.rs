@@ -320,6 +320,34 @@ mod tests {
         assert_eq!(delayed_k_max(8.0, -3.0, 0.001), 10_000.0 / 3.0);
     }
 
+    #[test]
+    fn a_small_sweep_reports_its_boundary_and_draws_every_grid_point() {
+        let rig = Rig::default_rig();
+        let o = SweepOptions {
+            k_min: 1000.0,
+            k_max: 15_000.0,
+            k_steps: 2,
+            b_steps: 2,
+            rates_hz: vec![1000.0],
+            ..SweepOptions::default()
+        };
+        let r = sweep(&rig, &o).unwrap();
+        assert_eq!(r.bouts, 2 * 2 * cases().len() + r.scenes.len() * cases().len());
+        // 1,000 N/m is passive at B = -5 and 20; 15,000 N/m at neither.
+        assert_eq!(r.grids[0].boundary(&o.ks()), [Some(1000.0), Some(1000.0)]);
+        let text = r.to_string();
+        assert!(
+            text.contains("1000 Hz") && text.contains("NOT PASSIVE") == !r.scenes.iter().all(|s| s.passive()),
+            "{text}"
+        );
+        let path = std::env::temp_dir().join(format!("spidar-zwidth-test-{}.svg", std::process::id()));
+        crate::zwidth_plot::zwidth_svg(&r, &path).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).ok();
+        assert_eq!(svg.matches("<circle").count(), 4, "one mark per grid point");
+        assert!(svg.contains("1000 Hz loop"));
+    }
+
     /// Item 4 of issue 27: every contact the shipped scenes send, at the stiffness the shipped
     /// rig renders it with, is passive at the rig's 1 kHz along x, y, z at home and off-centre.
     #[test]
