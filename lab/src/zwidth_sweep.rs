@@ -337,7 +337,7 @@ mod tests {
         assert_eq!(r.grids[0].boundary(&o.ks()), [Some(1000.0), Some(1000.0)]);
         let text = r.to_string();
         assert!(
-            text.contains("1000 Hz") && text.contains("NOT PASSIVE") == !r.scenes.iter().all(|s| s.passive()),
+            text.contains("1000 Hz") && text.contains("NOT PASSIVE") != r.scenes.iter().all(|s| s.passive()),
             "{text}"
         );
         let path = std::env::temp_dir().join(format!("spidar-zwidth-test-{}.svg", std::process::id()));
