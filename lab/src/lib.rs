@@ -20,3 +20,6 @@ pub mod eval_poses;
 pub mod spar;
 pub mod study;
 pub mod study_page;
+pub mod zwidth;
+pub mod zwidth_plot;
+pub mod zwidth_sweep;

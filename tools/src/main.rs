@@ -379,6 +379,41 @@ enum BenchCmd {
         #[arg(long, value_parser = clap::value_parser!(u8).range(1..=98))]
         world_priority: Option<u8>,
     },
+    /// The wall stiffness and damping the rig renders passively (its Z-width): a simulated hand
+    /// pressing a plane wall on the simulated rig through the loop, on the virtual clock, over a
+    /// grid of K and B per axis, place and loop rate; the shipped scenes' contacts checked
+    /// (docs/zwidth.md).
+    Zwidth {
+        /// Rig file (RON). Default: yours (~/.config/spidar/rig.ron) if it exists, else the
+        /// built-in configs/rig-spidar-h.ron.
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// Write the plot (SVG) here.
+        #[arg(long)]
+        svg: Option<PathBuf>,
+        /// Stiffnesses of the grid, log-spaced from 100 to 20,000 N/m (the sweep's resolution).
+        #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u32).range(2..=200))]
+        k_steps: u32,
+        /// Dampings of the grid, evenly from -5 to 20 N s/m.
+        #[arg(long, default_value_t = 6, value_parser = clap::value_parser!(u32).range(2..=200))]
+        b_steps: u32,
+        /// Loop rates (Hz), comma-separated.
+        #[arg(long, default_value = "1000,500", value_delimiter = ',')]
+        rates: Vec<f64>,
+        /// Seconds of each bout after the press (at least 2; the last 1 s is judged).
+        #[arg(long, default_value_t = 3.0)]
+        seconds: f64,
+        /// The hand: mass (kg), arm stiffness (N/m), arm damping (N s/m).
+        #[arg(long, default_value_t = 0.7)]
+        hand_mass: f64,
+        #[arg(long, default_value_t = 300.0)]
+        hand_k: f64,
+        #[arg(long, default_value_t = 8.0)]
+        hand_d: f64,
+        /// First-order lag of the simulated motors (ms; 0: ideal, as spidar run's default).
+        #[arg(long, default_value_t = 0.0)]
+        motor_lag_ms: f64,
+    },
     /// Round trip of one exchange over a pty to the board emulator, then the 1 kHz loop through it.
     Uart {
         #[command(flatten)]
@@ -676,6 +711,59 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                 };
                 bench_view(&r, &o)?.to_string()
             }
+        }
+        BenchCmd::Zwidth {
+            rig,
+            svg,
+            k_steps,
+            b_steps,
+            rates,
+            seconds,
+            hand_mass,
+            hand_k,
+            hand_d,
+            motor_lag_ms,
+        } => {
+            use spidar_lab::zwidth::HandModel;
+            use spidar_lab::zwidth_sweep::{sweep, SweepOptions};
+            let r = spidar_runtime::rigpath::load_rig(rig.as_deref(), &[])?;
+            for (name, v, lo, hi) in [
+                ("--seconds", seconds, 2.0, 600.0),
+                ("--hand-mass", hand_mass, 0.05, 20.0),
+                ("--hand-k", hand_k, 1.0, 1e5),
+                ("--hand-d", hand_d, 0.0, 1e3),
+                ("--motor-lag-ms", motor_lag_ms, 0.0, 100.0),
+            ] {
+                if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                    anyhow::bail!("{name} {v}: give a number from {lo} to {hi}");
+                }
+            }
+            let o = SweepOptions {
+                k_steps: k_steps as usize,
+                b_steps: b_steps as usize,
+                rates_hz: rates,
+                seconds,
+                hand: HandModel {
+                    mass_kg: hand_mass,
+                    k_n_per_m: hand_k,
+                    d_n_s_per_m: hand_d,
+                    ..HandModel::default()
+                },
+                motor_time_constant_s: motor_lag_ms * 1e-3,
+                ..SweepOptions::default()
+            };
+            errln!(
+                "{} x {} walls x 6 cases at {:?} Hz on the virtual clock, then the shipped scenes' contacts ...",
+                o.k_steps,
+                o.b_steps,
+                o.rates_hz
+            );
+            let report = sweep(&r, &o)?;
+            if let Some(path) = &svg {
+                spidar_lab::zwidth_plot::zwidth_svg(&report, path)?;
+                errln!("wrote {}", path.display());
+            }
+            report.to_string()
         }
         BenchCmd::Rt { rig, seconds, blocks } => {
             let r = rig.load()?;

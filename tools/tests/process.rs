@@ -583,11 +583,27 @@ fn numbers_out_of_their_range_are_refused_by_the_command_line() {
         &["bench", "rt", "--blocks", "0"],
         &["bench", "record", "--seconds", "1e9"],
         &["bench", "record", "--blocks", "0"],
+        &["bench", "zwidth", "--k-steps", "1"],
         &["eval", "impacts", "--trials", "0"],
     ] {
         let (status, _, err) = spidar(args);
         assert_eq!(status.code(), Some(2), "{args:?}: {err}");
         assert!(err.contains("error: invalid value"), "{args:?}: {err}");
+    }
+}
+
+#[test]
+fn zwidth_refuses_numbers_out_of_range_naming_the_option_before_any_bout() {
+    let cases: &[(&[&str], &str)] = &[
+        (&["bench", "zwidth", "--seconds", "1"], "--seconds 1: give a number from 2 to 600"),
+        (&["bench", "zwidth", "--hand-d", "nan"], "--hand-d NaN: give a number from 0 to 1000"),
+        (&["bench", "zwidth", "--rates", "1000,5"], "a loop rate of 5 Hz: give rates from 100 to 20000 Hz"),
+    ];
+    for (args, says) in cases {
+        let (status, out, err) = spidar(args);
+        assert_eq!(status.code(), Some(1), "{args:?}: {out}\n{err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!out.contains("spidar bench zwidth:"), "nothing ran: {out}");
     }
 }
 
