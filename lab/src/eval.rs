@@ -700,6 +700,15 @@ pub fn punch_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
     box_plan(&rig, &BoxerParams::default(), seed, &PlanOptions { punches, ..Default::default() })
 }
 
+/// The feint-pair script: punches thrown only in combinations of 2-3, this share of them feints,
+/// so a punch follows a feint within [`FEINT_PAIR_S`] often enough to compare (the `box`
+/// script's 400 punches hold only about 17 such pairs). Half as many punches as the main plan.
+pub fn feint_pair_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
+    let rig = Rig::default_rig();
+    let opts = PlanOptions { punches, combo_share: 1.0, feint_share: 0.3, ..Default::default() };
+    box_plan(&rig, &BoxerParams::default(), seed ^ 0xfe17, &opts)
+}
+
 /// The punch experiment: the same plan against an active and a passive virtual human.
 #[derive(serde::Serialize)]
 pub struct PunchReport {
@@ -707,29 +716,35 @@ pub struct PunchReport {
     pub passive: BoutOutcome,
     /// The same punches at the other levels of skill (novice, pro).
     pub other_skills: Vec<BoutOutcome>,
+    /// The feint-pair script ([`feint_pair_plan`]) at the default skill.
+    pub feint_pairs: BoutOutcome,
 }
 
-/// `progress(done, total)` is called as punches end (`total` counts each punch twice: thrown at
-/// the active and at the passive virtual human).
+/// `progress(done, total)` is called as punches end (`total` counts each punch four times:
+/// thrown at the active and the passive virtual human, at novice and at pro; and the feint-pair
+/// script's punches once).
 pub fn punch_report(
     punches: usize,
     seed: u64,
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<PunchReport> {
     let plan = punch_plan(punches, seed)?;
+    let pairs_plan = feint_pair_plan(punches.div_ceil(2), seed)?;
     let n = plan.punches.len();
-    let mut run = |params: BoxerParams, before: usize| {
-        punch_outcomes_with(BoxerParams { seed, ..params }, &plan, seed, &mut |over| {
-            progress(before + over, 4 * n)
+    let total = 4 * n + pairs_plan.punches.len();
+    let mut run = |params: BoxerParams, plan: &BoxPlan, before: usize| {
+        punch_outcomes_with(BoxerParams { seed, ..params }, plan, seed, &mut |over| {
+            progress(before + over, total)
         })
     };
-    let active = run(BoxerParams::default(), 0)?;
-    let passive = run(BoxerParams { active: false, ..Default::default() }, n)?;
+    let active = run(BoxerParams::default(), &plan, 0)?;
+    let passive = run(BoxerParams { active: false, ..Default::default() }, &plan, n)?;
     let mut other_skills = Vec::new();
     for (k, level) in [SkillLevel::Novice, SkillLevel::Pro].into_iter().enumerate() {
-        other_skills.push(run(BoxerParams::default().with_skill(level), (2 + k) * n)?);
+        other_skills.push(run(BoxerParams::default().with_skill(level), &plan, (2 + k) * n)?);
     }
-    Ok(PunchReport { active, passive, other_skills })
+    let feint_pairs = run(BoxerParams::default(), &pairs_plan, 4 * n)?;
+    Ok(PunchReport { active, passive, other_skills, feint_pairs })
 }
 
 impl fmt::Display for PunchReport {
@@ -878,6 +893,16 @@ impl fmt::Display for PunchReport {
             share(|o| o.block || o.avoidance),
             share(|o| o.block),
             share(|o| o.avoidance),
+            100.0 * with,
+            100.0 * without
+        )?;
+        let (with, without, pairs) = self.feint_pairs.feint_pairs();
+        writeln!(
+            f,
+            "  feint pairs ({} punches in combinations of 2-3, {} of them feints, {} skill): punches within {FEINT_PAIR_S} s after a feint landed {:.1} %, the same punches without one {:.1} % ({pairs} pairs)",
+            self.feint_pairs.punches.len(),
+            self.feint_pairs.punches.iter().filter(|o| o.punch.feint).count(),
+            self.feint_pairs.skill,
             100.0 * with,
             100.0 * without
         )?;

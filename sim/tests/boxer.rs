@@ -469,7 +469,7 @@ fn boxing_bout_with_the_mind_on_is_pinned() {
     assert_eq!(bout().0, a, "two identical bouts differ");
     assert!(predictions > 30 && attacks > 0, "the bout must predict and attack: {predictions}, {attacks}");
     eprintln!("digest {a:#018x}, {predictions} predictions, {attacks} attacks");
-    assert_eq!(a, 0x5788_d69e_cde1_f2a8, "digest changed: {a:#018x}");
+    assert_eq!(a, 0x1d65_25f2_887b_ecba, "digest changed: {a:#018x}");
 }
 
 /// The user's hand `hand` along a path from the avatar's guard (`path(s)`, s in [0, 1], minimum-
@@ -855,4 +855,52 @@ fn landing_rate_falls_with_skill_on_the_same_jabs() {
         novice >= amateur && amateur >= pro && novice > pro,
         "novice {novice}, amateur {amateur}, pro {pro}"
     );
+}
+
+/// A feint draws a defence the fist never meets: it ends aborted, and the next defence waits the
+/// skill's feint recovery (the guard out of place, attention on the feinting hand). A straight
+/// at the head with the other hand as soon as the feint's defence ends is answered at once with
+/// no recovery, and not before the recovery is over with one.
+#[test]
+fn a_defence_drawn_by_a_feint_is_followed_by_the_feints_recovery() {
+    let run = |recovery_s: f64| {
+        let mut w = settled(BoxerParams::default());
+        w.mind.params.skill.feint_recovery_s = recovery_s;
+        let dt = w.dt_s();
+        let guard = [0, 1].map(|h| w.com(w.avatar.hand[h]));
+        let head = w.com(w.vh.head);
+        let stop = guard[1] + (head - guard[1]).normalize() * ((head - guard[1]).length() - 0.4);
+        let (out_s, mut t, mut started, mut ended_at, mut answered_at) = (0.12, 0.0, false, None, None);
+        for _ in 0..((1.5 / dt) as usize) {
+            let at = |from: DVec3, to: DVec3, since: f64| {
+                let tau = (since / out_s).clamp(0.0, 1.0);
+                let v = (to - from) * (min_jerk_rate(tau) / out_s);
+                HandTarget { pos_m: from + (to - from) * min_jerk(tau), vel_m_per_s: v }
+            };
+            let mut targets = [0, 1].map(|h| Some(HandTarget { pos_m: guard[h], vel_m_per_s: DVec3::ZERO }));
+            targets[1] = Some(at(guard[1], stop, t));
+            if let Some(end) = ended_at {
+                targets[0] = Some(at(guard[0], head, t - end));
+            }
+            w.step(&targets);
+            t += dt;
+            started |= w.mind.defence.is_some();
+            if started && ended_at.is_none() && w.mind.defence.is_none() {
+                ended_at = Some(t);
+            } else if ended_at.is_some() && answered_at.is_none() && w.mind.defence.is_some() {
+                answered_at = Some(t);
+            }
+        }
+        let end = ended_at.expect("the feint draws a defence that ends");
+        (w.mind.defences_aborted, answered_at.map(|a| a - end))
+    };
+    let (aborted, quick) = run(0.0);
+    let (_, recovering) = run(0.3);
+    eprintln!("aborted {aborted}; the next punch answered after {quick:?} / {recovering:?} s");
+    assert!(aborted >= 1, "the feint's defence ended aborted");
+    let quick = quick.expect("with no recovery the straight is answered");
+    assert!(quick < 0.1, "with no recovery answered only after {quick:.3} s");
+    // With the recovery, not before it is over (the straight is out in 0.12 s: it may be over by
+    // then, with nothing left to answer).
+    assert!(recovering.is_none_or(|r| r >= 0.3 - 1e-9), "answered after {recovering:?} s");
 }

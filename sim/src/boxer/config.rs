@@ -61,6 +61,7 @@ pub struct SkillFile {
     pub counter_within_s: f64,
     pub avoid_chance: f64,
     pub refractory_s: f64,
+    pub feint_recovery_s: f64,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -165,7 +166,7 @@ const DELAY: &str =
 const ANGLE: &str = "an angle around the eye: a full turn at most";
 
 /// Every number of one skill level with its bound: (field, value, bound).
-fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 13] {
+fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 14] {
     let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
     [
         ("delay_s", s.delay_s, b(0.0, 1.0, "s", DELAY)),
@@ -185,6 +186,7 @@ fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 13] {
         ("counter_within_s", s.counter_within_s, b(0.0, 5.0, "s", TIME)),
         ("avoid_chance", s.avoid_chance, b(0.0, 1.0, "", "a probability")),
         ("refractory_s", s.refractory_s, b(0.0, 1.0, "s", DELAY)),
+        ("feint_recovery_s", s.feint_recovery_s, b(0.0, 1.0, "s", DELAY)),
     ]
 }
 
@@ -223,6 +225,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
             counter_within_s: s.counter_within_s,
             avoid_chance: s.avoid_chance,
             refractory_s: s.refractory_s,
+            feint_recovery_s: s.feint_recovery_s,
         };
     }
     Ok(out)
@@ -232,7 +235,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
     let c = Checker::new(text, origin);
-    c.version(f.version, 4)?;
+    c.version(f.version, 5)?;
     let o = f.user_offset_m;
     c.finite_within(&At::key("user_offset_m"), &[o.0, o.1, o.2], f64::MAX, "m")?;
     for (field, v, bound) in boxer_numbers(&f) {
@@ -341,9 +344,9 @@ mod tests {
         let text = BOXER_RON.replacen("skill: \"amateur\"", "skill: \"champion\"", 1);
         let e = refused(&text, "skill", "champion");
         assert!(e.contains("novice, amateur, pro"), "{e}");
-        // A negative delay (the pro's, the third level).
-        let text = BOXER_RON.replacen("delay_s: 0.14,", "delay_s: -0.14,", 1);
-        refused(&text, "skills.pro.delay_s", "-0.14");
+        // A negative delay (the novice's, the first level).
+        let text = BOXER_RON.replacen("delay_s: 0.22,", "delay_s: -0.22,", 1);
+        refused(&text, "skills.novice.delay_s", "-0.22");
         // A field of view over a full turn (the novice's).
         let text = BOXER_RON.replacen("fov_deg: 180.0", "fov_deg: 400.0", 1);
         let e = refused(&text, "skills.novice.fov_deg", "400");

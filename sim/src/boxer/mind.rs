@@ -139,6 +139,10 @@ pub struct Defence {
     pub since_s: f64,
     /// Hits taken when it began (a defence that ends with no more kept the fist off).
     pub hits_before: u64,
+    /// The fist it answers has touched the virtual human (a block met it, or it landed). A
+    /// defence that ends untouched was drawn for nothing (a feint, a punch that fell short or
+    /// was slipped): the feint's recovery follows ([`Skill::feint_recovery_s`]).
+    pub touched: bool,
 }
 
 /// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
@@ -230,6 +234,9 @@ pub struct Mind {
     pub blocks: u64,
     pub attacks: u64,
     pub defences_ended: u64,
+    /// Defences that ended with the fist never having touched the virtual human (a feint drew
+    /// them, or the punch fell short or was slipped); each is followed by the feint's recovery.
+    pub defences_aborted: u64,
     /// Hits taken (the avatar's fist on head or chest) and given (its hand on the avatar's).
     pub hits_taken: u64,
     pub hits_given: u64,
@@ -288,6 +295,7 @@ impl Mind {
             blocks: 0,
             attacks: 0,
             defences_ended: 0,
+            defences_aborted: 0,
             hits_taken: 0,
             hits_given: 0,
             attacks_abandoned: 0,
@@ -320,10 +328,45 @@ impl Mind {
     /// Is an avatar hand closing on any part of the virtual human faster than `speed_m_per_s`,
     /// as it sees the fists ([`Perception`]; its own parts as they are)?
     pub fn closing_faster_than(&self, model: &Model, ws: &Workspace, speed_m_per_s: f64) -> bool {
+        self.fists_closing(model, ws, &self.seen_fists(), speed_m_per_s)
+    }
+
+    /// The avatar's fists (centre, velocity) as it sees them now ([`Perception`]).
+    pub fn seen_fists(&self) -> [(DVec3, DVec3); 2] {
+        self.perception.seen.map(|s| (s.pos_m, s.vel_m_per_s))
+    }
+
+    /// The avatar's fists (centre, velocity) as they are, seen or not. Only ever used to keep the
+    /// body's own motion from going toward them ([`Mind::fist_in_flight`]), never to decide or
+    /// aim a defence.
+    pub fn true_fists(&self, model: &Model, ws: &Workspace) -> [(DVec3, DVec3); 2] {
+        self.av.hand.map(|h| (ws.com_world(model, h), ws.point_velocity(h, model.bodies[h].com_m)))
+    }
+
+    /// Is a fist out at the virtual human as it truly is: closing on any part faster than
+    /// `approach_m_per_s`, or near its head or chest ([`Mind::fist_at`])? A person does not
+    /// avoid what it has not seen yet, but neither does it walk into a punch on its way back to
+    /// its guard: while a fist is in flight the body's own motion (the way back to its guard, the
+    /// stance stepping back, a hold letting go) waits, whether the fist is seen yet or not. This
+    /// stops motion and never starts a defence: the reaction still waits for the sight.
+    pub fn fist_in_flight(&self, model: &Model, ws: &Workspace) -> bool {
+        let fists = self.true_fists(model, ws);
+        self.fists_closing(model, ws, &fists, self.params.approach_m_per_s)
+            || self.fists_near(model, ws, &fists, self.params.fist_near_m)
+    }
+
+    /// Is one of `fists` (centre, velocity) closing on any part of the virtual human faster than
+    /// `speed_m_per_s`?
+    fn fists_closing(
+        &self,
+        model: &Model,
+        ws: &Workspace,
+        fists: &[(DVec3, DVec3); 2],
+        speed_m_per_s: f64,
+    ) -> bool {
         let vh = &self.vh;
         let parts = [vh.head, vh.chest, vh.hand[0], vh.hand[1], vh.forearm[0], vh.forearm[1]];
-        self.perception.seen.iter().any(|seen| {
-            let (p, v) = (seen.pos_m, seen.vel_m_per_s);
+        fists.iter().any(|&(p, v)| {
             parts.iter().any(|&b| {
                 let to = ws.com_world(model, b) - p;
                 let d = to.length();
@@ -338,13 +381,18 @@ impl Mind {
     /// place, the head at the guard its reach left from), or touching any part of it (pressing
     /// on a block, say)? `ws` holds the state's contacts.
     pub fn fist_at(&self, model: &Model, ws: &Workspace, m: f64) -> bool {
+        // The fists as it sees them; a touch it feels at once.
+        self.fists_near(model, ws, &self.seen_fists(), m)
+    }
+
+    /// Is one of `fists` within `m` of the head's or chest's centre (where they are or where
+    /// going back to guard would take them), or is an avatar fist touching the virtual human?
+    fn fists_near(&self, model: &Model, ws: &Workspace, fists: &[(DVec3, DVec3); 2], m: f64) -> bool {
         let (head, chest) = (ws.com_world(model, self.vh.head), ws.com_world(model, self.vh.chest));
         let back = self.stance.place_m - self.stance.waist_m(ws);
         let head_guard = self.reaches[2].map_or(head + back, |r| r.home_m);
         let parts = [head, chest, head_guard, chest + back];
-        // The fists as it sees them; a touch it feels at once.
-        let near =
-            self.perception.seen.iter().any(|seen| parts.iter().any(|&b| (b - seen.pos_m).length() < m));
+        let near = fists.iter().any(|&(p, _)| parts.iter().any(|&b| (b - p).length() < m));
         let fist = |b: Option<u16>| b.is_some_and(|b| self.av.hand.contains(&(b as usize)));
         let boxer = |b: Option<u16>| b.is_some_and(|b| model.bodies[b as usize].articulation == BOXER);
         near || ws
@@ -508,10 +556,12 @@ impl Mind {
             avoiding: false,
             since_s: now_s,
             hits_before: self.hits_taken,
+            touched: false,
         };
         if let Some(prev) = prev {
             def.since_s = prev.since_s;
             def.hits_before = prev.hits_before;
+            def.touched = prev.touched;
         }
 
         // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
@@ -671,7 +721,15 @@ impl Mind {
             return;
         };
         self.defences_ended += 1;
-        self.refractory_until_s = now_s + self.params.skill.refractory_s;
+        // A defence the fist never met leaves the guard out of place and attention on the hand
+        // that drew it: the next one waits longer (the feint's recovery).
+        let wait = if def.touched {
+            self.params.skill.refractory_s
+        } else {
+            self.defences_aborted += 1;
+            self.params.skill.feint_recovery_s.max(self.params.skill.refractory_s)
+        };
+        self.refractory_until_s = now_s + wait;
         // A defence that kept the fist off (blocked or made it miss) opens a counter, by chance.
         if self.hits_taken == def.hits_before && self.rng.random::<f64>() < self.params.skill.counter_chance {
             self.counter_until_s = now_s + self.params.skill.counter_within_s;
@@ -755,7 +813,10 @@ impl Mind {
         let approaching = self.closing_faster_than(model, ws, self.params.approach_m_per_s);
         // A fist out at its head or chest, or touching it, coming or not: the body does not go
         // back toward it.
-        let guarding = approaching || self.fist_at(model, ws, self.params.fist_near_m);
+        // And a fist in flight, seen yet or not: the body's own motion waits (it does not go back
+        // to its guard into a punch it has not seen yet).
+        let guarding =
+            approaching || self.fist_at(model, ws, self.params.fist_near_m) || self.fist_in_flight(model, ws);
         let attacking = self.hands.contains(&Behaviour::Attack);
         if now >= self.next_predict_s && (defending || closing || attacking) {
             self.next_predict_s = now + self.params.predict_every_s;
@@ -781,6 +842,17 @@ impl Mind {
                 }
                 None => None,
             };
+            // The newest prediction finds the other fist first while the one the defence answers
+            // never touched it: that defence was drawn for nothing (a feint) and ends; the
+            // answer to the other fist is a new defence, after the feint's recovery.
+            if let (Some(def), Some(d)) = (self.defence, d) {
+                let other =
+                    self.av.hand.iter().position(|&h| h == d.av_body).is_some_and(|h| h != def.av_hand);
+                if d.class == ContactClass::AvatarAttack && other && !def.touched {
+                    self.end_defence(model, ws, now, bp);
+                }
+            }
+            let defending = self.defence.is_some();
             match d {
                 // A new defence waits out the refractory period after the last one.
                 Some(d)
@@ -888,13 +960,14 @@ impl Mind {
     fn place_stance(&mut self, model: &Model, ws: &Workspace, guarding: bool) {
         self.braced = guarding || self.defence.is_some();
         if self.braced {
-            let mut toward = [DVec3::ZERO; 4];
-            for (k, (part, fist)) in [self.vh.head, self.vh.chest]
+            // Toward each fist as seen and as it is (the body's own motion goes toward neither).
+            let (seen, truly) = (self.seen_fists(), self.true_fists(model, ws));
+            let mut toward = [DVec3::ZERO; 8];
+            for (k, (part, at)) in [self.vh.head, self.vh.chest]
                 .into_iter()
-                .flat_map(|p| self.av.hand.map(|h| (p, h)))
+                .flat_map(|p| [seen[0].0, seen[1].0, truly[0].0, truly[1].0].map(|at| (p, at)))
                 .enumerate()
             {
-                let at = self.perception.seen[if fist == self.av.hand[0] { 0 } else { 1 }].pos_m;
                 toward[k] = (at - ws.com_world(model, part)).normalize_or_zero();
             }
             let waist = self.stance.waist_m(ws);
@@ -928,6 +1001,10 @@ impl Mind {
     /// least [`HIT_GAP_S`] after the previous one, so a punch whose contact chatters (a penalty
     /// contact may touch, bounce and touch again within a few steps) counts once.
     pub fn after_step(&mut self, rep: &StepReport, t_s: f64) {
+        if let Some(d) = self.defence.as_mut() {
+            let h = d.av_hand;
+            d.touched |= rep.head_hit[h] || rep.chest_hit[h] || rep.blocked[h];
+        }
         if rep.vh_hit() {
             if t_s - self.last_hit_s > HIT_GAP_S {
                 self.hits_taken += 1;

@@ -93,6 +93,10 @@ pub struct Skill {
     /// After a defence ends, no new one starts for this long (s): the psychological refractory
     /// period, why a feint that drew a defence opens the guard for the punch that follows.
     pub refractory_s: f64,
+    /// After a defence that the fist never met (a feint drew it, or the punch fell short or
+    /// was slipped), no new one starts for this long instead (s): the guard is out of place and
+    /// attention on the hand that drew it, so the punch that follows a feint is answered late.
+    pub feint_recovery_s: f64,
 }
 
 impl Skill {
@@ -114,6 +118,7 @@ impl Skill {
             counter_within_s: 0.0,
             avoid_chance: 0.0,
             refractory_s: 0.0,
+            feint_recovery_s: 0.0,
         }
     }
 
