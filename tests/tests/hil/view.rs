@@ -990,6 +990,9 @@ fn view_frames_drawn_off_the_stepping_thread_are_the_frames_of_their_step() {
             );
             let mut want = want;
             want[32..40].copy_from_slice(&got[32..40]);
+            // The live view also marks the strings near each other or a forearm in the flags'
+            // low 16 bits (from the rig's hands, `rigview`); the reference writer does not.
+            want[12..14].copy_from_slice(&got[12..14]);
             assert!(got == want, "frame {seq} (step {}, {down} characters not balancing) differs", at - 3);
             compared += 1;
             most_down = most_down.max(down);
