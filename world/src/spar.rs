@@ -29,7 +29,7 @@ use spidar_sim::boxer::{BoxerParams, HandTarget, AVATAR, BOXER};
 
 use crate::boxing::look::{humanoid, AVATAR_COLOUR, AVATAR_GLOVE, FLOOR_COLOUR, VH_COLOUR, VH_GLOVE};
 use crate::host::ServeReport;
-use crate::look::{quat, DrawnContact, Look, LookEye, LookShape, Poses};
+use crate::look::{Look, LookEye, LookShape, Poses};
 use crate::{Observer, Scene, StepView};
 
 /// The scene's name, as `--scene` takes it.
@@ -200,18 +200,7 @@ impl Scene for SparScene {
     /// Every shape's pose, the contacts between the bodies (the part hit flashes), the hits.
     fn pose(&self, out: &mut Poses<'_>) {
         let w = &self.world.world;
-        for (k, p) in w.ws.shape_pose.iter().enumerate() {
-            out.shape(k, p.pos_m, quat(&p.rot));
-        }
-        for c in &w.ws.contacts {
-            if c.body_a.is_none() || c.body_b.is_none() {
-                continue;
-            }
-            let f = c.force_n.length();
-            out.shape_force(c.shape_a as usize, f);
-            out.shape_force(c.shape_b as usize, f);
-            out.contact(DrawnContact { point_m: c.point_m, force_n: c.force_n });
-        }
+        crate::boxing::look::pose_shapes_and_contacts(&w.ws, out);
         for (i, h) in self.world.hits.iter().enumerate() {
             out.counter(i, *h as f64);
         }

@@ -133,12 +133,13 @@ pub(crate) fn humanoid(
     LookHumanoid { name: name.into(), segments, joints, colour, skin: SKIN, forward: DVec3::NEG_Z }
 }
 
-pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
-    let w = &scene.world;
-    for (k, p) in w.ws.shape_pose.iter().enumerate() {
+/// Every shape's pose and the contacts between bodies (the parts touching flash): the boxing and
+/// the spar scenes' bodies are drawn alike.
+pub(crate) fn pose_shapes_and_contacts(ws: &spidar_sim::Workspace, out: &mut Poses<'_>) {
+    for (k, p) in ws.shape_pose.iter().enumerate() {
         out.shape(k, p.pos_m, quat(&p.rot));
     }
-    for c in &w.ws.contacts {
+    for c in &ws.contacts {
         // Contacts between bodies (the floor is out of reach of these bodies anyway).
         if c.body_a.is_none() || c.body_b.is_none() {
             continue;
@@ -148,6 +149,11 @@ pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
         out.shape_force(c.shape_b as usize, f);
         out.contact(DrawnContact { point_m: c.point_m, force_n: c.force_n });
     }
+}
+
+pub(crate) fn pose(scene: &BoxingScene, out: &mut Poses<'_>) {
+    let w = &scene.world;
+    pose_shapes_and_contacts(&w.ws, out);
     let mind = &w.mind;
     for h in 0..2 {
         out.label(
