@@ -78,7 +78,11 @@ fn emulated(opts: SimTruthOptions, name: &str) -> (Emulator, UartDevice<SerialPa
     let sim = sim_rig(&rig, &truth, opts.noise_counts, opts.seed).unwrap();
     let eo = EmulatorOptions { plant: PlantClock::PerTick, ..Default::default() };
     let emu = Emulator::spawn(sim, eo, &link(name)).unwrap();
-    let mut dev = UartDevice::on_port(emu.symlink().to_str().unwrap(), UartOptions::default()).unwrap();
+    // The boards' 20 ms to answer the enumeration is a wall-clock deadline that a loaded test
+    // machine can miss before the emulator's thread runs: give the open a quarter second, as the
+    // HIL tests over the pty do.
+    let uo = UartOptions { enumerate_timeout: Duration::from_millis(250), ..Default::default() };
+    let mut dev = UartDevice::on_port(emu.symlink().to_str().unwrap(), uo).unwrap();
     dev.open().unwrap();
     (emu, dev, truth)
 }
