@@ -169,6 +169,14 @@ pub struct BoutTiming {
     /// Steps each prediction ran (median, p99, max) and the horizon's steps: Table I's stopping
     /// rules end most predictions early, and the longest ones make the tail.
     pub prediction_steps: [u64; 3],
+    /// Predictions by the steps they ran: 1-25, 26-50, 51-100, 101 to one short of the horizon,
+    /// the whole horizon (the longest, which find nothing and make the time's tail).
+    pub prediction_steps_histogram: [u64; 5],
+    /// A prediction's time over the steps it ran (us; median, p99): the cost of one predicted
+    /// step, which does not depend on how far the stopping rules let a prediction go.
+    pub per_predicted_step_us: [f64; 2],
+    /// Predictions stopped because their predicted world came apart (a velocity not finite).
+    pub blown_up: u64,
     pub horizon_steps: u64,
     pub misses: u64,
     pub status: String,
@@ -182,6 +190,16 @@ impl fmt::Display for BoutTiming {
         writeln!(f, "  step+predict {}", self.step_with_prediction)?;
         let [med, p99, max] = self.prediction_steps;
         writeln!(f, "  pred. steps  median {med}, p99 {p99}, max {max} of {} ahead", self.horizon_steps)?;
+        let [a, b, c, d, e] = self.prediction_steps_histogram;
+        let h = self.horizon_steps;
+        writeln!(
+            f,
+            "  pred. steps  1-25: {a}, 26-50: {b}, 51-100: {c}, 101-{}: {d}, {h}: {e}",
+            h.saturating_sub(1)
+        )?;
+        let [step_med, step_p99] = self.per_predicted_step_us;
+        writeln!(f, "  per pred. step median {step_med:.1} us, p99 {step_p99:.1} us")?;
+        writeln!(f, "  pred. blown up {} (stopped once a velocity was not finite)", self.blown_up)?;
         writeln!(f, "  rt misses    {}", self.misses)?;
         write!(f, "  scene        {}", self.status)
     }
@@ -212,13 +230,31 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
             steps.push(b.scene.last_step_ns);
         }
     }
+    let horizon_steps = (b.scene.world.mind.params.horizon_s / b.scene.world.dt_s()).ceil() as u64;
+    let mut histogram = [0u64; 5];
+    for &n in &pred_steps {
+        let bin = match n {
+            n if n >= horizon_steps => 4,
+            101.. => 3,
+            51.. => 2,
+            26.. => 1,
+            _ => 0,
+        };
+        histogram[bin] += 1;
+    }
+    // Per predicted step, in tenths of a microsecond so the quantiles keep a decimal.
+    let per_step = preds.iter().zip(&pred_steps).map(|(&ns, &n)| ns / (100 * n.max(1))).collect();
+    let [step_med, step_p99, _] = quantiles(per_step).map(|x| x as f64 * 0.1);
     Ok(BoutTiming {
         seconds,
         step: Spread::of(steps),
         prediction: Spread::of(preds),
         step_with_prediction: Spread::of(predicting),
         prediction_steps: quantiles(pred_steps),
-        horizon_steps: (b.scene.world.mind.params.horizon_s / b.scene.world.dt_s()).ceil() as u64,
+        prediction_steps_histogram: histogram,
+        per_predicted_step_us: [step_med, step_p99],
+        blown_up: b.scene.world.mind.predictions_blown_up,
+        horizon_steps,
         misses: b.v.counters().misses,
         status: b.scene.status_text(),
     })

@@ -6,6 +6,7 @@
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use glam::DVec3;
 use spidar_sim::aba::aba;
+use spidar_sim::contact::contacts;
 use spidar_sim::desc::{build_scene, builtin_body, SCENE_BOXING_RON};
 use spidar_sim::passive::passive_forces;
 use spidar_sim::state::kinematics;
@@ -86,6 +87,25 @@ fn benches(c: &mut Criterion) {
             })
         });
     }
+    // The step's phases on the landing state, each alone (what a predicted step spends where):
+    // kinematics, contacts (broad and narrow phase, penalty forces), joint springs and limits,
+    // ABA, integration. Each runs on the workspace the previous phases left, as in `step`.
+    kinematics(&m, &landing, &mut ws);
+    punch(&m, &mut ws);
+    let f_ext = ws.f_ext.clone();
+    c.bench_function("phase/kinematics", |b| b.iter(|| kinematics(&m, &landing, &mut ws)));
+    c.bench_function("phase/contacts", |b| {
+        b.iter(|| {
+            ws.f_ext.copy_from_slice(&f_ext);
+            contacts(&m, &mut ws)
+        })
+    });
+    assert!(!ws.contacts.is_empty(), "phase/contacts must measure a state with contacts");
+    c.bench_function("phase/passive", |b| b.iter(|| passive_forces(&m, &landing, &mut ws)));
+    c.bench_function("phase/aba", |b| b.iter(|| aba(&m, &landing, &mut ws)));
+    c.bench_function("phase/integrate", |b| {
+        b.iter_batched_ref(|| landing.clone(), |st| integrate(&m, st, &mut ws), BatchSize::SmallInput)
+    });
     // ABA alone for one 26-DOF boxer (kinematics + passive forces + ABA), as Pinocchio's ABA.
     let one = build_scene(
         &SCENE_BOXING_RON.replace(

@@ -230,6 +230,9 @@ pub struct Mind {
     pub predictions: u64,
     pub last_predict_ns: u64,
     pub predict_ns_total: u64,
+    /// Predictions whose predicted world came apart (a velocity no longer finite) and that
+    /// stopped there (see [`Mind::predict_with`]).
+    pub predictions_blown_up: u64,
     pub avoidances: u64,
     pub blocks: u64,
     pub attacks: u64,
@@ -291,6 +294,7 @@ impl Mind {
             predictions: 0,
             last_predict_ns: 0,
             predict_ns_total: 0,
+            predictions_blown_up: 0,
             avoidances: 0,
             blocks: 0,
             attacks: 0,
@@ -445,6 +449,7 @@ impl Mind {
         let stance = self.stance;
         let brace = (self.braced && !stance_returning).then_some(self.brace());
         let stance_speed = self.params.stance_return_m_per_s;
+        let mut blown_up = false;
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -497,6 +502,15 @@ impl Mind {
                 Some(Priority::Middle) if middle_at.is_some_and(|k| n >= k + grace) => return false,
                 _ => {}
             }
+            // A predicted world that has come apart (a velocity no longer finite: the start
+            // pressed parts centimetres into each other, or a blow set a body spinning) finds no
+            // contact from here on: ABA spreads a non-finite value to its whole articulation, the
+            // shapes' poses follow, and `collide` drops every hit that is not finite. So the
+            // decision is already the one the horizon would give; stop rather than step on.
+            if !s.v.iter().all(|v| v.is_finite()) {
+                blown_up = true;
+                return false;
+            }
             // Nothing more can happen once nothing moves: both fists (and the user's hands they
             // follow) at rest and every reach done. Stopping there keeps the longest predictions,
             // which find nothing, within the budget.
@@ -532,6 +546,7 @@ impl Mind {
             true
         });
         self.predictions += 1;
+        self.predictions_blown_up += blown_up as u64;
         self.last_predict_ns = started.elapsed().as_nanos() as u64;
         self.predict_ns_total += self.last_predict_ns;
         best
