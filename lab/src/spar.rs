@@ -77,6 +77,26 @@ pub struct HandBook {
     pub renderable_err_max: f64,
     /// Ticks whose rendered force was not the local model of the model the rig held.
     pub rendered_mismatch: u64,
+    /// Of the renderable ticks, those compared at the simulated grip (the force its strings
+    /// pulled while the tick's volts were applied, the next period), and the largest relative
+    /// difference there from the avatar-hand contact; grazes (below 0.5 N) in newtons.
+    pub grip_ticks: u64,
+    pub grip_err_max: f64,
+    pub grip_grazes: u64,
+    pub grip_graze_max_n: f64,
+    /// Renderable ticks not compared at the grip because the motors had not settled: the
+    /// lag-filtered command was more than 1 % of the force away from the command.
+    pub grip_settling_ticks: u64,
+    /// The largest difference between the grip's force and the command filtered by the motors'
+    /// first-order lag (the force the motors pull if only their tension lags), over the
+    /// renderable ticks (N).
+    pub grip_vs_lagged_max_n: f64,
+    /// The renderable ticks' largest relative difference at the grip, settled or not.
+    pub grip_err_max_unsettled: f64,
+    /// The renderable force of the last tick (world frame) and the command, lag-filtered.
+    grip_pending: Option<DVec3>,
+    last_out: DVec3,
+    lagged: DVec3,
     last_pos: Option<DVec3>,
     commanded: [DVec3; 2],
     last_stamp: Option<f64>,
@@ -96,6 +116,8 @@ impl HandBook {
 /// Two rigs and a spar world behind a shim.
 pub struct SparBout {
     pub rigs: [VirtualRun<SimRig>; SEATS],
+    /// Per-period fraction by which the motors' tension closes on its command (1: ideal).
+    lag_alpha: f64,
     pub scene: SparScene,
     pub rig: Rig,
     up: [DelayLine<HandSample>; SEATS],
@@ -124,12 +146,14 @@ pub struct SparBout {
 
 impl SparBout {
     /// Two homed, active rigs (`rig`), their users following `scripts[seat]`, the world between
-    /// them behind `net`.
+    /// them behind `net`; the simulated motors' tension lags its command with the time constant
+    /// `motor_lag_s` (0: ideal motors, as `spidar run`'s simulated rig).
     pub fn new(
         rig: &Rig,
         scripts: [[Script; 2]; SEATS],
         net: SparNet,
         seed: u64,
+        motor_lag_s: f64,
     ) -> anyhow::Result<SparBout> {
         let mut runs = Vec::new();
         for (seat, s) in scripts.into_iter().enumerate() {
@@ -137,7 +161,12 @@ impl SparBout {
                 let hold = s.start_hold_s.max(HOLD_AT_HOME_S);
                 s.with_start_hold(hold)
             });
-            let dev = sim_device(rig, s, &SimOptions { seed: seed + seat as u64, ..Default::default() })?;
+            let opts = SimOptions {
+                seed: seed + seat as u64,
+                motor_time_constant_s: motor_lag_s,
+                ..Default::default()
+            };
+            let dev = sim_device(rig, s, &opts)?;
             let mut v = VirtualRun::new(dev, rig, None)?;
             v.home_and_activate();
             runs.push(v);
@@ -149,6 +178,7 @@ impl SparBout {
         scene.set_present(1, true);
         Ok(SparBout {
             rigs: [a, b],
+            lag_alpha: if motor_lag_s > 0.0 { 1.0 - (-rig.period_s / motor_lag_s).exp() } else { 1.0 },
             scene,
             rig: rig.clone(),
             up: [DelayLine::new(line(1), 1024), DelayLine::new(line(2), 1024)],
@@ -269,9 +299,11 @@ impl SparBout {
             if felt > 0.05 && now - self.last_contact_s[seat][h] > 0.3 {
                 b.force_without_contact_ticks += 1;
             }
-            if let Some(m) = &self.last_model[seat] {
-                check_felt(b, &self.rig, h, &rec, m);
-            }
+            let grip = self.rig.rig_to_world.vector(truth.hands[h].string_force_n);
+            check_grip(b, grip, self.lag_alpha);
+            b.last_out = self.rig.rig_to_world.vector(out);
+            b.grip_pending =
+                self.last_model[seat].as_ref().and_then(|m| check_felt(b, &self.rig, h, &rec, m));
         }
     }
 
@@ -313,37 +345,68 @@ impl SparBout {
     }
 }
 
+/// The force at the simulated grip this period (`grip`, world frame: what the strings pull on
+/// it while the last tick's volts are applied) against the last tick's renderable contact
+/// force, once the motors have settled: the command lag-filtered as the motors filter it
+/// (`alpha` per period) is within 1 % of the force of the command. A graze (below 0.5 N) is
+/// compared in newtons: the strings pull along the directions of the pose measured up to 2 ms
+/// before, which a moving fist turns by up to about 0.1 N whatever the force.
+fn check_grip(b: &mut HandBook, grip: DVec3, alpha: f64) {
+    b.lagged += (b.last_out - b.lagged) * alpha;
+    let Some(want) = b.grip_pending.take() else { return };
+    let f = want.length();
+    let err = (grip - want).length();
+    b.grip_vs_lagged_max_n = b.grip_vs_lagged_max_n.max((grip - b.lagged).length());
+    b.grip_err_max_unsettled = b.grip_err_max_unsettled.max(err / f);
+    if (b.lagged - b.last_out).length() > 0.01 * f {
+        b.grip_settling_ticks += 1;
+    } else if f < 0.5 {
+        b.grip_grazes += 1;
+        b.grip_graze_max_n = b.grip_graze_max_n.max(err);
+    } else {
+        b.grip_ticks += 1;
+        b.grip_err_max = b.grip_err_max.max(err / f);
+    }
+}
+
 /// Felt against the avatar-hand contact's local model at the hand (the boxing scene's check),
-/// where the rig can render it: full gain, no blow, within the limit, not scaled by the reserve,
-/// and exactly allocatable to the strings at that pose.
+/// where the rig can render it: full gain, no blow, not scaled by the reserve, and exactly
+/// allocatable to the strings at that pose. Within the limit, the allocation's force is
+/// compared here; returns the force to compare at the grip (clamped to the limit along its own
+/// direction), or None where the rig cannot render it.
 fn check_felt(
     b: &mut HandBook,
     rig: &Rig,
     h: usize,
     rec: &spidar_rt::telemetry::TickRecord,
     m: &ContactModel,
-) {
+) -> Option<DVec3> {
     let c = &m.hand_contacts[h];
     if rec.gain != 1.0 || !c.touching() || m.extra_force_n[h] != DVec3::ZERO || !rec.hands[h].valid {
-        return;
+        return None;
     }
     let xf = rig.rig_to_world;
     let at = xf.point(rec.hands[h].pos_rig_m);
     let want = spidar_rt::local::render_contact(c, at, rig.hands[h].stiffness_limit_n_per_m).force_n;
     if (xf.vector(rec.hands[h].rendered_n) - want).length() > 1e-9 {
         b.rendered_mismatch += 1;
-        return;
+        return None;
     }
     let f = want.length();
-    // Scaled by the reserve, above the limit, or beyond what the strings can pull at this pose
-    // (the allocation scaled it): not renderable as asked.
-    let exact = rec.hands[h].method == spidar_rt::tension::Method::Exact;
-    if rec.hands[h].passivity_limited || f > rig.hands[h].force_limit_n || f <= 0.05 || !exact {
-        return;
+    let limit = rig.hands[h].force_limit_n;
+    // Scaled by the reserve or beyond what the strings can pull at this pose (the allocation
+    // scaled it): not renderable as asked.
+    let hr = &rec.hands[h];
+    let exact = hr.method == spidar_rt::tension::Method::Exact;
+    if hr.passivity_limited || hr.stiffness_limited || hr.held || f <= 0.05 || !exact {
+        return None;
     }
-    b.renderable_ticks += 1;
-    let felt = xf.vector(rec.hands[h].output_n);
-    b.renderable_err_max = b.renderable_err_max.max((felt - want).length() / f);
+    if f <= limit {
+        b.renderable_ticks += 1;
+        let felt = xf.vector(hr.output_n);
+        b.renderable_err_max = b.renderable_err_max.max((felt - want).length() / f);
+    }
+    Some(want * (limit / f).min(1.0))
 }
 
 /// One row of the table: a bout at one network.
@@ -355,6 +418,10 @@ pub struct SparRow {
     pub stale_after_ms: f64,
     /// Worst over both seats and hands.
     pub felt_error: f64,
+    /// The largest relative difference at the simulated grip from the avatar-hand contact where
+    /// the rig can render it (`HandBook::grip_err_max`), and over how many hand-ticks.
+    pub grip_error: f64,
+    pub grip_ticks: u64,
     pub given_j: f64,
     pub allowed_j: f64,
     pub credited_j: f64,
@@ -367,12 +434,14 @@ pub struct SparRow {
 }
 
 /// A bout of `seconds` of both users throwing the `box` script's punches at each other, at `net`,
-/// with the rig's staleness set to `stale_after_s` (None: the rig file's).
+/// with the rig's staleness set to `stale_after_s` (None: the rig file's) and the simulated
+/// motors lagging with the time constant `motor_lag_s` (0: ideal).
 pub fn spar_bout(
     net: SparNet,
     seconds: f64,
     seed: u64,
     stale_after_s: Option<f64>,
+    motor_lag_s: f64,
 ) -> anyhow::Result<(SparRow, SparBout)> {
     let mut rig = Rig::default_rig();
     if let Some(s) = stale_after_s {
@@ -384,7 +453,7 @@ pub fn spar_bout(
         spidar_runtime::scripts::boxing_scripts(&rig, &params, seed, punches, None)?,
         spidar_runtime::scripts::boxing_scripts(&rig, &params, seed + 1000, punches, None)?,
     ];
-    let mut b = SparBout::new(&rig, scripts, net, seed)?;
+    let mut b = SparBout::new(&rig, scripts, net, seed, motor_lag_s)?;
     let ticks = ((seconds + HOLD_AT_HOME_S) / rig.period_s).round() as u64;
     for _ in 0..ticks {
         b.tick();
@@ -396,6 +465,8 @@ pub fn spar_bout(
         loss: net.loss,
         stale_after_ms: rig.safety.contact_stale_after_s * 1e3,
         felt_error: all().map(|h| h.felt_error()).fold(0.0, f64::max),
+        grip_error: all().map(|h| h.grip_err_max).fold(0.0, f64::max),
+        grip_ticks: all().map(|h| h.grip_ticks).sum(),
         given_j: all().map(|h| h.given_j).fold(f64::MIN, f64::max),
         allowed_j: all().map(|h| h.allowed_j).fold(0.0, f64::max),
         credited_j: all().map(|h| h.credited_j).fold(0.0, f64::max),
@@ -425,12 +496,13 @@ impl fmt::Display for SparTable {
         )?;
         writeln!(
             f,
-            "{:>7} {:>6} {:>5} {:>7} | {:>9} {:>9} {:>9} {:>9} {:>10} {:>7} {:>9} {:>8} {:>7} {:>7}",
+            "{:>7} {:>6} {:>5} {:>7} | {:>9} {:>14} {:>9} {:>9} {:>9} {:>10} {:>7} {:>9} {:>8} {:>7} {:>7}",
             "rtt ms",
             "jitter",
             "loss",
             "stale",
             "felt err",
+            "grip err (n)",
             "given J",
             "allowed J",
             "credit J",
@@ -444,12 +516,14 @@ impl fmt::Display for SparTable {
         for r in &self.rows {
             writeln!(
                 f,
-                "{:>7.0} {:>5.0}% {:>4.0}% {:>5.0}ms | {:>8.1}% {:>9.4} {:>9.3} {:>9.3} {:>10.5} {:>7.2} {:>9.2} {:>8} {:>3}/{:<3} {:>7}",
+                "{:>7.0} {:>5.0}% {:>4.0}% {:>5.0}ms | {:>8.1}% {:>6.2}% ({:>5}) {:>9.4} {:>9.3} {:>9.3} {:>10.5} {:>7.2} {:>9.2} {:>8} {:>3}/{:<3} {:>7}",
                 r.round_trip_ms,
                 r.jitter * 100.0,
                 r.loss * 100.0,
                 r.stale_after_ms,
                 r.felt_error * 100.0,
+                r.grip_error * 100.0,
+                r.grip_ticks,
                 r.given_j,
                 r.allowed_j,
                 r.credited_j,
@@ -464,7 +538,10 @@ impl fmt::Display for SparTable {
         }
         write!(
             f,
-            "felt err: RMS of felt minus the world's force now (clipped to the rig's limit), relative; given: work of \
+            "felt err: RMS of felt minus the world's force now (clipped to the rig's limit), relative; grip err (n): \
+             the largest difference per tick between the force the strings put on the simulated grip and the \
+             avatar-hand contact the rig held (clamped to the limit) where the rig can render it (full gain, no blow, \
+             not scaled by the reserve, exactly allocatable, 0.5 N or more), relative, over n hand-ticks; given: work of \
              the commanded force on the true hand motion; allowed: what the world credited plus the blows' most; \
              credit: of allowed, what the world credited; excess: the largest given minus allowed during the bout (the \
              bound: 0.02 J); reord: models dropped for arriving after a newer one; switch/s: felt force \
@@ -483,9 +560,9 @@ pub fn spar_table(seconds: f64, seed: u64) -> anyhow::Result<SparTable> {
         } else {
             SparNet { round_trip_s: rtt, jitter: 0.1, loss: 0.01 }
         };
-        rows.push(spar_bout(net, seconds, seed, None)?.0);
+        rows.push(spar_bout(net, seconds, seed, None, 0.0)?.0);
         if rtt > 0.0 {
-            rows.push(spar_bout(net, seconds, seed, Some(rtt * 1.1 + 0.03))?.0);
+            rows.push(spar_bout(net, seconds, seed, Some(rtt * 1.1 + 0.03), 0.0)?.0);
         }
     }
     Ok(SparTable { seconds, rows })
@@ -517,7 +594,7 @@ mod tests {
         let mut base_switches = None;
         for rtt in [0.0, 0.05, 0.1, 0.2] {
             let net = SparNet { round_trip_s: rtt, jitter: 0.1, loss: 0.01 };
-            let (row, b) = spar_bout(net, 12.0, 5, Some(stale_for(rtt, 0.1))).unwrap();
+            let (row, b) = spar_bout(net, 12.0, 5, Some(stale_for(rtt, 0.1)), 0.0).unwrap();
             eprintln!("{row:?}");
             for (seat, books) in b.books.iter().enumerate() {
                 for (h, book) in books.iter().enumerate() {
@@ -548,7 +625,53 @@ mod tests {
             assert!(renderable > 20, "{rtt} s: {renderable} renderable contact ticks");
             let worst = b.books.iter().flatten().map(|x| x.renderable_err_max).fold(0.0, f64::max);
             eprintln!("{rtt} s: {renderable} renderable contact ticks, felt within {:.2} %", worst * 100.0);
+            // At the simulated grip (ideal motors: nothing to settle).
+            for book in b.books.iter().flatten() {
+                assert_eq!(book.grip_settling_ticks, 0, "{rtt} s: ideal motors settle at once");
+                assert!(book.grip_err_max <= 0.05, "{rtt} s: at the grip {book:?}");
+                assert!(book.grip_graze_max_n <= 0.05, "{rtt} s: a graze at the grip {book:?}");
+            }
+            assert!(row.grip_ticks > 100, "{rtt} s: {} hand-ticks compared at the grip", row.grip_ticks);
+            eprintln!(
+                "{rtt} s: at the grip within {:.2} % on {} hand-ticks",
+                row.grip_error * 100.0,
+                row.grip_ticks
+            );
         }
+    }
+
+    /// With motors whose tension lags its command (first order, 2 ms: an assumed figure to
+    /// test against, not one of the real rig's motors, which the sources do not give), the
+    /// force at the grip is off the contact while the tension catches up at a contact's onset
+    /// (those ticks are counted as settling: more than 5 % off there), within 5 % once the
+    /// lag-filtered command is within 1 % of the command, and on every renderable tick within
+    /// 0.2 N of the lag-filtered command (the rest is the strings turning as the fist moves
+    /// during the hold, up to about 0.1 N).
+    #[test]
+    fn the_grip_feels_the_contact_once_lagging_motors_settle() {
+        let net = SparNet { round_trip_s: 0.05, jitter: 0.1, loss: 0.01 };
+        let (row, b) = spar_bout(net, 12.0, 5, Some(stale_for(0.05, 0.1)), 0.002).unwrap();
+        let all = || b.books.iter().flatten();
+        for book in all() {
+            assert!(book.grip_err_max <= 0.05, "settled, at the grip: {book:?}");
+            assert!(book.grip_graze_max_n <= 0.05, "a graze at the grip: {book:?}");
+            assert!(book.grip_vs_lagged_max_n <= 0.2, "against the lag-filtered command: {book:?}");
+        }
+        let settling: u64 = all().map(|h| h.grip_settling_ticks).sum();
+        let unsettled = all().map(|h| h.grip_err_max_unsettled).fold(0.0, f64::max);
+        let lagged = all().map(|h| h.grip_vs_lagged_max_n).fold(0.0, f64::max);
+        eprintln!(
+            "motor lag 2 ms: {} hand-ticks compared, within {:.2} %; {settling} settling, up to {:.1} % off; \
+             within {lagged:.3} N of the lag-filtered command",
+            row.grip_ticks,
+            row.grip_error * 100.0,
+            unsettled * 100.0
+        );
+        assert!(row.grip_ticks > 100, "{} hand-ticks compared at the grip", row.grip_ticks);
+        assert!(
+            settling > 0 && unsettled > 0.05,
+            "the lag shows at the onsets: {settling} ticks, {unsettled}"
+        );
     }
 
     /// One seat's link dies mid-bout at 100 ms round trip: that rig's force is zero within the
@@ -565,7 +688,7 @@ mod tests {
             spidar_runtime::scripts::boxing_scripts(&rig, &params, 8, 12, None).unwrap(),
             spidar_runtime::scripts::boxing_scripts(&rig, &params, 9, 12, None).unwrap(),
         ];
-        let mut b = SparBout::new(&rig, scripts, net, 8).unwrap();
+        let mut b = SparBout::new(&rig, scripts, net, 8, 0.0).unwrap();
         let (mut felt_after, mut other_models) = (0.0f64, 0u64);
         let mut dead_force_max = 0.0f64;
         while b.now_s() < HOLD_AT_HOME_S + 10.0 {
