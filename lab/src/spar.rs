@@ -430,6 +430,8 @@ pub struct SparRow {
     pub switches_per_s: f64,
     pub force_without_contact_ticks: u64,
     pub hits: [u64; SEATS],
+    /// Per seat: punches the other's guard stopped.
+    pub blocked: [u64; SEATS],
     pub models_out_of_order: u64,
 }
 
@@ -475,6 +477,7 @@ pub fn spar_bout(
         switches_per_s: all().map(|h| h.switches).max().unwrap_or(0) as f64 / seconds,
         force_without_contact_ticks: all().map(|h| h.force_without_contact_ticks).sum(),
         hits: b.scene.world.hits,
+        blocked: b.scene.world.blocked,
         models_out_of_order: b.models_out_of_order.iter().sum(),
     };
     Ok((row, b))
@@ -586,7 +589,7 @@ mod tests {
     /// reserve books the pose the rig measures, the truth differs by a fraction of a millimetre,
     /// and 4 N over 2.5 mm is 0.01 J); the clamp holds; no force without a contact or blow in
     /// the world; the felt force switches on and off no more often than at no delay plus half
-    /// and one a second (no sustained oscillation); punches land both ways.
+    /// and one a second (no sustained oscillation); punches land and are blocked both ways.
     #[test]
     fn sparring_stays_passive_clamped_and_calm_at_every_delay() {
         let rig = Rig::default_rig();
@@ -610,6 +613,7 @@ mod tests {
                 row.switches_per_s
             );
             assert!(row.hits[0] > 0 && row.hits[1] > 0, "{rtt} s: hits {:?}", row.hits);
+            assert!(row.blocked[0] > 0 && row.blocked[1] > 0, "{rtt} s: blocks {:?}", row.blocked);
             assert!(row.felt_max_n > 1.0, "{rtt} s: something is felt ({} N)", row.felt_max_n);
             for books in &b.books {
                 for book in books {

@@ -283,9 +283,12 @@ fn bout(listen: &str) {
             && world_err.contains("stopped; seat 0 boxes a standing opponent"),
         "{world_err}"
     );
-    let hits0 = number_after(&world_err, "seat 0: a standing opponent (").unwrap();
-    let hits1 = number_after(&world_err, "seat 1: a standing opponent (").unwrap();
-    assert!(hits0 + hits1 >= 1.0, "no punch landed: {world_err}");
+    // The last status: "seat 0: WHO (N hits landed, M blocked) | seat 1: ...".
+    let seat = |s: &str| &world_err[world_err.rfind(&format!("seat {s}: a standing opponent (")).unwrap()..];
+    let hits = number_after(seat("0"), "(").unwrap() + number_after(seat("1"), "(").unwrap();
+    let blocked = number_after(seat("0"), "landed,").unwrap() + number_after(seat("1"), "landed,").unwrap();
+    assert!(hits >= 1.0, "no punch landed: {world_err}");
+    assert!(blocked >= 1.0, "no punch was blocked: {world_err}");
     // Each user's hand feels the other's blocks and blows: the force at the simulated grip is
     // within 5 % of the contact force asked where the rig can render it, of the asked force
     // clamped to 4 N where it is above the limit. Most punches are far above 4 N.
