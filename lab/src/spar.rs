@@ -67,6 +67,10 @@ pub struct HandBook {
     /// Switches of the felt force between above 0.5 N and below 0.05 N.
     pub switches: u64,
     high: bool,
+    /// The longest run of ticks the felt force stayed high (above 0.5 N, not yet back below
+    /// 0.05 N): a held contact, a clinch.
+    pub longest_high_ticks: u64,
+    high_ticks: u64,
     /// Ticks with more than 0.05 N felt while the world had no contact on that hand and no blow
     /// on that body for the last 300 ms (what a rig could still be rendering at 200 ms).
     pub force_without_contact_ticks: u64,
@@ -296,6 +300,8 @@ impl SparBout {
                 b.high = false;
                 b.switches += 1;
             }
+            b.high_ticks = if b.high { b.high_ticks + 1 } else { 0 };
+            b.longest_high_ticks = b.longest_high_ticks.max(b.high_ticks);
             if felt > 0.05 && now - self.last_contact_s[seat][h] > 0.3 {
                 b.force_without_contact_ticks += 1;
             }
@@ -571,6 +577,29 @@ pub fn spar_table(seconds: f64, seed: u64) -> anyhow::Result<SparTable> {
     Ok(SparTable { seconds, rows })
 }
 
+/// A clinch, `times` over: both hands reach into the other body's chest, left and right of its
+/// centre (the boxing scene's aim points, which the spar world's other body shares, a little
+/// through the chest), in 0.6 s, hold there pushing for `hold_s`, go back home in 0.6 s and rest
+/// 0.8 s (rig frame; each seat's user does the same in their own rig).
+pub fn clinch_scripts(rig: &Rig, hold_s: f64, times: usize) -> anyhow::Result<[Script; 2]> {
+    use spidar_device::sim::Segment;
+    let aims = spidar_runtime::scripts::aim_points_rig(rig, &BoxerParams::default())?;
+    let hand = |h: usize| {
+        let home = rig.hands[h].home_m;
+        // The chest side in front of this hand: the aim point nearer in x.
+        let at = if (aims[4].x - home.x).abs() < (aims[5].x - home.x).abs() { aims[4] } else { aims[5] };
+        let mut seg = Vec::new();
+        for _ in 0..times {
+            seg.push(Segment::Reach { to_m: at.to_array(), duration_s: 0.6 });
+            seg.push(Segment::Hold { at_m: at.to_array(), for_s: hold_s });
+            seg.push(Segment::Reach { to_m: home.to_array(), duration_s: 0.6 });
+            seg.push(Segment::Hold { at_m: home.to_array(), for_s: 0.8 });
+        }
+        Script::from_segments(seg, false)
+    };
+    Ok([hand(0), hand(1)])
+}
+
 /// The staleness a rig needs at a round trip: the round trip, its jitter, and the rig file's 30 ms.
 pub fn stale_for(round_trip_s: f64, jitter: f64) -> f64 {
     round_trip_s * (1.0 + jitter) + 0.03
@@ -676,6 +705,53 @@ mod tests {
             settling > 0 && unsettled > 0.05,
             "the lag shows at the onsets: {settling} ticks, {unsettled}"
         );
+    }
+
+    /// Both users clinch (both hands pushing into the other's chest for 1.5 s, three times) at 0
+    /// and 100 ms round trip (10 % jitter, 1 % loss): every hand feels a held contact (the force
+    /// high, above 0.5 N, for at least 1 s on end), no force without a contact in the world, no
+    /// more switching at 100 ms than at none (the sparring test's criterion: 1.5 times, plus one
+    /// a second; the arms brush on the way in and out), the clamp and the energy bound hold, and
+    /// the force at the grip is within 5 % of the contact where the rig can render it.
+    #[test]
+    fn a_clinch_is_held_steady_passive_and_felt() {
+        let mut base_switches = None;
+        for rtt in [0.0, 0.1] {
+            let mut rig = Rig::default_rig();
+            rig.safety.contact_stale_after_s = stale_for(rtt, 0.1);
+            let scripts = [clinch_scripts(&rig, 1.5, 3).unwrap(), clinch_scripts(&rig, 1.5, 3).unwrap()];
+            let net = SparNet { round_trip_s: rtt, jitter: 0.1, loss: 0.01 };
+            let mut b = SparBout::new(&rig, scripts, net, 3, 0.0).unwrap();
+            let seconds = 3.0 * 3.5 + 0.5;
+            while b.now_s() < HOLD_AT_HOME_S + seconds {
+                b.tick();
+            }
+            let switches = b.books.iter().flatten().map(|x| x.switches).max().unwrap();
+            let base = *base_switches.get_or_insert(switches);
+            assert!(
+                switches as f64 <= base as f64 * 1.5 + seconds,
+                "{rtt} s: {switches} switches in {seconds} s, {base} at 0"
+            );
+            for (seat, books) in b.books.iter().enumerate() {
+                for (h, book) in books.iter().enumerate() {
+                    let held_s = book.longest_high_ticks as f64 * rig.period_s;
+                    eprintln!(
+                        "{rtt} s seat {seat} hand {h}: held {held_s:.2} s, {} switches, excess {:.4} J, max {:.2} N, \
+                         grip within {:.2} % on {}",
+                        book.switches,
+                        book.excess_max_j,
+                        book.felt_max_n,
+                        book.grip_err_max * 100.0,
+                        book.grip_ticks
+                    );
+                    assert!(held_s >= 1.0, "{rtt} s seat {seat} hand {h}: no held contact: {book:?}");
+                    assert_eq!(book.force_without_contact_ticks, 0, "{rtt} s seat {seat} hand {h}");
+                    assert!(book.excess_max_j <= EXCESS_J, "{rtt} s seat {seat} hand {h}: {book:?}");
+                    assert!(book.felt_max_n <= rig.hands[h].force_limit_n + 1e-9, "{rtt} s: the clamp");
+                    assert!(book.grip_err_max <= 0.05, "{rtt} s seat {seat} hand {h}: at the grip {book:?}");
+                }
+            }
+        }
     }
 
     /// One seat's link dies mid-bout, at 0, 50, 100 and 200 ms round trip (10 % jitter, 1 %
