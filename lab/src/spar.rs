@@ -583,21 +583,53 @@ pub fn spar_table(seconds: f64, seed: u64) -> anyhow::Result<SparTable> {
 /// 0.8 s (rig frame; each seat's user does the same in their own rig).
 pub fn clinch_scripts(rig: &Rig, hold_s: f64, times: usize) -> anyhow::Result<[Script; 2]> {
     use spidar_device::sim::Segment;
-    let aims = spidar_runtime::scripts::aim_points_rig(rig, &BoxerParams::default())?;
-    let hand = |h: usize| {
-        let home = rig.hands[h].home_m;
-        // The chest side in front of this hand: the aim point nearer in x.
-        let at = if (aims[4].x - home.x).abs() < (aims[5].x - home.x).abs() { aims[4] } else { aims[5] };
+    let points = clinch_points(rig)?;
+    Ok(points.map(|(home, at)| {
         let mut seg = Vec::new();
         for _ in 0..times {
-            seg.push(Segment::Reach { to_m: at.to_array(), duration_s: 0.6 });
+            seg.push(Segment::Reach { to_m: at.to_array(), duration_s: CLINCH_REACH_S });
             seg.push(Segment::Hold { at_m: at.to_array(), for_s: hold_s });
-            seg.push(Segment::Reach { to_m: home.to_array(), duration_s: 0.6 });
-            seg.push(Segment::Hold { at_m: home.to_array(), for_s: 0.8 });
+            seg.push(Segment::Reach { to_m: home.to_array(), duration_s: CLINCH_REACH_S });
+            seg.push(Segment::Hold { at_m: home.to_array(), for_s: CLINCH_REST_S });
         }
         Script::from_segments(seg, false)
-    };
-    Ok([hand(0), hand(1)])
+    }))
+}
+
+/// [`clinch_scripts`] as a script file (`spidar run --script FILE`).
+pub fn clinch_script_file(rig: &Rig, hold_s: f64, times: usize) -> anyhow::Result<String> {
+    let p = |v: DVec3| format!("({}, {}, {})", v.x, v.y, v.z);
+    let hands: Vec<String> = clinch_points(rig)?
+        .iter()
+        .map(|&(home, at)| {
+            let one = format!(
+                "Reach(to_m: {}, duration_s: {CLINCH_REACH_S}), Hold(at_m: {}, for_s: {hold_s}), \
+                 Reach(to_m: {}, duration_s: {CLINCH_REACH_S}), Hold(at_m: {}, for_s: {CLINCH_REST_S})",
+                p(at),
+                p(at),
+                p(home),
+                p(home)
+            );
+            format!("(segments: [{}])", vec![one; times].join(", "))
+        })
+        .collect();
+    Ok(format!(
+        "// Two hands clinching (lab/src/spar.rs, clinch_scripts), {times} times.\n(kind: \"script\", version: 1, hands: ({}, {}))\n",
+        hands[0], hands[1]
+    ))
+}
+
+const CLINCH_REACH_S: f64 = 0.6;
+const CLINCH_REST_S: f64 = 0.8;
+
+/// Per hand: its home and the chest side in front of it (the aim point nearer in x), rig frame.
+fn clinch_points(rig: &Rig) -> anyhow::Result<[(DVec3, DVec3); 2]> {
+    let aims = spidar_runtime::scripts::aim_points_rig(rig, &BoxerParams::default())?;
+    Ok([0, 1].map(|h| {
+        let home = rig.hands[h].home_m;
+        let at = if (aims[4].x - home.x).abs() < (aims[5].x - home.x).abs() { aims[4] } else { aims[5] };
+        (home, at)
+    }))
 }
 
 /// The staleness a rig needs at a round trip: the round trip, its jitter, and the rig file's 30 ms.
@@ -752,6 +784,15 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The clinch's script file reads back as the clinch's scripts.
+    #[test]
+    fn the_clinch_script_file_is_the_clinch() {
+        let rig = Rig::default_rig();
+        let text = clinch_script_file(&rig, 1.5, 2).unwrap();
+        let file = spidar_device::sim::ScriptFile::from_str(&text, "clinch").unwrap();
+        assert_eq!(file.hands, clinch_scripts(&rig, 1.5, 2).unwrap(), "{text}");
     }
 
     /// One seat's link dies mid-bout, at 0, 50, 100 and 200 ms round trip (10 % jitter, 1 %

@@ -85,8 +85,13 @@ impl World {
 
 /// A simulated rig with the `box` script's user (its own seed) at the world `at`.
 fn rig(at: &str, seed: &str, seconds: &str, extra: &[&str]) -> std::process::Child {
+    rig_with("box", at, seed, seconds, extra)
+}
+
+/// A simulated rig whose user follows `script` at the world `at`.
+fn rig_with(script: &str, at: &str, seed: &str, seconds: &str, extra: &[&str]) -> std::process::Child {
     Command::new(BIN)
-        .args(["run", "--world", at, "--script", "box", "--no-rt", "--seed", seed, "--seconds", seconds])
+        .args(["run", "--world", at, "--script", script, "--no-rt", "--seed", seed, "--seconds", seconds])
         .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -196,6 +201,8 @@ struct Felt {
     /// The largest difference between the grip's force and what the allocation said its
     /// tensions pull (`output_n`), over the compared hand-ticks (N).
     grip_vs_output_n: f64,
+    /// Per hand, the longest time the force at the grip stayed above 0.5 N on end (s).
+    held_s: [f64; 2],
 }
 
 /// Per tick of a rig's recording: the force the simulated strings put on the grip while the
@@ -215,8 +222,12 @@ fn felt_at_the_grip(path: &std::path::Path) -> Felt {
     use spidar_rt::tension::Method;
     let (ticks, grip) = grip_forces(path);
     let mut f = Felt::default();
+    let mut run = [0u32; 2];
     for (t, g) in ticks.iter().zip(&grip) {
         for (hi, h) in t.hands.iter().enumerate() {
+            let high = g.is_some_and(|g| g[hi].length() > GRAZE_N);
+            run[hi] = if high { run[hi] + 1 } else { 0 };
+            f.held_s[hi] = f.held_s[hi].max(f64::from(run[hi]) * 1e-3);
             if h.contacts == 0 || !h.valid || t.gain == 0.0 {
                 continue;
             }
@@ -340,6 +351,39 @@ fn two_rigs_spar_through_one_world_over_a_unix_socket() {
 #[test]
 fn two_rigs_spar_through_one_world_over_udp() {
     bout("udp://127.0.0.1:0");
+}
+
+/// Two users clinch, as processes over UDP (each rig's user follows the lab's clinch script
+/// file: both hands push into the other's chest for 1.5 s, twice): every hand holds the contact
+/// (the force at its simulated grip above 0.5 N for 0.5 s on end at least), and the force at the
+/// grip is within 5 % of the contact the loop asked where the rig can render it.
+#[test]
+fn two_rigs_clinch_through_one_world_over_udp() {
+    let dir = std::env::temp_dir().join(format!("spidar-spar-clinch-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let script = dir.join("clinch.ron");
+    let text = spidar_lab::spar::clinch_script_file(&spidar_rt::Rig::default_rig(), 1.5, 2).unwrap();
+    std::fs::write(&script, text).unwrap();
+    let (r0, r1) = (dir.join("seat0.mcap"), dir.join("seat1.mcap"));
+    let world = World::start("udp://127.0.0.1:0", &["--no-view"]);
+    let s = script.to_str().unwrap();
+    let a = rig_with(s, &world.at, "1", "8", &["--record", r0.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(300));
+    let b = rig_with(s, &world.at, "2", "8", &["--record", r1.to_str().unwrap()]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    world.stop();
+    check_rigs(&a, &b);
+    for (name, path) in [("seat 0", &r0), ("seat 1", &r1)] {
+        let f = felt_at_the_grip(path);
+        eprintln!("clinch {name}: {f:?}");
+        assert!(f.held_s.iter().all(|&s| s >= 0.5), "{name}: a hand held no contact: {f:?}");
+        assert!(f.as_asked + f.clamped >= 100, "{name}: too few hand-ticks to compare: {f:?}");
+        assert!(
+            f.as_asked_worst <= 0.05 && f.clamped_worst <= 0.05 && f.graze_worst_n <= 0.05,
+            "{name}: felt at the grip off the asked force: {f:?}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn browser_dir() -> std::path::PathBuf {
