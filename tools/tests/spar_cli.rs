@@ -538,3 +538,79 @@ fn a_bout_is_recorded_by_the_world_and_by_each_rig() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+fn foxglove_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/foxglove")
+}
+
+/// True when node and `npm ci` in tests/foxglove are here; else says so loudly and returns false,
+/// unless `SPIDAR_BROWSER_TESTS=required`, which makes it a failure.
+fn foxglove_here(test: &str) -> bool {
+    let why = if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
+        "no node on PATH".to_string()
+    } else if !foxglove_dir().join("node_modules/@mcap/core").exists() {
+        format!("no npm packages: run npm ci in {}", foxglove_dir().display())
+    } else {
+        return true;
+    };
+    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
+        panic!("{test}: cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
+    }
+    eprintln!("\n*** SKIPPED {test}: {why}. The spar world's Foxglove check did not run. ***\n");
+    false
+}
+
+/// The spar world's channels live to Foxglove (`spidar world --scene spar --foxglove`), as its
+/// recording holds them: a Foxglove WebSocket client (tests/foxglove/live.mjs, Foxglove's own
+/// libraries) subscribed before the rigs join receives the world's channels while two rigs box,
+/// every message decodes and equals the recording's of its topic and time, and nothing recorded
+/// after it subscribed is missed.
+#[test]
+fn the_spar_world_serves_its_channels_live_to_foxglove() {
+    if !foxglove_here("the_spar_world_serves_its_channels_live_to_foxglove") {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("spidar-spar-fox-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let w = dir.join("bout.world.mcap");
+    let mut world = World::start(
+        "udp://127.0.0.1:0",
+        &["--no-view", "--foxglove", "127.0.0.1:0", "--record", w.to_str().unwrap()],
+    );
+    let line = world.line_with("Foxglove live at");
+    let url = line.split_whitespace().find(|x| x.starts_with("ws://")).unwrap().to_string();
+    let mut node = Command::new("node")
+        .args(["live.mjs", &url, w.to_str().unwrap()])
+        .current_dir(foxglove_dir())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("starting node");
+    let mut out = BufReader::new(node.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.contains("\"subscribed\":"), "{first}");
+    let a = rig(&world.at, "1", "5", &[]);
+    std::thread::sleep(Duration::from_millis(300));
+    let b = rig(&world.at, "2", "4", &[]);
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    let said = world.stop();
+    check_rigs(&a, &b);
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut out, &mut rest).unwrap();
+    assert!(node.wait().unwrap().success(), "{rest}");
+    let line = rest.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| panic!("no JSON: {rest}"));
+    let s: serde_json::Value = serde_json::from_str(line).unwrap();
+    eprintln!("{first}{s}");
+    assert!(said.contains("Foxglove: 1 clients"), "{said}");
+    assert_eq!(s["schemasDiffer"], serde_json::json!([]), "the live schemas are the recording's");
+    assert_eq!(s["decodeErrors"], serde_json::json!([]), "every message decodes");
+    let (received, matched) = (s["received"].as_u64().unwrap(), s["matched"].as_u64().unwrap());
+    // 4-5 s of bout at a step every 3 ms: a thousand steps and more.
+    assert!(received > 1000, "{s}");
+    assert_eq!(matched, received, "each message received equals the recording's of its topic and time: {s}");
+    assert_eq!(matched, s["recordedFromFirst"].as_u64().unwrap(), "and nothing recorded was missed: {s}");
+    for t in ["/world/tf", "/world/scene", "/world/view"] {
+        assert!(s["perTopic"][t].as_u64().unwrap_or(0) > 0, "{t}: {s}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
