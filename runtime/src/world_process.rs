@@ -276,17 +276,8 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
             crate::errln!("spidar world: recording {rep}");
         }
     }
-    if let Some(mut f) = foxglove {
-        f.stop();
-        let c = f.counters();
-        let g = |x: &std::sync::atomic::AtomicU64| x.load(std::sync::atomic::Ordering::Relaxed);
-        crate::errln!(
-            "spidar world: Foxglove: {} clients ({} dropped for not reading), {} messages sent, {} dropped",
-            g(&c.clients_total),
-            g(&c.clients_dropped),
-            g(&c.messages_sent),
-            g(&c.messages_dropped)
-        );
+    if let Some(f) = foxglove {
+        stop_foxglove(f);
     }
     if a.report_status {
         crate::errln!("{STATUS_PREFIX}{}\t{}", rep.steps, stepper.scene().status());
@@ -301,28 +292,48 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     Ok(rep)
 }
 
+/// Stops a live Foxglove server and says what it served.
+fn stop_foxglove(mut f: spidar_world::foxglove::FoxgloveServer) {
+    f.stop();
+    let c = f.counters();
+    let g = |x: &std::sync::atomic::AtomicU64| x.load(std::sync::atomic::Ordering::Relaxed);
+    crate::errln!(
+        "spidar world: Foxglove: {} clients ({} dropped for not reading), {} messages sent, {} dropped",
+        g(&c.clients_total),
+        g(&c.clients_dropped),
+        g(&c.messages_sent),
+        g(&c.messages_dropped)
+    );
+}
+
 /// `spidar world --scene spar`: two seats, one rig each (docs/spar.md), with the live view of
-/// both bodies and the world's recording (`--record`); each rig records its own channels with
-/// `spidar run --record`.
+/// both bodies, the world's recording (`--record`) and its channels live to Foxglove
+/// (`--foxglove`, the recording's channels); each rig records its own channels with `spidar run
+/// --record`.
 fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     use spidar_world::spar::{serve_spar, SparScene, NAME};
-    if a.view.foxglove.is_some() || a.lockstep {
+    if a.lockstep {
         bail!(
-            "--scene spar has no --foxglove or --lockstep of its own yet: watch it with --view, record it with \
-             --record, and leave those options out of `spidar world`"
+            "--scene spar has no --lockstep: its two rigs run on their own clocks; leave --lockstep out of \
+             `spidar world` (the spar bouts on one virtual clock are `spidar bench spar`)"
         );
     }
     let mut scene = SparScene::new(spidar_sim::boxer::BoxerParams::default())?;
-    // Created before the world listens: a path that cannot be written is refused first.
-    let recording = match &a.record {
-        Some(path) => Some(crate::recording::start_world_recording(
-            path,
+    // Created before the world listens: a port or a path that cannot be used is refused first.
+    let foxglove = match &a.view.foxglove {
+        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {NAME} (two seats)"))?),
+        None => None,
+    };
+    let recording = match (&a.record, &foxglove) {
+        (None, None) => None,
+        (path, live) => Some(crate::recording::start_world_recording_with(
+            path.as_deref(),
             NAME,
             &scene,
             false,
             a.record_start_unix_ns.or_else(|| Some(spidar_link::sock::realtime_ns() as u64)),
+            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
         )?),
-        None => None,
     };
     let (listen, _dir) = listen_endpoint(a)?;
     let offer = WorldOffer {
@@ -359,7 +370,13 @@ fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     });
     drop(observers);
     if let Some(r) = recording {
-        crate::errln!("spidar world: recording {}", r.finish());
+        let rep = r.finish();
+        if a.record.is_some() {
+            crate::errln!("spidar world: recording {rep}");
+        }
+    }
+    if let Some(f) = foxglove {
+        stop_foxglove(f);
     }
     crate::errln!("spidar world: {rep}");
     crate::errln!("spidar world: {}", scene.status());

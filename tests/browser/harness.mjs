@@ -82,6 +82,9 @@ export async function pause(page) {
 export const RED = { r: 1 }; // red dominant: the virtual human, a character lying down
 export const GREEN = { g: 1 }; // green dominant: a balancing character
 export const FLASH = { flash: 1 }; // near white: a part flashing (a hit)
+export const BLUE = { b: 1 }; // blue dominant: seat 0's body in the spar scene
+// Any clear colour, not the grey floor or the dark sky: a body in its colour, skin, a flash.
+export const COLOURED = { any: 1 };
 
 // Counts the pixels of class `cls` in `rect` (CSS px) of the WebGL canvas, with their centroid, and
 // a coarse mask (cells of `cell` px: 1 where the cell has any such pixel).
@@ -97,8 +100,13 @@ export function pixels(page, cls, rect = null, cell = 4) {
     const x0 = Math.max(0, Math.floor(r.x * s)); const y0 = Math.max(0, Math.floor(r.y * s));
     const x1 = Math.min(c.width, Math.ceil((r.x + r.w) * s)); const y1 = Math.min(c.height, Math.ceil((r.y + r.h) * s));
     const d = g.getImageData(0, 0, c.width, c.height).data;
-    const is = (R, G, B) => (cls.flash ? R >= 200 && G >= 170 && B >= 120
-      : cls.r ? R >= 70 && R > 1.8 * G && R > 1.8 * B : G >= 60 && G > 1.25 * R && G > 1.15 * B);
+    const is = (R, G, B) => {
+      if (cls.flash) return R >= 200 && G >= 170 && B >= 120;
+      if (cls.r) return R >= 70 && R > 1.8 * G && R > 1.8 * B;
+      if (cls.b) return B >= 70 && B > 1.4 * R && B > 1.1 * G;
+      if (cls.any) return Math.max(R, G, B) - Math.min(R, G, B) > 40;
+      return G >= 60 && G > 1.25 * R && G > 1.15 * B;
+    };
     let n = 0; let sx = 0; let sy = 0;
     const cw = Math.ceil(c.width / (cell * s)); const ch = Math.ceil(c.height / (cell * s));
     const mask = new Array(cw * ch).fill(0);

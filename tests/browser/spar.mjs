@@ -3,40 +3,14 @@
 // (as their shapes and as people), where the world's frames put them; they follow the rigs (seat
 // 0's gloves stay near its user's hands, which the frames carry; both seats' gloves move as their
 // users punch); each seat's eye looks at the other body.
-import { check, log, open, state, untilTime, pause, pixels, around, run, RED } from './harness.mjs';
+import { check, log, open, state, untilTime, pause, pixels, around, run, RED, BLUE, COLOURED } from './harness.mjs';
 
 const [url] = process.argv.slice(2);
 const dist = (a, b) => Math.hypot(...a.map((x, i) => x - b[i]));
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-// Pixels in `rect` (CSS px) of a kind: 'blue' (blue dominant: seat 0's body) or 'coloured'
-// (any clear colour, not the grey floor or the dark sky: a body in its colour, skin, or a part
-// flashing where it was hit).
-function count(page, kind, rect) {
-  return page.evaluate((kind, rect) => {
-    const src = document.querySelector('#view canvas');
-    const c = document.createElement('canvas');
-    c.width = src.width; c.height = src.height;
-    const g = c.getContext('2d', { willReadFrequently: true });
-    g.drawImage(src, 0, 0);
-    const s = src.width / src.clientWidth;
-    const r = rect ?? { x: 0, y: 0, w: src.clientWidth, h: src.clientHeight };
-    const x0 = Math.max(0, Math.floor(r.x * s)); const y0 = Math.max(0, Math.floor(r.y * s));
-    const x1 = Math.min(c.width, Math.ceil((r.x + r.w) * s)); const y1 = Math.min(c.height, Math.ceil((r.y + r.h) * s));
-    const d = g.getImageData(0, 0, c.width, c.height).data;
-    const is = kind === 'blue'
-      ? (R, G, B) => B >= 70 && B > 1.4 * R && B > 1.1 * G
-      : (R, G, B) => Math.max(R, G, B) - Math.min(R, G, B) > 40;
-    let n = 0;
-    for (let y = y0; y < y1; y++) {
-      for (let x = x0; x < x1; x++) {
-        const i = (y * c.width + x) * 4;
-        if (is(d[i], d[i + 1], d[i + 2])) n++;
-      }
-    }
-    return n;
-  }, kind, rect);
-}
+// Pixels of a class (harness.mjs: BLUE, seat 0's body; COLOURED, any clear colour) in `rect`.
+const count = async (page, cls, rect = null) => (await pixels(page, cls, rect)).n;
 
 // The names of a seat's shapes of one part (`hand`, `head`), left first, from the description's
 // humanoids.
@@ -99,11 +73,11 @@ await run(async (browser) => {
   check(waists[1][2] < waists[0][2] - 0.5, `seat 1 stands in front of seat 0 (waists at z ${waists[1][2].toFixed(2)} and ${waists[0][2].toFixed(2)} m)`);
   // A head that was just hit flashes (near white, then back to its colour): drawn, in any colour.
   for (const seat of [0, 1]) {
-    const n = await count(p, 'coloured', around(H[seat].screen, 30));
+    const n = await count(p, COLOURED, around(H[seat].screen, 30));
     check(n > 150, `seat ${seat}'s head is drawn (${n} coloured pixels within 30 px of it)`);
   }
-  const red = (await pixels(p, RED)).n;
-  const bl = await count(p, 'blue');
+  const red = await count(p, RED);
+  const bl = await count(p, BLUE);
   check(red > 2000 && bl > 2000, `both bodies are drawn in their colours (${red} red pixels, ${bl} blue)`);
   const people = await p.evaluate(() => { spidarView.setBodies(true); return [spidarView.personJoints('seat 0'), spidarView.personJoints('seat 1')]; });
   check(people.every((j) => j && Object.keys(j).length >= 8), 'both seats are drawn as people too');
@@ -116,8 +90,8 @@ await run(async (browser) => {
     const other = await e.evaluate((n) => spidarView.shape(n), heads[1 - seat]);
     const sc = other.screen;
     check(sc.z < 1 && Math.abs(sc.x - 400) < 200 && Math.abs(sc.y - 300) < 250, `from seat ${seat}'s eye seat ${1 - seat}'s head is in view (${sc.x.toFixed(0)}, ${sc.y.toFixed(0)})`);
-    const n = await count(e, 'coloured', around(sc, 40));
-    const colour = seat === 0 ? (await pixels(e, RED)).n : await count(e, 'blue');
+    const n = await count(e, COLOURED, around(sc, 40));
+    const colour = seat === 0 ? await count(e, RED) : await count(e, BLUE);
     check(n > 300 && colour > 3000, `from seat ${seat}'s eye seat ${1 - seat}'s head is drawn (${n} coloured pixels within 40 px) and its body in its colour (${colour} pixels)`);
     await e.close();
     await sleep(100);

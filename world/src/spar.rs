@@ -100,15 +100,18 @@ impl SparScene {
         })
     }
 
-    /// Who is where, and the hits each landed.
+    /// Who is where, the hits each landed and the punches the other's guard stopped.
     pub fn status(&self) -> String {
         let who = |s: usize| if self.present[s] { "a person" } else { "a standing opponent" };
+        let w = &self.world;
         format!(
-            "seat 0: {} ({} hits landed) | seat 1: {} ({} hits landed)",
+            "seat 0: {} ({} hits landed, {} blocked) | seat 1: {} ({} hits landed, {} blocked)",
             who(0),
-            self.world.hits[0],
+            w.hits[0],
+            w.blocked[0],
             who(1),
-            self.world.hits[1]
+            w.hits[1],
+            w.blocked[1]
         )
     }
 }

@@ -82,7 +82,10 @@ pub struct SparWorld {
     pub last: SparReport,
     /// Per seat: punches that landed on the other body (head or chest).
     pub hits: [u64; SEATS],
+    /// Per seat: punches the other body's guard stopped (the fist met its hand or forearm).
+    pub blocked: [u64; SEATS],
     last_hit_s: [f64; SEATS],
+    last_block_s: [f64; SEATS],
     hand_pair_k: [[Vec<f64>; 2]; SEATS],
     stiffness: [[StiffnessEstimate; 2]; SEATS],
 }
@@ -124,6 +127,8 @@ impl SparWorld {
             last: SparReport::default(),
             hits: [0; SEATS],
             last_hit_s: [f64::NEG_INFINITY; SEATS],
+            blocked: [0; SEATS],
+            last_block_s: [f64::NEG_INFINITY; SEATS],
             hand_pair_k,
             stiffness: [[StiffnessEstimate::default(); 2]; SEATS],
         })
@@ -176,6 +181,12 @@ impl SparWorld {
                     self.hits[seat] += 1;
                 }
                 self.last_hit_s[seat] = t;
+            }
+            if rep.blocked[seat].iter().any(|&x| x) {
+                if t - self.last_block_s[seat] > HIT_GAP_S {
+                    self.blocked[seat] += 1;
+                }
+                self.last_block_s[seat] = t;
             }
         }
         self.last = rep;
