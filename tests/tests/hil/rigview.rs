@@ -6,7 +6,7 @@
 use glam::DVec3;
 use serde_json::{json, Value};
 use spidar_rt::status::rig_info;
-use spidar_world::view::rigview::{near_mask, workspace, NearStrings, DEFAULT_NEAR_M, WORKSPACE_STEP_M};
+use spidar_world::view::rigview::{near_mask, workspace, NearStrings, WORKSPACE_STEP_M};
 
 use super::rig;
 use super::view::{browser_here, node_script, one_at_a_time, RunPath};
@@ -51,8 +51,9 @@ fn view_draws_the_rig_workspace_and_near_strings_in_a_browser() {
     let run = RunPath::start_on("walls", file.to_str().unwrap(), r.clone());
     let info = rig_info(&r);
     let offset = v3(&run.get("/scene.json")["link_offset_m"]);
-    let near_m = DEFAULT_NEAR_M;
-    let near = NearStrings::new(&info, offset, near_m);
+    // The rig file's near distance and forearm (its `near_strings`), as the rig sends them.
+    let near_m = r.near_strings.distance_m;
+    let near = NearStrings::new(&info, offset);
     node_script("rigview.mjs", &[&run.url], |q| match q["ask"].as_str().unwrap_or("") {
         "check_workspace" => {
             for h in 0..2 {
