@@ -16,6 +16,7 @@
 
 pub mod digest;
 pub mod handshake;
+pub mod strings;
 pub mod wire;
 
 use glam::DVec3;
@@ -272,6 +273,9 @@ pub struct RigInfo {
     pub eye_m: DVec3,
     /// The rig's screen, if its rig file places one (world frame).
     pub display: DisplayInfo,
+    /// When a string counts as near another hand's string or the user's forearm (the rig file's
+    /// `near_strings`; the forearm's direction in the world frame), for the live view's marks.
+    pub clearance: strings::StringClearance,
 }
 
 /// The rig's screen (world frame): the rectangle the user's-eye view is drawn through from
@@ -301,6 +305,7 @@ impl Default for RigInfo {
             grip_radius_m: [0.0; HANDS],
             eye_m: DVec3::ZERO,
             display: DisplayInfo::default(),
+            clearance: strings::StringClearance::default(),
         }
     }
 }

@@ -24,6 +24,7 @@
 use glam::DVec3;
 
 use crate::handshake::{Bye, Hello, Refuse, RefuseCode, Text, Welcome};
+use crate::strings::{Forearm, StringClearance};
 use crate::{
     Blow, ContactModel, DisplayInfo, HandContact, HandSample, HandState, Proxy, ProxyId, ProxyShape, RigInfo,
     RigState, RigStatus, HANDS, MAX_PROXIES, STRINGS,
@@ -31,7 +32,7 @@ use crate::{
 
 pub const MAGIC: [u8; 4] = *b"SPDR";
 /// Raised whenever any message's layout changes; both ends must speak the same one.
-pub const PROTOCOL_VERSION: u16 = 5;
+pub const PROTOCOL_VERSION: u16 = 6;
 pub const HEADER_LEN: usize = 20;
 
 /// What a datagram carries.
@@ -543,6 +544,28 @@ impl Field for HandSample {
     }
 }
 
+impl Field for StringClearance {
+    const SIZE: usize = 8 + DVec3::SIZE + 3 * 8;
+    fn put(&self, w: &mut Put<'_>) {
+        self.distance_m.put(w);
+        self.forearm.toward_elbow.put(w);
+        self.forearm.wrist_m.put(w);
+        self.forearm.elbow_m.put(w);
+        self.forearm.radius_m.put(w);
+    }
+    fn get(r: &mut Get<'_>) -> Self {
+        StringClearance {
+            distance_m: f64::get(r),
+            forearm: Forearm {
+                toward_elbow: Field::get(r),
+                wrist_m: f64::get(r),
+                elbow_m: f64::get(r),
+                radius_m: f64::get(r),
+            },
+        }
+    }
+}
+
 impl Field for DisplayInfo {
     const SIZE: usize = 1 + 3 * DVec3::SIZE + 8 + 1;
     fn put(&self, w: &mut Put<'_>) {
@@ -571,7 +594,8 @@ impl Field for RigInfo {
         + <[DVec3; HANDS]>::SIZE
         + 4 * 8 * HANDS
         + DVec3::SIZE
-        + DisplayInfo::SIZE;
+        + DisplayInfo::SIZE
+        + StringClearance::SIZE;
     fn put(&self, w: &mut Put<'_>) {
         self.period_s.put(w);
         self.anchors_m.put(w);
@@ -582,6 +606,7 @@ impl Field for RigInfo {
         self.grip_radius_m.put(w);
         self.eye_m.put(w);
         self.display.put(w);
+        self.clearance.put(w);
     }
     fn get(r: &mut Get<'_>) -> Self {
         RigInfo {
@@ -594,6 +619,7 @@ impl Field for RigInfo {
             grip_radius_m: Field::get(r),
             eye_m: Field::get(r),
             display: Field::get(r),
+            clearance: Field::get(r),
         }
     }
 }

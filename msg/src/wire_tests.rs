@@ -110,6 +110,7 @@ fn rig_info() -> impl Strategy<Value = RigInfo> {
         (arr::<_, HANDS>(num()), arr::<_, HANDS>(num()), arr::<_, HANDS>(num())),
         (arr::<_, HANDS>(num()), v3()),
         (any::<bool>(), v3(), v3(), v3(), num(), any::<u8>()),
+        (num(), v3(), num(), num(), num()),
     )
         .prop_map(
             |(
@@ -117,6 +118,7 @@ fn rig_info() -> impl Strategy<Value = RigInfo> {
                 (tension_min_n, tension_max_n, force_limit_n),
                 (grip_radius_m, eye_m),
                 (present, lower_left_m, lower_right_m, upper_left_m, eye_separation_m, stereo),
+                (distance_m, toward_elbow, wrist_m, elbow_m, radius_m),
             )| {
                 RigInfo {
                     period_s,
@@ -134,6 +136,10 @@ fn rig_info() -> impl Strategy<Value = RigInfo> {
                         upper_left_m,
                         eye_separation_m,
                         stereo,
+                    },
+                    clearance: StringClearance {
+                        distance_m,
+                        forearm: Forearm { toward_elbow, wrist_m, elbow_m, radius_m },
                     },
                 }
             },
@@ -296,9 +302,9 @@ fn sizes_follow_the_layout() {
     assert_eq!(Blow::SIZE, 73);
     assert_eq!(ContactModel::SIZE, 8 + 8 + 16 * 102 + 1 + 2 * 88 + 48 + 73);
     assert_eq!(HandSample::SIZE, 8 + 8 + 2 * 73 + 8 + 2 * 16 * 24);
-    assert_eq!(RigInfo::SIZE, 336 + 82);
+    assert_eq!(RigInfo::SIZE, 336 + 82 + 56);
     assert_eq!(RigStatus::SIZE, 185);
-    assert_eq!(Hello::SIZE, 411 + 82);
+    assert_eq!(Hello::SIZE, 411 + 82 + 56);
     assert_eq!(Welcome::SIZE, 91);
     assert_eq!(Refuse::SIZE, 169);
     assert_eq!(Bye::SIZE, 8);
@@ -344,9 +350,9 @@ fn a_message_struct_that_grows_must_grow_its_wire_form_too() {
         ("Blow", size_of::<Blow>(), 80),
         ("HandContact", size_of::<HandContact>(), 88),
         ("Proxy", size_of::<Proxy>(), 112),
-        ("RigInfo", size_of::<RigInfo>(), 424),
+        ("RigInfo", size_of::<RigInfo>(), 480),
         ("RigStatus", size_of::<RigStatus>(), 192),
-        ("Hello", size_of::<Hello>(), 504),
+        ("Hello", size_of::<Hello>(), 560),
         ("Welcome", size_of::<Welcome>(), 96),
     ];
     for (name, now, was) in pinned {
@@ -465,7 +471,7 @@ fn encoding_needs_a_big_enough_buffer_and_allocates_nothing_else() {
 #[test]
 fn the_documented_bye_datagram_is_what_encode_writes() {
     let hex: String = bye_datagram().iter().map(|b| format!("{b:02x}")).collect::<Vec<_>>().join(" ");
-    assert_eq!(hex, "53 50 44 52 05 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
+    assert_eq!(hex, "53 50 44 52 06 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01");
 }
 
 #[test]

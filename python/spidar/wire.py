@@ -23,7 +23,7 @@ from typing import List, Optional, Sequence, Tuple, Union
 
 MAGIC = b"SPDR"
 #: Raised on the Rust side whenever a message's layout changes; both ends must speak the same.
-PROTOCOL_VERSION = 5
+PROTOCOL_VERSION = 6
 HEADER_LEN = 20
 HANDS = 2
 STRINGS = 4
@@ -70,6 +70,7 @@ _HAND_CONTACT = struct.Struct("<3d3dd3dd")
 _BLOW = struct.Struct("<Q3d3dddB")
 _RIG_INFO = struct.Struct("<d24d6d2d2d2d2d3d")
 _DISPLAY = struct.Struct("<B3d3d3ddB")  # present, lower left, lower right, upper left, eye separation, stereo
+_CLEARANCE = struct.Struct("<d3dddd")  # near distance, forearm toward elbow, wrist, elbow, radius
 _STATUS = struct.Struct("<QdBdd6d8d5Q")
 
 
@@ -219,6 +220,22 @@ class RigInfo:
     eye_m: Vec3 = ZERO
     #: The rig's screen, if its rig file places one.
     display: "DisplayInfo" = field(default_factory=lambda: DisplayInfo())
+    #: When a string counts as near another hand's string or the user's forearm (the rig file's
+    #: ``near_strings``).
+    clearance: "StringClearance" = field(default_factory=lambda: StringClearance())
+
+
+@dataclass
+class StringClearance:
+    """A string closer than ``distance_m`` to another hand's string or to the forearm capsule's
+    surface is near. The capsule runs from ``wrist_m`` to ``elbow_m`` from the grip along
+    ``toward_elbow`` (the left hand's, world frame; the right hand's mirrored in x)."""
+
+    distance_m: float = 0.01
+    toward_elbow: Vec3 = (-0.25, -0.55, 0.8)
+    wrist_m: float = 0.08
+    elbow_m: float = 0.35
+    radius_m: float = 0.045
 
 
 #: The stereo formats of a rig's screen, by their number on the wire.
@@ -295,7 +312,7 @@ class Bye:
 Message = Union[Hello, Welcome, Refuse, Bye, HandSample, ContactModel, RigStatus]
 
 _SIZES = {
-    KIND_HELLO: 8 + 3 + NAME_BYTES + _RIG_INFO.size + _DISPLAY.size,
+    KIND_HELLO: 8 + 3 + NAME_BYTES + _RIG_INFO.size + _DISPLAY.size + _CLEARANCE.size,
     KIND_WELCOME: 8 + 8 + 3 + 8 + NAME_BYTES,
     KIND_REFUSE: 8 + 1 + REASON_BYTES,
     KIND_BYE: 8,
@@ -417,6 +434,8 @@ def _payload(m: Message) -> Tuple[int, bytes]:
             d.eye_separation_m,
             d.stereo,
         )
+        c = r.clearance
+        info += _CLEARANCE.pack(c.distance_m, *_vec(c.toward_elbow), c.wrist_m, c.elbow_m, c.radius_m)
         return KIND_HELLO, (
             struct.pack("<QBBB", m.rig_session, m.hands, m.strings, m.max_proxies) + _text(m.scene, NAME_BYTES) + info
         )
@@ -556,6 +575,8 @@ def decode(d: bytes) -> Tuple[Header, Message]:
         )
         d = _DISPLAY.unpack_from(p, 11 + NAME_BYTES + _RIG_INFO.size)
         info.display = DisplayInfo(_bool(d[0], k), (d[1], d[2], d[3]), (d[4], d[5], d[6]), (d[7], d[8], d[9]), d[10], d[11])
+        c = _CLEARANCE.unpack_from(p, 11 + NAME_BYTES + _RIG_INFO.size + _DISPLAY.size)
+        info.clearance = StringClearance(c[0], (c[1], c[2], c[3]), c[4], c[5], c[6])
         return h, Hello(session, hands_n, strings, max_proxies, scene, info)
     if k == KIND_STATUS:
         v = _STATUS.unpack_from(p, 0)

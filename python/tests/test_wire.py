@@ -14,13 +14,13 @@ from spidar.wire import WireError
 def test_a_goodbye_is_the_byte_string_the_link_document_pins():
     d = wire.encode(wire.Bye(0x0123456789ABCDEF), 42)
     assert d.hex(" ") == (
-        "53 50 44 52 05 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01"
+        "53 50 44 52 06 00 04 00 08 00 00 00 2a 00 00 00 00 00 00 00 ef cd ab 89 67 45 23 01"
     )
 
 
 def test_every_kind_has_the_payload_length_of_the_link_document():
     assert {wire.KIND_NAMES[k]: wire.payload_len(k) for k in wire.KIND_NAMES} == {
-        "Hello": 493, "Welcome": 91, "Refuse": 169, "Bye": 8, "HandSample": 938, "ContactModel": 1946,
+        "Hello": 549, "Welcome": 91, "Refuse": 169, "Bye": 8, "HandSample": 938, "ContactModel": 1946,
         "RigStatus": 185,
     }
     assert wire.encode(wire.HandSample(), 1)[:12].hex(" ") == f"53 50 44 52 {wire.PROTOCOL_VERSION:02x} 00 05 00 aa 03 00 00"
@@ -60,6 +60,7 @@ def _model():
             rig=wire.RigInfo(
                 eye_m=(0, 1.6, 0.1),
                 display=wire.DisplayInfo(True, (-0.8, 0.5, -1.0), (0.8, 0.5, -1.0), (-0.8, 1.4, -1.0), 0.064, 1),
+                clearance=wire.StringClearance(0.02, (-0.2, -0.5, 0.9), 0.07, 0.3, 0.05),
             ),
         ),
         wire.Welcome(1, 2, 2, 4, 16, 0.003, "python wall"),

@@ -432,6 +432,8 @@ impl ViewFrameMsg {
                 eye_m: g.eye_m,
                 // The recording keeps no screen: a replay draws the user's eye without one.
                 display: Default::default(),
+                // Nor the rig file's `near_strings`: a replay marks near strings by the defaults.
+                clearance: Default::default(),
             }
         })
     }

@@ -306,6 +306,24 @@ pub const COORDINATE_M: f64 = 20.0;
 /// The eye point's coordinates (rig frame).
 pub const EYE_M: f64 = 10.0;
 
+/// The rig file's `near_strings.distance_m`: 0 marks only strings that touch; from 20 cm nearly
+/// every string of a hand's reach is near another.
+pub const NEAR_STRINGS_M: Bound = Bound::hard(
+    "distance_m",
+    0.0,
+    0.2,
+    "m",
+    "0 marks only strings that touch, and from 20 cm every string is near",
+);
+/// The forearm capsule of `near_strings`: the wrist within a fist's reach of the grip's centre,
+/// the elbow a forearm's length from it, a forearm's radius.
+pub const FOREARM_WRIST_M: Bound =
+    Bound::hard("forearm_wrist_m", 0.0, 0.25, "m", "the wrist is within a fist's length of the grip");
+pub const FOREARM_ELBOW_M: Bound =
+    Bound::hard("forearm_elbow_m", 0.05, 0.8, "m", "an adult forearm is 0.2 .. 0.35 m long");
+pub const FOREARM_RADIUS_M: Bound =
+    Bound::hard("forearm_radius_m", 0.0, 0.15, "m", "a forearm is 3 .. 6 cm in radius");
+
 /// How often a lost device is reopened (0: never).
 pub const DEVICE_REOPEN_S: Bound = Bound::hard(
     "device_reopen_s",

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bounds;
 use crate::config::{self, At, Checker, ConfigError};
+use spidar_msg::strings::StringClearance;
 
 /// Rig file format version this build reads.
 pub const RIG_FILE_VERSION: u32 = 1;
@@ -58,6 +59,50 @@ pub struct RigFile {
     /// absent: the view's camera is a plain perspective from `eye_m`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub display: Option<crate::display::DisplayFile>,
+    /// When a string counts as near another hand's string or the user's forearm (the live view
+    /// marks it; `spidar rig map` reports where it happens); absent: the defaults of
+    /// [`NearStringsFile`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub near_strings: Option<NearStringsFile>,
+}
+
+/// The rig file's `near_strings`: every field optional, defaults those of
+/// `spidar_msg::strings::StringClearance` (1 cm; an adult forearm in a guard posture).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NearStringsFile {
+    /// A string closer than this to another hand's string or to the forearm's surface is near.
+    #[serde(default = "near_default_distance")]
+    pub distance_m: f64,
+    /// The forearm capsule: from the grip toward the elbow, the left hand's (rig frame; the right
+    /// hand's is mirrored in x), need not be a unit vector.
+    #[serde(default = "near_default_toward_elbow")]
+    pub forearm_toward_elbow: [f64; 3],
+    /// From the grip's centre to the wrist (the capsule's start), m.
+    #[serde(default = "near_default_wrist")]
+    pub forearm_wrist_m: f64,
+    /// From the grip's centre to the elbow (the capsule's end), m.
+    #[serde(default = "near_default_elbow")]
+    pub forearm_elbow_m: f64,
+    /// The forearm's radius, m.
+    #[serde(default = "near_default_radius")]
+    pub forearm_radius_m: f64,
+}
+
+fn near_default_distance() -> f64 {
+    StringClearance::default().distance_m
+}
+fn near_default_toward_elbow() -> [f64; 3] {
+    StringClearance::default().forearm.toward_elbow.to_array()
+}
+fn near_default_wrist() -> f64 {
+    StringClearance::default().forearm.wrist_m
+}
+fn near_default_elbow() -> f64 {
+    StringClearance::default().forearm.elbow_m
+}
+fn near_default_radius() -> f64 {
+    StringClearance::default().forearm.radius_m
 }
 
 /// Where a standing user's eyes are when the file does not say (rig frame, m): 0.35 m above the
@@ -221,6 +266,8 @@ pub struct Rig {
     pub eye_m: DVec3,
     /// The rig's screen (rig frame), if the file places one.
     pub display: Option<crate::display::Display>,
+    /// When a string counts as near another hand's string or the forearm (rig frame).
+    pub near_strings: StringClearance,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -334,6 +381,7 @@ impl Rig {
         check_safety(&c, &f.safety, f.period_s, &hands)?;
         check_estimation(&c, &f.estimation, f.period_s)?;
         let boards = crate::boards::validate(&f.boards, volts_needed(&hands), &c)?;
+        let near_strings = check_near_strings(&c, f.near_strings.as_ref())?;
         Ok(Rig {
             name: f.name,
             period_s: f.period_s,
@@ -345,6 +393,7 @@ impl Rig {
             boards,
             eye_m: DVec3::from_array(eye),
             display,
+            near_strings,
         })
     }
 
@@ -413,6 +462,30 @@ struct Seen {
 }
 
 /// The version, the overrides' names and the tick period.
+/// The file's `near_strings` (the defaults when absent): a distance and a forearm that make sense.
+fn check_near_strings(c: &Checker, f: Option<&NearStringsFile>) -> Result<StringClearance, ConfigError> {
+    let Some(f) = f else { return Ok(StringClearance::default()) };
+    let at = |key: &'static str| At::new(format!("near_strings.{key}"), key, 0);
+    let distance_m = c.within(&at("distance_m"), f.distance_m, &bounds::NEAR_STRINGS_M)?;
+    let toward = at("forearm_toward_elbow");
+    c.finite_within(&toward, &f.forearm_toward_elbow, 10.0, "")?;
+    let toward_elbow = DVec3::from_array(f.forearm_toward_elbow);
+    c.ensure(toward_elbow.length() > 1e-3, &toward, || {
+        format!(
+            "{:?}: must be a direction (not zero), from the grip toward the elbow",
+            f.forearm_toward_elbow
+        )
+    })?;
+    let wrist_m = c.within(&at("forearm_wrist_m"), f.forearm_wrist_m, &bounds::FOREARM_WRIST_M)?;
+    let elbow_m = c.within(&at("forearm_elbow_m"), f.forearm_elbow_m, &bounds::FOREARM_ELBOW_M)?;
+    c.ensure(elbow_m > wrist_m, &at("forearm_elbow_m"), || {
+        format!("{elbow_m} m: the elbow must be further from the grip than the wrist ({wrist_m} m)")
+    })?;
+    let radius_m = c.within(&at("forearm_radius_m"), f.forearm_radius_m, &bounds::FOREARM_RADIUS_M)?;
+    let forearm = spidar_msg::strings::Forearm { toward_elbow, wrist_m, elbow_m, radius_m };
+    Ok(StringClearance { distance_m, forearm })
+}
+
 fn check_header(c: &Checker, f: &RigFile) -> Result<(), ConfigError> {
     c.ensure(f.version == RIG_FILE_VERSION, &At::key("version"), || {
         format!("this build reads rig files of version {RIG_FILE_VERSION}, the file says {}", f.version)
@@ -764,7 +837,7 @@ mod tests {
     /// beyond the motors, zero, -0.0, NaN, a unit slip, a check switched off, a model felt for
     /// seconds, an anchor in the next room, a filter at the Nyquist frequency), each refused on its
     /// field with its reason. Before issue 26, 25 of the first 30 were refused.
-    const DANGEROUS: [Dangerous; 36] = [
+    const DANGEROUS: [Dangerous; 41] = [
         danger!("hands[0].tension_max_n", "motors", ("tension_max_n: 20.0", "tension_max_n: 1e6")),
         danger!(
             "hands[0].force_limit_n",
@@ -880,6 +953,31 @@ mod tests {
             ("gauss_newton_iterations: 2", "gauss_newton_iterations: 0")
         ),
         danger!("eye_m", "within 10 m", ("eye_m: Some((0.0, 0.35, 0.4))", "eye_m: Some((0.0, 1000.0, 0.4))")),
+        danger!(
+            "near_strings.distance_m",
+            "marks only strings that touch",
+            ("distance_m: 0.01", "distance_m: -0.01")
+        ),
+        danger!(
+            "near_strings.distance_m",
+            "marks only strings that touch",
+            ("distance_m: 0.01", "distance_m: NaN")
+        ),
+        danger!(
+            "near_strings.forearm_radius_m",
+            "3 .. 6 cm",
+            ("forearm_radius_m: 0.045", "forearm_radius_m: -0.045")
+        ),
+        danger!(
+            "near_strings.forearm_elbow_m",
+            "further from the grip",
+            ("forearm_elbow_m: 0.35", "forearm_elbow_m: 0.06")
+        ),
+        danger!(
+            "near_strings.forearm_toward_elbow",
+            "not zero",
+            ("forearm_toward_elbow: (-0.25, -0.55, 0.8)", "forearm_toward_elbow: (0.0, 0.0, 0.0)")
+        ),
         danger!(
             "rig_to_world.rotation_wxyz",
             "unit quaternion",
@@ -1070,5 +1168,28 @@ mod tests {
             let e = Rig::from_str(&unknown, "test").unwrap_err().to_string();
             assert!(e.contains("dac"), "{e}");
         }
+    }
+
+    #[test]
+    fn near_strings_are_optional_and_so_is_each_of_their_fields() {
+        // The shipped file states the defaults.
+        assert_eq!(Rig::default_rig().near_strings, StringClearance::default());
+        let start = DEFAULT_RIG_RON.find("    near_strings: Some((").unwrap();
+        let end = start + DEFAULT_RIG_RON[start..].find(")),\n").unwrap() + 4;
+        let with =
+            |section: &str| format!("{}{section}{}", &DEFAULT_RIG_RON[..start], &DEFAULT_RIG_RON[end..]);
+        assert_eq!(Rig::from_str(&with(""), "rig.ron").unwrap().near_strings, StringClearance::default());
+        let r = Rig::from_str(
+            &with("    near_strings: Some((distance_m: 0.03, forearm_radius_m: 0.06)),\n"),
+            "rig.ron",
+        )
+        .unwrap();
+        let mut want = StringClearance { distance_m: 0.03, ..Default::default() };
+        want.forearm.radius_m = 0.06;
+        assert_eq!(r.near_strings, want);
+        // A field it does not know is refused, named.
+        let e =
+            Rig::from_str(&with("    near_strings: Some((distance_mm: 10.0)),\n"), "rig.ron").unwrap_err();
+        assert!(e.to_string().contains("distance_mm"), "{e}");
     }
 }

@@ -31,6 +31,8 @@ pub fn rig_info(rig: &Rig) -> RigInfo {
         info.force_limit_n[h] = hr.force_limit_n;
         info.grip_radius_m[h] = hr.grip_radius_m;
     }
+    info.clearance = rig.near_strings;
+    info.clearance.forearm.toward_elbow = xf.vector(rig.near_strings.forearm.toward_elbow);
     if let Some(d) = &rig.display {
         info.display = spidar_msg::DisplayInfo {
             present: true,

@@ -22,6 +22,8 @@ mod crowd;
 mod display;
 #[path = "hil/replay.rs"]
 mod replay;
+#[path = "hil/rigview.rs"]
+mod rigview;
 #[path = "hil/study.rs"]
 mod study;
 #[path = "hil/view.rs"]

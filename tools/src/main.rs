@@ -133,18 +133,20 @@ struct RigMapArgs {
     #[arg(long, default_value_t = 0.4)]
     reach_m: f64,
     /// Forearm capsule: from the grip toward the elbow, the left hand's direction (the right's
-    /// is mirrored in x), as x,y,z in the rig frame.
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [-0.25, -0.55, 0.8])]
-    forearm_dir: Vec<f64>,
+    /// is mirrored in x), as x,y,z in the rig frame. Default: the rig file's `near_strings`.
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    forearm_dir: Option<Vec<f64>>,
     /// Forearm capsule: distance from the grip's centre to the wrist and to the elbow, m.
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [0.08, 0.35])]
-    forearm_span_m: Vec<f64>,
-    /// Forearm capsule radius, m.
-    #[arg(long, default_value_t = 0.045)]
-    forearm_radius_m: f64,
-    /// Strings of the two hands closer than this count as touching, mm.
-    #[arg(long, default_value_t = 10.0)]
-    string_clearance_mm: f64,
+    /// Default: the rig file's `near_strings`.
+    #[arg(long, value_delimiter = ',', num_args = 2)]
+    forearm_span_m: Option<Vec<f64>>,
+    /// Forearm capsule radius, m. Default: the rig file's `near_strings`.
+    #[arg(long)]
+    forearm_radius_m: Option<f64>,
+    /// Strings of the two hands closer than this count as touching, mm. Default: the rig file's
+    /// `near_strings.distance_m`.
+    #[arg(long)]
+    string_clearance_mm: Option<f64>,
     /// Scenes whose contacts are marked and given their margin: boxing (the virtual human's head,
     /// chest and gloves), walls (its walls and ball), a boxer or walls scene file; `none`.
     #[arg(long, value_delimiter = ',', default_values_t = ["boxing".to_string(), "walls".to_string()])]
@@ -487,13 +489,19 @@ fn rig_map(a: &RigMapArgs) -> anyhow::Result<()> {
             Err(anyhow::anyhow!("{name} {v}: must be within {lo} .. {hi}"))
         }
     };
-    let dir = glam::DVec3::new(a.forearm_dir[0], a.forearm_dir[1], a.forearm_dir[2]);
+    let rig = spidar_runtime::rigpath::load_rig(a.rig.as_deref(), &[])?;
+    // The rig file's `near_strings`, each part overridden by its option.
+    let near = rig.near_strings;
+    let dir =
+        a.forearm_dir.as_ref().map_or(near.forearm.toward_elbow, |d| glam::DVec3::new(d[0], d[1], d[2]));
     if !dir.is_finite() || dir.length() < 1e-6 {
         anyhow::bail!("--forearm-dir {dir}: give a direction (three numbers, not all zero)");
     }
-    let (wrist, elbow) = (a.forearm_span_m[0], a.forearm_span_m[1]);
+    let (wrist, elbow) =
+        a.forearm_span_m.as_ref().map_or((near.forearm.wrist_m, near.forearm.elbow_m), |s| (s[0], s[1]));
     in_range("--forearm-span-m (wrist)", wrist, 0.0, 1.0)?;
     in_range("--forearm-span-m (elbow)", elbow, wrist, 2.0)?;
+    let clearance_mm = a.string_clearance_mm.unwrap_or(near.distance_m * 1e3);
     let options = MapOptions {
         step_m: in_range("--step-mm", a.step_mm, 5.0, 500.0)? * 1e-3,
         reach_m: in_range("--reach-m", a.reach_m, 0.05, 2.0)?,
@@ -501,11 +509,15 @@ fn rig_map(a: &RigMapArgs) -> anyhow::Result<()> {
             toward_elbow: dir,
             wrist_m: wrist,
             elbow_m: elbow,
-            radius_m: in_range("--forearm-radius-m", a.forearm_radius_m, 0.0, 0.2)?,
+            radius_m: in_range(
+                "--forearm-radius-m",
+                a.forearm_radius_m.unwrap_or(near.forearm.radius_m),
+                0.0,
+                0.2,
+            )?,
         },
-        string_clearance_m: in_range("--string-clearance-mm", a.string_clearance_mm, 0.0, 200.0)? * 1e-3,
+        string_clearance_m: in_range("--string-clearance-mm", clearance_mm, 0.0, 200.0)? * 1e-3,
     };
-    let rig = spidar_runtime::rigpath::load_rig(a.rig.as_deref(), &[])?;
     let sites = rigsites::scene_sites(&rig, &a.scenes)?;
     let map = map_rig(&rig, &options).with_sites(&sites);
     outln!("{}", report(&map, &rig.name).trim_end());

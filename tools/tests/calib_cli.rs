@@ -333,6 +333,13 @@ fn ctrl_c_keeps_the_poses_switches_the_outputs_off_and_resume_completes_the_fit(
     let (ok, out, err) = run(&dir, &["calib", "fit", "--rig", rig, "--session", "s.ron", "--write"]);
     assert!(ok, "{out}\n{err}");
     assert!(out.contains("the model explains the data"), "{out}");
+    // What the fit did to the rig: the map's headline for the configured and the fitted anchors.
+    assert!(
+        out.contains("rig map (spidar rig map), configured anchors: force limit")
+            && out.contains("rig map, fitted anchors:")
+            && out.contains("renderable in every direction"),
+        "{out}"
+    );
     let fitted = Rig::load(&rig_file).unwrap();
     for i in 0..4 {
         let e = fitted.hands[0].anchors_m[i].distance(truth[0].anchors_m[i]);

@@ -54,6 +54,7 @@ export class Rig {
     this.showWorkspace = false;
     this.showNear = true;
     this.near = new Array(HANDS * STRINGS).fill(null);
+    this.last = null; // the frame applied last, to recolour when the near strings are toggled
   }
 
   // Each hand's feasible cells as a point cloud (built once per rig geometry).
@@ -86,8 +87,10 @@ export class Rig {
     for (const w of this.workspaces) w.visible = on;
   }
 
+  // Takes effect at once, on the frame shown (a paused page or replay included).
   setNearShown(on) {
     this.showNear = on;
+    if (this.last) this.apply(this.last.f, this.last.L);
   }
 
   // For tests: the workspace clouds (cells, drawn) and each string's highlight (null, 'string' or
@@ -120,6 +123,7 @@ export class Rig {
   }
 
   apply(f, L) {
+    this.last = { f, L };
     const valid = f[L.globals_at + 3] | 0;
     const flags = new Uint32Array(f.buffer, f.byteOffset, 4)[3];
     for (let h = 0; h < HANDS; h++) {

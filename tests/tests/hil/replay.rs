@@ -324,3 +324,67 @@ fn replay_frame_rate_to_browsers() {
         node(&["rate", &s.url, n, "6"], |_| json!({"error": "no questions"}));
     }
 }
+
+/// `GET path` from a view server at `url`: the JSON it answers.
+fn http_json(url: &str, path: &str) -> Value {
+    use std::io::{Read, Write};
+    let host = url.trim_start_matches("http://");
+    let mut c = std::net::TcpStream::connect(host).unwrap();
+    // A bound against hanging, not a measure.
+    c.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    write!(c, "GET {path} HTTP/1.0\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+    let mut text = String::new();
+    c.read_to_string(&mut text).unwrap();
+    let (_, body) = text.split_once("\r\n\r\n").expect("an HTTP answer");
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("GET {path}: {e}: {body}"))
+}
+
+/// A replay's frames mark the near strings as the live view's do (docs/view.md): the broadcaster
+/// marks each frame from the hands it shows and the recorded rig geometry (a recording keeps no
+/// `near_strings`: the defaults, which the shipped rig file states). Every frame's flags are the
+/// near mask of its own grips, and the bout has frames with strings marked.
+#[test]
+fn replay_frames_mark_the_near_strings_of_the_hands_they_show() {
+    use spidar_world::view::rigview::{near_mask, NearStrings};
+    use spidar_world::view::{GLOBALS_AT, HANDS_AT, HAND_FLOATS};
+    let rec = bout();
+    let s =
+        Serving::with(&rec.world, &ReplayOptions { view: any_port(), from_s: None, speed: 1.0, play: true });
+    let o = &http_json(&s.url, "/scene.json")["link_offset_m"];
+    let offset = DVec3::new(o[0].as_f64().unwrap(), o[1].as_f64().unwrap(), o[2].as_f64().unwrap());
+    let near = NearStrings::new(&spidar_rt::status::rig_info(&rig()), offset);
+    let stream = std::net::TcpStream::connect(s.ws.trim_start_matches("ws://")).unwrap();
+    // Bounds against hanging (the handshake's too), not measures.
+    stream.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let (mut ws, _) = tungstenite::client(format!("{}/", s.ws), stream).unwrap();
+    ws.get_mut().set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    let (mut frames, mut marked) = (0, 0);
+    let until = std::time::Instant::now() + Duration::from_secs(60);
+    while frames < 300 && std::time::Instant::now() < until {
+        let b = match ws.read() {
+            Ok(tungstenite::Message::Binary(b)) => b,
+            Ok(_) => continue,
+            Err(tungstenite::Error::Io(e))
+                if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+            {
+                continue
+            }
+            Err(e) => panic!("the replay's socket: {e}"),
+        };
+        let word = |i: usize| u32::from_le_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+        let float = |i: usize| f32::from_bits(word(i)) as f64;
+        let valid = float(GLOBALS_AT + 3) as u32;
+        let grips: [Option<DVec3>; 2] = std::array::from_fn(|h| {
+            let at = HANDS_AT + h * HAND_FLOATS;
+            ((valid >> h) & 1 == 1).then(|| DVec3::new(float(at), float(at + 1), float(at + 2)))
+        });
+        let mask = near_mask(&near.anchors_m, grips, near.near_m, &near.forearm);
+        assert_eq!(word(3) & 0xffff, mask, "frame {frames}: grips {grips:?}");
+        frames += 1;
+        marked += (mask != 0) as usize;
+    }
+    // (Any number: each frame is checked; a loaded machine sends fewer.)
+    assert!(frames >= 30, "{frames} frames in a minute");
+    assert!(marked > 0, "no frame of {frames} had a string near another or a forearm");
+    eprintln!("{marked} of {frames} replayed frames have near strings marked");
+}

@@ -118,7 +118,7 @@ pub fn scene(name: &str, look: &Look, layout: &Layout, frame_hz: f64) -> String 
 
 /// The rig's geometry in the scene frame, with each hand's force-feasible workspace (cells of a
 /// grid, see [`super::rigview`]) and what makes a string near (the flags of the frames).
-pub fn rig(info: &RigInfo, offset: DVec3, strings_near_m: f64) -> String {
+pub fn rig(info: &RigInfo, offset: DVec3) -> String {
     use super::rigview::{workspace, WORKSPACE_STEP_M};
     let workspaces: Vec<Value> = (0..info.anchors_m.len())
         .map(|h| {
@@ -131,7 +131,7 @@ pub fn rig(info: &RigInfo, offset: DVec3, strings_near_m: f64) -> String {
             })
         })
         .collect();
-    let arm = spidar_calib::rigmap::Forearm::default();
+    let arm = info.clearance.forearm;
     let anchors: Vec<Vec<[f64; 3]>> =
         info.anchors_m.iter().map(|h| h.iter().map(|a| v3(*a + offset)).collect()).collect();
     json!({
@@ -146,7 +146,7 @@ pub fn rig(info: &RigInfo, offset: DVec3, strings_near_m: f64) -> String {
         "eye_m": v3(info.eye_m + offset),
         "display": display(&info.display, offset),
         "workspace": workspaces,
-        "strings_near_m": strings_near_m,
+        "strings_near_m": info.clearance.distance_m,
         "forearm": {
             "toward_elbow": v3(arm.toward_elbow),
             "wrist_m": arm.wrist_m,

@@ -90,9 +90,6 @@ pub struct ViewOptions {
     /// Serve the page over HTTPS and the frames over secure WebSockets with this certificate
     /// (None: plain HTTP and WebSockets).
     pub tls: Option<TlsIdentity>,
-    /// Strings closer than this to another hand's string or to a forearm are highlighted, m
-    /// (default [`rigview::DEFAULT_NEAR_M`]).
-    pub strings_near_m: f64,
 }
 
 impl Default for ViewOptions {
@@ -104,7 +101,6 @@ impl Default for ViewOptions {
             max_viewers: 8,
             write_timeout: Duration::from_secs(2),
             tls: None,
-            strings_near_m: rigview::DEFAULT_NEAR_M,
         }
     }
 }

@@ -3,25 +3,25 @@
 //! geometry) and which strings come within a distance of the other hand's strings or of a
 //! forearm (per frame, from the hands shown).
 //!
-//! Both are `spidar rig map`'s computations (`spidar_calib::rigmap`): the exact capacity margin
-//! of the four-string zonotope, the same answer the loop's tension allocator gives, and the
-//! segment distances with the same forearm capsule. Computed on the view's broadcasting thread,
-//! never the world's stepping thread or the rig's 1 kHz tick.
+//! Both are `spidar rig map`'s computations (`spidar_msg::strings`, which the map uses too): the
+//! exact capacity margin of the four-string zonotope, the same answer the loop's tension allocator
+//! gives, and the segment distances, with the near distance and forearm capsule the rig sends
+//! (its rig file's `near_strings`). Computed on the view's broadcasting thread, never the world's
+//! stepping thread or the rig's 1 kHz tick.
 //!
 //! Must never: draw a cell as feasible where the map says the limit is not met, or leave a near
 //! string unmarked in a frame whose hands put it near.
 
 use glam::DVec3;
-use spidar_calib::rigmap::{capacity, segment_distance, Forearm, Grid};
+use spidar_msg::strings::{capacity, segment_distance, Forearm, Grid};
 use spidar_msg::{RigInfo, HANDS, STRINGS};
+
+pub use spidar_msg::strings::DEFAULT_NEAR_M;
 
 use super::frame::{GLOBALS_AT, HANDS_AT, HAND_FLOATS};
 
 /// Spacing of the workspace cells sent to the page, m (8 cm: a few thousand cells per hand).
 pub const WORKSPACE_STEP_M: f64 = 0.08;
-/// Strings closer than this to another hand's string or to a forearm are highlighted (the
-/// default of `spidar rig map --string-clearance-mm`), m.
-pub const DEFAULT_NEAR_M: f64 = 0.01;
 /// Bit of string `s` of hand `h` in the frame header's flags (word 3): near another hand's string.
 pub const fn near_string_bit(h: usize, s: usize) -> u32 {
     1 << (h * STRINGS + s)
@@ -96,11 +96,12 @@ pub struct NearStrings {
 }
 
 impl NearStrings {
-    pub fn new(info: &RigInfo, offset: DVec3, near_m: f64) -> NearStrings {
+    /// With the near distance and forearm the rig sent (`info.clearance`).
+    pub fn new(info: &RigInfo, offset: DVec3) -> NearStrings {
         NearStrings {
             anchors_m: info.anchors_m.map(|h| h.map(|a| a + offset)),
-            near_m,
-            forearm: Forearm::default(),
+            near_m: info.clearance.distance_m,
+            forearm: info.clearance.forearm,
         }
     }
 
@@ -194,7 +195,7 @@ mod tests {
     #[test]
     fn the_marked_frame_carries_the_mask_and_the_workspace_is_the_maps() {
         let info = info();
-        let near = NearStrings::new(&info, DVec3::ZERO, DEFAULT_NEAR_M);
+        let near = NearStrings::new(&info, DVec3::ZERO);
         let mut words = [0f32; HANDS_AT + HANDS * HAND_FLOATS];
         words[3] = f32::from_bits(1 << 20);
         words[GLOBALS_AT + 3] = 3.0;
@@ -209,6 +210,11 @@ mod tests {
             near_string_bit(0, 1) | near_string_bit(0, 3) | near_string_bit(1, 1) | near_string_bit(1, 3);
         assert_eq!(flags & 0xff, back);
         assert_eq!(flags & (1 << 20), 1 << 20, "other flags are kept");
+        // The near distance is the rig's (its file's `near_strings`): at 0 nothing is near.
+        let mut touching_only = info;
+        touching_only.clearance.distance_m = 0.0;
+        NearStrings::new(&touching_only, DVec3::ZERO).mark(&mut bytes);
+        assert_eq!(bytes[12] as u32, 0, "the back strings do not touch");
         // The workspace: the feasible cells are those where the map's exact margin meets the limit.
         let w = workspace(&info, 0, WORKSPACE_STEP_M);
         assert!(

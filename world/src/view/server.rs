@@ -137,7 +137,7 @@ impl Server {
         }
         {
             let status_every = Duration::from_secs_f64(1.0 / opts.status_hz.max(0.1));
-            let texts = Texts { counter_names, offset, status_every, strings_near_m: opts.strings_near_m };
+            let texts = Texts { counter_names, offset, status_every };
             threads.push(spawn(
                 "spidar-view-frames",
                 Box::new(move || broadcast(shared, latest, viewers, frames, finisher, texts)),
@@ -362,8 +362,6 @@ struct Texts {
     counter_names: Vec<String>,
     offset: DVec3,
     status_every: Duration,
-    /// Strings closer than this to another hand's string or a forearm are marked in the frames.
-    strings_near_m: f64,
 }
 
 /// The newest queued frame, finished (its figures drawn) and as bytes; every buffer goes back to
@@ -410,7 +408,7 @@ fn broadcast(
     }
     let _done = Done(&shared);
     let c = &shared.counters;
-    let Texts { counter_names, offset, status_every, strings_near_m } = texts;
+    let Texts { counter_names, offset, status_every } = texts;
     let mut near: Option<NearStrings> = None;
     let mut last_status = Instant::now() - status_every;
     loop {
@@ -435,10 +433,10 @@ fn broadcast(
         };
         let viewer_count = c.viewers.load(Ordering::Relaxed);
         if let Some(r) = &rig {
-            near = Some(NearStrings::new(r, offset, strings_near_m));
+            near = Some(NearStrings::new(r, offset));
         }
         // Once per rig geometry: the workspace cells take a few milliseconds.
-        let rig_json = rig.map(|r| json::rig(&r, offset, strings_near_m));
+        let rig_json = rig.map(|r| json::rig(&r, offset));
         let status_json =
             status.filter(|s| s.ended || stopping || last_status.elapsed() >= status_every).map(|s| {
                 last_status = Instant::now();
