@@ -302,6 +302,10 @@ pub struct PunchOutcome {
     pub block_felt_n: Option<(f64, f64)>,
     pub block_at_s: f64,
     pub landed_after_block: bool,
+    /// How far the part it was aimed at (the head, or the chest for chest aims) was from where
+    /// it stood at the bout's start when the punch started (m): the script aims at that place,
+    /// so a body that stepped back or slipped and is still away is out of the punch's reach.
+    pub part_off_m: f64,
 }
 
 /// The moment of a punch's farthest motion of the head or chest toward the fist.
@@ -496,7 +500,8 @@ fn punch_outcomes_with(
         prev_contact = [r.hand_contacts[0].force_n, r.hand_contacts[1].force_n];
         prev_seq = b.scene.seq();
     }
-    let punches = plan.punches.iter().map(|p| outcome(p, &frames)).collect();
+    let guard = frames.first().map_or([DVec3::ZERO; 4], |f| f.vh);
+    let punches = plan.punches.iter().map(|p| outcome(p, &frames, &guard)).collect();
     let c = b.v.counters();
     let m = &b.scene.world.mind;
     let (skill, attacks, counters, abandoned) =
@@ -517,7 +522,7 @@ fn punch_outcomes_with(
     })
 }
 
-fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
+fn outcome(p: &Punch, frames: &[Frame], guard: &[DVec3; 4]) -> PunchOutcome {
     let h = p.hand;
     let (t0, t1) = (p.start_s, p.end_s() + WINDOW_TAIL_S);
     let i0 = frames.partition_point(|f| f.t_s < t0);
@@ -540,8 +545,11 @@ fn outcome(p: &Punch, frames: &[Frame]) -> PunchOutcome {
         block_felt_n: None,
         block_at_s: 0.0,
         landed_after_block: false,
+        part_off_m: 0.0,
     };
     let Some(first) = win.first() else { return o };
+    let part = usize::from(p.aim != Aim::Head);
+    o.part_off_m = (first.vh[part] - guard[part]).length();
     o.from_rest = first.body == BodyBehaviour::Standby && first.hands == [Behaviour::Standby; 2];
     let start = first.vh;
     let mut reference = [start[0], start[1]];
@@ -684,6 +692,32 @@ impl BoutOutcome {
         (with, without / n.max(1) as f64, n)
     }
 
+    /// Feint pairs against the same place in a combination: the punches thrown within 0.5 s
+    /// after a feint, and the punches of the same kind, aim and place in a combination thrown
+    /// after a real punch instead (no feint within 0.5 s before). The part a script aims at is
+    /// often away from its guard in a combination (the body stepped back or slipped and holds
+    /// there while fists are out), which the comparison with all punches mixes in.
+    pub fn feint_pairs_same_place(&self) -> PairComparison {
+        let after: Vec<&PunchOutcome> = self.punches.iter().filter(|o| self.after_feint(o)).collect();
+        let like = |o: &PunchOutcome, x: &PunchOutcome| {
+            !x.punch.feint
+                && x.punch.in_combo == o.punch.in_combo
+                && x.punch.kind == o.punch.kind
+                && x.punch.aim == o.punch.aim
+                && !self.after_feint(x)
+        };
+        let without: Vec<&PunchOutcome> =
+            self.punches.iter().filter(|x| after.iter().any(|o| like(o, x))).collect();
+        PairComparison::of(&after, &without)
+    }
+
+    /// Landed share of the punches (not feints) by how far the part aimed at was from its place
+    /// when they started: under 5 cm, 5-10 cm, over 10 cm (share, number).
+    pub fn landed_by_part_off(&self) -> [(f64, usize); 3] {
+        [(0.0, 0.05), (0.05, 0.10), (0.10, f64::INFINITY)]
+            .map(|(lo, hi)| self.landed_of(|o| o.part_off_m >= lo && o.part_off_m < hi))
+    }
+
     /// Blocks that met a fist, and how many of them a counter followed within 1 s.
     pub fn counters_after_blocks(&self) -> (usize, usize) {
         let blocks: Vec<f64> = self
@@ -723,6 +757,55 @@ impl BoutOutcome {
     pub fn toward_fist_max_m(&self) -> (f64, f64) {
         let max = |f: fn(&PunchOutcome) -> f64| self.punches.iter().map(f).fold(0.0, f64::max);
         (max(|o| o.toward_fist_m), max(|o| o.toward_fist_out_m))
+    }
+}
+
+/// Two sets of punches compared by their landed shares: the difference with a 95 % interval
+/// (normal approximation of two independent proportions: rough at these counts).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct PairComparison {
+    pub with_landed: usize,
+    pub with_n: usize,
+    pub without_landed: usize,
+    pub without_n: usize,
+}
+
+impl PairComparison {
+    pub fn of(with: &[&PunchOutcome], without: &[&PunchOutcome]) -> PairComparison {
+        let landed = |v: &[&PunchOutcome]| v.iter().filter(|o| o.landed()).count();
+        PairComparison {
+            with_landed: landed(with),
+            with_n: with.len(),
+            without_landed: landed(without),
+            without_n: without.len(),
+        }
+    }
+
+    /// The landed shares (with, without), their difference and its 95 % half-width.
+    pub fn shares(&self) -> (f64, f64, f64, f64) {
+        let p = |l: usize, n: usize| l as f64 / n.max(1) as f64;
+        let (a, b) = (p(self.with_landed, self.with_n), p(self.without_landed, self.without_n));
+        let var = a * (1.0 - a) / self.with_n.max(1) as f64 + b * (1.0 - b) / self.without_n.max(1) as f64;
+        (a, b, a - b, 1.96 * var.sqrt())
+    }
+}
+
+impl fmt::Display for PairComparison {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (a, b, d, hw) = self.shares();
+        write!(
+            f,
+            "{:.1} % ({} of {}) vs {:.1} % ({} of {}): difference {:+.1} points, 95 % interval {:+.1} to {:+.1}",
+            100.0 * a,
+            self.with_landed,
+            self.with_n,
+            100.0 * b,
+            self.without_landed,
+            self.without_n,
+            100.0 * d,
+            100.0 * (d - hw),
+            100.0 * (d + hw)
+        )
     }
 }
 
@@ -941,6 +1024,29 @@ impl fmt::Display for PunchReport {
             self.feint_pairs.skill,
             100.0 * with,
             100.0 * without
+        )?;
+        writeln!(
+            f,
+            "    the same pairs against the same place in a combination after a real punch (kind, aim and place matched): after a feint {}",
+            self.feint_pairs.feint_pairs_same_place()
+        )?;
+        let off = |b: &BoutOutcome| {
+            let [n, m, far] = b.landed_by_part_off();
+            format!(
+                "under 5 cm {:.0} % ({}), 5-10 cm {:.0} % ({}), over 10 cm {:.0} % ({})",
+                100.0 * n.0,
+                n.1,
+                100.0 * m.0,
+                m.1,
+                100.0 * far.0,
+                far.1
+            )
+        };
+        writeln!(
+            f,
+            "  landed by how far the part aimed at was from its place when the punch started (the scripts aim at that place): main script {}; feint-pair script {}",
+            off(a),
+            off(&self.feint_pairs)
         )?;
         let (blocked, countered) = a.counters_after_blocks();
         writeln!(

@@ -62,6 +62,7 @@ pub struct SkillFile {
     pub avoid_chance: f64,
     pub refractory_s: f64,
     pub feint_recovery_s: f64,
+    pub attention_dwell_s: f64,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -166,7 +167,7 @@ const DELAY: &str =
 const ANGLE: &str = "an angle around the eye: a full turn at most";
 
 /// Every number of one skill level with its bound: (field, value, bound).
-fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 14] {
+fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 15] {
     let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
     [
         ("delay_s", s.delay_s, b(0.0, 1.0, "s", DELAY)),
@@ -187,6 +188,7 @@ fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 14] {
         ("avoid_chance", s.avoid_chance, b(0.0, 1.0, "", "a probability")),
         ("refractory_s", s.refractory_s, b(0.0, 1.0, "s", DELAY)),
         ("feint_recovery_s", s.feint_recovery_s, b(0.0, 1.0, "s", DELAY)),
+        ("attention_dwell_s", s.attention_dwell_s, b(0.0, 1.0, "s", DELAY)),
     ]
 }
 
@@ -226,6 +228,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
             avoid_chance: s.avoid_chance,
             refractory_s: s.refractory_s,
             feint_recovery_s: s.feint_recovery_s,
+            attention_dwell_s: s.attention_dwell_s,
         };
     }
     Ok(out)
@@ -235,7 +238,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
     let c = Checker::new(text, origin);
-    c.version(f.version, 5)?;
+    c.version(f.version, 6)?;
     let o = f.user_offset_m;
     c.finite_within(&At::key("user_offset_m"), &[o.0, o.1, o.2], f64::MAX, "m")?;
     for (field, v, bound) in boxer_numbers(&f) {

@@ -140,10 +140,20 @@ pub struct Defence {
     /// Hits taken when it began (a defence that ends with no more kept the fist off).
     pub hits_before: u64,
     /// The fist it answers has touched the virtual human (a block met it, or it landed). A
-    /// defence that ends untouched was drawn for nothing (a feint, a punch that fell short or
-    /// was slipped): the feint's recovery follows ([`Skill::feint_recovery_s`]).
+    /// defence that ends untouched and unmet (`met`) was drawn for nothing (a feint, a punch
+    /// that fell short): the feint's recovery follows ([`Skill::feint_recovery_s`]).
     pub touched: bool,
+    /// Where the part was when the defence began, and whether the fist (as seen) has since come
+    /// within [`MET_M`] of it: a punch slipped goes through where the part was, a feint stops
+    /// short of it. A defence the fist met (touched or came there) was no feint's.
+    pub part_from_m: DVec3,
+    pub met: bool,
 }
+
+/// A fist seen within this of where the defended part was when the defence began met the
+/// defence (m): the head's capsule (9 cm) and the fist (4 cm) touch at 0.13. A feint stops
+/// 10-20 cm before the part's surface, 0.22-0.32 m from its centre.
+pub const MET_M: f64 = 0.15;
 
 /// Tunables of the cognitive model (`mind` in `configs/boxer.ron`, which documents each).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -237,8 +247,8 @@ pub struct Mind {
     pub blocks: u64,
     pub attacks: u64,
     pub defences_ended: u64,
-    /// Defences that ended with the fist never having touched the virtual human (a feint drew
-    /// them, or the punch fell short or was slipped); each is followed by the feint's recovery.
+    /// Defences that ended with the fist never having met them (a feint drew them, or the punch
+    /// fell short: [`Defence::met`]); each is followed by the feint's recovery.
     pub defences_aborted: u64,
     /// Hits taken (the avatar's fist on head or chest) and given (its hand on the avatar's).
     pub hits_taken: u64,
@@ -572,11 +582,15 @@ impl Mind {
             since_s: now_s,
             hits_before: self.hits_taken,
             touched: false,
+            part_from_m: ws.com_world(model, part),
+            met: false,
         };
         if let Some(prev) = prev {
             def.since_s = prev.since_s;
             def.hits_before = prev.hits_before;
             def.touched = prev.touched;
+            def.part_from_m = prev.part_from_m;
+            def.met = prev.met;
         }
 
         // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
@@ -738,15 +752,20 @@ impl Mind {
         self.defences_ended += 1;
         // A defence the fist never met leaves the guard out of place and attention on the hand
         // that drew it: the next one waits longer (the feint's recovery).
-        let wait = if def.touched {
+        let met = def.touched || def.met;
+        let wait = if met {
             self.params.skill.refractory_s
         } else {
             self.defences_aborted += 1;
             self.params.skill.feint_recovery_s.max(self.params.skill.refractory_s)
         };
         self.refractory_until_s = now_s + wait;
-        // A defence that kept the fist off (blocked or made it miss) opens a counter, by chance.
-        if self.hits_taken == def.hits_before && self.rng.random::<f64>() < self.params.skill.counter_chance {
+        // A defence that kept the fist off (blocked or made it miss) opens a counter, by chance;
+        // one a feint drew kept nothing off (the fist never came) and opens none.
+        if met
+            && self.hits_taken == def.hits_before
+            && self.rng.random::<f64>() < self.params.skill.counter_chance
+        {
             self.counter_until_s = now_s + self.params.skill.counter_within_s;
         }
         for h in 0..2 {
@@ -791,6 +810,10 @@ impl Mind {
         // What it sees now: the avatar as it was a perception delay ago.
         self.perception.observe(model, state, ws, targets);
         let seen = self.perception.seen_targets();
+        // The fist a defence answers, seen where the part was when it began: the defence met it.
+        if let Some(d) = self.defence.as_mut() {
+            d.met |= (self.perception.seen[d.av_hand].pos_m - d.part_from_m).length() < MET_M;
+        }
         // The user's hands' acceleration as seen, smoothed (for the extrapolation).
         let k = (model.dt_s / ACC_SMOOTH_S).min(1.0);
         for h in 0..2 {
@@ -857,13 +880,14 @@ impl Mind {
                 }
                 None => None,
             };
-            // The newest prediction finds the other fist first while the one the defence answers
-            // never touched it: that defence was drawn for nothing (a feint) and ends; the
-            // answer to the other fist is a new defence, after the feint's recovery.
+            // The newest prediction finds the other fist first: the defence under way answered
+            // the one fist and ends; the answer to the other is a new one, which waits the
+            // refractory period (the psychological refractory period: a second response waits
+            // for the first), or the feint's recovery when the fist it answered never met it.
             if let (Some(def), Some(d)) = (self.defence, d) {
                 let other =
                     self.av.hand.iter().position(|&h| h == d.av_body).is_some_and(|h| h != def.av_hand);
-                if d.class == ContactClass::AvatarAttack && other && !def.touched {
+                if d.class == ContactClass::AvatarAttack && other {
                     self.end_defence(model, ws, now, bp);
                 }
             }

@@ -9,6 +9,12 @@
 //! - **Gaze and attention.** The head's eyes point along [`Perception::gaze_dir`], which turns at
 //!   most `gaze_deg_per_s` toward the most threatening avatar fist (the one closing fastest on the
 //!   head or chest; when none closes, the nearer one).
+//! - **Attention dwells.** Once on a fist that threatened, attention stays with it until
+//!   `attention_dwell_s` after that fist last threatened (a person cannot move attention at once
+//!   from one thing to the next: the attentional dwell time); until then the other fist neither
+//!   draws the gaze nor is seen with attention: even in the central field it is seen as the
+//!   periphery sees it, later and less accurately. So a feint that drew the eyes leaves the other
+//!   hand seen late while it comes.
 //! - **Field of view.** A fist within `central_deg` of the gaze (the cone's full angle) is seen
 //!   after `delay_s`; one in the periphery, within `fov_deg`, `periphery_delay_s` later and with
 //!   `periphery_noise` times the error; one outside the field of view is not seen: the last
@@ -97,6 +103,9 @@ pub struct Skill {
     /// was slipped), no new one starts for this long instead (s): the guard is out of place and
     /// attention on the hand that drew it, so the punch that follows a feint is answered late.
     pub feint_recovery_s: f64,
+    /// Attention stays with a fist this long after it last threatened (s): the other fist is
+    /// seen without attention until then.
+    pub attention_dwell_s: f64,
 }
 
 impl Skill {
@@ -119,6 +128,7 @@ impl Skill {
             avoid_chance: 0.0,
             refractory_s: 0.0,
             feint_recovery_s: 0.0,
+            attention_dwell_s: 0.0,
         }
     }
 
@@ -167,8 +177,10 @@ pub struct Perception {
     /// Where the eyes point (unit, world) and from where (the head's centre).
     pub gaze_dir: DVec3,
     pub eye_m: DVec3,
-    /// The fist attention is on (0 or 1), if any threatens.
+    /// The fist attention is on (0 or 1), if any threatens or did within the dwell.
     pub attended: Option<usize>,
+    /// Steps attention still dwells on the attended fist, which no longer threatens.
+    dwell_left: usize,
     pub seen: [Seen; 2],
     av: Parts,
     vh: Parts,
@@ -199,6 +211,7 @@ impl Perception {
             gaze_dir: DVec3::Z,
             eye_m: DVec3::ZERO,
             attended: None,
+            dwell_left: 0,
             seen: [Seen::default(); 2],
             av: *av,
             vh: *vh,
@@ -223,6 +236,8 @@ impl Perception {
         self.lag = [0; 2];
         self.class = [2; 2];
         self.since = [usize::MAX / 2; 2];
+        self.attended = None;
+        self.dwell_left = 0;
     }
 
     /// Steps of the central field's delay.
@@ -259,6 +274,7 @@ impl Perception {
         let chest = ws.com_world(model, self.vh.chest);
         // Attention: the fist seen closing fastest on the head or chest; the nearer if none closes.
         let mut best = (f64::NEG_INFINITY, None);
+        let mut threat = [f64::NEG_INFINITY; 2];
         for h in 0..2 {
             let (p, v) = self.hist_fist[self.index(self.lag[h])][h];
             let closing = [self.eye_m, chest]
@@ -266,15 +282,24 @@ impl Perception {
                 .map(|&b| v.dot((b - p).normalize_or_zero()))
                 .fold(f64::NEG_INFINITY, f64::max);
             let near = -(p - self.eye_m).length();
-            let threat = if closing > 0.5 { 10.0 + closing } else { near };
-            if threat > best.0 {
-                best = (threat, Some(h));
+            threat[h] = if closing > 0.5 { 10.0 + closing } else { near };
+            if threat[h] > best.0 {
+                best = (threat[h], Some(h));
             }
         }
         // The eyes follow a fist seen closing; otherwise they rest on the avatar's upper chest,
-        // between its head and chest, as a boxer's do.
+        // between its head and chest, as a boxer's do. Attention stays with the fist it is on
+        // while that one threatens and for the dwell after; only then may it move.
         let threatening = best.0 >= 10.0;
-        self.attended = if threatening { best.1 } else { None };
+        let dwell = (self.skill.attention_dwell_s / self.dt_s).round() as usize;
+        match self.attended {
+            Some(h) if threat[h] >= 10.0 => self.dwell_left = dwell,
+            Some(_) if self.dwell_left > 0 => self.dwell_left -= 1,
+            _ => {
+                self.attended = if threatening { best.1 } else { None };
+                self.dwell_left = dwell;
+            }
+        }
         let look_at = match self.attended {
             Some(h) => self.hist_fist[self.index(self.lag[h])][h].0,
             None => (ws.com_world(model, self.av.head) + ws.com_world(model, self.av.chest)) * 0.5,
@@ -286,7 +311,8 @@ impl Perception {
             let (now, _) = self.hist_fist[i][h];
             let ecc =
                 self.gaze_dir.angle_between((now - self.eye_m).normalize_or(self.gaze_dir)).to_degrees();
-            let central = ecc <= 0.5 * self.skill.central_deg;
+            // Attention on the other fist: this one is seen as the periphery sees it.
+            let central = ecc <= 0.5 * self.skill.central_deg && self.attended.is_none_or(|a| a == h);
             let in_view = ecc <= 0.5 * self.skill.fov_deg;
             // Sights since the fist came into its present part of the view are `want` late;
             // until the first of them arrives, the older sight goes on ageing (a periphery's sight
