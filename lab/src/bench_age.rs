@@ -4,6 +4,9 @@
 //! draws, from the rig tick whose hand sample it shows to its drawing (`docs/view.md`), and the
 //! world keeps the last thousand in its status; this reads them there at the end.
 //!
+//! With `--headset` the page is drawn in an immersive session of an emulated headset
+//! ([`crate::browser::Headset`]) and the ages are the headset's pictures'.
+//!
 //! Must never: report a figure it did not measure (no browser, no report: an error saying why).
 
 use std::io::{Read, Write};
@@ -16,7 +19,14 @@ use spidar_rt::Rig;
 use spidar_runtime::child_world::ChildWorldSpec;
 use spidar_runtime::session::{load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice};
 
-use crate::browser::Browser;
+use crate::browser::{Browser, Headset};
+
+/// The browser drawing the page, held for its drop (which stops it).
+enum Page {
+    #[allow(dead_code)]
+    Screen(Browser),
+    Headset(Headset),
+}
 
 pub struct AgeBenchOptions {
     pub scene: String,
@@ -27,6 +37,9 @@ pub struct AgeBenchOptions {
     pub height: u32,
     /// The world process to start (None: this executable's `spidar world`).
     pub world: Option<ChildWorldSpec>,
+    /// The page in an immersive session of an emulated headset ([`crate::browser::Headset`]); the
+    /// headset's pictures' ages.
+    pub headset: bool,
 }
 
 /// The ages of one kind of page, as the world's status has them.
@@ -131,14 +144,26 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
         s.request_stop();
         bail!("the world process printed no view address")
     };
-    let (kind, page, query) = ("screen", "screen", "?camera=eye");
-    let browser = Browser::open(&format!("{url}/{query}"), o.width, o.height)?;
+    let (kind, page) = if o.headset { ("headset", "headset") } else { ("screen", "screen") };
+    let mut browser = if o.headset {
+        Page::Headset(Headset::open(&url, o.width, o.height)?)
+    } else {
+        Page::Screen(Browser::open(&format!("{url}/?camera=eye"), o.width, o.height)?)
+    };
     let load_start = load();
     // The page draws and reports; then the window of reports is what this run drew.
     let until = Instant::now() + Duration::from_secs(90);
     let mut first = None;
     while Instant::now() < until {
         poll(&mut s, &mut Some(String::new()));
+        if let Page::Headset(h) = &mut browser {
+            // A driver that gave up says why.
+            if let Err(e) = h.presenting() {
+                drop(browser);
+                s.request_stop();
+                return Err(e);
+            }
+        }
         if ages_in(&url, kind)?.is_some_and(|a| a.total > 0) {
             first = Some(Instant::now());
             break;
