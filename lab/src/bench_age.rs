@@ -23,9 +23,17 @@ use crate::browser::{Browser, Headset};
 
 /// The browser drawing the page, held for its drop (which stops it).
 enum Page {
-    #[allow(dead_code)]
     Screen(Browser),
     Headset(Headset),
+}
+
+impl Page {
+    fn cpu_s(&self) -> f64 {
+        match self {
+            Page::Screen(b) => b.cpu_s(),
+            Page::Headset(h) => h.cpu_s(),
+        }
+    }
 }
 
 pub struct AgeBenchOptions {
@@ -40,6 +48,8 @@ pub struct AgeBenchOptions {
     /// The page in an immersive session of an emulated headset ([`crate::browser::Headset`]); the
     /// headset's pictures' ages.
     pub headset: bool,
+    /// More of the page's query (`shading=standard&aa=1`, say).
+    pub page: String,
 }
 
 /// The ages of one kind of page, as the world's status has them.
@@ -72,6 +82,9 @@ pub struct AgeReport {
     pub ages: Ages,
     pub seconds: f64,
     pub load: [String; 2],
+    /// The browser's CPU time over the measured seconds, and the pictures it reported drawing then.
+    pub browser_cpu_s: f64,
+    pub pictures: u64,
 }
 
 /// `GET path` from the view at `url` (`http://HOST:PORT`): the body.
@@ -146,9 +159,9 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
     };
     let (kind, page) = if o.headset { ("headset", "headset") } else { ("screen", "screen") };
     let mut browser = if o.headset {
-        Page::Headset(Headset::open(&url, o.width, o.height)?)
+        Page::Headset(Headset::open(&url, &o.page, o.width, o.height)?)
     } else {
-        Page::Screen(Browser::open(&format!("{url}/?camera=eye"), o.width, o.height)?)
+        Page::Screen(Browser::open(&format!("{url}/?camera=eye&{}", o.page), o.width, o.height)?)
     };
     let load_start = load();
     // The page draws and reports; then the window of reports is what this run drew.
@@ -175,19 +188,29 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
         s.request_stop();
         bail!("the browser drew nothing the world heard of in 90 s");
     }
+    let (cpu0, total0) = (browser.cpu_s(), ages_in(&url, kind)?.map(|a| a.total).unwrap_or(0));
     let until = Instant::now() + Duration::from_secs_f64(o.seconds);
     while Instant::now() < until {
         poll(&mut s, &mut Some(String::new()));
         std::thread::sleep(Duration::from_millis(20));
     }
     let ages = ages_in(&url, kind)?.unwrap_or_default();
+    let (browser_cpu_s, pictures) = (browser.cpu_s() - cpu0, ages.total - total0);
     drop(browser);
     s.request_stop();
     while poll(&mut s, &mut Some(String::new())) {
         std::thread::sleep(Duration::from_millis(10));
     }
     let _ = s.finish(0, &mut |_| {});
-    Ok(AgeReport { scene: o.scene.clone(), page, ages, seconds: o.seconds, load: [load_start, load()] })
+    Ok(AgeReport {
+        scene: o.scene.clone(),
+        page,
+        ages,
+        seconds: o.seconds,
+        load: [load_start, load()],
+        browser_cpu_s,
+        pictures,
+    })
 }
 
 impl std::fmt::Display for AgeReport {
@@ -223,10 +246,19 @@ impl std::fmt::Display for AgeReport {
             "  of which the page's own drawing (software WebGL here): p50 {:.1} ms, p99 {:.1} ms",
             a.draw_p50_ms, a.draw_p99_ms
         )?;
-        write!(
+        writeln!(
             f,
             "  drawn hands behind their tick: p50 {:.1} ms, p99 {:.1} ms",
             a.hand_lag_p50_ms, a.hand_lag_p99_ms
+        )?;
+        write!(
+            f,
+            "  the browser's CPU time (all its processes): {:.1} ms a picture ({} new frames drawn in {:.0} s, {:.1} a second; \
+             counts work, not waiting, so it changes little with the machine's load)",
+            1e3 * self.browser_cpu_s / self.pictures.max(1) as f64,
+            self.pictures,
+            self.seconds,
+            self.pictures as f64 / self.seconds
         )
     }
 }

@@ -73,6 +73,8 @@ pub struct ViewBenchOptions {
     /// A block with a headless chromium drawing the page in an immersive session of an emulated
     /// headset (`crate::browser::Headset`: node, puppeteer-core and iwer from tests/browser).
     pub headset: bool,
+    /// More of the browsers' page query (`shading=standard&aa=1`, say).
+    pub page: String,
 }
 
 /// What a block has watching the world.
@@ -331,10 +333,12 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             // A real browser draws the page (its frames drawn, from the ages it reports).
             let url = handle.url();
             let mut page = match block {
-                Block::Browser => {
-                    Page::Screen(crate::browser::Browser::open(&format!("{url}/?camera=eye"), 960, 540)?)
-                }
-                Block::Headset => Page::Headset(crate::browser::Headset::open(url, 960, 540)?),
+                Block::Browser => Page::Screen(crate::browser::Browser::open(
+                    &format!("{url}/?camera=eye&{}", o.page),
+                    960,
+                    540,
+                )?),
+                Block::Headset => Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540)?),
                 _ => Page::None,
             };
             for c in &counts {

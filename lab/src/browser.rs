@@ -81,6 +81,11 @@ impl Browser {
             .with_context(|| format!("starting {}", exe.display()))?;
         Ok(Browser { child, profile })
     }
+
+    /// The CPU time its processes have used so far (s).
+    pub fn cpu_s(&self) -> f64 {
+        group_cpu_s(self.child.id())
+    }
 }
 
 impl Drop for Browser {
@@ -88,6 +93,25 @@ impl Drop for Browser {
         let _ = stop_group(&mut self.child, libc::SIGTERM);
         let _ = std::fs::remove_dir_all(&self.profile);
     }
+}
+
+/// The CPU time (user and system, s) the processes of process group `pgid` have used so far (the
+/// living ones: a browser's processes live as long as it does).
+pub fn group_cpu_s(pgid: u32) -> f64 {
+    // SAFETY: sysconf has no preconditions.
+    let tick = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    let Ok(dir) = std::fs::read_dir("/proc") else { return 0.0 };
+    let mut ticks = 0u64;
+    for e in dir.flatten() {
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else { continue };
+        // After the name's closing parenthesis: state, ppid, pgrp, ... utime (12th), stime (13th).
+        let Some(at) = stat.rfind(')') else { continue };
+        let f: Vec<&str> = stat[at + 1..].split_whitespace().collect();
+        if f.len() > 12 && f[2].parse::<u32>() == Ok(pgid) {
+            ticks += f[11].parse::<u64>().unwrap_or(0) + f[12].parse::<u64>().unwrap_or(0);
+        }
+    }
+    ticks as f64 / tick
 }
 
 /// Stops `child`'s process group (started with `process_group(0)`: the child and all it started
@@ -169,9 +193,10 @@ pub struct Headset {
 }
 
 impl Headset {
-    /// Opens `url` (the view's `http://HOST:PORT`) in a `width` x `height` window with an emulated
-    /// headset, and has the page enter a session (the world must be sending frames meanwhile).
-    pub fn open(url: &str, width: u32, height: u32) -> anyhow::Result<Headset> {
+    /// Opens `url` (the view's `http://HOST:PORT`) with the page's `query` in a `width` x `height`
+    /// window with an emulated headset, and has the page enter a session (the world must be sending
+    /// frames meanwhile).
+    pub fn open(url: &str, query: &str, width: u32, height: u32) -> anyhow::Result<Headset> {
         let exe = chromium()?;
         let dir = browser_tests_dir();
         let script = headset_driver(&dir)?;
@@ -179,7 +204,7 @@ impl Headset {
         use std::os::unix::process::CommandExt;
         let mut child = Command::new(&node)
             .arg(&script)
-            .args([url, &width.to_string(), &height.to_string()])
+            .args([url, &width.to_string(), &height.to_string(), query])
             .current_dir(&dir)
             .env("SPIDAR_CHROMIUM", &exe)
             .stdin(Stdio::piped())
@@ -215,6 +240,11 @@ impl Headset {
                 }
             }
         }
+    }
+
+    /// The CPU time its browser's processes have used so far (s; 0 before it started).
+    pub fn cpu_s(&self) -> f64 {
+        self.chromium.map(|p| group_cpu_s(p as u32)).unwrap_or(0.0)
     }
 }
 

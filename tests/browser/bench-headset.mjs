@@ -1,7 +1,7 @@
 // The benchmarks' headset: Debian's chromium through puppeteer-core with a WebXR headset emulated
 // inside the page (npm `iwer`, as the headset test has it), on the live view at URL, in an
 // immersive session for as long as this script's stdin stays open. Run by `spidar bench view
-// --headset` (lab/src/browser.rs), not by the tests: `node bench-headset.mjs URL WIDTH HEIGHT`.
+// --headset` (lab/src/browser.rs), not by the tests: `node bench-headset.mjs URL WIDTH HEIGHT [QUERY]`.
 //
 // Lines out: `CHROMIUM PID` once the browser runs (the caller stops its process group if this
 // script dies), `PRESENTING` once the page draws in the session, `FAILED why` if it cannot. On
@@ -11,7 +11,7 @@ import os from 'node:os';
 import path from 'node:path';
 import puppeteer from 'puppeteer-core';
 
-const [url, width, height] = process.argv.slice(2);
+const [url, width, height, query = ''] = process.argv.slice(2);
 const say = (l) => process.stdout.write(`${l}\n`);
 const IWER_JS = fs.readFileSync(new URL('./node_modules/iwer/build/iwer.min.js', import.meta.url), 'utf8');
 
@@ -46,7 +46,7 @@ try {
     d.position.set(0, 1.5, 0);
     window.emulatedHeadset = d;
   });
-  await page.goto(`${url}/`);
+  await page.goto(`${url}/?${query}`);
   await page.waitForFunction(() => window.spidarView && spidarView.xr.state().supported && spidarView.state().seq !== null,
     { timeout: 60000 });
   await page.click('#xr-button');

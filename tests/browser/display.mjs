@@ -48,13 +48,16 @@ const clip = (r, v) => {
   return { x, y, w: Math.min(r.x + r.w, v.x + v.w) - x, h: Math.min(r.y + r.h, v.y + v.h) - y };
 };
 
-// Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip) and both
-// grips are shown; returns the grips.
+// Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip), both
+// grips are shown, and no part drawn is lit by a recent hit (a flash fading from white over the
+// virtual human's red is the grips' yellow to the pixel classes: a forearm that had just touched
+// the left grip once moved its pixels' centre 28 px); returns the grips.
 async function pauseStill(page) {
   for (let tries = 0; tries < 100; tries++) {
     await pause(page);
     const grips = await page.evaluate(() => spidarView.grips());
-    if (grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
+    const lit = await page.evaluate(() => spidarView.desc().shapes.some((s) => { const d = spidarView.shape(s.name); return d.visible && d.flash > 0; }));
+    if (!lit && grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
     await page.evaluate(() => spidarView.resume());
     await sleep(150);
   }
@@ -69,6 +72,16 @@ async function screen(browser) {
     const page = await open(browser, url, `camera=eye&avatar=0&strings=0&hud=0&labels=0&stereo=${format}${hide}`);
     await page.waitForFunction(() => spidarView.screen().on, { timeout: 60000 });
     check((await page.evaluate(() => spidarView.screen().format)) === format, `${format}: the page draws the screen ${format}`);
+    if (format === 'mono') {
+      // On chromium's software WebGL the page draws the cheap way (no multisampling, Lambert
+      // shading); asked, the GPU's way.
+      const gl = await page.evaluate(() => spidarView.state().gl);
+      check(/swiftshader/i.test(gl.software) && !gl.antialias && gl.shading === 'lambert', `software WebGL: ${JSON.stringify(gl)}`);
+      const asked = await open(browser, url, 'camera=eye&aa=1&shading=standard');
+      const gpuWay = await asked.evaluate(() => spidarView.state().gl);
+      check(gpuWay.antialias && gpuWay.shading === 'standard', `?aa=1&shading=standard: ${JSON.stringify(gpuWay)}`);
+      await asked.close();
+    }
     const grips = await pauseStill(page);
     const head = await page.evaluate(() => spidarView.shape('virtual human/head')); // drawn or not
     const points = [

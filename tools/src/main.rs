@@ -305,6 +305,10 @@ enum BenchCmd {
         /// there first).
         #[arg(long)]
         headset: bool,
+        /// More of the query of the page the browser opens, e.g. `shading=standard&aa=1` (a GPU's
+        /// look on a software renderer: docs/view.md).
+        #[arg(long, default_value = "")]
+        page: String,
         /// With --age: the browser window's size, WIDTHxHEIGHT (px).
         #[arg(long, default_value = "960x540", requires = "age")]
         size: String,
@@ -694,6 +698,7 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
             size,
             browser,
             headset,
+            page,
         } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
@@ -711,7 +716,7 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     .ok_or_else(|| {
                         anyhow::anyhow!("--size {size}: give WIDTHxHEIGHT in pixels, e.g. 960x540")
                     })?;
-                let o = AgeBenchOptions { scene, seconds, width, height, world: None, headset };
+                let o = AgeBenchOptions { scene, seconds, width, height, world: None, headset, page };
                 bench_age(&r, &o)?.to_string()
             } else {
                 errln!(
@@ -728,6 +733,7 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     fifo,
                     browser,
                     headset,
+                    page,
                 };
                 bench_view(&r, &o)?.to_string()
             }
