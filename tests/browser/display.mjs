@@ -122,7 +122,8 @@ async function screen(browser) {
     await page.close();
     // SPIDAR_SHOTS=DIR: the README's pictures, the page as a user sees it.
     if (process.env.SPIDAR_SHOTS && (format === 'mono' || format === 'side-by-side')) {
-      const shot = await open(browser, url, `camera=eye&bodies=people&stereo=${format}`);
+      // Drawn as with a GPU (the software renderer's cheaper way is not the README's picture).
+      const shot = await open(browser, url, `camera=eye&bodies=people&stereo=${format}&aa=1&shading=standard`);
       await sleep(2500);
       await screenshot(shot, `${process.env.SPIDAR_SHOTS}/screen-${format}.png`);
       await shot.close();
