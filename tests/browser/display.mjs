@@ -49,19 +49,34 @@ const clip = (r, v) => {
 };
 
 // Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip), both
-// grips are shown, and no part drawn is lit by a recent hit (a flash fading from white over the
-// virtual human's red is the grips' yellow to the pixel classes: a forearm that had just touched
-// the left grip once moved its pixels' centre 28 px); returns the grips.
+// grips are shown, and nothing else near a grip can be taken for it: no contact within 25 cm (its
+// point and force arrow: a contact with the virtual human hidden in the anaglyph, while the rig was
+// inactive and the hands felt nothing, once moved the right grip's pixels' centre 8 px), and no
+// part drawn within 35 cm lit by a recent hit (a flash fading from white over the virtual human's
+// red is the grips' yellow to the pixel classes: a forearm that had just touched the left grip
+// once moved its pixels' centre 28 px); returns the grips.
 async function pauseStill(page) {
   for (let tries = 0; tries < 100; tries++) {
     await pause(page);
     const grips = await page.evaluate(() => spidarView.grips());
-    const lit = await page.evaluate(() => spidarView.desc().shapes.some((s) => { const d = spidarView.shape(s.name); return d.visible && d.flash > 0; }));
-    if (!lit && grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
+    const near = await page.evaluate((G) => {
+      const d = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+      const nearGrip = (p, r) => G.some((g) => d(p, g) < r);
+      const L = spidarView.desc().layout;
+      const f = spidarView.frameWords();
+      let contacts = 0;
+      for (let i = 0; i < (f[L.globals_at + 1] | 0); i++) {
+        const o = L.contacts_at + i * L.contact_floats;
+        if (nearGrip([f[o], f[o + 1], f[o + 2]], 0.25)) contacts++;
+      }
+      const lit = spidarView.desc().shapes.filter((s) => { const x = spidarView.shape(s.name); return x.visible && x.flash > 0 && nearGrip(x.pos, 0.35); }).length;
+      return { contacts, lit };
+    }, grips.map((g) => g.pos));
+    if (near.contacts === 0 && near.lit === 0 && grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
     await page.evaluate(() => spidarView.resume());
     await sleep(150);
   }
-  throw new Error('no frame with both grips shown and no force on them');
+  throw new Error('no frame with both grips shown, no force on them, and no contact or part lit by a hit near them');
 }
 
 async function screen(browser) {
