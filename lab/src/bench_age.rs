@@ -4,6 +4,9 @@
 //! draws, from the rig tick whose hand sample it shows to its drawing (`docs/view.md`), and the
 //! world keeps the last thousand in its status; this reads them there at the end.
 //!
+//! With `--headset` the page is drawn in an immersive session of an emulated headset
+//! ([`crate::browser::Headset`]) and the ages are the headset's pictures'.
+//!
 //! Must never: report a figure it did not measure (no browser, no report: an error saying why).
 
 use std::io::{Read, Write};
@@ -16,7 +19,22 @@ use spidar_rt::Rig;
 use spidar_runtime::child_world::ChildWorldSpec;
 use spidar_runtime::session::{load_scripts, sim_device, LiveOptions, LiveSession, SimOptions, WorldChoice};
 
-use crate::browser::Browser;
+use crate::browser::{Browser, Headset};
+
+/// The browser drawing the page, held for its drop (which stops it).
+enum Page {
+    Screen(Browser),
+    Headset(Headset),
+}
+
+impl Page {
+    fn cpu_s(&self) -> f64 {
+        match self {
+            Page::Screen(b) => b.cpu_s(),
+            Page::Headset(h) => h.cpu_s(),
+        }
+    }
+}
 
 pub struct AgeBenchOptions {
     pub scene: String,
@@ -27,6 +45,11 @@ pub struct AgeBenchOptions {
     pub height: u32,
     /// The world process to start (None: this executable's `spidar world`).
     pub world: Option<ChildWorldSpec>,
+    /// The page in an immersive session of an emulated headset ([`crate::browser::Headset`]); the
+    /// headset's pictures' ages.
+    pub headset: bool,
+    /// More of the page's query (`shading=standard&aa=1`, say).
+    pub page: String,
 }
 
 /// The ages of one kind of page, as the world's status has them.
@@ -59,6 +82,9 @@ pub struct AgeReport {
     pub ages: Ages,
     pub seconds: f64,
     pub load: [String; 2],
+    /// The browser's CPU time over the measured seconds, and the pictures it reported drawing then.
+    pub browser_cpu_s: f64,
+    pub pictures: u64,
 }
 
 /// `GET path` from the view at `url` (`http://HOST:PORT`): the body.
@@ -131,14 +157,26 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
         s.request_stop();
         bail!("the world process printed no view address")
     };
-    let (kind, page, query) = ("screen", "screen", "?camera=eye");
-    let browser = Browser::open(&format!("{url}/{query}"), o.width, o.height)?;
+    let (kind, page) = if o.headset { ("headset", "headset") } else { ("screen", "screen") };
+    let mut browser = if o.headset {
+        Page::Headset(Headset::open(&url, &o.page, o.width, o.height)?)
+    } else {
+        Page::Screen(Browser::open(&format!("{url}/?camera=eye&{}", o.page), o.width, o.height)?)
+    };
     let load_start = load();
     // The page draws and reports; then the window of reports is what this run drew.
     let until = Instant::now() + Duration::from_secs(90);
     let mut first = None;
     while Instant::now() < until {
         poll(&mut s, &mut Some(String::new()));
+        if let Page::Headset(h) = &mut browser {
+            // A driver that gave up says why.
+            if let Err(e) = h.presenting() {
+                drop(browser);
+                s.request_stop();
+                return Err(e);
+            }
+        }
         if ages_in(&url, kind)?.is_some_and(|a| a.total > 0) {
             first = Some(Instant::now());
             break;
@@ -150,19 +188,29 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
         s.request_stop();
         bail!("the browser drew nothing the world heard of in 90 s");
     }
+    let (cpu0, total0) = (browser.cpu_s(), ages_in(&url, kind)?.map(|a| a.total).unwrap_or(0));
     let until = Instant::now() + Duration::from_secs_f64(o.seconds);
     while Instant::now() < until {
         poll(&mut s, &mut Some(String::new()));
         std::thread::sleep(Duration::from_millis(20));
     }
     let ages = ages_in(&url, kind)?.unwrap_or_default();
+    let (browser_cpu_s, pictures) = (browser.cpu_s() - cpu0, ages.total - total0);
     drop(browser);
     s.request_stop();
     while poll(&mut s, &mut Some(String::new())) {
         std::thread::sleep(Duration::from_millis(10));
     }
     let _ = s.finish(0, &mut |_| {});
-    Ok(AgeReport { scene: o.scene.clone(), page, ages, seconds: o.seconds, load: [load_start, load()] })
+    Ok(AgeReport {
+        scene: o.scene.clone(),
+        page,
+        ages,
+        seconds: o.seconds,
+        load: [load_start, load()],
+        browser_cpu_s,
+        pictures,
+    })
 }
 
 impl std::fmt::Display for AgeReport {
@@ -198,10 +246,19 @@ impl std::fmt::Display for AgeReport {
             "  of which the page's own drawing (software WebGL here): p50 {:.1} ms, p99 {:.1} ms",
             a.draw_p50_ms, a.draw_p99_ms
         )?;
-        write!(
+        writeln!(
             f,
             "  drawn hands behind their tick: p50 {:.1} ms, p99 {:.1} ms",
             a.hand_lag_p50_ms, a.hand_lag_p99_ms
+        )?;
+        write!(
+            f,
+            "  the browser's CPU time (all its processes): {:.1} ms a picture ({} new frames drawn in {:.0} s, {:.1} a second; \
+             counts work, not waiting, so it changes little with the machine's load)",
+            1e3 * self.browser_cpu_s / self.pictures.max(1) as f64,
+            self.pictures,
+            self.seconds,
+            self.pictures as f64 / self.seconds
         )
     }
 }

@@ -70,6 +70,52 @@ pub struct ViewBenchOptions {
     /// The viewers' block has one real browser (headless chromium drawing the page from the user's
     /// eye) instead of WebSocket clients.
     pub browser: bool,
+    /// A block with a headless chromium drawing the page in an immersive session of an emulated
+    /// headset (`crate::browser::Headset`: node, puppeteer-core and iwer from tests/browser).
+    pub headset: bool,
+    /// More of the browsers' page query (`shading=standard&aa=1`, say).
+    pub page: String,
+}
+
+/// What a block has watching the world.
+#[derive(Clone, Copy)]
+enum Block {
+    Off,
+    NoViewer,
+    Viewers(usize),
+    Browser,
+    Headset,
+}
+
+impl Block {
+    fn name(&self) -> String {
+        match self {
+            Block::Off => "view off".into(),
+            Block::NoViewer => "view, no viewer".into(),
+            Block::Viewers(n) => format!("view, {n} viewers"),
+            Block::Browser => "view, a screen".into(),
+            Block::Headset => "view, a headset".into(),
+        }
+    }
+}
+
+/// A block's browser, if it has one.
+enum Page {
+    None,
+    // Held for its drop, which stops the browser.
+    #[allow(dead_code)]
+    Screen(crate::browser::Browser),
+    Headset(crate::browser::Headset),
+}
+
+impl Page {
+    /// Whether the page is drawing as the block wants (a headset: in its session).
+    fn ready(&mut self) -> anyhow::Result<bool> {
+        match self {
+            Page::Headset(h) => h.presenting(),
+            Page::None | Page::Screen(_) => Ok(true),
+        }
+    }
 }
 
 #[derive(Default)]
@@ -91,7 +137,7 @@ pub struct Phase {
 pub struct ViewBenchReport {
     pub scene: String,
     pub frame_bytes: u64,
-    pub phases: [(String, Phase); 3],
+    pub phases: Vec<(String, Phase)>,
     pub load: String,
     pub rt: String,
 }
@@ -144,6 +190,31 @@ struct World<'a> {
 }
 
 impl World<'_> {
+    /// One world step after the rig's ticks of its span, not timed (while a browser starts).
+    fn step_unmeasured(self, samples: &mut Vec<spidar_msg::HandSample>, ticks_per_step: u64) {
+        let World { v, scene, info, observer } = self;
+        for _ in 0..ticks_per_step {
+            v.rt.tick();
+        }
+        for _ in v.far.telemetry.try_iter() {}
+        samples.clear();
+        samples.extend(v.far.samples.try_iter());
+        let t = v.clock.now_ns() as f64 * 1e-9;
+        let m = scene.step(t, samples);
+        if let Some(o) = observer {
+            let sv = StepView {
+                t_s: t,
+                scene: &*scene,
+                samples,
+                model: &m,
+                rig_info: Some(info),
+                rig_status: None,
+            };
+            o.after_step(&sv);
+        }
+        let _ = v.far.models.try_send(m);
+    }
+
     /// `steps` world steps paced by `clock` at the scene's rate, each after the rig's ticks of its
     /// span, timed into `phase` (the whole step, the scene's part, the observer's part).
     fn step_block(
@@ -236,62 +307,59 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         None => "normal priority".to_string(),
     };
     let ticks_per_step = (scene.step_s() / rig.period_s).round().max(1.0) as u64;
-    let mut phases: [(String, Phase); 3] = [
-        ("view off".into(), Phase::default()),
-        ("view, no viewer".into(), Phase::default()),
-        (
-            if o.browser { "view, a browser".to_string() } else { format!("view, {} viewers", o.viewers) },
-            Phase::default(),
-        ),
-    ];
+    let mut blocks = vec![Block::Off, Block::NoViewer];
+    if o.browser {
+        blocks.push(Block::Browser);
+    } else if o.viewers > 0 || !o.headset {
+        blocks.push(Block::Viewers(o.viewers));
+    }
+    if o.headset {
+        blocks.push(Block::Headset);
+    }
+    let mut phases: Vec<(String, Phase)> = blocks.iter().map(|b| (b.name(), Phase::default())).collect();
     let mut clock = MonotonicClock::new();
     let mut samples = Vec::with_capacity(64);
     let bytes = Arc::new(AtomicU64::new(0));
     let steps_per_block = (o.seconds_per_block / scene.step_s()).round().max(1.0) as u64;
     for _ in 0..o.rounds {
-        for (p, (_, phase)) in phases.iter_mut().enumerate() {
+        for (block, (_, phase)) in blocks.iter().zip(phases.iter_mut()) {
             let stop = Arc::new(AtomicBool::new(false));
-            let want = if p == 2 && o.browser {
-                1
-            } else if p == 2 {
-                o.viewers
-            } else {
-                0
+            let (want, clients) = match *block {
+                Block::Off | Block::NoViewer => (0, 0),
+                Block::Viewers(n) => (n, n),
+                Block::Browser | Block::Headset => (1, 0),
             };
-            let counts: Vec<Arc<AtomicU64>> =
-                (0..if o.browser { 0 } else { want }).map(|_| Arc::new(AtomicU64::new(0))).collect();
+            let counts: Vec<Arc<AtomicU64>> = (0..clients).map(|_| Arc::new(AtomicU64::new(0))).collect();
             // A real browser draws the page (its frames drawn, from the ages it reports).
-            let browser = if p == 2 && o.browser {
-                Some(crate::browser::Browser::open(&format!("{}/?camera=eye", handle.url()), 960, 540)?)
-            } else {
-                None
+            let url = handle.url();
+            let mut page = match block {
+                Block::Browser => Page::Screen(crate::browser::Browser::open(
+                    &format!("{url}/?camera=eye&{}", o.page),
+                    960,
+                    540,
+                )?),
+                Block::Headset => Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540)?),
+                _ => Page::None,
             };
             for c in &counts {
                 spawn_tx.send((handle.ws_url().to_string(), stop.clone(), c.clone(), bytes.clone()))?;
             }
             let threads: Vec<_> = counts.iter().filter_map(|_| joined_rx.recv().ok()).collect();
-            let until = Instant::now() + Duration::from_secs(if browser.is_some() { 60 } else { 5 });
-            while handle.counters().viewers.load(Ordering::Relaxed) != want && Instant::now() < until {
+            let browser = !matches!(page, Page::None);
+            let until = Instant::now() + Duration::from_secs(if browser { 90 } else { 5 });
+            loop {
+                let connected = handle.counters().viewers.load(Ordering::Relaxed) == want;
+                if connected && page.ready()? {
+                    break;
+                }
+                if Instant::now() > until {
+                    anyhow::bail!("{}: the page was not drawing after 90 s", block.name());
+                }
                 // The world steps on while a browser starts (its page needs frames to draw).
-                if browser.is_some() {
-                    for _ in 0..ticks_per_step {
-                        v.rt.tick();
-                    }
-                    for _ in v.far.telemetry.try_iter() {}
-                    samples.clear();
-                    samples.extend(v.far.samples.try_iter());
-                    let t = v.clock.now_ns() as f64 * 1e-9;
-                    let m = scene.step(t, &samples);
-                    let sv = StepView {
-                        t_s: t,
-                        scene: &*scene,
-                        samples: &samples,
-                        model: &m,
-                        rig_info: Some(&info),
-                        rig_status: None,
-                    };
-                    view.after_step(&sv);
-                    let _ = v.far.models.try_send(m);
+                if browser {
+                    let world =
+                        World { v: &mut v, scene: &mut *scene, info: &info, observer: Some(&mut view) };
+                    world.step_unmeasured(&mut samples, ticks_per_step);
                     std::thread::sleep(Duration::from_millis(3));
                 } else {
                     std::thread::sleep(Duration::from_millis(10));
@@ -300,23 +368,27 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             handle.clear_picture_ages();
             let started = Instant::now();
             let at_start: Vec<u64> = counts.iter().map(|c| c.load(Ordering::Relaxed)).collect();
-            let observer: Option<&mut dyn Observer> = if p > 0 { Some(&mut view) } else { None };
+            let observer: Option<&mut dyn Observer> =
+                if matches!(block, Block::Off) { None } else { Some(&mut view) };
             let world = World { v: &mut v, scene: &mut *scene, info: &info, observer };
             world.step_block(&mut clock, &mut samples, phase, steps_per_block, ticks_per_step);
             let secs = started.elapsed().as_secs_f64();
             for (c, s) in counts.iter().zip(at_start) {
                 phase.viewer_read(c.load(Ordering::Relaxed) - s, secs);
             }
-            if let Some(b) = browser {
-                let (screen, _) = handle.picture_ages().summaries();
-                if let Some(a) = screen {
+            if browser {
+                let (screen, headset) = handle.picture_ages().summaries();
+                let drew = if matches!(block, Block::Headset) { headset } else { screen };
+                if let Some(a) = drew {
                     phase.frames_read += a.frames as u64;
                     phase.viewer_seconds += secs;
-                    phase.min_viewer_hz = a.frames as f64 / secs;
+                    let hz = a.frames as f64 / secs;
+                    phase.min_viewer_hz =
+                        if phase.min_viewer_hz == 0.0 { hz } else { phase.min_viewer_hz.min(hz) };
                     phase.ages.push((a.p50_ms, a.p99_ms));
                 }
-                drop(b);
             }
+            drop(page);
             stop.store(true, Ordering::Relaxed);
             for t in threads {
                 let _ = t.join();

@@ -48,17 +48,35 @@ const clip = (r, v) => {
   return { x, y, w: Math.min(r.x + r.w, v.x + v.w) - x, h: Math.min(r.y + r.h, v.y + v.h) - y };
 };
 
-// Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip) and both
-// grips are shown; returns the grips.
+// Pauses the page on a frame where neither hand feels a force (no arrow drawn at a grip), both
+// grips are shown, and nothing else near a grip can be taken for it: no contact within 25 cm (its
+// point and force arrow: a contact with the virtual human hidden in the anaglyph, while the rig was
+// inactive and the hands felt nothing, once moved the right grip's pixels' centre 8 px), and no
+// part drawn within 35 cm lit by a recent hit (a flash fading from white over the virtual human's
+// red is the grips' yellow to the pixel classes: a forearm that had just touched the left grip
+// once moved its pixels' centre 28 px); returns the grips.
 async function pauseStill(page) {
   for (let tries = 0; tries < 100; tries++) {
     await pause(page);
     const grips = await page.evaluate(() => spidarView.grips());
-    if (grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
+    const near = await page.evaluate((G) => {
+      const d = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1], a[2] - b[2]);
+      const nearGrip = (p, r) => G.some((g) => d(p, g) < r);
+      const L = spidarView.desc().layout;
+      const f = spidarView.frameWords();
+      let contacts = 0;
+      for (let i = 0; i < (f[L.globals_at + 1] | 0); i++) {
+        const o = L.contacts_at + i * L.contact_floats;
+        if (nearGrip([f[o], f[o + 1], f[o + 2]], 0.25)) contacts++;
+      }
+      const lit = spidarView.desc().shapes.filter((s) => { const x = spidarView.shape(s.name); return x.visible && x.flash > 0 && nearGrip(x.pos, 0.35); }).length;
+      return { contacts, lit };
+    }, grips.map((g) => g.pos));
+    if (near.contacts === 0 && near.lit === 0 && grips.every((g) => g.visible && Math.hypot(...g.force) < 0.04)) return grips;
     await page.evaluate(() => spidarView.resume());
     await sleep(150);
   }
-  throw new Error('no frame with both grips shown and no force on them');
+  throw new Error('no frame with both grips shown, no force on them, and no contact or part lit by a hit near them');
 }
 
 async function screen(browser) {
@@ -69,6 +87,16 @@ async function screen(browser) {
     const page = await open(browser, url, `camera=eye&avatar=0&strings=0&hud=0&labels=0&stereo=${format}${hide}`);
     await page.waitForFunction(() => spidarView.screen().on, { timeout: 60000 });
     check((await page.evaluate(() => spidarView.screen().format)) === format, `${format}: the page draws the screen ${format}`);
+    if (format === 'mono') {
+      // On chromium's software WebGL the page draws the cheap way (no multisampling, Lambert
+      // shading); asked, the GPU's way.
+      const gl = await page.evaluate(() => spidarView.state().gl);
+      check(/swiftshader/i.test(gl.software) && !gl.antialias && gl.shading === 'lambert', `software WebGL: ${JSON.stringify(gl)}`);
+      const asked = await open(browser, url, 'camera=eye&aa=1&shading=standard');
+      const gpuWay = await asked.evaluate(() => spidarView.state().gl);
+      check(gpuWay.antialias && gpuWay.shading === 'standard', `?aa=1&shading=standard: ${JSON.stringify(gpuWay)}`);
+      await asked.close();
+    }
     const grips = await pauseStill(page);
     const head = await page.evaluate(() => spidarView.shape('virtual human/head')); // drawn or not
     const points = [
@@ -109,7 +137,8 @@ async function screen(browser) {
     await page.close();
     // SPIDAR_SHOTS=DIR: the README's pictures, the page as a user sees it.
     if (process.env.SPIDAR_SHOTS && (format === 'mono' || format === 'side-by-side')) {
-      const shot = await open(browser, url, `camera=eye&bodies=people&stereo=${format}`);
+      // Drawn as with a GPU (the software renderer's cheaper way is not the README's picture).
+      const shot = await open(browser, url, `camera=eye&bodies=people&stereo=${format}&aa=1&shading=standard`);
       await sleep(2500);
       await screenshot(shot, `${process.env.SPIDAR_SHOTS}/screen-${format}.png`);
       await shot.close();

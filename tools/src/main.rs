@@ -302,6 +302,15 @@ enum BenchCmd {
         /// The viewers' block has one headless chromium drawing the page instead of WebSocket clients.
         #[arg(long, conflicts_with = "age")]
         browser: bool,
+        /// A block (with --age: the page) with headless chromium in an immersive session of an
+        /// emulated headset, driven by node, puppeteer-core and iwer from tests/browser (`npm ci`
+        /// there first).
+        #[arg(long)]
+        headset: bool,
+        /// More of the query of the page the browser opens, e.g. `shading=standard&aa=1` (a GPU's
+        /// look on a software renderer: docs/view.md).
+        #[arg(long, default_value = "")]
+        page: String,
         /// With --age: the browser window's size, WIDTHxHEIGHT (px).
         #[arg(long, default_value = "960x540", requires = "age")]
         size: String,
@@ -689,7 +698,20 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                 LinkBenchOptions { seconds_each: seconds, blocks, rt, scene, echoes, world, world_priority };
             bench_link(&r, &o)?.to_string()
         }
-        BenchCmd::View { rig, scene, characters, seconds, rounds, viewers, fifo, age, size, browser } => {
+        BenchCmd::View {
+            rig,
+            scene,
+            characters,
+            seconds,
+            rounds,
+            viewers,
+            fifo,
+            age,
+            size,
+            browser,
+            headset,
+            page,
+        } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
             let r = match &rig {
@@ -706,11 +728,13 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     .ok_or_else(|| {
                         anyhow::anyhow!("--size {size}: give WIDTHxHEIGHT in pixels, e.g. 960x540")
                     })?;
-                let o = AgeBenchOptions { scene, seconds, width, height, world: None };
+                let o = AgeBenchOptions { scene, seconds, width, height, world: None, headset, page };
                 bench_age(&r, &o)?.to_string()
             } else {
                 errln!(
-                    "{rounds} rounds of three {seconds} s blocks (view off, no viewer, {viewers} viewers) ..."
+                    "{rounds} rounds of {seconds} s blocks (view off, no viewer, {}{}) ...",
+                    if browser { "a screen browser".to_string() } else { format!("{viewers} viewers") },
+                    if headset { ", a headset" } else { "" }
                 );
                 let o = ViewBenchOptions {
                     scene,
@@ -720,6 +744,8 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     viewers,
                     fifo,
                     browser,
+                    headset,
+                    page,
                 };
                 bench_view(&r, &o)?.to_string()
             }

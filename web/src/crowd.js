@@ -5,6 +5,7 @@
 // One instanced mesh per bone, so a thousand characters are a score of draw calls. Drawn as people
 // (crowdpeople.js) the same figure is clothed; the bones are then hidden (the toggle `b`).
 import * as THREE from 'three';
+import { litMaterial } from './materials.js';
 import { CSS2DObject } from 'three/addons/renderers/CSS2DRenderer.js';
 import { CrowdPeople } from './crowdpeople.js';
 
@@ -45,7 +46,7 @@ export class Crowd {
     this.flashColour = new THREE.Color(0xffffff);
     this.head = this.joints.findIndex((j) => /head/.test(j.name));
     const mesh = (g) => {
-      const m = new THREE.InstancedMesh(g, new THREE.MeshStandardMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
+      const m = new THREE.InstancedMesh(g, litMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
       m.count = this.n;
       m.frustumCulled = false;
       m.instanceMatrix.setUsage(THREE.DynamicDrawUsage);

@@ -9,6 +9,7 @@
 //
 // Never moves a joint: the pieces follow the frame's joints, whatever they are.
 import * as THREE from 'three';
+import { litMaterial } from './materials.js';
 
 const SEGS = 12;
 const SKIN = new THREE.Color(0xd9a27e);
@@ -88,7 +89,7 @@ export class CrowdPeople {
     this.colours = c.colours.map((h) => new THREE.Color(h));
     this.flashColour = new THREE.Color(0xffffff);
     const mesh = (g, fixed) => {
-      const m = new THREE.InstancedMesh(g, new THREE.MeshStandardMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
+      const m = new THREE.InstancedMesh(g, litMaterial({ roughness: 0.7 }), Math.max(this.n, 1));
       m.count = this.n;
       m.frustumCulled = false;
       m.instanceMatrix.setUsage(THREE.DynamicDrawUsage);

@@ -6,6 +6,7 @@
 // on the floor under the hips by two-bone inverse kinematics. The eyes look where the scene says
 // the body looks (`gaze`, when the scene sends it), else straight ahead of the head.
 import * as THREE from 'three';
+import { litMaterial } from './materials.js';
 
 const SEGS = 18;
 const UP = new THREE.Vector3(0, 1, 0);
@@ -46,7 +47,7 @@ export class Humanoids {
   build(h, desc, root) {
     const cloth = new THREE.Color(h.colour);
     const skin = new THREE.Color(h.skin);
-    const mat = (c, rough = 0.65) => new THREE.MeshStandardMaterial({ color: c, roughness: rough });
+    const mat = (c, rough = 0.65) => litMaterial({ color: c, roughness: rough });
     const person = { name: h.name, pieces: [], ends: [], legs: null, head: null, forward: v(h.forward), feet: null };
     // Joint points per shape: name -> point in that shape's frame.
     const at = new Map();

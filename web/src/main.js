@@ -16,11 +16,35 @@ import { Study } from './study.js';
 import { AgeReporter, stamp } from './age.js';
 import { showTargets } from './place.js';
 import { Headset, Interpolator } from './xr.js';
+import { lambertShading, useLambert } from './materials.js';
 
 const params = new URLSearchParams(location.search);
+
+// The name of the WebGL renderer if it is a software one, else null.
+function softwareRenderer() {
+  try {
+    const gl = document.createElement('canvas').getContext('webgl2') || document.createElement('canvas').getContext('webgl');
+    if (!gl) return null;
+    const info = gl.getExtension('WEBGL_debug_renderer_info');
+    const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    const lose = gl.getExtension('WEBGL_lose_context');
+    if (lose) lose.loseContext();
+    return /swiftshader|llvmpipe|softpipe|software/i.test(name) ? name : null;
+  } catch {
+    return null;
+  }
+}
 const container = document.getElementById('view');
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+// A software WebGL (no GPU: SwiftShader, llvmpipe) pays for every pixel on the CPU, and the
+// browser hands the page its frames only as fast as it finishes pictures: there the page draws
+// without multisampling, at one pixel per CSS pixel and with Lambert shading (materials.js), which
+// makes each picture less than half as costly and the picture younger (docs/view.md, the
+// picture's age). `?aa=1|0` and `?shading=standard|lambert` choose.
+const softwareGl = softwareRenderer();
+const antialias = params.has('aa') ? params.get('aa') !== '0' : !softwareGl;
+useLambert(params.has('shading') ? params.get('shading') === 'lambert' : !!softwareGl);
+const renderer = new THREE.WebGLRenderer({ antialias, preserveDrawingBuffer: true });
+renderer.setPixelRatio(softwareGl ? 1 : Math.min(window.devicePixelRatio || 1, 2));
 container.appendChild(renderer.domElement);
 const labelRenderer = new CSS2DRenderer();
 labelRenderer.domElement.style.position = 'absolute';
@@ -77,7 +101,7 @@ let framesReceived = 0;
 let rateCount = 0;
 let rateSince = performance.now();
 let renders = 0;
-const renderWaiters = [];
+const renderWaiters = []; // [the render count to wait for, its promise's resolve]
 let playback = null; // the playback bar, when the page shows a replay
 let study = null; // the reaction study's panel, when the page serves one
 // Each playback message with the newest frame's time when it came (for tests: frames against the
@@ -255,7 +279,7 @@ function frameLoop() {
     ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, performance.now() - drawStart, applied.arrivedMs, drawStart);
   }
   renders++;
-  while (renderWaiters.length) renderWaiters.shift()();
+  for (let i = renderWaiters.length - 1; i >= 0; i--) if (renders >= renderWaiters[i][0]) renderWaiters.splice(i, 1)[0][1]();
 }
 const tmpEye = new THREE.Vector3();
 renderer.setAnimationLoop(frameLoop);
@@ -285,6 +309,8 @@ window.spidarView = {
     replay: !!playback,
     stamp: applied ? applied.stamp : null,
     drawnReport: ages.last,
+    // How the page draws: multisampled or not, and the software renderer's name (null: a GPU).
+    gl: { antialias, software: softwareGl, shading: lambertShading() ? 'lambert' : 'standard' },
   }),
   // A replay's state (its last `playback` message) and the bar's text, or null when live.
   playback: () => playback && { ...playback.state, shown: playback.k.time.textContent, button: playback.k.play.textContent },
@@ -294,7 +320,7 @@ window.spidarView = {
   pause: () => { paused = true; return { seq: applied ? applied.seq : null, t: applied ? applied.t : null }; },
   resume: () => { paused = false; },
   // Resolves after the next two renders (the screen then shows the applied frame).
-  rendered: () => new Promise((res) => renderWaiters.push(() => renderWaiters.push(res))),
+  rendered: () => new Promise((res) => renderWaiters.push([renders + 2, res])),
   setCamera,
   orbitTo: (pos, target) => {
     cameras.orbit.position.fromArray(pos);
@@ -332,7 +358,7 @@ window.spidarView = {
     m.getWorldPosition(tmp);
     const pos = [tmp.x, tmp.y, tmp.z];
     const o = desc.layout.shapes_at + i * desc.layout.shape_floats;
-    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash,
+    return { index: i, pos, screen: project(pos), frame: Array.from(applied.f.subarray(o, o + 7)), flash: m.userData.flash, visible: m.visible,
       force: applied.f[desc.layout.shape_force_at + i] };
   },
   // A body drawn as a person: each joint as its two pieces draw it; where its eyes look.

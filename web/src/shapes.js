@@ -1,6 +1,7 @@
 // Geometry for the world's collision shapes: spheres, capsules (axis along y), boxes and planes,
 // as three.js meshes built once from the scene description.
 import * as THREE from 'three';
+import { litMaterial } from './materials.js';
 
 export function shapeMesh(s, material) {
   let g;
@@ -21,7 +22,7 @@ export function floorMesh() {
   const group = new THREE.Group();
   const floor = new THREE.Mesh(
     new THREE.PlaneGeometry(60, 60),
-    new THREE.MeshStandardMaterial({ color: 0x5a5c58, roughness: 0.95 }),
+    litMaterial({ color: 0x5a5c58, roughness: 0.95 }),
   );
   floor.rotation.x = -Math.PI / 2;
   floor.position.y = -0.001;

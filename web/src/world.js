@@ -2,6 +2,7 @@
 // scenery, the behaviour labels, the contact proxies the rig renders against, and the contacts
 // with their force arrows. Built once; `apply` only moves transforms and sets visibilities.
 import * as THREE from 'three';
+import { litMaterial } from './materials.js';
 import { CSS2DObject } from 'three/addons/renderers/CSS2DRenderer.js';
 import { shapeMesh } from './shapes.js';
 
@@ -16,7 +17,7 @@ export class World {
     this.group = new THREE.Group();
     root.add(this.group);
     this.meshes = desc.shapes.map((s) => {
-      const mat = new THREE.MeshStandardMaterial({ color: s.colour, roughness: 0.6, metalness: 0.0 });
+      const mat = litMaterial({ color: s.colour, roughness: 0.6, metalness: 0.0 });
       const m = shapeMesh(s, mat);
       m.name = s.name;
       m.userData.flash = 0;
@@ -24,7 +25,7 @@ export class World {
       return m;
     });
     for (const s of desc.statics) {
-      const m = shapeMesh(s, new THREE.MeshStandardMaterial({ color: s.colour }));
+      const m = shapeMesh(s, litMaterial({ color: s.colour }));
       m.position.fromArray(s.pos_m);
       m.quaternion.fromArray(s.quat);
       this.group.add(m);
