@@ -973,6 +973,8 @@ struct Trial {
     features: Vec<f64>,
     seen: usize,
     counters: [u64; 4],
+    /// The first defence of the clip, if any: (the blocking hand, the body moved too).
+    defence: Option<(Option<usize>, bool)>,
 }
 
 /// The four parts of Table IV in the world now: the gloves and the two sides of the chest (the
@@ -1012,9 +1014,13 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<Trial> {
     let mut person = Person::new(eye, parts_now(&b, &sides));
     let mut features = Vec::with_capacity(WATCH_AT_S.len() * watched.len() * 3);
     let mut watch = WATCH_AT_S.iter().peekable();
+    let mut defence = None;
     while b.script_t_s() < p.start_s + CLIP_AFTER_S {
         if b.tick().1 {
             person.watch(parts_now(&b, &sides));
+            if defence.is_none() {
+                defence = b.scene.world.mind.defence.map(|d| (d.blocking, d.avoiding));
+            }
         }
         if watch.peek().is_some_and(|&&at| b.script_t_s() >= p.start_s + at) {
             watch.next();
@@ -1031,6 +1037,7 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<Trial> {
         features,
         seen: person.answer().unwrap_or(guess),
         counters: [m.predictions, m.predict_ns_total, m.avoidances, m.blocks],
+        defence,
     })
 }
 
@@ -1165,6 +1172,9 @@ pub struct Reactions {
     pub prediction: Spread,
     pub avoidances: u64,
     pub blocks: u64,
+    /// What the active virtual human did per target (its first defence of each clip):
+    /// [target][no defence, blocked with its left hand, with its right hand, moved its body].
+    pub defences: [[usize; 4]; 4],
 }
 
 /// Runs the section 4.3 experiment: `trials` straights per target, active and passive.
@@ -1177,6 +1187,7 @@ pub fn reactions(
     let mut done = 0;
     let mut preds = Vec::new();
     let (mut avoidances, mut blocks) = (0, 0);
+    let mut defences = [[0usize; 4]; 4];
     let mut modes = Vec::new();
     for active in [true, false] {
         let mut samples = Vec::with_capacity(4 * trials);
@@ -1190,6 +1201,20 @@ pub fn reactions(
                     preds.push(ns / predictions);
                     avoidances += avoid;
                     blocks += block;
+                }
+                if active {
+                    let row = &mut defences[target];
+                    match t.defence {
+                        None => row[0] += 1,
+                        Some((hand, moved)) => {
+                            if let Some(h) = hand {
+                                row[1 + h] += 1;
+                            }
+                            if moved {
+                                row[3] += 1;
+                            }
+                        }
+                    }
                 }
                 seen.counts[target][t.seen] += 1;
                 samples.push((target, t.features));
@@ -1211,6 +1236,7 @@ pub fn reactions(
         prediction: Spread::of(preds),
         avoidances,
         blocks,
+        defences,
     })
 }
 
@@ -1262,6 +1288,15 @@ impl fmt::Display for Reactions {
             self.active_classifier.total(),
             self.passive_classifier.total()
         )?;
+        writeln!(f, "\nwhat the active virtual human did (its first defence per clip; a block and a body motion can be one defence)")?;
+        writeln!(
+            f,
+            "  {:<12} {:>11} {:>17} {:>18} {:>11}",
+            "target", "no defence", "left glove blocks", "right glove blocks", "body moved"
+        )?;
+        for (t, row) in self.defences.iter().enumerate() {
+            writeln!(f, "  {:<12} {:>11} {:>17} {:>18} {:>11}", TARGETS[t], row[0], row[1], row[2], row[3])?;
+        }
         write!(
             f,
             "\nactive trials: {} avoidances, {} blocks; prediction per trial {}",
