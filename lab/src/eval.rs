@@ -1075,6 +1075,13 @@ impl Person {
         (p - self.eye).normalize_or(DVec3::Z) * self.scale_m
     }
 
+    /// Up on the picture at the body: the world's up, less its part along the line of sight.
+    fn up_on_picture(&self) -> DVec3 {
+        let centre = self.rest.iter().sum::<DVec3>() / 4.0;
+        let sight = (centre - self.eye).normalize_or(DVec3::Z);
+        (DVec3::Y - sight * sight.y).normalize_or(DVec3::Y)
+    }
+
     fn watch(&mut self, now: [DVec3; 4]) {
         for i in 0..4 {
             let seen = (self.on_picture(now[i]) - self.on_picture(self.rest[i])).length();
@@ -1091,9 +1098,20 @@ impl Person {
             return None;
         }
         if i < 2 {
-            // A glove: nearer a side of the chest on the picture by most of its motion?
             let apart =
                 |at: &[DVec3; 4], side: usize| (self.on_picture(at[side]) - self.on_picture(at[i])).length();
+            // A glove dropped over the body: down more than across, to the chest sides' height
+            // or lower. It covers the side it is nearer to.
+            let up = self.up_on_picture();
+            let moved = self.on_picture(then[i]) - self.on_picture(self.rest[i]);
+            let down = -moved.dot(up);
+            let across = (moved + up * down).length();
+            let low =
+                [2, 3].iter().all(|&s| (self.on_picture(then[i]) - self.on_picture(then[s])).dot(up) <= 0.0);
+            if down > across && low {
+                return Some(if apart(&then, 2) <= apart(&then, 3) { 2 } else { 3 });
+            }
+            // A glove brought nearer a side of the chest on the picture by most of its motion.
             let (side, gain) = [2, 3]
                 .map(|s| (s, apart(&self.rest, s) - apart(&then, s)))
                 .into_iter()
@@ -1343,6 +1361,35 @@ mod tests {
         let mut p = person();
         p.watch(moved(&p, 2, DVec3::new(0.03, 0.0, 0.0)));
         assert_eq!(p.answer(), Some(2));
+    }
+
+    #[test]
+    fn the_person_reads_a_glove_dropped_over_the_body_as_the_side_it_covers() {
+        // The left glove dropped 16 cm on the picture, to below the chest sides: the left chest.
+        let mut p = person();
+        p.watch(moved(&p, 0, DVec3::new(-0.02, -0.16, 0.0)));
+        assert_eq!(p.answer(), Some(2));
+        // The right glove knocked up 5 cm (a punch at it): the right hand.
+        let mut p = person();
+        p.watch(moved(&p, 1, DVec3::new(0.0, 0.05, 0.0)));
+        assert_eq!(p.answer(), Some(1));
+    }
+
+    /// Table IV on the product path, 4 straights per target and mode (seed 0): the active
+    /// virtual human answers each target with a defence of its own (a chest side is guarded by
+    /// the glove on that side, a glove attacked blocks with that glove), and the person reads
+    /// its chest attacks as the chest; the passive body, only pushed, shows a hand for them.
+    #[test]
+    fn active_reactions_show_the_target_and_passive_motion_does_not() {
+        let r = reactions(4, 0, |_, _| {}).unwrap();
+        let d = r.defences;
+        assert!(d[2][1] >= 3 && d[3][2] >= 3, "a chest side guarded by its own glove: {d:?}");
+        assert!(d[0][1] >= 3 && d[1][2] >= 3, "a glove attacked blocks with that glove: {d:?}");
+        let chest_read = |c: &Confusion| c.counts[2][2] + c.counts[3][3];
+        assert!(chest_read(&r.active) >= 5, "active chest attacks read right: {:?}", r.active.counts);
+        assert_eq!(chest_read(&r.passive), 0, "passive chest attacks read as hands: {:?}", r.passive.counts);
+        let hands_read = |c: &Confusion| c.counts[0][0] + c.counts[1][1];
+        assert!(hands_read(&r.passive) >= 6, "passive: a glove hit is seen: {:?}", r.passive.counts);
     }
 
     #[test]
