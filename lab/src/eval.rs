@@ -1210,7 +1210,7 @@ pub fn reactions(
     for active in [true, false] {
         let mut samples = Vec::with_capacity(4 * trials);
         let mut seen = Confusion { counts: [[0; 4]; 4] };
-        for target in 0..4 {
+        for (target, row) in defences.iter_mut().enumerate() {
             for n in 0..trials {
                 let s = seed.wrapping_mul(1_000_003) ^ ((target * 100_000 + n) as u64);
                 let t = trial(active, target, s)?;
@@ -1221,7 +1221,6 @@ pub fn reactions(
                     blocks += block;
                 }
                 if active {
-                    let row = &mut defences[target];
                     match t.defence {
                         None => row[0] += 1,
                         Some((hand, moved)) => {
