@@ -1115,6 +1115,8 @@ struct Trial {
     features: Vec<f64>,
     seen: usize,
     counters: [u64; 4],
+    /// The first defence of the clip, if any: (the blocking hand, the body moved too).
+    defence: Option<(Option<usize>, bool)>,
 }
 
 /// The four parts of Table IV in the world now: the gloves and the two sides of the chest (the
@@ -1154,9 +1156,13 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<Trial> {
     let mut person = Person::new(eye, parts_now(&b, &sides));
     let mut features = Vec::with_capacity(WATCH_AT_S.len() * watched.len() * 3);
     let mut watch = WATCH_AT_S.iter().peekable();
+    let mut defence = None;
     while b.script_t_s() < p.start_s + CLIP_AFTER_S {
         if b.tick().1 {
             person.watch(parts_now(&b, &sides));
+            if defence.is_none() {
+                defence = b.scene.world.mind.defence.map(|d| (d.blocking, d.avoiding));
+            }
         }
         if watch.peek().is_some_and(|&&at| b.script_t_s() >= p.start_s + at) {
             watch.next();
@@ -1173,6 +1179,7 @@ fn trial(active: bool, target: usize, seed: u64) -> anyhow::Result<Trial> {
         features,
         seen: person.answer().unwrap_or(guess),
         counters: [m.predictions, m.predict_ns_total, m.avoidances, m.blocks],
+        defence,
     })
 }
 
@@ -1210,6 +1217,13 @@ impl Person {
         (p - self.eye).normalize_or(DVec3::Z) * self.scale_m
     }
 
+    /// Up on the picture at the body: the world's up, less its part along the line of sight.
+    fn up_on_picture(&self) -> DVec3 {
+        let centre = self.rest.iter().sum::<DVec3>() / 4.0;
+        let sight = (centre - self.eye).normalize_or(DVec3::Z);
+        (DVec3::Y - sight * sight.y).normalize_or(DVec3::Y)
+    }
+
     fn watch(&mut self, now: [DVec3; 4]) {
         for i in 0..4 {
             let seen = (self.on_picture(now[i]) - self.on_picture(self.rest[i])).length();
@@ -1226,9 +1240,20 @@ impl Person {
             return None;
         }
         if i < 2 {
-            // A glove: nearer a side of the chest on the picture by most of its motion?
             let apart =
                 |at: &[DVec3; 4], side: usize| (self.on_picture(at[side]) - self.on_picture(at[i])).length();
+            // A glove dropped over the body: down more than across, to the chest sides' height
+            // or lower. It covers the side it is nearer to.
+            let up = self.up_on_picture();
+            let moved = self.on_picture(then[i]) - self.on_picture(self.rest[i]);
+            let down = -moved.dot(up);
+            let across = (moved + up * down).length();
+            let low =
+                [2, 3].iter().all(|&s| (self.on_picture(then[i]) - self.on_picture(then[s])).dot(up) <= 0.0);
+            if down > across && low {
+                return Some(if apart(&then, 2) <= apart(&then, 3) { 2 } else { 3 });
+            }
+            // A glove brought nearer a side of the chest on the picture by most of its motion.
             let (side, gain) = [2, 3]
                 .map(|s| (s, apart(&self.rest, s) - apart(&then, s)))
                 .into_iter()
@@ -1307,6 +1332,9 @@ pub struct Reactions {
     pub prediction: Spread,
     pub avoidances: u64,
     pub blocks: u64,
+    /// What the active virtual human did per target (its first defence of each clip):
+    /// [target][no defence, blocked with its left hand, with its right hand, moved its body].
+    pub defences: [[usize; 4]; 4],
 }
 
 /// Runs the section 4.3 experiment: `trials` straights per target, active and passive.
@@ -1319,11 +1347,12 @@ pub fn reactions(
     let mut done = 0;
     let mut preds = Vec::new();
     let (mut avoidances, mut blocks) = (0, 0);
+    let mut defences = [[0usize; 4]; 4];
     let mut modes = Vec::new();
     for active in [true, false] {
         let mut samples = Vec::with_capacity(4 * trials);
         let mut seen = Confusion { counts: [[0; 4]; 4] };
-        for target in 0..4 {
+        for (target, row) in defences.iter_mut().enumerate() {
             for n in 0..trials {
                 let s = seed.wrapping_mul(1_000_003) ^ ((target * 100_000 + n) as u64);
                 let t = trial(active, target, s)?;
@@ -1332,6 +1361,19 @@ pub fn reactions(
                     preds.push(ns / predictions);
                     avoidances += avoid;
                     blocks += block;
+                }
+                if active {
+                    match t.defence {
+                        None => row[0] += 1,
+                        Some((hand, moved)) => {
+                            if let Some(h) = hand {
+                                row[1 + h] += 1;
+                            }
+                            if moved {
+                                row[3] += 1;
+                            }
+                        }
+                    }
                 }
                 seen.counts[target][t.seen] += 1;
                 samples.push((target, t.features));
@@ -1353,6 +1395,7 @@ pub fn reactions(
         prediction: Spread::of(preds),
         avoidances,
         blocks,
+        defences,
     })
 }
 
@@ -1404,6 +1447,15 @@ impl fmt::Display for Reactions {
             self.active_classifier.total(),
             self.passive_classifier.total()
         )?;
+        writeln!(f, "\nwhat the active virtual human did (its first defence per clip; a block and a body motion can be one defence)")?;
+        writeln!(
+            f,
+            "  {:<12} {:>11} {:>17} {:>18} {:>11}",
+            "target", "no defence", "left glove blocks", "right glove blocks", "body moved"
+        )?;
+        for (t, row) in self.defences.iter().enumerate() {
+            writeln!(f, "  {:<12} {:>11} {:>17} {:>18} {:>11}", TARGETS[t], row[0], row[1], row[2], row[3])?;
+        }
         write!(
             f,
             "\nactive trials: {} avoidances, {} blocks; prediction per trial {}",
@@ -1450,6 +1502,31 @@ mod tests {
         let mut p = person();
         p.watch(moved(&p, 2, DVec3::new(0.03, 0.0, 0.0)));
         assert_eq!(p.answer(), Some(2));
+    }
+
+    #[test]
+    fn the_person_reads_a_glove_dropped_over_the_body_as_the_side_it_covers() {
+        // The left glove dropped 16 cm on the picture, to below the chest sides: the left chest.
+        let mut p = person();
+        p.watch(moved(&p, 0, DVec3::new(-0.02, -0.16, 0.0)));
+        assert_eq!(p.answer(), Some(2));
+        // The right glove knocked up 5 cm (a punch at it): the right hand.
+        let mut p = person();
+        p.watch(moved(&p, 1, DVec3::new(0.0, 0.05, 0.0)));
+        assert_eq!(p.answer(), Some(1));
+    }
+
+    /// Table IV on the product path, 4 straights per target and mode (seed 0): the passive body,
+    /// only pushed, shows a glove hit right and names a hand for every chest attack; the active
+    /// virtual human defends in most clips of every target.
+    #[test]
+    fn passive_motion_names_a_hand_for_chest_attacks_and_the_active_defends() {
+        let r = reactions(4, 0, |_, _| {}).unwrap();
+        let chest_read = |c: &Confusion| c.counts[2][2] + c.counts[3][3];
+        assert_eq!(chest_read(&r.passive), 0, "passive chest attacks read as hands: {:?}", r.passive.counts);
+        let hands_read = |c: &Confusion| c.counts[0][0] + c.counts[1][1];
+        assert!(hands_read(&r.passive) >= 6, "passive: a glove hit is seen: {:?}", r.passive.counts);
+        assert!(r.defences.iter().all(|row| row[0] <= 2), "the active defends: {:?}", r.defences);
     }
 
     #[test]
