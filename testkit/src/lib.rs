@@ -1,7 +1,8 @@
 //! What the test binaries of spidar share: devices that misbehave as real hardware does
 //! ([`Garbling`]), scenes that send what a broken world could ([`HostileScene`]), and the harness
-//! that kills a recording process mid-write ([`spawn_test_child`], [`kill_once_written`]), and
-//! property tests that run the same cases everywhere ([`proptest_config`]).
+//! that kills a recording process mid-write ([`spawn_test_child`], [`kill_once_written`]),
+//! property tests that run the same cases everywhere ([`proptest_config`]), and whether a test
+//! that drives node and chromium can run here ([`node`]).
 //!
 //! Why it exists: these were copied from one test binary to the next. What it must never do:
 //! become a dependency of the product (only `[dev-dependencies]` name it), or hide a hazard the
@@ -10,6 +11,7 @@
 mod garbling;
 mod hostile;
 mod kill;
+pub mod node;
 mod props;
 
 pub use garbling::Garbling;

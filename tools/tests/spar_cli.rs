@@ -390,28 +390,14 @@ fn two_rigs_clinch_through_one_world_over_udp() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-fn browser_dir() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/browser")
-}
-
 /// True when node, chromium and `npm ci` in tests/browser are here; else says so loudly and
 /// returns false, unless `SPIDAR_BROWSER_TESTS=required`, which makes it a failure.
 fn browser_here(test: &str) -> bool {
-    let chromium = std::env::var("SPIDAR_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
-    let why = if !std::path::Path::new(&chromium).exists() {
-        format!("no chromium at {chromium} (apt-get install chromium, or set SPIDAR_CHROMIUM)")
-    } else if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
-        "no node on PATH".into()
-    } else if !browser_dir().join("node_modules/puppeteer-core").exists() {
-        format!("no puppeteer-core: run npm ci in {}", browser_dir().display())
-    } else {
-        return true;
-    };
-    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
-        panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
-    }
-    eprintln!("\n*** SKIPPED {test}: {why}. The spar view's browser test did not run. ***\n");
-    false
+    spidar_testkit::node::can_run(
+        test,
+        spidar_testkit::node::browser_missing(),
+        "The spar view's browser test",
+    )
 }
 
 /// The live view of a bout over UDP, watched by chromium (tests/browser/spar.mjs): both bodies
@@ -431,7 +417,7 @@ fn the_live_view_shows_both_seats_from_either_persons_eye() {
     world.line_with("joined, boxing the person at seat 0");
     let node = Command::new("node")
         .args(["spar.mjs", &url])
-        .current_dir(browser_dir())
+        .current_dir(spidar_testkit::node::browser_dir())
         .stdin(Stdio::null())
         .output()
         .expect("starting node");
@@ -557,25 +543,14 @@ fn a_bout_is_recorded_by_the_world_and_by_each_rig() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-fn foxglove_dir() -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/foxglove")
-}
-
 /// True when node and `npm ci` in tests/foxglove are here; else says so loudly and returns false,
 /// unless `SPIDAR_BROWSER_TESTS=required`, which makes it a failure.
 fn foxglove_here(test: &str) -> bool {
-    let why = if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
-        "no node on PATH".to_string()
-    } else if !foxglove_dir().join("node_modules/@mcap/core").exists() {
-        format!("no npm packages: run npm ci in {}", foxglove_dir().display())
-    } else {
-        return true;
-    };
-    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
-        panic!("{test}: cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
-    }
-    eprintln!("\n*** SKIPPED {test}: {why}. The spar world's Foxglove check did not run. ***\n");
-    false
+    spidar_testkit::node::can_run(
+        test,
+        spidar_testkit::node::foxglove_missing(),
+        "The spar world's Foxglove check",
+    )
 }
 
 /// The spar world's channels live to Foxglove (`spidar world --scene spar --foxglove`), as its
@@ -599,7 +574,7 @@ fn the_spar_world_serves_its_channels_live_to_foxglove() {
     let url = line.split_whitespace().find(|x| x.starts_with("ws://")).unwrap().to_string();
     let mut node = Command::new("node")
         .args(["live.mjs", &url, w.to_str().unwrap()])
-        .current_dir(foxglove_dir())
+        .current_dir(spidar_testkit::node::foxglove_dir())
         .stdout(Stdio::piped())
         .spawn()
         .expect("starting node");

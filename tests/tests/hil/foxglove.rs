@@ -22,24 +22,9 @@ use spidar_runtime::session::{load_scripts, sim_device, SimOptions, VirtualRun};
 use super::link::{WorldProcess, WAIT};
 use super::rig;
 
-fn foxglove_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("foxglove")
-}
-
 /// True when node and the packages are here; false (after a loud message) when skipped.
 fn foxglove_here(test: &str) -> bool {
-    let why = if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
-        "no node on PATH".to_string()
-    } else if !foxglove_dir().join("node_modules/@mcap/core").exists() {
-        format!("no npm packages: run npm ci in {}", foxglove_dir().display())
-    } else {
-        return true;
-    };
-    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
-        panic!("{test}: cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
-    }
-    eprintln!("\n*** SKIPPED {test}: {why}. The Foxglove checks did not run. ***\n");
-    false
+    spidar_testkit::node::can_run(test, spidar_testkit::node::foxglove_missing(), "The Foxglove checks")
 }
 
 /// What the shared session left: its files (kept in `_dir`) and the live client's summary.
@@ -86,7 +71,7 @@ fn session() -> &'static Session {
         // The client subscribes to every channel before the rig connects.
         let mut node = Command::new("node")
             .args(["live.mjs", &url, world_mcap.to_str().unwrap()])
-            .current_dir(foxglove_dir())
+            .current_dir(spidar_testkit::node::foxglove_dir())
             .stdout(Stdio::piped())
             .spawn()
             .expect("starting node");
@@ -120,7 +105,7 @@ fn session() -> &'static Session {
 fn read_recording(path: &std::path::Path) -> Value {
     let o = Command::new("node")
         .args(["recording.mjs", path.to_str().unwrap(), "40"])
-        .current_dir(foxglove_dir())
+        .current_dir(spidar_testkit::node::foxglove_dir())
         .output()
         .expect("starting node");
     let out = String::from_utf8_lossy(&o.stdout);
@@ -210,7 +195,7 @@ fn foxglove_client_receives_the_rigs_channels_live_as_its_recording_holds_them()
     let url = url.unwrap();
     let mut node = Command::new("node")
         .args(["live.mjs", &url, rig_mcap.to_str().unwrap()])
-        .current_dir(foxglove_dir())
+        .current_dir(spidar_testkit::node::foxglove_dir())
         .stdout(Stdio::piped())
         .spawn()
         .expect("starting node");

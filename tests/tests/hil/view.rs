@@ -542,33 +542,9 @@ fn same_rot(a: DQuat, b: &[Value], what: &str) {
 // ---------------------------------------------------------------------------------------------
 // Running the browser.
 
-fn browser_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("browser")
-}
-
-/// Whether node, chromium and the test folder's packages are here; if not, why.
-fn browser_missing() -> Option<String> {
-    let chromium = std::env::var("SPIDAR_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
-    if !std::path::Path::new(&chromium).exists() {
-        return Some(format!("no chromium at {chromium} (apt-get install chromium, or set SPIDAR_CHROMIUM)"));
-    }
-    if Command::new("node").arg("--version").output().map(|o| !o.status.success()).unwrap_or(true) {
-        return Some("no node on PATH".into());
-    }
-    if !browser_dir().join("node_modules/puppeteer-core").exists() {
-        return Some(format!("no puppeteer-core: run npm ci in {}", browser_dir().display()));
-    }
-    None
-}
-
 /// True when the browser tests can run; false (after a loud message) when they are skipped.
 pub(super) fn browser_here(test: &str) -> bool {
-    let Some(why) = browser_missing() else { return true };
-    if std::env::var("SPIDAR_BROWSER_TESTS").as_deref() == Ok("required") {
-        panic!("{test}: the browser test cannot run: {why} (SPIDAR_BROWSER_TESTS=required)");
-    }
-    eprintln!("\n*** SKIPPED {test}: {why}. The view's browser tests did not run. ***\n");
-    false
+    spidar_testkit::node::can_run(test, spidar_testkit::node::browser_missing(), "The view's browser tests")
 }
 
 /// Runs `node view.mjs ARGS`, answering its questions with `answer`; panics with its output
@@ -582,7 +558,7 @@ pub(super) fn node_script(script: &str, args: &[&str], mut answer: impl FnMut(&V
     let mut child = Command::new("node")
         .arg(script)
         .args(args)
-        .current_dir(browser_dir())
+        .current_dir(spidar_testkit::node::browser_dir())
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
