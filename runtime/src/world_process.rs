@@ -148,6 +148,39 @@ pub fn start_foxglove(addr: &str, name: &str) -> anyhow::Result<spidar_world::fo
     Ok(server)
 }
 
+/// A world recording's file side and the recorder the world's observer writes through.
+type WorldRecordingPair = (spidar_record::world::WorldRecording, spidar_record::world::WorldRecorder);
+
+/// The world's live Foxglove server (`--foxglove`) and its recording (`--record`, or the live
+/// server's tap alone), either absent when not asked for. Without a start time from the rig, a
+/// live session (or any recording, with `stamp_now`) starts its timeline at the wall clock's now.
+fn foxglove_and_recording(
+    a: &WorldArgs,
+    scene_arg: &str,
+    label: &str,
+    scene: &dyn spidar_world::Scene,
+    virtual_clock: bool,
+    stamp_now: bool,
+) -> anyhow::Result<(Option<spidar_world::foxglove::FoxgloveServer>, Option<WorldRecordingPair>)> {
+    let foxglove = match &a.view.foxglove {
+        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {label}"))?),
+        None => None,
+    };
+    let recording = match (&a.record, &foxglove) {
+        (None, None) => None,
+        (path, live) => Some(crate::recording::start_world_recording_with(
+            path.as_deref(),
+            scene_arg,
+            scene,
+            virtual_clock,
+            a.record_start_unix_ns
+                .or_else(|| (stamp_now || live.is_some()).then(|| spidar_link::sock::realtime_ns() as u64)),
+            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
+        )?),
+    };
+    Ok((foxglove, recording))
+}
+
 /// Where an echo world puts what it measured in the model it answers with: the sample's tick
 /// in `seq`, its `t_s` in `stamp_s`, and the rig-to-world trip (kernel arrival time minus the
 /// send time the sample carried in `ECHO_SENT_AT`) in seconds in `extra_force_n[0].x`.
@@ -222,21 +255,8 @@ pub fn run_world(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     let scene_label = format!("{} ({})", a.scene, scene.name());
     // Created before the world listens: a path that cannot be written is refused before any rig
     // connects.
-    let foxglove = match &a.view.foxglove {
-        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {scene_label}"))?),
-        None => None,
-    };
-    let recording = match (&a.record, &foxglove) {
-        (None, None) => None,
-        (path, live) => Some(crate::recording::start_world_recording_with(
-            path.as_deref(),
-            &a.scene,
-            &*scene,
-            a.lockstep,
-            a.record_start_unix_ns.or_else(|| live.as_ref().map(|_| spidar_link::sock::realtime_ns() as u64)),
-            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
-        )?),
-    };
+    let (foxglove, recording) =
+        foxglove_and_recording(a, &a.scene, &scene_label, &*scene, a.lockstep, false)?;
     // The default directory lives as long as the world.
     let (listen, _dir) = listen_endpoint(a)?;
     let offer =
@@ -320,21 +340,8 @@ fn run_spar(a: &WorldArgs, stop: &Stop) -> anyhow::Result<ServeReport> {
     }
     let mut scene = SparScene::new(spidar_sim::boxer::BoxerParams::default())?;
     // Created before the world listens: a port or a path that cannot be used is refused first.
-    let foxglove = match &a.view.foxglove {
-        Some(addr) => Some(start_foxglove(addr, &format!("spidar world: {NAME} (two seats)"))?),
-        None => None,
-    };
-    let recording = match (&a.record, &foxglove) {
-        (None, None) => None,
-        (path, live) => Some(crate::recording::start_world_recording_with(
-            path.as_deref(),
-            NAME,
-            &scene,
-            false,
-            a.record_start_unix_ns.or_else(|| Some(spidar_link::sock::realtime_ns() as u64)),
-            live.as_ref().map(|s| Box::new(s.publisher()) as Box<dyn spidar_record::channel::Tap>),
-        )?),
-    };
+    let (foxglove, recording) =
+        foxglove_and_recording(a, NAME, &format!("{NAME} (two seats)"), &scene, false, true)?;
     let (listen, _dir) = listen_endpoint(a)?;
     let offer = WorldOffer {
         scene: NAME.into(),
