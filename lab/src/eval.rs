@@ -30,7 +30,7 @@ use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind, SkillLevel};
 
-use spidar_runtime::scripts::{box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind};
+use spidar_runtime::scripts::{aim_points_now, box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind, SeeingUser};
 use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::Scene;
@@ -91,6 +91,9 @@ pub struct Bout {
     /// The last models sent, newest last (a sample names the one it rendered by `seq`).
     sent: std::collections::VecDeque<ContactModel>,
     next_step_ns: u64,
+    /// The scripted user in closed loop ([`Bout::seeing`]), and the rig it maps what it sees to.
+    pub user: Option<SeeingUser>,
+    rig: Rig,
 }
 
 /// Models a [`Bout`] keeps for looking up by `seq`.
@@ -117,11 +120,30 @@ impl Bout {
             recs: Vec::with_capacity(16),
             sent: std::collections::VecDeque::with_capacity(KEPT_MODELS + 1),
             next_step_ns: 0,
+            user: None,
+            rig,
         })
+    }
+
+    /// [`Bout::new`] with the user throwing `plan`'s punches in closed loop: each aimed, as it
+    /// starts, at the part where the user saw it ([`SeeingUser`]), the way a person at the rig
+    /// aims at the picture, not at where the part stood in its guard.
+    pub fn seeing(params: BoxerParams, plan: &BoxPlan, seed: u64) -> anyhow::Result<Bout> {
+        let user = SeeingUser::new(plan, &Rig::default_rig());
+        let mut b = Bout::new(params, user.holding_scripts(), seed)?;
+        b.user = Some(user);
+        Ok(b)
     }
 
     /// One tick, then a world step if one is due (true): `consumed` then holds its samples.
     pub fn tick(&mut self) -> (TickRecord, bool) {
+        if let Some(u) = self.user.as_mut() {
+            let now = self.v.rt.device().truth().t_s - HOLD_AT_HOME_S;
+            // A plan's scripts are valid by construction; a bad one is a bug here.
+            while let Some((_, hand, script)) = u.due(now, self.rig.period_s).expect("a punch's script") {
+                self.v.rt.device_mut().try_set_script(hand, script).expect("a punch's script");
+            }
+        }
         self.v.rt.tick();
         let rec = *self.v.rt.last_record();
         self.v.stats.add(&rec);
@@ -140,6 +162,12 @@ impl Bout {
             self.consumed.append(&mut self.samples);
             self.consumed_recs.clear();
             self.consumed_recs.append(&mut self.recs);
+            if self.user.is_some() {
+                let (t, aims) = (self.script_t_s(), aim_points_now(&self.scene.world, &self.rig));
+                if let Some(u) = self.user.as_mut() {
+                    u.see(t, aims);
+                }
+            }
             return (rec, true);
         }
         (rec, false)
@@ -211,7 +239,7 @@ pub fn bout_timing(seconds: f64, seed: u64) -> anyhow::Result<BoutTiming> {
     let params = BoxerParams::default();
     let opts = PlanOptions { punches: (seconds as usize).max(1), ..Default::default() };
     let plan = box_plan(&rig, &params, seed, &opts)?;
-    let mut b = Bout::new(params, plan.scripts, seed)?;
+    let mut b = Bout::seeing(params, &plan, seed)?;
     let (mut steps, mut preds, mut predicting) = (Vec::new(), Vec::new(), Vec::new());
     let mut pred_steps = Vec::new();
     let ticks = (seconds / rig.period_s).round() as u64;
@@ -447,7 +475,7 @@ fn punch_outcomes_with(
     ends.sort_by(f64::total_cmp);
     let mut over = 0;
     progress(over);
-    let mut b = Bout::new(params, plan.scripts.clone(), seed)?;
+    let mut b = Bout::seeing(params, plan, seed)?;
     let end_s = plan.punches.iter().map(|p| p.end_s()).fold(0.0, f64::max) + 0.5;
     let mut frames: Vec<Frame> = Vec::with_capacity((end_s / 0.003) as usize + 16);
     let mut bad = 0;
@@ -841,29 +869,70 @@ pub struct PunchReport {
 
 /// `progress(done, total)` is called as punches end (`total` counts each punch four times:
 /// thrown at the active and the passive virtual human, at novice and at pro; and the feint-pair
-/// script's punches once).
+/// script's punches once). The five bouts are independent and run on as many threads as the
+/// machine has cores (each bout is deterministic; only the order of the progress calls varies).
 pub fn punch_report(
     punches: usize,
     seed: u64,
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<PunchReport> {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
     let plan = punch_plan(punches, seed)?;
     let pairs_plan = feint_pair_plan(punches.div_ceil(2), seed)?;
     let n = plan.punches.len();
     let total = 4 * n + pairs_plan.punches.len();
-    let mut run = |params: BoxerParams, plan: &BoxPlan, before: usize| {
-        punch_outcomes_with(BoxerParams { seed, ..params }, plan, seed, &mut |over| {
-            progress(before + over, total)
-        })
-    };
-    let active = run(BoxerParams::default(), &plan, 0)?;
-    let passive = run(BoxerParams { active: false, ..Default::default() }, &plan, n)?;
-    let mut other_skills = Vec::new();
-    for (k, level) in [SkillLevel::Novice, SkillLevel::Pro].into_iter().enumerate() {
-        other_skills.push(run(BoxerParams::default().with_skill(level), &plan, (2 + k) * n)?);
-    }
-    let feint_pairs = run(BoxerParams::default(), &pairs_plan, 4 * n)?;
-    Ok(PunchReport { active, passive, other_skills, feint_pairs })
+    let jobs: Vec<(BoxerParams, &BoxPlan)> = vec![
+        (BoxerParams::default(), &plan),
+        (BoxerParams { active: false, ..Default::default() }, &plan),
+        (BoxerParams::default().with_skill(SkillLevel::Novice), &plan),
+        (BoxerParams::default().with_skill(SkillLevel::Pro), &plan),
+        (BoxerParams::default(), &pairs_plan),
+    ];
+    let over: Vec<AtomicUsize> = jobs.iter().map(|_| AtomicUsize::new(0)).collect();
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    let mut results: Vec<Option<anyhow::Result<BoutOutcome>>> = jobs.iter().map(|_| None).collect();
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(jobs.len());
+    std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..workers)
+            .map(|_| {
+                sc.spawn(|| {
+                    let mut mine = Vec::new();
+                    loop {
+                        let j = next.fetch_add(1, Ordering::Relaxed);
+                        if j >= jobs.len() || failed.load(Ordering::Relaxed) {
+                            return mine;
+                        }
+                        let (params, plan) = (jobs[j].0.clone(), jobs[j].1);
+                        let r = punch_outcomes_with(BoxerParams { seed, ..params }, plan, seed, &mut |k| {
+                            over[j].store(k, Ordering::Relaxed)
+                        });
+                        failed.fetch_or(r.is_err(), Ordering::Relaxed);
+                        mine.push((j, r));
+                    }
+                })
+            })
+            .collect();
+        let mut last = usize::MAX;
+        while !handles.iter().all(|h| h.is_finished()) {
+            let done = over.iter().map(|o| o.load(Ordering::Relaxed)).sum();
+            if done != last {
+                progress(done, total);
+                last = done;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        for h in handles {
+            for (j, r) in h.join().expect("a punch bout panicked") {
+                results[j] = Some(r);
+            }
+        }
+    });
+    progress(total, total);
+    let mut it = results.into_iter().map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("not run: another bout failed"))));
+    let mut take = || it.next().expect("five bouts");
+    let (active, passive, novice, pro, feint_pairs) = (take()?, take()?, take()?, take()?, take()?);
+    Ok(PunchReport { active, passive, other_skills: vec![novice, pro], feint_pairs })
 }
 
 impl fmt::Display for PunchReport {

@@ -132,7 +132,12 @@ impl Default for PlanOptions {
 #[derive(Clone, Debug, PartialEq)]
 pub struct BoxPlan {
     pub punches: Vec<Punch>,
+    /// The two hands' scripts, every punch aimed at the virtual human's guard (open loop: what
+    /// `spidar run --script box` plays, where the rig's side does not see the world).
     pub scripts: [Script; 2],
+    /// The aim points of the guard the punches were planned at ([`aim_points_rig`]); a punch's
+    /// `target_rig_m` minus its aim's point is its scatter.
+    pub guard_aims_rig: [DVec3; 6],
 }
 
 /// The aim points of the scripted boxer, rig frame, for every [`Aim`]: where the virtual human's
@@ -146,18 +151,24 @@ pub fn aim_points_rig(rig: &spidar_rt::Rig, params: &BoxerParams) -> anyhow::Res
     for _ in 0..200 {
         w.step(&[None, None]);
     }
+    Ok(aim_points_now(&w, rig))
+}
+
+/// The aim points of every [`Aim`] where the virtual human's parts are now (rig frame; as
+/// [`aim_points_rig`], which takes them from its settled guard).
+pub fn aim_points_now(w: &BoxingWorld, rig: &spidar_rt::Rig) -> [DVec3; 6] {
     let vh = w.vh;
     // The virtual human faces +z (toward the user), its left is +x.
     let at = |b: usize, d: DVec3| w.com(b) + d;
-    let to_rig = |p: DVec3| rig.rig_to_world.point_to_rig(p - params.user_offset_m);
-    Ok([
+    let to_rig = |p: DVec3| rig.rig_to_world.point_to_rig(p - w.params.user_offset_m);
+    [
         to_rig(at(vh.head, DVec3::ZERO)),
         to_rig(at(vh.chest, DVec3::new(0.0, -0.03, 0.0))),
         to_rig(at(vh.hand[0], DVec3::new(0.0, 0.0, 0.02))),
         to_rig(at(vh.hand[1], DVec3::new(0.0, 0.0, 0.02))),
         to_rig(at(vh.chest, DVec3::new(0.07, -0.03, 0.0))),
         to_rig(at(vh.chest, DVec3::new(-0.07, -0.03, 0.0))),
-    ])
+    ]
 }
 
 fn aim_index(a: Aim) -> usize {
@@ -301,7 +312,93 @@ pub fn box_plan(
         };
     }
     let scripts = hand_scripts(&punches, home)?;
-    Ok(BoxPlan { punches, scripts })
+    Ok(BoxPlan { punches, scripts, guard_aims_rig: aims })
+}
+
+/// How old what the [`SeeingUser`] aims from is when its punch leaves the guard: the picture's
+/// age at the display (about 15-40 ms measured, docs/view.md) plus a person's visuomotor delay, the
+/// time from a target's move to the hand's path changing in reaching experiments (about
+/// 0.1-0.15 s). A punch is aimed where the part was seen that long before it starts and is not
+/// corrected on the way (a punch's way out is 0.07-0.3 s, about that delay).
+pub const USER_SEEING_DELAY_S: f64 = 0.15;
+
+/// The scripted boxer in closed loop, as a person at the rig boxes: the punches of a [`BoxPlan`]
+/// (when, which hand, kind, speed, feint, scatter), each aimed when it starts at the part where
+/// the user saw it [`USER_SEEING_DELAY_S`] earlier, not at where it stood in its guard. Its
+/// driver tells it what is seen after every world step ([`SeeingUser::see`]) and asks before
+/// every rig tick for a hand to launch ([`SeeingUser::due`]). The virtual human steps back,
+/// slips and leans; a user aiming at its guard punches the air (docs/boxing.md 5.1).
+#[derive(Clone, Debug)]
+pub struct SeeingUser {
+    /// The punches as thrown: `target_rig_m` is the aim actually taken once launched.
+    pub punches: Vec<Punch>,
+    guard_aims: [DVec3; 6],
+    home: [DVec3; 2],
+    next: usize,
+    /// What was seen (script time, aim points), oldest first; trimmed to what a launch can need.
+    seen: std::collections::VecDeque<(f64, [DVec3; 6])>,
+    pub delay_s: f64,
+}
+
+impl SeeingUser {
+    pub fn new(plan: &BoxPlan, rig: &spidar_rt::Rig) -> SeeingUser {
+        SeeingUser {
+            punches: plan.punches.clone(),
+            guard_aims: plan.guard_aims_rig,
+            home: [rig.hands[0].home_m, rig.hands[1].home_m],
+            next: 0,
+            seen: std::collections::VecDeque::with_capacity(128),
+            delay_s: USER_SEEING_DELAY_S,
+        }
+    }
+
+    /// The hands' scripts before any punch: both hold their guard (launches replace them).
+    pub fn holding_scripts(&self) -> [Script; 2] {
+        self.home.map(|h| Script::from_segments(vec![Segment::Hold { at_m: h.to_array(), for_s: 1e6 }], false))
+    }
+
+    /// The virtual human's aim points as seen at script time `t_s` (rig frame, [`aim_points_now`]).
+    pub fn see(&mut self, t_s: f64, aims: [DVec3; 6]) {
+        self.seen.push_back((t_s, aims));
+        // Keep the newest entry at or before the oldest time a launch can still ask for.
+        while self.seen.len() > 2 && self.seen[1].0 <= t_s - self.delay_s - 0.05 {
+            self.seen.pop_front();
+        }
+    }
+
+    /// The aim points as seen at `t_s` (the newest seen at or before it; the guard before anything
+    /// was seen).
+    fn seen_at(&self, t_s: f64) -> [DVec3; 6] {
+        self.seen.iter().rev().find(|(t, _)| *t <= t_s).map_or(self.guard_aims, |(_, a)| *a)
+    }
+
+    /// Before a rig tick at script time `now_s` of `period_s`: the next punch starting before the
+    /// tick after it, if any, as (its index, its hand, the hand's script from now: a hold until
+    /// the punch starts, its way out to the part where it was seen, the way back, the guard).
+    /// Call again until `None` (two punches may start within one tick).
+    pub fn due(&mut self, now_s: f64, period_s: f64) -> anyhow::Result<Option<(usize, usize, Script)>> {
+        let Some(p) = self.punches.get(self.next).copied() else { return Ok(None) };
+        if p.start_s >= now_s + period_s {
+            return Ok(None);
+        }
+        let i = self.next;
+        self.next += 1;
+        let a = aim_index(p.aim);
+        let scatter = p.target_rig_m - self.guard_aims[a];
+        let target = self.seen_at(p.start_s - self.delay_s)[a] + scatter;
+        self.punches[i].target_rig_m = target;
+        let h = p.hand;
+        let mut segs = Vec::with_capacity(4);
+        let wait = p.start_s - now_s;
+        if wait > 0.0 {
+            segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: wait });
+        }
+        let samples = out_samples(p.kind, h, self.home[h], target, p.path_end, p.out_s);
+        segs.push(Segment::recorded("box script punch", samples)?);
+        segs.push(Segment::Reach { to_m: self.home[h].to_array(), duration_s: p.back_s });
+        segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: 1e6 });
+        Ok(Some((i, h, Script::from_segments(segs, false))))
+    }
 }
 
 /// The two hands' scripts for `punches` (sorted by start): each hand holds its guard until its

@@ -69,9 +69,15 @@ impl Predictor {
 
     /// Copies `from` and steps `steps` times. Before each step `each` may add forces to the
     /// workspace (extrapolated user input, controllers) and inspect the state and the workspace:
-    /// its kinematics and contacts are those of the previous step's `forward` (one step old; for
-    /// the first step, of `from` itself), so a controller need not run its own kinematics pass.
-    /// `each` returns false to stop early. Returns the steps taken.
+    /// its kinematics are those of the state about to be stepped (as the world's controllers see
+    /// theirs, so a predicted force acts on the same step as the world's would), its contacts
+    /// those found by the previous step (none before the first). `each` returns false to stop
+    /// early. Returns the steps taken.
+    ///
+    /// The kinematics pass runs once a step as in [`step`]: here before `each`, then
+    /// [`forward_dynamics`] on the same kinematics. (Handing `each` the previous step's
+    /// kinematics instead made every predicted controller force one step late, and one
+    /// prediction in nine came apart.)
     pub fn run(
         &mut self,
         model: &Model,
@@ -80,13 +86,14 @@ impl Predictor {
         mut each: impl FnMut(&Model, &State, &mut Workspace) -> bool,
     ) -> usize {
         self.state.copy_from(from);
-        kinematics(model, &self.state, &mut self.ws);
         self.ws.contacts.clear();
         for n in 0..steps {
+            kinematics(model, &self.state, &mut self.ws);
             if !each(model, &self.state, &mut self.ws) {
                 return n;
             }
-            step(model, &mut self.state, &mut self.ws);
+            forward_dynamics(model, &self.state, &mut self.ws);
+            integrate(model, &mut self.state, &mut self.ws);
         }
         steps
     }

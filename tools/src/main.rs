@@ -613,9 +613,7 @@ fn eval_reactions(trials: u64, punches: u64, seed: u64, bout_seconds: f64, json:
         errln!("throwing {punches} punches at an active and a passive virtual human ...");
         let p = eval::punch_report(punches as usize, seed, |done, total| {
             stopped_eval(&stop, done, total, "punches");
-            if done % 16 == 0 || done == total {
-                term::progress(&format!("punches {done}/{total}"));
-            }
+            term::progress(&format!("punches {done}/{total}"));
         })?;
         term::progress_done();
         if !json {
