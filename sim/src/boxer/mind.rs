@@ -122,6 +122,9 @@ pub struct Decision {
     pub hand_start_m: DVec3,
     /// The avatar hand's centre at the contact in the prediction.
     pub hand_at_contact_m: DVec3,
+    /// The virtual human's hand (0 or 1) whose glove or arm this avatar hand met earlier in the
+    /// same prediction: the punch gets to the part by pushing through that guard.
+    pub through_guard: Option<usize>,
 }
 
 /// The defence under way: which avatar hand it answers and which part it keeps unhit.
@@ -460,6 +463,8 @@ impl Mind {
         let brace = (self.braced && !stance_returning).then_some(self.brace());
         let stance_speed = self.params.stance_return_m_per_s;
         let mut blown_up = false;
+        // Per avatar hand, the virtual human's hand whose glove or arm it met first.
+        let mut met_guard: [Option<usize>; 2] = [None; 2];
         self.predictor.run(model, state, steps, |m, s, ws| {
             if n == 1 {
                 for c in &ws.contacts {
@@ -489,8 +494,14 @@ impl Mind {
                     _ => continue,
                 };
                 let class = ContactClass::of(m.bodies[vb].part, m.bodies[ab].part);
+                let hand = av.hand.iter().position(|&h| h == ab);
+                if class == ContactClass::BoxerBlocked {
+                    let guard = (0..2).find(|&g| [vh.hand[g], vh.forearm[g], vh.upper_arm[g]].contains(&vb));
+                    if let (Some(h), Some(g)) = (hand, guard) {
+                        met_guard[h] = met_guard[h].or(Some(g));
+                    }
+                }
                 if outranks(class, &best) {
-                    let hand = av.hand.iter().position(|&h| h == ab);
                     offer(
                         &mut best,
                         &mut middle_at,
@@ -503,6 +514,7 @@ impl Mind {
                             at_s: s.t_s,
                             hand_start_m: hand.map_or(DVec3::ZERO, |h| hand_start[h]),
                             hand_at_contact_m: ws.com_world(m, ab),
+                            through_guard: hand.and_then(|h| met_guard[h]),
                         },
                     );
                 }
@@ -596,7 +608,13 @@ impl Mind {
         // Block (Fig. 7): a hand goes to the fist's path, to the point where the fist will be
         // when the hand is there first (the prediction's line from A to the contact, walked at
         // its mean speed): of those points a hand gets to in time, the one it moves least for.
-        let (dur, block, block_in_time) = self.block_target(model, ws, a, p, left);
+        // A punch predicted to get to the part by pushing through a glove or arm already in its
+        // way is met by that guard held firm where it is (a boxer tightens the guard that is
+        // hit; it does not drop the other glove to the part behind it).
+        let (dur, block, block_in_time) = match d.through_guard {
+            Some(g) => (0.05, Some((g, ws.com_world(model, self.vh.hand[g]))), true),
+            None => self.block_target(model, ws, a, p, left),
+        };
         // The body moves too when the contact is close (a fist can glance off a block) or no
         // hand can block in time. The head slips by Fig. 6; the chest cannot move that far and
         // leans only as far as the waist allows, away from the fist.
@@ -673,6 +691,13 @@ impl Mind {
                 } else {
                     avoid_target(a, p, b, &self.params)
                 };
+                // Nor toward the other fist, seen or as it is: a dodge of one punch must not take
+                // the head into the next (a combination's second fist is often on its way before
+                // it is seen).
+                let o = 1 - av_hand;
+                let (seen, truly) = (self.seen_fists(), self.true_fists(model, ws));
+                let toward = [seen[o].0, truly[o].0].map(|f| (f - b).normalize_or_zero());
+                let r = b + not_toward(r - b, &toward);
                 let dur = (left * self.params.avoid_time_fraction).max(0.06);
                 let mut reach = Reach::start(
                     model,
