@@ -331,8 +331,9 @@ pub struct PunchOutcome {
     pub block_at_s: f64,
     pub landed_after_block: bool,
     /// How far the part it was aimed at (the head, or the chest for chest aims) was from where
-    /// it stood at the bout's start when the punch started (m): the script aims at that place,
-    /// so a body that stepped back or slipped and is still away is out of the punch's reach.
+    /// it stood at the bout's start when the punch started (m). The closed-loop user aims where it
+    /// saw the part ([`SeeingUser`]), so this is how far the body had moved from its guard, not an
+    /// aiming error (the open-loop script aimed at the guard, where a moved body was not).
     pub part_off_m: f64,
 }
 
@@ -1113,7 +1114,7 @@ impl fmt::Display for PunchReport {
         };
         writeln!(
             f,
-            "  landed by how far the part aimed at was from its place when the punch started (the scripts aim at that place): main script {}; feint-pair script {}",
+            "  landed by how far the part aimed at was from its place when the punch started (the user aims where it saw the part, 0.15 s before the punch): main script {}; feint-pair script {}",
             off(a),
             off(&self.feint_pairs)
         )?;

@@ -518,3 +518,73 @@ pub fn crowd_scripts(rig: &spidar_rt::Rig, seed: u64) -> anyhow::Result<[spidar_
         Script::from_segments(s, false)
     }))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn last_out_point(s: &Script) -> DVec3 {
+        let rec = s.segments.iter().find_map(|g| match g {
+            Segment::Recorded(r) => Some(r),
+            _ => None,
+        });
+        rec.expect("a punch's way out").samples().last().unwrap().pos_m
+    }
+
+    /// The closed-loop user aims each punch, when it starts, at the part where it saw it
+    /// `delay_s` before (here a body drifting away at 0.2 m/s), keeps the plan's scatter, and
+    /// starts it on time: not a tick early, never late.
+    #[test]
+    fn a_seeing_user_aims_where_it_saw_the_part_its_delay_before_the_punch() {
+        let rig = spidar_rt::Rig::default_rig();
+        let opts = PlanOptions { punches: 6, feint_share: 0.0, combo_share: 0.0, ..Default::default() };
+        let plan = box_plan(&rig, &BoxerParams::default(), 3, &opts).unwrap();
+        let mut u = SeeingUser::new(&plan, &rig);
+        let drift = |t: f64| DVec3::new(0.0, 0.0, -0.2 * t);
+        let seen_at = |t: f64| plan.guard_aims_rig.map(|a| a + drift(t));
+        let period = 0.001;
+        let mut launched = Vec::new();
+        for k in 0..20_000 {
+            let now = k as f64 * period;
+            while let Some((i, hand, script)) = u.due(now, period).unwrap() {
+                launched.push((i, now, hand, script));
+            }
+            // The world sees every third tick, after the tick (as `Bout::tick`).
+            if k % 3 == 2 {
+                u.see(now + period, seen_at(now + period));
+            }
+        }
+        assert_eq!(launched.len(), plan.punches.len(), "every punch is launched once");
+        for (i, now, hand, script) in launched {
+            let p = &plan.punches[i];
+            assert_eq!(hand, p.hand);
+            assert!(p.start_s >= now - 1e-12 && p.start_s < now + period, "punch {i} launched at {now}");
+            // The newest sight at or before start - delay: world steps every 3 ms.
+            let want_t = ((p.start_s - u.delay_s) / 0.003).floor() * 0.003;
+            let k = aim_index(p.aim);
+            let scatter = p.target_rig_m - plan.guard_aims_rig[k];
+            let want = plan.guard_aims_rig[k] + drift(want_t) + scatter;
+            let got = u.punches[i].target_rig_m;
+            // Within one world step's drift (a sight exactly at the boundary may round either way).
+            assert!((got - want).length() < 0.2 * 0.0031, "punch {i}: {got:?} vs {want:?}");
+            // It goes there: the way out ends at the aim (no feints here), from a hold until its start.
+            assert!((last_out_point(&script) - want).length() < 1e-9);
+            match script.segments[0] {
+                Segment::Hold { for_s, .. } => assert!((for_s - (p.start_s - now)).abs() < 1e-12),
+                _ => assert!(p.start_s - now <= 0.0),
+            }
+        }
+    }
+
+    /// Before anything is seen, a punch goes to the guard's aim point (the open-loop plan's).
+    #[test]
+    fn a_user_that_saw_nothing_aims_at_the_guard() {
+        let rig = spidar_rt::Rig::default_rig();
+        let opts = PlanOptions { punches: 1, feint_share: 0.0, combo_share: 0.0, ..Default::default() };
+        let plan = box_plan(&rig, &BoxerParams::default(), 5, &opts).unwrap();
+        let mut u = SeeingUser::new(&plan, &rig);
+        let (i, _, _) = u.due(plan.punches[0].start_s, 0.001).unwrap().unwrap();
+        assert!((u.punches[i].target_rig_m - plan.punches[0].target_rig_m).length() < 1e-12);
+        assert!(u.due(1e3, 0.001).unwrap().is_none(), "one punch, launched once");
+    }
+}

@@ -998,3 +998,39 @@ fn attention_dwells_on_a_feinting_hand() {
         "attention stayed {longer:.3} s longer with a {dwell} s dwell"
     );
 }
+
+/// A punch at a glove, driven on through it toward the chest: the prediction finds the chest hit
+/// through that glove (`through_guard`), and the defence is that glove held firm where it is, not
+/// the other glove dropped to the chest (what a person watching reads as a punch at the glove, not
+/// at the body; docs/boxing.md 5.3).
+#[test]
+fn a_punch_through_a_glove_is_met_by_that_glove() {
+    for g in 0..2 {
+        let mut w = settled(BoxerParams::default());
+        let glove = w.com(w.vh.hand[g]);
+        // The avatar hand on that glove's side (the virtual human faces the avatar: mirrored).
+        let hand = (0..2)
+            .min_by(|&a, &b| {
+                let d = |h: usize| (w.com(w.avatar.hand[h]).x - glove.x).abs();
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        let from = w.com(w.avatar.hand[hand]);
+        let chest = w.com(w.vh.chest);
+        let to = glove + (chest - glove) * 0.6;
+        let other_start = w.com(w.vh.hand[1 - g]);
+        let (mut through, mut blockers, mut other_moved) = (false, Vec::new(), 0.0f64);
+        throw(&mut w, hand, &|s| from + (to - from) * s, 0.25, 0.55, &mut |w, _| {
+            if let Some(d) = w.mind.last_decision {
+                through |= d.through_guard == Some(g);
+            }
+            if let Some(b) = w.mind.defence.and_then(|d| d.blocking) {
+                blockers.push(b);
+            }
+            other_moved = other_moved.max((w.com(w.vh.hand[1 - g]) - other_start).length());
+        });
+        eprintln!("glove {g}: through {through}, {} steps blocking, other glove moved {other_moved:.3} m", blockers.len());
+        assert!(through, "glove {g}: the prediction found the chest through that glove");
+        assert!(!blockers.is_empty() && blockers.iter().all(|&b| b == g), "glove {g}: blocked by it only: {blockers:?}");
+    }
+}
