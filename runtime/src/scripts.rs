@@ -560,7 +560,8 @@ mod tests {
             assert_eq!(hand, p.hand);
             assert!(p.start_s >= now - 1e-12 && p.start_s < now + period, "punch {i} launched at {now}");
             // The newest sight at or before start - delay: world steps every 3 ms.
-            let want_t = ((p.start_s - u.delay_s) / 0.003).floor() * 0.003;
+            // (Nothing seen yet, for a punch in the first 0.15 s: the guard.)
+            let want_t = (((p.start_s - u.delay_s) / 0.003).floor() * 0.003).max(0.0);
             let k = aim_index(p.aim);
             let scatter = p.target_rig_m - plan.guard_aims_rig[k];
             let want = plan.guard_aims_rig[k] + drift(want_t) + scatter;
