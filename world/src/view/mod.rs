@@ -335,6 +335,11 @@ impl View {
         &self.shared.counters
     }
 
+    /// Frames a second of loop-clock time while someone watches ([`frame_hz_for`]).
+    pub fn frame_hz(&self) -> f64 {
+        1.0 / self.frame_every_s
+    }
+
     /// A handle to the counters that outlives the view being moved into a host.
     pub fn counters_handle(&self) -> ViewHandle {
         ViewHandle { shared: self.shared.clone(), urls: self.urls.clone() }

@@ -179,6 +179,14 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
                 latest.lock().ok().and_then(|l| l.playback.clone()).unwrap_or_else(|| "null".into()),
                 "application/json",
             ),
+            // A benchmark's measured window starts here: the reports so far are forgotten.
+            "/clear-ages" => {
+                if let Ok(mut a) = shared.ages.lock() {
+                    a.clear();
+                }
+                let _ = req.respond(tiny_http::Response::empty(204));
+                continue;
+            }
             "/favicon.ico" => {
                 let _ = req.respond(tiny_http::Response::empty(204));
                 continue;
@@ -189,7 +197,15 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
             }
         };
         let mut resp = tiny_http::Response::from_string(body);
-        for h in [header("Content-Type", kind), header("Cache-Control", "no-store")].into_iter().flatten() {
+        // Cross-origin isolated (the page loads nothing from elsewhere): the page may then share
+        // memory with the worker that receives its frames (web/src/connection.js).
+        let isolated = [
+            header("Cross-Origin-Opener-Policy", "same-origin"),
+            header("Cross-Origin-Embedder-Policy", "require-corp"),
+            header("Cross-Origin-Resource-Policy", "same-origin"),
+        ];
+        let headers = [header("Content-Type", kind), header("Cache-Control", "no-store")];
+        for h in headers.into_iter().chain(isolated).flatten() {
             resp.add_header(h);
         }
         let _ = req.respond(resp);
