@@ -26,7 +26,9 @@ const SLOT_AT = 2;
 const SLOT_WORDS = 3;
 const ARRIVALS_AT = 8 * Math.ceil((4 * (SLOT_AT + SLOTS * SLOT_WORDS)) / 8); // bytes
 const DATA_AT = ARRIVALS_AT + 8 * SLOTS; // bytes
-const LAYOUT = { SLOTS, NEWEST, RECEIVED, SLOT_AT, SLOT_WORDS, ARRIVALS_AT, DATA_AT };
+// Frames' hands kept (at a frame a step, about 0.4 s).
+const RING = 128;
+const LAYOUT = { SLOTS, NEWEST, RECEIVED, SLOT_AT, SLOT_WORDS, ARRIVALS_AT, DATA_AT, RING };
 
 // The worker's code, started from its own source (the page stays one file). Self-contained: it
 // refers to nothing outside itself. Messages in: {url, layout} (the shared memory's layout
@@ -43,6 +45,10 @@ function receiver() {
   let slotBytes = 0;
   let newest = -1;
   let published = 0;
+  // The scene's frame layout (from its description) and the ring of every frame's hands.
+  let frameLayout = null;
+  let ringCount = null;
+  let ring = null;
   const share = (need) => {
     slotBytes = 8 * Math.ceil(Math.max(65536, 2 * need) / 8);
     const sab = new SharedArrayBuffer(L.DATA_AT + L.SLOTS * slotBytes);
@@ -50,7 +56,26 @@ function receiver() {
     arrivals = new Float64Array(sab, L.ARRIVALS_AT, L.SLOTS);
     bytes = new Uint8Array(sab, L.DATA_AT);
     newest = -1;
-    postMessage({ shared: sab, slotBytes });
+    if (!ring) {
+      const hands = new SharedArrayBuffer(8 + 8 * L.RING * 7);
+      ringCount = new Int32Array(hands, 0, 1);
+      ring = new Float64Array(hands, 8, L.RING * 7);
+    }
+    postMessage({ shared: sab, slotBytes, hands: ring.buffer });
+  };
+  // Every frame's hands by their tick's wall-clock time (7 numbers: the time, then both hands'
+  // positions), for the headset's velocity and its judging of the drawn grips.
+  const keepHands = (data) => {
+    const F = frameLayout;
+    if (!F || F.stamp_at === undefined || data.byteLength < 4 * (F.hands_at + 2 * F.hand_floats)) return;
+    const wallMs = new DataView(data, 4 * (F.stamp_at + 4), 8).getFloat64(0, true);
+    if (!(wallMs > 0)) return;
+    const f = new Float32Array(data, 0, F.hands_at + 2 * F.hand_floats);
+    const n = ringCount[0];
+    const o = (n % L.RING) * 7;
+    ring[o] = wallMs;
+    for (let h = 0; h < 2; h++) for (let i = 0; i < 3; i++) ring[o + 1 + 3 * h + i] = f[F.hands_at + h * F.hand_floats + i];
+    Atomics.store(ringCount, 0, n + 1);
   };
   const store = (data, atMs) => {
     const src = new Uint8Array(data);
@@ -66,13 +91,23 @@ function receiver() {
     newest = k;
     Atomics.store(ctrl, L.NEWEST, k + 1);
     Atomics.add(ctrl, L.RECEIVED, 1);
+    keepHands(data);
   };
   const open = () => {
     ws = new WebSocket(url);
     ws.binaryType = 'arraybuffer';
     ws.onopen = () => { retry = 250; postMessage({ state: 'connected' }); };
     ws.onmessage = (ev) => {
-      if (typeof ev.data === 'string') { postMessage({ text: ev.data }); return; }
+      if (typeof ev.data === 'string') {
+        if (ev.data.includes('"scene"')) {
+          try {
+            const m = JSON.parse(ev.data);
+            if (m.type === 'scene') frameLayout = m.layout;
+          } catch { /* the page reports what does not parse */ }
+        }
+        postMessage({ text: ev.data });
+        return;
+      }
       store(ev.data, performance.timeOrigin + performance.now());
     };
     ws.onclose = () => {
@@ -108,7 +143,8 @@ export function canShareFrames() {
 // when it came, on the page's clock). Returns { send(cmd), poll(), received(), shared }: the page
 // calls `poll` when it is about to draw, which hands it the newest frame that came since (with a
 // worker; without one frames are handed over as they come and `poll` does nothing); `received`
-// counts the frames that came, `newestSeq` is the newest one's sequence number.
+// counts the frames that came, `newestSeq` is the newest one's sequence number, `hands` the
+// newest frames' hands by their ticks' times (with a worker: every frame's; else null).
 export function connect(handlers, { worker = canShareFrames() } = {}) {
   const text = (t) => {
     const m = JSON.parse(t);
@@ -158,6 +194,7 @@ function direct(onState, text, frame) {
     },
     poll: () => {},
     received: () => received,
+    hands: () => null,
   };
 }
 
@@ -170,9 +207,13 @@ function viaWorker(onState, text, frame) {
   let arrivals = null;
   let slotBytes = 0;
   let seen = 0; // the publication number of the newest frame handed over
+  let ringCount = null;
+  let ring = null;
   w.onmessage = (ev) => {
     const m = ev.data;
     if (m.shared) {
+      ringCount = new Int32Array(m.hands, 0, 1);
+      ring = new Float64Array(m.hands, 8, RING * 7);
       ctrl = new Int32Array(m.shared, 0, ARRIVALS_AT / 4);
       arrivals = new Float64Array(m.shared, ARRIVALS_AT, SLOTS);
       bytes = new Uint8Array(m.shared, DATA_AT);
@@ -217,5 +258,17 @@ function viaWorker(onState, text, frame) {
       if (f) frame(f.data, f.arrivedMs);
     },
     received: () => (ctrl ? Atomics.load(ctrl, RECEIVED) : 0),
+    // The hands of the newest `k` frames that came (at most half the ring: the worker does not
+    // reach them while they are read), oldest first: [{ wallMs, p: [6] }].
+    hands: (k = RING / 2) => {
+      if (!ring) return null;
+      const n = Atomics.load(ringCount, 0);
+      const out = [];
+      for (let j = Math.max(0, n - Math.min(k, RING / 2)); j < n; j++) {
+        const o = (j % RING) * 7;
+        out.push({ wallMs: ring[o], p: Array.from(ring.subarray(o + 1, o + 7)) });
+      }
+      return out;
+    },
   };
 }

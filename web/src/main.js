@@ -250,7 +250,7 @@ function frameLoop(time, xrFrame) {
     // Interpolated to the headset's rate, the grips extrapolated to when the picture is shown:
     // the runtime's predicted display time, or once drawn at the soonest.
     const predicted = xrFrame && xrFrame.predictedDisplayTime > 0 ? xrFrame.predictedDisplayTime : 0;
-    const x = headset.frame(latest, desc, now, Math.max(predicted, now + xrDrawMs));
+    const x = headset.frame(latest, desc, now, Math.max(predicted, now + xrDrawMs), conn.hands());
     leadMs = x.leadMs;
     world.apply(x.f, sinceDraw);
     if (crowd) crowd.apply(x.f);

@@ -8,18 +8,19 @@
 // the bodies are interpolated between the two newest frames the page has, one world frame
 // interval behind the newest (no later: with frames faster than the display that is the newest
 // frame); the grips, which the rig measures, are extrapolated along their velocity (from the
-// frames' hand positions and their ticks' times) to the time the picture is shown, at most
-// MAX_LEAD_MS ahead of their tick.
+// hands of every frame that came, by their ticks' times: the receiving worker keeps them) to the
+// time the picture is shown, at most MAX_LEAD_MS ahead of their tick.
 //
 // This file never changes how the page draws outside a session, and never writes the frames it is
 // given (it blends into its own buffer).
 import * as THREE from 'three';
 
 const UP = new THREE.Vector3(0, 1, 0);
-// Grips drawn at most this far ahead of the tick they were measured at: a hand that stops
-// suddenly is drawn past where it stopped by its speed times the lead, for no longer than the
-// lead (docs/view.md: what the extrapolation costs on the simulated user's punches).
-export const MAX_LEAD_MS = 50;
+// Grips drawn at most this far ahead of the tick they were measured at (a display frame and a
+// half at 60 Hz): a hand that stops suddenly is drawn past where it stopped by its speed times the
+// lead, for no longer than the lead (docs/view.md: what the extrapolation costs on the simulated
+// user's punches).
+export const MAX_LEAD_MS = 25;
 // The grips' velocity over at least this much of their newest history (encoder steps average out).
 const VELOCITY_WINDOW_MS = 8;
 // Hand positions kept for the velocity.
@@ -49,15 +50,18 @@ export class Interpolator {
     return this.judged.shift() ?? null;
   }
 
-  // Judges the pictures shown between the two newest history entries: the measured hands then
-  // (between those two frames' hands) against the grips drawn.
+  // Judges the pictures shown within the history: the measured hands then (between the two
+  // frames whose ticks bracket the showing) against the grips drawn.
   judge() {
-    const n = this.history.length;
+    const H = this.history;
+    const n = H.length;
     if (n < 2) return;
-    const [a, b] = [this.history[n - 2], this.history[n - 1]];
-    while (this.shown.length && this.shown[0].wallMs <= b.wallMs) {
+    let k = 0;
+    while (this.shown.length && this.shown[0].wallMs <= H[n - 1].wallMs) {
       const s = this.shown.shift();
-      if (s.wallMs < a.wallMs) continue; // shown before the frames the page has: not judged
+      if (s.wallMs < H[0].wallMs) continue; // shown before the frames kept: not judged
+      while (H[k + 1].wallMs < s.wallMs) k++;
+      const [a, b] = [H[k], H[k + 1]];
       const u = (s.wallMs - a.wallMs) / (b.wallMs - a.wallMs);
       let err = 0;
       let still = 0;
@@ -79,10 +83,17 @@ export class Interpolator {
 
   // A new frame came (`frame`: the page's { f, seq, t, stamp, arrivedMs }) at page time `nowMs`;
   // `L`: the layout.
-  push(frame, nowMs, L) {
+  // `hands`: every frame's hands that came, when the page has them (its receiving worker's:
+  // [{ wallMs, p }], oldest first), else null: the frames pushed here make the history.
+  push(frame, nowMs, L, hands = null) {
     if (this.latest && frame === this.latest.frame) return;
     this.prev = this.latest;
     this.latest = { frame, at: frame.arrivedMs ?? nowMs };
+    if (hands && hands.length >= 2) {
+      this.history = hands;
+      this.judge();
+      return;
+    }
     const wallMs = frame.stamp && frame.stamp.wallMs > 0 ? frame.stamp.wallMs : null;
     if (wallMs === null || !L) return;
     const last = this.history[this.history.length - 1];
@@ -293,9 +304,9 @@ export class Headset {
 
   // The frame to draw now for a picture shown at `showMs` (page clock) and the grips' lead (ms);
   // `latest` is the newest frame. `judged()`: an earlier picture's grips against the measured hands.
-  frame(latest, desc, nowMs, showMs) {
+  frame(latest, desc, nowMs, showMs, hands = null) {
     if (desc.frame_hz > 0) this.interp.frameMs = 1000 / desc.frame_hz;
-    this.interp.push(latest, nowMs, desc.layout);
+    this.interp.push(latest, nowMs, desc.layout, hands);
     return this.interp.at(nowMs, desc, showMs);
   }
 
