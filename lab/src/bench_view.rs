@@ -75,6 +75,8 @@ pub struct ViewBenchOptions {
     pub headset: bool,
     /// More of the browsers' page query (`shading=standard&aa=1`, say).
     pub page: String,
+    /// The view's most frames a second (None: its default, a frame after every step).
+    pub frame_hz: Option<f64>,
 }
 
 /// What a block has watching the world.
@@ -283,7 +285,11 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
     let mut view = View::start(
         scene.name(),
         &look,
-        &ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..Default::default() },
+        &ViewOptions {
+            addr: ([127, 0, 0, 1], 0).into(),
+            frame_hz: o.frame_hz.unwrap_or(ViewOptions::default().frame_hz),
+            ..Default::default()
+        },
     )
     .context("starting the view")?;
     let handle = view.counters_handle();

@@ -371,25 +371,40 @@ async function headset(browser) {
     check(disparity > 0.5, `${pose.what}: the virtual human is ${disparity.toFixed(1)} px further right in the left eye (stereo)`);
     before = seen.images;
   }
-  // Between the world's frames the headset draws blends: a body halfway (position and turn) half
-  // an interval after a frame came, a grip carried forward along its last motion.
+  // Between the world's frames the headset draws blends: a body one world frame interval behind
+  // the newest frame (halfway between two frames 1/60 s apart half an interval after the second
+  // came; the newest as it is when the world's frames are a step apart), and the grips
+  // extrapolated along their velocity to when the picture is shown, at most MAX_LEAD_MS ahead.
   const L = (await page.evaluate(() => spidarView.desc())).layout;
   const a = await page.evaluate(() => spidarView.frameWords());
   const b = a.slice();
   const s0 = L.shapes_at; const h0 = L.hands_at;
+  const gap = 1000 / 60;
+  b[L.globals_at] = a[L.globals_at] + gap / 1000; // the world's time, a frame later
   b[s0] += 0.1; // the first body 10 cm along x
   const half = Math.SQRT1_2; // and turned 90 degrees about y
   [b[s0 + 3], b[s0 + 4], b[s0 + 5], b[s0 + 6]] = [0, half, 0, half];
   [a[s0 + 3], a[s0 + 4], a[s0 + 5], a[s0 + 6]] = [0, 0, 0, 1];
-  b[h0] += 0.02; // the left grip 2 cm along x
-  const gap = 1000 / 60;
-  const mid = await page.evaluate((a, b, gap) => spidarView.xr.blend(a, b, gap, gap / 2), a, b, gap);
+  b[h0] += 0.02; // the left grip 2 cm along x (1.2 m/s)
+  const blend = (since, show, frameMs) => page.evaluate((a, b, gap, since, show, frameMs) => spidarView.xr.blend([a, b], gap, since, show, frameMs),
+    a, b, gap, since, show, frameMs);
+  const mid = await blend(gap / 2, 5, gap);
   const q = mid.f.slice(s0 + 3, s0 + 7);
   const turned = 2 * Math.atan2(q[1], q[3]) * 180 / Math.PI;
   check(Math.abs(mid.f[s0] - (a[s0] + 0.05)) < 1e-5 && Math.abs(turned - 45) < 0.01,
-    `half an interval after a frame, a body is drawn halfway: ${((mid.f[s0] - a[s0]) * 100).toFixed(2)} of 10 cm, turned ${turned.toFixed(2)} of 90 degrees`);
-  check(Math.abs(mid.f[h0] - (b[h0] + 0.01)) < 1e-5 && Math.abs(mid.leadMs - gap / 2) < 1e-6,
-    `a grip is carried ${((mid.f[h0] - b[h0]) * 100).toFixed(2)} cm ahead of its newest frame along its last motion (${mid.leadMs.toFixed(2)} ms ahead)`);
+    `frames 1/60 s apart, half an interval after the second came: a body is drawn halfway, ${((mid.f[s0] - a[s0]) * 100).toFixed(2)} of 10 cm, turned ${turned.toFixed(2)} of 90 degrees`);
+  const lead = gap / 2 + 5; // from the newest frame's tick to the picture's showing
+  const ahead = (0.02 * lead) / gap;
+  // (The lead is a difference of wall-clock times near 1.7e12 ms: good to about 1e-3 ms.)
+  check(Math.abs(mid.f[h0] - (b[h0] + ahead)) < 1e-5 && Math.abs(mid.leadMs - lead) < 1e-3,
+    `a grip is drawn ${((mid.f[h0] - b[h0]) * 100).toFixed(2)} cm ahead of its newest frame (${(ahead * 100).toFixed(2)} cm: its velocity times the ${mid.leadMs.toFixed(2)} ms from its tick to the picture's showing)`);
+  const fast = await blend(3, 0, 3);
+  check(Math.abs(fast.f[s0] - b[s0]) < 1e-6 && Math.abs(fast.f[s0 + 4] - half) < 1e-6,
+    `the world's frames a step (3 ms) apart: 3 ms after the newest came a body is drawn as the newest has it (${((fast.f[s0] - a[s0]) * 100).toFixed(2)} of 10 cm)`);
+  const far = await blend(gap / 2, 500, gap);
+  const maxLead = await page.evaluate(() => spidarView.xr.maxLeadMs);
+  check(far.leadMs === maxLead && Math.abs(far.f[h0] - (b[h0] + (0.02 * maxLead) / gap)) < 1e-5,
+    `a picture shown long after the newest tick: the grip is extrapolated ${far.leadMs} ms ahead, no more (${((far.f[h0] - b[h0]) * 100).toFixed(2)} cm)`);
   // The frames are drawn at the headset's rate, interpolated, and reported as the headset's: the
   // world keeps them apart (its status, fetched by the page over the same HTTPS).
   await page.evaluate(() => spidarView.resume());

@@ -267,6 +267,21 @@ async function live(browser) {
   const st = await state(a);
   check(st.scene === 'boxing' && st.hasRig, `the page has the world's scene (${st.scene}) and the rig's geometry`);
   check(st.framesReceived > 10, `frames arrive (${st.framesReceived} received)`);
+  // The page draws the newest frame it has: while its main thread is busy (a long picture), the
+  // frames that come wait in no queue; the next picture shows the newest of them.
+  const busy = await a.evaluate(async () => {
+    const seq0 = spidarView.state().seq;
+    const until = performance.now() + 10000;
+    while (performance.now() < until && !(spidarView.newestSeq() >= seq0 + 10)); // busy: no task runs
+    const newest = spidarView.newestSeq();
+    const renders = spidarView.state().renders;
+    await spidarView.rendered();
+    const after = spidarView.state();
+    return { worker: after.framesWorker, seq0, newest, seq: after.seq, renders: after.renders - renders };
+  });
+  check(busy.worker, 'a worker receives the frames (the page is cross-origin isolated)');
+  check(busy.newest >= busy.seq0 + 10 && busy.seq >= busy.newest,
+    `after its main thread was busy while frames ${busy.seq0 + 1}..${busy.newest} came, the page draws frame ${busy.seq} (the newest, not the next) in ${busy.renders} pictures`);
   const p = await pause(a);
   const head = await a.evaluate(() => spidarView.shape('virtual human/head'));
   check(dist(head.pos, head.frame.slice(0, 3)) < 1e-5, 'the head mesh is at its frame position');

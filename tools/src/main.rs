@@ -314,6 +314,10 @@ enum BenchCmd {
         /// With --age: the browser window's size, WIDTHxHEIGHT (px).
         #[arg(long, default_value = "960x540", requires = "age")]
         size: String,
+        /// The view's most frames a second (default: a frame after every world step), to compare
+        /// the world step's cost at another rate, e.g. 60.
+        #[arg(long, conflicts_with = "age", value_parser = bench_frame_hz)]
+        frame_hz: Option<f64>,
     },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
@@ -709,6 +713,7 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
             browser,
             headset,
             page,
+            frame_hz,
         } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
@@ -744,6 +749,7 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     browser,
                     headset,
                     page,
+                    frame_hz,
                 };
                 bench_view(&r, &o)?.to_string()
             }
@@ -899,4 +905,14 @@ fn run(a: RunArgs, m: &ArgMatches) -> anyhow::Result<u8> {
         m.try_get_raw(id).is_ok_and(|v| v.is_some()) && m.value_source(id) == Some(ValueSource::CommandLine)
     };
     spidar_runtime::run::run(RunPlan::check(a, &given)?)
+}
+
+/// `bench view --frame-hz`: 1 to 1000 frames a second.
+fn bench_frame_hz(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("'{s}' is not a number of frames a second"))?;
+    if v.is_finite() && (1.0..=1000.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err("must be between 1 and 1000 frames a second".into())
+    }
 }

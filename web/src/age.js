@@ -32,13 +32,19 @@ export class AgeReporter {
   // when its drawing began, which split the age into the way here (the tick to the message's
   // arrival: the world, the link, the broadcaster and the socket), the wait for the browser's next
   // frame, and the drawing.
-  drawn(seq, st, xr, leadMs = 0, drawMs = 0, arrivedMs = null, drawStartMs = null) {
+  // `judged`: how far an earlier picture's grips were from the measured hands when it was shown
+  // ({ err, still } mm: as drawn, and as the newest frame had them; null: none judged since).
+  drawn(seq, st, xr, leadMs = 0, drawMs = 0, arrivedMs = null, drawStartMs = null, judged = null) {
     if (!st || !(st.wallMs > 0)) return;
     const age = wallNowMs() - st.wallMs;
     this.last = { type: 'drawn', seq, step: st.step, tick: st.tick, age_ms: age, hand_lag_ms: age - leadMs, draw_ms: drawMs, xr };
     if (arrivedMs !== null && drawStartMs !== null) {
       this.last.arrive_ms = performance.timeOrigin + arrivedMs - st.wallMs;
       this.last.wait_ms = drawStartMs - arrivedMs;
+    }
+    if (judged) {
+      this.last.hand_err_mm = judged.err;
+      this.last.hand_still_err_mm = judged.still;
     }
     this.reports++;
     this.send(this.last);

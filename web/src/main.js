@@ -15,7 +15,7 @@ import { Playback } from './playback.js';
 import { Study } from './study.js';
 import { AgeReporter, stamp } from './age.js';
 import { showTargets } from './place.js';
-import { Headset, Interpolator } from './xr.js';
+import { Headset, Interpolator, MAX_LEAD_MS } from './xr.js';
 import { lambertShading, useLambert } from './materials.js';
 
 const params = new URLSearchParams(location.search);
@@ -98,7 +98,7 @@ let applied = null;
 let reported = null; // the newest frame whose drawing was reported (its age)
 let paused = false;
 let framesReceived = 0;
-let rateCount = 0;
+let rateCount = 0; // frames received when the HUD's rate was last shown
 let rateSince = performance.now();
 let renders = 0;
 const renderWaiters = []; // [the render count to wait for, its promise's resolve]
@@ -160,12 +160,12 @@ function onRig(r) {
   labelRenderer.domElement.style.visibility = cameras.onScreen && cameras.screen.stereo ? 'hidden' : '';
 }
 
-function onFrame(buffer, layoutId, seq) {
+// A frame came (`arrivedMs`: when, on this page's clock).
+function onFrame(buffer, layoutId, seq, arrivedMs = performance.now()) {
   if (!desc || layoutId !== desc.layout.id) return;
   const f = new Float32Array(buffer);
-  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout), arrivedMs: performance.now() };
+  latest = { f, seq, t: f[desc.layout.globals_at], stamp: stamp(f, desc.layout), arrivedMs };
   framesReceived++;
-  rateCount++;
 }
 
 // The reaction study: nothing drawn but the virtual human and the scenery (the clips carry no
@@ -194,6 +194,7 @@ const conn = connect({
   onFrame,
   onState: (s) => { connection = s; hud.setConnection(s); },
   onPlayback: (p) => {
+    conn.poll(); // the frame that came before this message
     if (!playback) playback = new Playback(document.getElementById('playback'), conn.send);
     playback.setState(p);
     playbackLog.push({ clock_s: p.clock_s, t_s: p.t_s, frame_t: latest ? latest.t : null, playing: p.playing, speed: p.speed });
@@ -231,7 +232,13 @@ window.addEventListener('keydown', (e) => {
 const minFrameMs = params.get('fps') ? 1000 / Number(params.get('fps')) : 0;
 let lastDraw = 0;
 
-function frameLoop() {
+// How long a headset's picture takes to draw (ms, smoothed): the grips are extrapolated to when
+// it is shown.
+let xrDrawMs = 0;
+
+function frameLoop(time, xrFrame) {
+  // The newest frame that came (from the receiving worker's shared memory, when there is one).
+  conn.poll();
   const now = performance.now();
   const inHeadset = headset.presenting;
   // A headset draws every frame it is given (a frame not drawn there shows nothing).
@@ -240,8 +247,10 @@ function frameLoop() {
   lastDraw = now;
   let leadMs = 0;
   if (inHeadset && !paused && latest && !playback) {
-    // Interpolated to the headset's rate, the grips carried forward.
-    const x = headset.frame(latest, desc, now);
+    // Interpolated to the headset's rate, the grips extrapolated to when the picture is shown:
+    // the runtime's predicted display time, or once drawn at the soonest.
+    const predicted = xrFrame && xrFrame.predictedDisplayTime > 0 ? xrFrame.predictedDisplayTime : 0;
+    const x = headset.frame(latest, desc, now, Math.max(predicted, now + xrDrawMs), conn.hands());
     leadMs = x.leadMs;
     world.apply(x.f, sinceDraw);
     if (crowd) crowd.apply(x.f);
@@ -259,8 +268,9 @@ function frameLoop() {
     if (study) study.frameDrawn();
   }
   if (now - rateSince >= 1000) {
-    hud.setFrameRate((rateCount * 1000) / (now - rateSince));
-    rateCount = 0;
+    const received = conn.received();
+    hud.setFrameRate(((received - rateCount) * 1000) / (now - rateSince));
+    rateCount = received;
     rateSince = now;
   }
   cameras.update();
@@ -274,9 +284,11 @@ function frameLoop() {
     cameras.render(renderer, scene);
     labelRenderer.render(scene, cameras.camera);
   }
+  const drawMs = performance.now() - drawStart;
+  if (inHeadset) xrDrawMs += 0.1 * (drawMs - xrDrawMs);
   if (applied && applied !== reported && !playback) {
     reported = applied;
-    ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, performance.now() - drawStart, applied.arrivedMs, drawStart);
+    ages.drawn(applied.seq, applied.stamp, inHeadset, leadMs, drawMs, applied.arrivedMs, drawStart, inHeadset ? headset.judged() : null);
   }
   renders++;
   for (let i = renderWaiters.length - 1; i >= 0; i--) if (renders >= renderWaiters[i][0]) renderWaiters.splice(i, 1)[0][1]();
@@ -298,7 +310,9 @@ window.spidarView = {
     scene: desc ? desc.name : null,
     layoutId: desc ? desc.layout.id : null,
     hasRig: !!rigInfo,
-    framesReceived,
+    // Frames that came (handed to the page, or fed by a test), and whether a worker receives them.
+    framesReceived: conn.shared ? conn.received() : framesReceived,
+    framesWorker: conn.shared,
     seq: applied ? applied.seq : null,
     t: applied ? applied.t : null,
     receivedT: latest ? latest.t : null,
@@ -317,6 +331,8 @@ window.spidarView = {
   playbackLog: () => playbackLog.slice(),
   // The reaction study's state, the clips shown (with the frames drawn of each) and the answers given, or null.
   study: () => study && study.report(),
+  // The sequence number of the newest frame that came, drawn or not yet.
+  newestSeq: () => conn.newestSeq(),
   pause: () => { paused = true; return { seq: applied ? applied.seq : null, t: applied ? applied.t : null }; },
   resume: () => { paused = false; },
   // Resolves after the next two renders (the screen then shows the applied frame).
@@ -340,15 +356,24 @@ window.spidarView = {
   toggleRig,
   // The headset: its state, entering a session, registering with the controllers on the grips.
   xr: { state: () => headset.state(), enter: () => headset.enter(), register: () => headset.register(),
-    // The headset's blend of two frames (words) that came `gapMs` apart, `sinceMs` after the second.
-    blend: (a, b, gapMs, sinceMs) => {
+    // The headset's blend of frames (words, each with its stamp and time) that came `gapMs` apart,
+    // drawn `sinceMs` after the last came for a picture shown `showMs` after that, with the
+    // world's frames `frameMs` apart.
+    blend: (frames, gapMs, sinceMs, showMs, frameMs) => {
       const x = new Interpolator();
-      x.push({ f: new Float32Array(a) }, 0);
-      x.push({ f: new Float32Array(b) }, gapMs);
-      const r = x.at(gapMs + sinceMs, desc);
+      x.frameMs = frameMs;
+      frames.forEach((w, k) => {
+        const f = new Float32Array(w);
+        // Each frame's tick `gapMs` after the last's, on this page's clock.
+        const st = { ...stamp(f, desc.layout), wallMs: performance.timeOrigin + k * gapMs };
+        x.push({ f, t: f[desc.layout.globals_at], stamp: st, arrivedMs: k * gapMs }, k * gapMs, desc.layout);
+      });
+      const last = (frames.length - 1) * gapMs;
+      const r = x.at(last + sinceMs, desc, last + sinceMs + showMs);
       return { f: Array.from(r.f), leadMs: r.leadMs };
     },
-    controllers: () => headset.controllers()?.map((p) => p.toArray()) ?? null },
+    controllers: () => headset.controllers()?.map((p) => p.toArray()) ?? null,
+    maxLeadMs: MAX_LEAD_MS },
   screen: () => ({ on: cameras.onScreen, format: cameras.screen.format, display: rigInfo && rigInfo.display }),
   // A drawn shape: its mesh's world position and where it is on the screen, and the frame's numbers.
   shape: (name) => {

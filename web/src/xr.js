@@ -3,17 +3,28 @@
 // frame to the scene (the person holds the controllers on both grips and presses a trigger: the
 // two controllers' positions are mapped onto the two grips' drawn positions by a turn about the
 // vertical and a shift), after which the grips, and the avatar's fists that follow them, are drawn
-// where the person's hands are. The world sends about 60 frames a second and a headset draws 72 to
-// 120: the bodies are interpolated between the two newest frames, and the grips, which the rig
-// measures, are carried forward along their last motion by the time since their frame came.
+// where the person's hands are. A headset draws 72 to 120 pictures a second and the world's frames
+// come at their own rate (after every world step for a small scene, 60 a second at the least):
+// the bodies are interpolated between the two newest frames the page has, one world frame
+// interval behind the newest (no later: with frames faster than the display that is the newest
+// frame); the grips, which the rig measures, are extrapolated along their velocity (from the
+// hands of every frame that came, by their ticks' times: the receiving worker keeps them) to the
+// time the picture is shown, at most MAX_LEAD_MS ahead of their tick.
 //
 // This file never changes how the page draws outside a session, and never writes the frames it is
 // given (it blends into its own buffer).
 import * as THREE from 'three';
 
 const UP = new THREE.Vector3(0, 1, 0);
-// Grips drawn ahead along their motion by at most this many frame intervals.
-const MAX_LEAD_FRAMES = 1.5;
+// Grips drawn at most this far ahead of the tick they were measured at (a display frame and a
+// half at 60 Hz): a hand that stops suddenly is drawn past where it stopped by its speed times the
+// lead, for no longer than the lead (docs/view.md: what the extrapolation costs on the simulated
+// user's punches).
+export const MAX_LEAD_MS = 25;
+// The grips' velocity over at least this much of their newest history (encoder steps average out).
+const VELOCITY_WINDOW_MS = 8;
+// Hand positions kept for the velocity.
+const HISTORY = 16;
 // Registration refused when the controllers' distance apart differs from the grips' by more.
 const REGISTER_TOLERANCE_M = 0.05;
 
@@ -22,52 +33,135 @@ export class Interpolator {
   constructor() {
     this.prev = null;
     this.latest = null;
-    this.intervalMs = 1000 / 60;
+    // The world's frame interval (ms): 1000 / the scene description's frame_hz.
+    this.frameMs = 1000 / 60;
     this.out = null;
+    // The newest frames' hand positions by their tick's wall-clock time: { wallMs, p: [6] }.
+    this.history = [];
+    // Pictures drawn, not yet judged: when shown (wall clock, ms), the grips as drawn and as the
+    // newest frame had them; and the judged ones' distances from the measured hands, not yet
+    // reported (mm: { err, still }).
+    this.shown = [];
+    this.judged = [];
   }
 
-  // A new frame came (`latest`: the page's { f, seq, stamp, ... }) at page time `nowMs`.
-  push(frame, nowMs) {
-    if (this.latest && frame === this.latest.frame) return;
-    if (this.latest) {
-      const dt = nowMs - this.latest.at;
-      if (dt > 1 && dt < 200) this.intervalMs += 0.2 * (dt - this.intervalMs);
+  // The next judged picture's grip distances from the measured hands, or null.
+  takeJudged() {
+    return this.judged.shift() ?? null;
+  }
+
+  // Judges the pictures shown within the history: the measured hands then (between the two
+  // frames whose ticks bracket the showing) against the grips drawn.
+  judge() {
+    const H = this.history;
+    const n = H.length;
+    if (n < 2) return;
+    let k = 0;
+    while (this.shown.length && this.shown[0].wallMs <= H[n - 1].wallMs) {
+      const s = this.shown.shift();
+      if (s.wallMs < H[0].wallMs) continue; // shown before the frames kept: not judged
+      while (H[k + 1].wallMs < s.wallMs) k++;
+      const [a, b] = [H[k], H[k + 1]];
+      const u = (s.wallMs - a.wallMs) / (b.wallMs - a.wallMs);
+      let err = 0;
+      let still = 0;
+      for (let h = 0; h < 2; h++) {
+        let e = 0;
+        let e0 = 0;
+        for (let i = 3 * h; i < 3 * h + 3; i++) {
+          const truth = a.p[i] + (b.p[i] - a.p[i]) * u;
+          e += (s.drawn[i] - truth) ** 2;
+          e0 += (s.still[i] - truth) ** 2;
+        }
+        err = Math.max(err, Math.sqrt(e));
+        still = Math.max(still, Math.sqrt(e0));
+      }
+      this.judged.push({ err: 1000 * err, still: 1000 * still });
+      if (this.judged.length > 64) this.judged.shift();
     }
+  }
+
+  // A new frame came (`frame`: the page's { f, seq, t, stamp, arrivedMs }) at page time `nowMs`;
+  // `L`: the layout.
+  // `hands`: every frame's hands that came, when the page has them (its receiving worker's:
+  // [{ wallMs, p }], oldest first), else null: the frames pushed here make the history.
+  push(frame, nowMs, L, hands = null) {
+    if (this.latest && frame === this.latest.frame) return;
     this.prev = this.latest;
     this.latest = { frame, at: frame.arrivedMs ?? nowMs };
+    if (hands && hands.length >= 2) {
+      this.history = hands;
+      this.judge();
+      return;
+    }
+    const wallMs = frame.stamp && frame.stamp.wallMs > 0 ? frame.stamp.wallMs : null;
+    if (wallMs === null || !L) return;
+    const last = this.history[this.history.length - 1];
+    if (last && wallMs <= last.wallMs) return;
+    const p = [];
+    for (let h = 0; h < 2; h++) for (let i = 0; i < 3; i++) p.push(frame.f[L.hands_at + h * L.hand_floats + i]);
+    this.history.push({ wallMs, p });
+    if (this.history.length > HISTORY) this.history.shift();
+    this.judge();
   }
 
-  // The frame to draw at `nowMs`, and how far ahead of their frame the grips are drawn (ms).
-  at(nowMs, desc) {
+  // The grips' velocity (m/ms, six numbers) over the newest history, or null.
+  velocity() {
+    const n = this.history.length;
+    if (n < 2) return null;
+    const b = this.history[n - 1];
+    let a = this.history[0];
+    for (let k = n - 2; k >= 0; k--) if (b.wallMs - this.history[k].wallMs >= VELOCITY_WINDOW_MS) { a = this.history[k]; break; }
+    const dt = b.wallMs - a.wallMs;
+    if (!(dt > 0.5)) return null;
+    return b.p.map((x, i) => (x - a.p[i]) / dt);
+  }
+
+  // The frame to draw at page time `nowMs` for a picture shown at page time `showMs`, and how far
+  // ahead of their tick the grips are drawn (ms).
+  at(nowMs, desc, showMs = nowMs) {
     const L = desc.layout;
     const cur = this.latest.frame.f;
     if (!this.out || this.out.length !== cur.length) this.out = new Float32Array(cur.length);
     const out = this.out;
     out.set(cur);
-    if (!this.prev || this.prev.frame.f.length !== cur.length) return { f: out, leadMs: 0 };
-    const old = this.prev.frame.f;
-    const since = Math.max(0, nowMs - this.latest.at);
-    const alpha = Math.min(1, since / this.intervalMs);
-    // Bodies: from the previous frame to the newest over one interval.
-    for (let k = 0; k < desc.shapes.length; k++) blendPose(old, cur, L.shapes_at + k * L.shape_floats, alpha, out);
-    // The crowd: each character's body pose and its drawn joints (after its state and push).
-    const chars = desc.crowd ? desc.crowd.characters : 0;
-    for (let i = 0; i < chars; i++) {
-      const o = L.characters_at + i * L.character_floats;
-      blendPose(old, cur, o, alpha, out);
-      for (let j = o + 9; j < o + L.character_floats; j++) out[j] = old[j] + (cur[j] - old[j]) * alpha;
-    }
-    // Grips: ahead along their last motion, by the time since the newest frame came.
-    const lead = Math.min(since, MAX_LEAD_FRAMES * this.intervalMs);
-    const gap = this.latest.at - this.prev.at;
-    if (gap > 1) {
-      const s = lead / gap;
-      for (let h = 0; h < 2; h++) {
-        const o = L.hands_at + h * L.hand_floats;
-        for (let i = 0; i < 3; i++) out[o + i] = cur[o + i] + (cur[o + i] - old[o + i]) * s;
+    if (this.prev && this.prev.frame.f.length === cur.length) {
+      const old = this.prev.frame.f;
+      // Bodies at the world time one frame interval before the newest's, moved on by the time
+      // since it came: between the two newest frames.
+      const gapS = this.latest.frame.t - this.prev.frame.t;
+      const since = Math.max(0, nowMs - this.latest.at);
+      const alpha = gapS > 0 ? Math.min(1, Math.max(0, 1 + (since - this.frameMs) / (1000 * gapS))) : 1;
+      if (alpha < 1) {
+        for (let k = 0; k < desc.shapes.length; k++) blendPose(old, cur, L.shapes_at + k * L.shape_floats, alpha, out);
+        // The crowd: each character's body pose and its drawn joints (after its state and push).
+        const chars = desc.crowd ? desc.crowd.characters : 0;
+        for (let i = 0; i < chars; i++) {
+          const o = L.characters_at + i * L.character_floats;
+          blendPose(old, cur, o, alpha, out);
+          for (let j = o + 9; j < o + L.character_floats; j++) out[j] = old[j] + (cur[j] - old[j]) * alpha;
+        }
       }
     }
-    return { f: out, leadMs: gap > 1 ? lead : 0 };
+    // Grips: along their velocity, from their tick to the picture's showing.
+    const st = this.latest.frame.stamp;
+    const v = this.velocity();
+    if (!v || !st || !(st.wallMs > 0)) return { f: out, leadMs: 0 };
+    const showWallMs = performance.timeOrigin + showMs;
+    const lead = Math.min(MAX_LEAD_MS, Math.max(0, showWallMs - st.wallMs));
+    const drawn = [];
+    const still = [];
+    for (let h = 0; h < 2; h++) {
+      const o = L.hands_at + h * L.hand_floats;
+      for (let i = 0; i < 3; i++) {
+        out[o + i] = cur[o + i] + v[3 * h + i] * lead;
+        drawn.push(out[o + i]);
+        still.push(cur[o + i]);
+      }
+    }
+    this.shown.push({ wallMs: showWallMs, drawn, still });
+    if (this.shown.length > 64) this.shown.shift();
+    return { f: out, leadMs: lead };
   }
 }
 
@@ -208,10 +302,16 @@ export class Headset {
     return true;
   }
 
-  // The frame to draw now (interpolated) and the grips' lead (ms); `latest` is the newest frame.
-  frame(latest, desc, nowMs) {
-    this.interp.push(latest, nowMs);
-    return this.interp.at(nowMs, desc);
+  // The frame to draw now for a picture shown at `showMs` (page clock) and the grips' lead (ms);
+  // `latest` is the newest frame. `judged()`: an earlier picture's grips against the measured hands.
+  frame(latest, desc, nowMs, showMs, hands = null) {
+    if (desc.frame_hz > 0) this.interp.frameMs = 1000 / desc.frame_hz;
+    this.interp.push(latest, nowMs, desc.layout, hands);
+    return this.interp.at(nowMs, desc, showMs);
+  }
+
+  judged() {
+    return this.interp.takeJudged();
   }
 
   // Where the eyes are (scene frame), for hiding the avatar's own head.
@@ -230,7 +330,7 @@ export class Headset {
       registered: this.registered,
       message: this.message,
       origin: { position: this.origin.position.toArray(), quaternion: this.origin.quaternion.toArray() },
-      intervalMs: this.interp.intervalMs,
+      frameMs: this.interp.frameMs,
     };
   }
 }

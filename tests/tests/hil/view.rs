@@ -822,6 +822,7 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let look = scene.look();
     let opts = ViewOptions { write_timeout: Duration::from_secs(3600), ..any_port() };
     let mut view = View::start("crowd", &look, &opts).unwrap();
+    let frame_hz = view.frame_hz();
     let handle = view.counters_handle();
     let stop = Arc::new(AtomicBool::new(false));
     let (read, stalled_read) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
@@ -848,8 +849,9 @@ fn view_a_viewer_that_never_reads_does_not_slow_the_world() {
     let view = stepping.join().unwrap();
     let c = handle.counters();
     let offered = c.frames_published.load(Ordering::Relaxed) + c.frames_skipped.load(Ordering::Relaxed);
-    // A frame is due at the first step at or past each 1/60 s: every sixth 3 ms step.
-    let due = (STEPS / (1.0 / (opts.frame_hz * 0.003)).ceil() as usize) as u64;
+    // A frame is due at the first step at or past each period: frames this big at 60 a second.
+    assert_eq!(frame_hz, spidar_world::view::MIN_FRAME_HZ, "frames of 90 kB go out at the least rate");
+    let due = (STEPS as f64 * 0.003 * frame_hz) as u64;
     assert!(offered + 1 >= due, "{offered} frames offered in {STEPS} steps, {due} due");
     assert_eq!(
         c.viewers_dropped.load(Ordering::Relaxed),

@@ -44,6 +44,13 @@ pub struct Drawn {
     pub arrive_ms: Option<f64>,
     #[serde(default)]
     pub wait_ms: Option<f64>,
+    /// How far (mm, the worse hand) an earlier picture drew the grips from where the rig measured
+    /// them at the time it was shown (known once later frames cover that time), and how far the
+    /// newest frame's grips, not extrapolated, were then. Pages that do not say: None.
+    #[serde(default)]
+    pub hand_err_mm: Option<f64>,
+    #[serde(default)]
+    pub hand_still_err_mm: Option<f64>,
 }
 
 impl Drawn {
@@ -82,6 +89,14 @@ pub struct AgeSummary {
     pub arrive_p99_ms: f64,
     pub wait_p50_ms: f64,
     pub wait_p99_ms: f64,
+    /// The grips' distance from the measured hands when shown, drawn as drawn (extrapolated) and
+    /// as the newest frame had them (mm; NaN: not reported).
+    pub hand_err_p50_mm: f64,
+    pub hand_err_p99_mm: f64,
+    pub hand_err_max_mm: f64,
+    pub hand_still_err_p50_mm: f64,
+    pub hand_still_err_p99_mm: f64,
+    pub hand_still_err_max_mm: f64,
     /// The newest report's step and tick.
     pub step: u64,
     pub tick: u64,
@@ -94,6 +109,8 @@ struct Window {
     draws_ms: Vec<f64>,
     arrives_ms: Vec<f64>,
     waits_ms: Vec<f64>,
+    errs_mm: Vec<f64>,
+    still_errs_mm: Vec<f64>,
     next: usize,
     total: u64,
     step: u64,
@@ -109,12 +126,16 @@ impl Window {
             self.draws_ms.push(d.draw_ms);
             self.arrives_ms.push(d.arrive_ms.unwrap_or(f64::NAN));
             self.waits_ms.push(d.wait_ms.unwrap_or(f64::NAN));
+            self.errs_mm.push(d.hand_err_mm.unwrap_or(f64::NAN));
+            self.still_errs_mm.push(d.hand_still_err_mm.unwrap_or(f64::NAN));
         } else {
             self.ages_ms[self.next] = d.age_ms;
             self.lags_ms[self.next] = lag;
             self.draws_ms[self.next] = d.draw_ms;
             self.arrives_ms[self.next] = d.arrive_ms.unwrap_or(f64::NAN);
             self.waits_ms[self.next] = d.wait_ms.unwrap_or(f64::NAN);
+            self.errs_mm[self.next] = d.hand_err_mm.unwrap_or(f64::NAN);
+            self.still_errs_mm[self.next] = d.hand_still_err_mm.unwrap_or(f64::NAN);
         }
         self.next = (self.next + 1) % WINDOW;
         self.total += 1;
@@ -154,6 +175,12 @@ impl Window {
             arrive_p99_ms: known(&self.arrives_ms, 0.99),
             wait_p50_ms: known(&self.waits_ms, 0.5),
             wait_p99_ms: known(&self.waits_ms, 0.99),
+            hand_err_p50_mm: known(&self.errs_mm, 0.5),
+            hand_err_p99_mm: known(&self.errs_mm, 0.99),
+            hand_err_max_mm: known(&self.errs_mm, 1.0),
+            hand_still_err_p50_mm: known(&self.still_errs_mm, 0.5),
+            hand_still_err_p99_mm: known(&self.still_errs_mm, 0.99),
+            hand_still_err_max_mm: known(&self.still_errs_mm, 1.0),
             step: self.step,
             tick: self.tick,
         })
@@ -221,6 +248,8 @@ mod tests {
             xr,
             arrive_ms: None,
             wait_ms: None,
+            hand_err_mm: None,
+            hand_still_err_mm: None,
         };
         // 1..=100 ms on the screen, then WINDOW more of 1000 ms push the first ones out.
         for k in 1..=100 {
@@ -248,5 +277,9 @@ mod tests {
         a.record(&Drawn { arrive_ms: Some(3.0), wait_ms: Some(9.0), ..d(20.0, true) });
         let h = a.summaries().1.unwrap();
         assert_eq!((h.arrive_p50_ms, h.wait_p99_ms), (3.0, 9.0));
+        assert!(h.hand_err_p50_mm.is_nan(), "no page said how far its grips were");
+        a.record(&Drawn { hand_err_mm: Some(2.0), hand_still_err_mm: Some(30.0), ..d(20.0, true) });
+        let h = a.summaries().1.unwrap();
+        assert_eq!((h.hand_err_p99_mm, h.hand_err_max_mm, h.hand_still_err_p50_mm), (2.0, 2.0, 30.0));
     }
 }

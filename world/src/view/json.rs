@@ -220,6 +220,11 @@ pub fn status(
                 "draw_p50_ms": a.draw_p50_ms, "draw_p99_ms": a.draw_p99_ms,
                 "arrive_p50_ms": finite(a.arrive_p50_ms), "arrive_p99_ms": finite(a.arrive_p99_ms),
                 "wait_p50_ms": finite(a.wait_p50_ms), "wait_p99_ms": finite(a.wait_p99_ms),
+                "hand_err_p50_mm": finite(a.hand_err_p50_mm), "hand_err_p99_mm": finite(a.hand_err_p99_mm),
+                "hand_err_max_mm": finite(a.hand_err_max_mm),
+                "hand_still_err_p50_mm": finite(a.hand_still_err_p50_mm),
+                "hand_still_err_p99_mm": finite(a.hand_still_err_p99_mm),
+                "hand_still_err_max_mm": finite(a.hand_still_err_max_mm),
                 "step": a.step, "tick": a.tick,
             })
         })

@@ -79,8 +79,13 @@ pub fn parse_addr(s: &str) -> Result<SocketAddr, ViewError> {
 pub struct ViewOptions {
     /// Where the page is served; frames are on the next port (or any free port when this is 0).
     pub addr: SocketAddr,
-    /// Frames per second of loop-clock time while someone watches.
+    /// The most frames a second of loop-clock time while someone watches. A frame goes out after
+    /// every world step (each brings the rig's newest hand sample) up to this rate, so the newest
+    /// frame a page can draw is at most a step old ([`frame_hz_for`]).
     pub frame_hz: f64,
+    /// Large frames (a big crowd's) go out less often than `frame_hz`, keeping each viewer's
+    /// stream under this many bytes a second, but never less often than [`MIN_FRAME_HZ`].
+    pub frame_bytes_per_s: f64,
     /// Status messages per second.
     pub status_hz: f64,
     /// Most viewers at once (each one is a thread).
@@ -96,13 +101,25 @@ impl Default for ViewOptions {
     fn default() -> Self {
         ViewOptions {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
-            frame_hz: 60.0,
+            frame_hz: 1000.0,
+            frame_bytes_per_s: 4e6,
             status_hz: 4.0,
             max_viewers: 8,
             write_timeout: Duration::from_secs(2),
             tls: None,
         }
     }
+}
+
+/// Frames a second a view sends at the least while someone watches (a display's rate).
+pub const MIN_FRAME_HZ: f64 = 60.0;
+
+/// The frame rate of a view whose frames (without contacts) are `frame_bytes` long: `frame_hz`,
+/// less when that would send more than `frame_bytes_per_s`, but not under [`MIN_FRAME_HZ`] (unless
+/// `frame_hz` itself is).
+pub fn frame_hz_for(opts: &ViewOptions, frame_bytes: usize) -> f64 {
+    let by_bytes = (opts.frame_bytes_per_s / frame_bytes.max(1) as f64).max(MIN_FRAME_HZ);
+    opts.frame_hz.min(by_bytes).max(1.0)
 }
 
 /// Counters of a view, readable from any thread.
@@ -274,7 +291,8 @@ impl View {
         let finisher = FrameFinisher::new(look);
         let (frames, sender) = frame_buffers(layout.max_words, finisher.states());
         let shared = Shared::new(None);
-        let description = json::scene(scene_name, look, &layout, opts.frame_hz);
+        let frame_hz = frame_hz_for(opts, 4 * layout.contacts_at);
+        let description = json::scene(scene_name, look, &layout, frame_hz);
         let server = server::Server::start(
             opts,
             shared.clone(),
@@ -294,7 +312,7 @@ impl View {
             maker,
             frames,
             scratch: vec![0.0; layout.max_words],
-            frame_every_s: 1.0 / opts.frame_hz.max(1.0),
+            frame_every_s: 1.0 / frame_hz,
             status_every_s: 1.0 / opts.status_hz.max(0.1),
             next_frame_t_s: f64::NEG_INFINITY,
             next_status_t_s: f64::NEG_INFINITY,
@@ -315,6 +333,11 @@ impl View {
 
     pub fn counters(&self) -> &ViewCounters {
         &self.shared.counters
+    }
+
+    /// Frames a second of loop-clock time while someone watches ([`frame_hz_for`]).
+    pub fn frame_hz(&self) -> f64 {
+        1.0 / self.frame_every_s
     }
 
     /// A handle to the counters that outlives the view being moved into a host.
@@ -377,12 +400,25 @@ impl Observer for View {
         if frame_due || status_due {
             self.publish(step, frame_due);
             if frame_due {
-                self.next_frame_t_s = t + self.frame_every_s;
+                self.next_frame_t_s = next_due(self.next_frame_t_s, t, self.frame_every_s);
             }
             if status_due {
                 self.next_status_t_s = t + self.status_every_s;
             }
         }
+    }
+}
+
+/// When the frame after one due at `due` (sent at `t`) is due: one period on, so the rate holds
+/// on average over steps that do not divide it (at 60 Hz over 3 ms steps: 18, 15, 18 ms ... apart,
+/// not 18 every time); one period after `t` when that is already past (after a pause, or a period
+/// shorter than a step: every step).
+fn next_due(due: f64, t: f64, every: f64) -> f64 {
+    let next = due + every;
+    if next > t {
+        next
+    } else {
+        t + every
     }
 }
 
@@ -437,6 +473,39 @@ mod tests {
         assert_eq!(a("0.0.0.0:8080"), "0.0.0.0:8080");
         let e = parse_addr("here").unwrap_err().to_string();
         assert!(e.contains("HOST:PORT"), "{e}");
+    }
+
+    /// Frames go out after every step when the period is shorter than a step; at 60 Hz over 3 ms
+    /// steps they average 60 a second (18 and 15 ms apart), not one every 18 ms (55.6 Hz); after a
+    /// pause the next is one period on, not a burst.
+    #[test]
+    fn frames_are_due_every_step_or_at_the_rate_on_average() {
+        let steps = |every: f64| {
+            let (mut due, mut sent) = (f64::NEG_INFINITY, Vec::new());
+            for k in 0..2000 {
+                let t = k as f64 * 0.003;
+                if t >= due {
+                    sent.push(t);
+                    due = next_due(due, t, every);
+                }
+            }
+            sent
+        };
+        assert_eq!(steps(1.0 / 1000.0).len(), 2000, "every step");
+        let s = steps(1.0 / 60.0);
+        let hz = (s.len() - 1) as f64 / (s[s.len() - 1] - s[0]);
+        assert!((hz - 60.0).abs() < 0.2, "{hz} frames a second");
+        assert!(s.windows(2).all(|w| w[1] - w[0] < 0.0181), "no gap over a step past the period");
+        assert_eq!(next_due(1.0, 5.0, 0.1), 5.1, "after a pause: one period on");
+    }
+
+    #[test]
+    fn big_frames_go_out_less_often_but_at_a_display_rate() {
+        let o = ViewOptions::default();
+        assert_eq!(frame_hz_for(&o, 1000), o.frame_hz, "a boxing frame: every step");
+        assert_eq!(frame_hz_for(&o, 40_000), 100.0, "4 MB/s of 40 kB frames");
+        assert_eq!(frame_hz_for(&o, 300_000), MIN_FRAME_HZ, "never under 60 a second");
+        assert_eq!(frame_hz_for(&ViewOptions { frame_hz: 30.0, ..o }, 300_000), 30.0, "unless asked");
     }
 
     #[test]

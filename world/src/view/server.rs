@@ -64,7 +64,7 @@ struct Viewer {
 type Viewers = Arc<Mutex<Vec<Arc<Viewer>>>>;
 
 /// How often the broadcaster looks at the mailbox.
-const POLL: Duration = Duration::from_millis(2);
+const POLL: Duration = Duration::from_millis(1);
 
 pub(super) struct Server {
     pub http_addr: SocketAddr,
@@ -179,6 +179,14 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
                 latest.lock().ok().and_then(|l| l.playback.clone()).unwrap_or_else(|| "null".into()),
                 "application/json",
             ),
+            // A benchmark's measured window starts here: the reports so far are forgotten.
+            "/clear-ages" => {
+                if let Ok(mut a) = shared.ages.lock() {
+                    a.clear();
+                }
+                let _ = req.respond(tiny_http::Response::empty(204));
+                continue;
+            }
             "/favicon.ico" => {
                 let _ = req.respond(tiny_http::Response::empty(204));
                 continue;
@@ -189,7 +197,15 @@ fn serve_http(http: tiny_http::Server, index: String, shared: Arc<Shared>, lates
             }
         };
         let mut resp = tiny_http::Response::from_string(body);
-        for h in [header("Content-Type", kind), header("Cache-Control", "no-store")].into_iter().flatten() {
+        // Cross-origin isolated (the page loads nothing from elsewhere): the page may then share
+        // memory with the worker that receives its frames (web/src/connection.js).
+        let isolated = [
+            header("Cross-Origin-Opener-Policy", "same-origin"),
+            header("Cross-Origin-Embedder-Policy", "require-corp"),
+            header("Cross-Origin-Resource-Policy", "same-origin"),
+        ];
+        let headers = [header("Content-Type", kind), header("Cache-Control", "no-store")];
+        for h in headers.into_iter().chain(isolated).flatten() {
             resp.add_header(h);
         }
         let _ = req.respond(resp);
@@ -297,10 +313,6 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
         }
         shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
     }
-    // Reads only drain the viewer's control messages: never wait on them.
-    if ws.get_mut().set_read_timeout(Some(Duration::from_millis(1))).is_err() {
-        return false;
-    }
     loop {
         let stopping = shared.done.load(Ordering::Relaxed);
         let slot = {
@@ -327,32 +339,59 @@ fn run_viewer(ws: &mut WebSocket<TcpStream>, me: &Viewer, shared: &Shared, lates
             }
             shared.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
         }
-        loop {
-            match ws.read() {
-                Ok(Message::Close(_)) => {
-                    let _ = ws.flush();
-                    return false;
-                }
-                Ok(Message::Text(t)) => {
-                    // A picture drawn, with its age; else a replay's controls (a full queue drops
-                    // the command: the page resends).
-                    if let Some(d) = super::Drawn::parse(t.as_str()) {
-                        if let Ok(mut a) = shared.ages.lock() {
-                            a.record(&d);
-                        }
-                    } else if let Some(c) = &shared.commands {
-                        let _ = c.try_send(t.as_str().to_string());
-                    }
-                }
-                Ok(_) => continue,
-                Err(e) if timed_out(&e) => break,
-                Err(_) => return false,
+        // Reads only drain what the viewer sent: never wait on it. Non-blocking for the drain (a
+        // read timeout would not do: the kernel rounds it up to whole scheduler ticks, 4-8 ms
+        // here, during which the newest frame would wait in the slot), blocking again for writes.
+        if ws.get_mut().set_nonblocking(true).is_err() {
+            return false;
+        }
+        let drained = drain(ws, shared);
+        if ws.get_mut().set_nonblocking(false).is_err() {
+            return false;
+        }
+        match drained {
+            Drained::Closed => {
+                let _ = ws.flush();
+                return false;
             }
+            Drained::Failed => return false,
+            Drained::Empty => {}
         }
         if stopping {
             let _ = ws.close(None);
             let _ = ws.flush();
             return false;
+        }
+    }
+}
+
+/// How draining a viewer's messages ended.
+enum Drained {
+    Empty,
+    Closed,
+    Failed,
+}
+
+/// Reads every message the viewer has sent so far (its socket non-blocking): pictures drawn go to
+/// the ages, other texts to the replay's controls.
+fn drain(ws: &mut WebSocket<TcpStream>, shared: &Shared) -> Drained {
+    loop {
+        match ws.read() {
+            Ok(Message::Close(_)) => return Drained::Closed,
+            Ok(Message::Text(t)) => {
+                // A picture drawn, with its age; else a replay's controls (a full queue drops
+                // the command: the page resends).
+                if let Some(d) = super::Drawn::parse(t.as_str()) {
+                    if let Ok(mut a) = shared.ages.lock() {
+                        a.record(&d);
+                    }
+                } else if let Some(c) = &shared.commands {
+                    let _ = c.try_send(t.as_str().to_string());
+                }
+            }
+            Ok(_) => continue,
+            Err(e) if timed_out(&e) => return Drained::Empty,
+            Err(_) => return Drained::Failed,
         }
     }
 }
