@@ -30,7 +30,9 @@ use spidar_rt::telemetry::TickRecord;
 use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind, SkillLevel};
 
-use spidar_runtime::scripts::{aim_points_now, box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind, SeeingUser};
+use spidar_runtime::scripts::{
+    aim_points_now, box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind, SeeingUser,
+};
 use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 use spidar_world::boxing::BoxingScene;
 use spidar_world::Scene;
@@ -930,7 +932,9 @@ pub fn punch_report(
         }
     });
     progress(total, total);
-    let mut it = results.into_iter().map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("not run: another bout failed"))));
+    let mut it = results
+        .into_iter()
+        .map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("not run: another bout failed"))));
     let mut take = || it.next().expect("five bouts");
     let (active, passive, novice, pro, feint_pairs) = (take()?, take()?, take()?, take()?, take()?);
     Ok(PunchReport { active, passive, other_skills: vec![novice, pro], feint_pairs })

@@ -354,7 +354,8 @@ impl SeeingUser {
 
     /// The hands' scripts before any punch: both hold their guard (launches replace them).
     pub fn holding_scripts(&self) -> [Script; 2] {
-        self.home.map(|h| Script::from_segments(vec![Segment::Hold { at_m: h.to_array(), for_s: 1e6 }], false))
+        self.home
+            .map(|h| Script::from_segments(vec![Segment::Hold { at_m: h.to_array(), for_s: 1e6 }], false))
     }
 
     /// The virtual human's aim points as seen at script time `t_s` (rig frame, [`aim_points_now`]).

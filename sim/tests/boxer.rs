@@ -1029,8 +1029,14 @@ fn a_punch_through_a_glove_is_met_by_that_glove() {
             }
             other_moved = other_moved.max((w.com(w.vh.hand[1 - g]) - other_start).length());
         });
-        eprintln!("glove {g}: through {through}, {} steps blocking, other glove moved {other_moved:.3} m", blockers.len());
+        eprintln!(
+            "glove {g}: through {through}, {} steps blocking, other glove moved {other_moved:.3} m",
+            blockers.len()
+        );
         assert!(through, "glove {g}: the prediction found the chest through that glove");
-        assert!(!blockers.is_empty() && blockers.iter().all(|&b| b == g), "glove {g}: blocked by it only: {blockers:?}");
+        assert!(
+            !blockers.is_empty() && blockers.iter().all(|&b| b == g),
+            "glove {g}: blocked by it only: {blockers:?}"
+        );
     }
 }
