@@ -853,9 +853,12 @@ pub fn punch_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
 /// The feint-pair script: punches thrown only in combinations of 2-3, this share of them feints,
 /// so a punch follows a feint within [`FEINT_PAIR_S`] often enough to compare (the `box`
 /// script's 400 punches hold only about 17 such pairs). Half as many punches as the main plan.
+/// Its combinations go high-low (head then chest, or chest then head), as a boxer feints at one
+/// level to hit the other, after a feint or a real punch alike, so the pairs compare the two.
 pub fn feint_pair_plan(punches: usize, seed: u64) -> anyhow::Result<BoxPlan> {
     let rig = Rig::default_rig();
-    let opts = PlanOptions { punches, combo_share: 1.0, feint_share: 0.3, ..Default::default() };
+    let opts =
+        PlanOptions { punches, combo_share: 1.0, feint_share: 0.3, high_low: true, ..Default::default() };
     box_plan(&rig, &BoxerParams::default(), seed ^ 0xfe17, &opts)
 }
 
@@ -1175,6 +1178,7 @@ pub fn trial_bout(active: bool, target: usize, seed: u64) -> anyhow::Result<(Bou
         combo_share: 0.0,
         speed_m_per_s: (3.0, 5.0),
         pause_s: (0.5, 0.6),
+        high_low: false,
     };
     let plan = box_plan(&rig, &params, seed, &opts)?;
     let mut b = Bout::new(params, plan.scripts, seed)?;

@@ -108,6 +108,9 @@ pub struct PlanOptions {
     pub speed_m_per_s: (f64, f64),
     /// Pause range between two punches (or combinations) (s).
     pub pause_s: (f64, f64),
+    /// A combination's punches alternate between the head and the chest (the first one's aim
+    /// drawn, the next at the other level).
+    pub high_low: bool,
 }
 
 impl Default for PlanOptions {
@@ -124,6 +127,7 @@ impl Default for PlanOptions {
             combo_share: 0.25,
             speed_m_per_s: (2.0, 9.0),
             pause_s: (0.6, 1.2),
+            high_low: false,
         }
     }
 }
@@ -273,7 +277,14 @@ pub fn box_plan(
             opts.hands[pick(&mut rng, opts.hands.len())]
         };
         let kind = opts.kinds[pick(&mut rng, opts.kinds.len())];
-        let aim = opts.aims[pick(&mut rng, opts.aims.len())];
+        let drawn = opts.aims[pick(&mut rng, opts.aims.len())];
+        // High-low: a combination's next punch goes to the other level, as a boxer feints (or
+        // punches) high to hit low and the other way round.
+        let aim = match punches.last().map(|p: &Punch| p.aim) {
+            Some(Aim::Head) if opts.high_low && in_combo > 0 => Aim::Chest,
+            Some(Aim::Chest) if opts.high_low && in_combo > 0 => Aim::Head,
+            _ => drawn,
+        };
         let feint = rng.random::<f64>() < opts.feint_share;
         let speed = if v_hi > v_lo { rng.random_range(v_lo..v_hi) } else { v_lo };
         // Scattered a little around the aim point, as no two punches land on the same spot.
