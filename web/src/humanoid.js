@@ -215,7 +215,14 @@ export class Humanoids {
       p.head.group.worldToLocal(local).sub(eye.position).normalize();
       const ahead = p.forward;
       const angle = Math.acos(Math.min(1, Math.max(-1, local.dot(ahead))));
-      if (angle > 0.61) local.lerpVectors(ahead, local, 0.61 / angle).normalize();
+      // Beyond 35 degrees, turned exactly 35 degrees toward it (a straight-line blend of the two
+      // directions turns less: 33.9 degrees for a point 80 degrees off).
+      if (angle > 0.61) {
+        local.addScaledVector(ahead, -Math.cos(angle));
+        const across = local.length();
+        if (across < 1e-6) local.copy(ahead); // straight behind: no side to turn to
+        else local.multiplyScalar(Math.sin(0.61) / across).addScaledVector(ahead, Math.cos(0.61));
+      }
       eye.quaternion.setFromUnitVectors(ahead, local);
     }
   }
