@@ -435,7 +435,10 @@ pub struct RecorderThread {
     batch: Vec<TickRecord>,
     dropped: u64,
     to_file: bool,
-    handle: Option<JoinHandle<Option<Recorder>>>,
+    /// The thread hands back the file and the live server when its queue closes: the file is
+    /// finished before the server goes, so a live client that sees the stream end finds the
+    /// recording complete.
+    handle: Option<JoinHandle<(Option<Recorder>, Option<LiveRig>)>>,
 }
 
 impl std::fmt::Debug for RecorderThread {
@@ -468,7 +471,7 @@ impl RecorderThread {
                         }
                     }
                 }
-                rec
+                (rec, live)
             })
             .map_err(|e| RecordError::Write {
                 path: PathBuf::new(),
@@ -518,12 +521,15 @@ impl RecorderThread {
     pub fn finish(mut self, end: &EndInfo) -> Result<RecordingReport, RecordError> {
         self.send(true);
         drop(self.tx.take());
-        let rec = self.handle.take().and_then(|h| h.join().ok()).ok_or_else(|| RecordError::Write {
-            path: PathBuf::new(),
-            why: "the recorder thread panicked".into(),
+        let (rec, live) = self.handle.take().and_then(|h| h.join().ok()).ok_or_else(|| {
+            RecordError::Write { path: PathBuf::new(), why: "the recorder thread panicked".into() }
         })?;
-        let Some(mut rec) = rec else { return Ok(RecordingReport::default()) };
-        rec.report.queue_dropped = self.dropped;
-        Ok(rec.finish(end))
+        let report = rec.map(|mut rec| {
+            rec.report.queue_dropped = self.dropped;
+            rec.finish(end)
+        });
+        // Only now the live server closes its clients.
+        drop(live);
+        Ok(report.unwrap_or_default())
     }
 }
