@@ -164,11 +164,9 @@ impl Bout {
             self.consumed.append(&mut self.samples);
             self.consumed_recs.clear();
             self.consumed_recs.append(&mut self.recs);
-            if self.user.is_some() {
-                let (t, aims) = (self.script_t_s(), aim_points_now(&self.scene.world, &self.rig));
-                if let Some(u) = self.user.as_mut() {
-                    u.see(t, aims);
-                }
+            let t = self.script_t_s();
+            if let Some(u) = self.user.as_mut() {
+                u.see(t, aim_points_now(&self.scene.world, &self.rig));
             }
             return (rec, true);
         }
@@ -882,7 +880,8 @@ pub fn punch_report(
     seed: u64,
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<PunchReport> {
-    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let plan = punch_plan(punches, seed)?;
     let pairs_plan = feint_pair_plan(punches.div_ceil(2), seed)?;
     let n = plan.punches.len();
@@ -894,33 +893,20 @@ pub fn punch_report(
         (BoxerParams::default().with_skill(SkillLevel::Pro), &plan),
         (BoxerParams::default(), &pairs_plan),
     ];
+    // Punches over per bout, summed for the caller's progress from this thread.
     let over: Vec<AtomicUsize> = jobs.iter().map(|_| AtomicUsize::new(0)).collect();
-    let next = AtomicUsize::new(0);
-    let failed = AtomicBool::new(false);
-    let mut results: Vec<Option<anyhow::Result<BoutOutcome>>> = jobs.iter().map(|_| None).collect();
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(jobs.len());
-    std::thread::scope(|sc| {
-        let handles: Vec<_> = (0..workers)
-            .map(|_| {
-                sc.spawn(|| {
-                    let mut mine = Vec::new();
-                    loop {
-                        let j = next.fetch_add(1, Ordering::Relaxed);
-                        if j >= jobs.len() || failed.load(Ordering::Relaxed) {
-                            return mine;
-                        }
-                        let (params, plan) = (jobs[j].0.clone(), jobs[j].1);
-                        let r = punch_outcomes_with(BoxerParams { seed, ..params }, plan, seed, &mut |k| {
-                            over[j].store(k, Ordering::Relaxed)
-                        });
-                        failed.fetch_or(r.is_err(), Ordering::Relaxed);
-                        mine.push((j, r));
-                    }
+    let results = std::thread::scope(|sc| {
+        let bouts = sc.spawn(|| {
+            jobs.par_iter()
+                .zip(&over)
+                .map(|((params, plan), over)| {
+                    let params = BoxerParams { seed, ..params.clone() };
+                    punch_outcomes_with(params, plan, seed, &mut |k| over.store(k, Ordering::Relaxed))
                 })
-            })
-            .collect();
+                .collect::<Vec<_>>()
+        });
         let mut last = usize::MAX;
-        while !handles.iter().all(|h| h.is_finished()) {
+        while !bouts.is_finished() {
             let done = over.iter().map(|o| o.load(Ordering::Relaxed)).sum();
             if done != last {
                 progress(done, total);
@@ -928,18 +914,14 @@ pub fn punch_report(
             }
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
-        for h in handles {
-            for (j, r) in h.join().expect("a punch bout panicked") {
-                results[j] = Some(r);
-            }
-        }
+        bouts.join().expect("a punch bout panicked")
     });
     progress(total, total);
-    let mut it = results
+    let [active, passive, novice, pro, feint_pairs]: [BoutOutcome; 5] = results
         .into_iter()
-        .map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("not run: another bout failed"))));
-    let mut take = || it.next().expect("five bouts");
-    let (active, passive, novice, pro, feint_pairs) = (take()?, take()?, take()?, take()?, take()?);
+        .collect::<anyhow::Result<Vec<_>>>()?
+        .try_into()
+        .map_err(|_| anyhow::anyhow!("five bouts"))?;
     Ok(PunchReport { active, passive, other_skills: vec![novice, pro], feint_pairs })
 }
 

@@ -405,12 +405,19 @@ impl SeeingUser {
         if wait > 0.0 {
             segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: wait });
         }
-        let samples = out_samples(p.kind, h, self.home[h], target, p.path_end, p.out_s);
-        segs.push(Segment::recorded("box script punch", samples)?);
-        segs.push(Segment::Reach { to_m: self.home[h].to_array(), duration_s: p.back_s });
+        segs.extend(punch_segments(&p, self.home[h], target)?);
         segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: 1e6 });
         Ok(Some((i, h, Script::from_segments(segs, false))))
     }
+}
+
+/// A punch's way out from `home` to `target` (rig frame) along its kind's path, and its way back.
+fn punch_segments(p: &Punch, home: DVec3, target: DVec3) -> anyhow::Result<[Segment; 2]> {
+    let samples = out_samples(p.kind, p.hand, home, target, p.path_end, p.out_s);
+    Ok([
+        Segment::recorded("box script punch", samples)?,
+        Segment::Reach { to_m: home.to_array(), duration_s: p.back_s },
+    ])
 }
 
 /// The two hands' scripts for `punches` (sorted by start): each hand holds its guard until its
@@ -426,9 +433,7 @@ fn hand_scripts(punches: &[Punch], home: [DVec3; 2]) -> anyhow::Result<[Script; 
         if wait > 0.0 {
             segs[h].push(hold(home[h], wait));
         }
-        let samples = out_samples(p.kind, h, home[h], p.target_rig_m, p.path_end, p.out_s);
-        segs[h].push(Segment::recorded("box script punch", samples)?);
-        segs[h].push(Segment::Reach { to_m: home[h].to_array(), duration_s: p.back_s });
+        segs[h].extend(punch_segments(p, home[h], p.target_rig_m)?);
         free_at[h] = p.end_s();
     }
     Ok([0, 1].map(|h| {
