@@ -63,6 +63,7 @@ pub struct SkillFile {
     pub refractory_s: f64,
     pub feint_recovery_s: f64,
     pub attention_dwell_s: f64,
+    pub accel_seen: f64,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -167,7 +168,7 @@ const DELAY: &str =
 const ANGLE: &str = "an angle around the eye: a full turn at most";
 
 /// Every number of one skill level with its bound: (field, value, bound).
-fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 15] {
+fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 16] {
     let b = |lo: f64, hi: f64, unit: &'static str, why: &'static str| Bound::hard("", lo, hi, unit, why);
     [
         ("delay_s", s.delay_s, b(0.0, 1.0, "s", DELAY)),
@@ -189,6 +190,7 @@ fn skill_numbers(s: &SkillFile) -> [(&'static str, f64, Bound); 15] {
         ("refractory_s", s.refractory_s, b(0.0, 1.0, "s", DELAY)),
         ("feint_recovery_s", s.feint_recovery_s, b(0.0, 1.0, "s", DELAY)),
         ("attention_dwell_s", s.attention_dwell_s, b(0.0, 1.0, "s", DELAY)),
+        ("accel_seen", s.accel_seen, b(0.0, 1.0, "", "a share of the acceleration there is")),
     ]
 }
 
@@ -229,6 +231,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
             refractory_s: s.refractory_s,
             feint_recovery_s: s.feint_recovery_s,
             attention_dwell_s: s.attention_dwell_s,
+            accel_seen: s.accel_seen,
         };
     }
     Ok(out)
@@ -238,7 +241,7 @@ fn parse_skills(c: &Checker, f: &SkillsFile) -> Result<[Skill; 3], SimError> {
 pub fn parse_boxer(text: &str, origin: &str) -> Result<BoxerParams, SimError> {
     let f: BoxerFile = config::parse_kind(text, origin, config::FileKind::Boxer)?;
     let c = Checker::new(text, origin);
-    c.version(f.version, 6)?;
+    c.version(f.version, 7)?;
     let o = f.user_offset_m;
     c.finite_within(&At::key("user_offset_m"), &[o.0, o.1, o.2], f64::MAX, "m")?;
     for (field, v, bound) in boxer_numbers(&f) {

@@ -448,7 +448,8 @@ impl Mind {
         let grace = (self.params.middle_grace_s / model.dt_s).ceil() as usize;
         let t0 = state.t_s;
         let (av, vh) = (self.av, self.vh);
-        let acc = self.hand_acc_m_per_s2;
+        // A person uses little of a briefly seen motion's acceleration (the skill's `accel_seen`).
+        let acc = self.hand_acc_m_per_s2.map(|a| a * self.params.skill.accel_seen);
         let mut best: Option<Decision> = None;
         let mut middle_at: Option<usize> = None;
         let mut hand_start = [DVec3::ZERO; 2];
@@ -974,6 +975,7 @@ impl Mind {
             }
         }
         self.place_stance(model, ws, guarding);
+        self.stop_a_dodge_into_a_fist(model, ws, now, bp);
         // Attack: one hand at a time, only while both stand by, no defence is under way and no
         // fist is closing on it.
         let idle =
@@ -1045,6 +1047,33 @@ impl Mind {
             }
         } else {
             self.stance.step_back(model.dt_s, self.params.stance_return_m_per_s);
+        }
+    }
+
+    /// A dodge (or lean) under way stops where it is, held there, once the head moves toward a
+    /// fist that has started toward it (as it truly is: this only keeps the body's
+    /// own motion out of a punch, as [`Mind::fist_in_flight`] does). A dodge is aimed away from
+    /// the fist it answers and, when it starts, away from the other one too; but a combination's
+    /// next fist may leave its guard while the head is still on its way, and from where it comes
+    /// the rest of that way can lead into it (issue 15's 2 cm bound: the third punch of a
+    /// combination met a head dodging the second 2.2-3.7 cm toward it). The hold keeps the
+    /// dodge's home, so the way back to the guard after the defence is as before.
+    fn stop_a_dodge_into_a_fist(&mut self, model: &Model, ws: &Workspace, now: f64, bp: &BoxerParams) {
+        if self.body != BodyBehaviour::Avoidance {
+            return;
+        }
+        let Some(r) = self.reaches[2].filter(|r| !is_hold(r)) else { return };
+        let (at, v) = (ws.point_world(r.body, r.point_body_m), ws.point_velocity(r.body, r.point_body_m));
+        let into = self.true_fists(model, ws).iter().any(|&(fist, fist_v)| {
+            let to = (fist - at).normalize_or_zero();
+            -fist_v.dot(to) > STARTED_M_PER_S && v.dot(to) > STARTED_M_PER_S
+        });
+        if into {
+            let mut hold =
+                Reach::start(model, ws, r.body, at, now, 0.05, bp.reach_body_k_n_per_m, bp.reach_body_d_n_s_per_m);
+            hold.home_m = r.home_m;
+            hold.duration_s = f64::INFINITY;
+            self.reaches[2] = Some(hold);
         }
     }
 
@@ -1137,6 +1166,11 @@ fn is_hold(r: &Reach) -> bool {
 /// A hand speeding up is expected to reach at most this many times its present speed (the peak
 /// of a minimum-jerk punch is 2.4 times its speed a fifth of the way out).
 pub const SPEED_UP_MAX: f64 = 2.5;
+
+/// A fist closing on the body, or the body moving toward a fist, faster than this has started
+/// to (m/s): the threshold of [`Mind::stop_a_dodge_into_a_fist`], above the sway of a fist held at
+/// its guard and of a body at rest.
+pub const STARTED_M_PER_S: f64 = 0.05;
 /// The extrapolated path turns at most this far (rad), on a radius of at least this (m).
 pub const TURN_MAX_RAD: f64 = std::f64::consts::FRAC_PI_2;
 pub const RADIUS_MIN_M: f64 = 0.15;

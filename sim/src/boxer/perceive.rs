@@ -19,6 +19,9 @@
 //!   after `delay_s`; one in the periphery, within `fov_deg`, `periphery_delay_s` later and with
 //!   `periphery_noise` times the error; one outside the field of view is not seen: the last
 //!   sight of it is kept.
+//! - **Acceleration.** The prediction extrapolates a fist with `accel_seen` of its seen
+//!   acceleration (1: all of it, as the paper's model did), so a person's poor judgement of a
+//!   brief motion's speeding up, slowing down and bending is part of what is seen.
 //! - **Error.** Each prediction starts from the seen fist moved by a position error (`noise_m`
 //!   per axis, standard deviation) and its speed scaled by a speed error (`speed_noise`, a Weber
 //!   fraction), drawn from the mind's seeded generator: deterministic for a seed.
@@ -106,6 +109,11 @@ pub struct Skill {
     /// Attention stays with a fist this long after it last threatened (s): the other fist is
     /// seen without attention until then.
     pub attention_dwell_s: f64,
+    /// How much of a fist's seen acceleration (its speeding up, slowing down and bending) the
+    /// prediction uses, 0 to 1: people judge a briefly seen motion's acceleration poorly and
+    /// extrapolate it mostly at its speed, so a feint's slowing is missed and a hook's bend seen
+    /// late (docs/boxing.md section 4.1).
+    pub accel_seen: f64,
 }
 
 impl Skill {
@@ -129,6 +137,7 @@ impl Skill {
             refractory_s: 0.0,
             feint_recovery_s: 0.0,
             attention_dwell_s: 0.0,
+            accel_seen: 1.0,
         }
     }
 
