@@ -1069,8 +1069,16 @@ impl Mind {
             -fist_v.dot(to) > STARTED_M_PER_S && v.dot(to) > STARTED_M_PER_S
         });
         if into {
-            let mut hold =
-                Reach::start(model, ws, r.body, at, now, 0.05, bp.reach_body_k_n_per_m, bp.reach_body_d_n_s_per_m);
+            let mut hold = Reach::start(
+                model,
+                ws,
+                r.body,
+                at,
+                now,
+                0.05,
+                bp.reach_body_k_n_per_m,
+                bp.reach_body_d_n_s_per_m,
+            );
             hold.home_m = r.home_m;
             hold.duration_s = f64::INFINITY;
             self.reaches[2] = Some(hold);
