@@ -209,6 +209,11 @@ function viaWorker(onState, text, frame) {
   let seen = 0; // the publication number of the newest frame handed over
   let ringCount = null;
   let ring = null;
+  // The frames handed over, in two buffers used in turn: the page keeps the newest frame until the
+  // next one is handed over (a headset keeps copies of its own), so a buffer is written again only
+  // after a newer frame took its place. A new buffer only when a frame's length changes.
+  const buffers = [null, null];
+  let turn = 0;
   w.onmessage = (ev) => {
     const m = ev.data;
     if (m.shared) {
@@ -224,7 +229,8 @@ function viaWorker(onState, text, frame) {
   };
   w.postMessage({ url: framesUrl(), layout: LAYOUT });
   // The newest whole frame, if newer than the last one handed over: a copy (the worker writes the
-  // slot again two frames later) and its arrival on the page's clock; else null.
+  // slot again two frames later) in the buffer not handed over last, and its arrival on the page's
+  // clock; else null.
   const newest = () => {
     for (let tries = 0; tries < 4; tries++) {
       const k = Atomics.load(ctrl, NEWEST) - 1;
@@ -235,12 +241,14 @@ function viaWorker(onState, text, frame) {
       const number = ctrl[o + 1];
       if (number <= seen) return null;
       const len = ctrl[o + 2];
-      const data = new ArrayBuffer(len);
-      new Uint8Array(data).set(bytes.subarray(k * slotBytes, k * slotBytes + len));
+      const next = 1 - turn;
+      if (!buffers[next] || buffers[next].byteLength !== len) buffers[next] = new Uint8Array(len);
+      buffers[next].set(bytes.subarray(k * slotBytes, k * slotBytes + len));
       const at = arrivals[k];
       if (Atomics.load(ctrl, o) !== v) continue; // overwritten while copied: again
       seen = number;
-      return { data, arrivedMs: at - performance.timeOrigin };
+      turn = next;
+      return { data: buffers[next].buffer, arrivedMs: at - performance.timeOrigin };
     }
     return null;
   };
