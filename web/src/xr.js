@@ -87,8 +87,8 @@ export class Interpolator {
   // [{ wallMs, p }], oldest first), else null: the frames pushed here make the history.
   push(frame, nowMs, L, hands = null) {
     if (this.latest && frame === this.latest.frame) return;
-    // The two newest frames' numbers are kept as copies (the page reuses its frame buffers), in
-    // two arrays used in turn.
+    // The two newest frames' numbers are kept as copies (the page's frame buffers are used again),
+    // in two arrays used in turn.
     const spare = this.prev && this.prev.f.length === frame.f.length ? this.prev.f : new Float32Array(frame.f.length);
     spare.set(frame.f);
     this.prev = this.latest;
