@@ -220,7 +220,10 @@ impl Headset {
             .with_context(|| format!("starting {} {}", node.display(), script.display()))?;
         let stdout = child.stdout.take().context("the headset driver's output")?;
         let (tx, lines) = std::sync::mpsc::channel();
+        let on = cpus.to_vec();
         std::thread::spawn(move || {
+            // With the browser, not on the CPU of the thread that opened it (a bench's world).
+            let _ = crate::cpus::pin_current_thread(&on);
             for l in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
                 if tx.send(l).is_err() {
                     break;
