@@ -301,8 +301,8 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         }
     };
     let allowed = crate::cpus::allowed_cpus();
-    let placement =
-        crate::cpus::Placement::resolve(&o.world_cpu, &o.browser_cpus, &allowed).map_err(|e| anyhow::anyhow!(e))?;
+    let placement = crate::cpus::Placement::resolve(&o.world_cpu, &o.browser_cpus, &allowed)
+        .map_err(|e| anyhow::anyhow!(e))?;
     // The view's threads and the viewers' spawner are started on the others' CPUs (threads inherit
     // their creator's), then this thread, the world's, moves to its own.
     let others = placement.others.clone().unwrap_or_default();
@@ -378,7 +378,9 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
                     540,
                     &others,
                 )?),
-                Block::Headset => Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540, &others)?),
+                Block::Headset => {
+                    Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540, &others)?)
+                }
                 _ => Page::None,
             };
             for c in &counts {

@@ -36,7 +36,8 @@ impl FromStr for CpuChoice {
                 Some((a, b)) => (a, b),
                 None => (part, part),
             };
-            let (a, b): (usize, usize) = (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+            let (a, b): (usize, usize) =
+                (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
             if a > b || b >= CPU_SETSIZE {
                 return Err(bad());
             }
@@ -66,7 +67,9 @@ impl Placement {
     /// CPU among the others' (`any` lets them share it).
     pub fn resolve(world: &CpuChoice, others: &CpuChoice, allowed: &[usize]) -> Result<Placement, String> {
         let check = |name: &str, cpus: &[usize]| match cpus.iter().find(|c| !allowed.contains(c)) {
-            Some(c) => Err(format!("{name}: CPU {c} is not one this process may use (it may use {})", list(allowed))),
+            Some(c) => {
+                Err(format!("{name}: CPU {c} is not one this process may use (it may use {})", list(allowed)))
+            }
             None => Ok(()),
         };
         let world = match world {
@@ -204,14 +207,23 @@ mod tests {
     fn auto_puts_the_world_on_the_last_cpu_and_the_rest_elsewhere_and_pins_nothing_on_one_cpu() {
         let auto = Placement::resolve(&CpuChoice::Auto, &CpuChoice::Auto, &[0, 1]).unwrap();
         assert_eq!(auto, Placement { world: Some(1), others: Some(vec![0]) });
-        assert_eq!(auto.to_string(), "world thread on CPU 1, browsers and the bench's other threads on CPU 0");
+        assert_eq!(
+            auto.to_string(),
+            "world thread on CPU 1, browsers and the bench's other threads on CPU 0"
+        );
         let four = Placement::resolve(&CpuChoice::Auto, &CpuChoice::Auto, &[0, 2, 3, 5]).unwrap();
         assert_eq!(four, Placement { world: Some(5), others: Some(vec![0, 2, 3]) });
         let one = Placement::resolve(&CpuChoice::Auto, &CpuChoice::Auto, &[3]).unwrap();
         assert_eq!(one, Placement::default());
-        assert_eq!(one.to_string(), "world thread on any CPU, browsers and the bench's other threads on any CPU");
+        assert_eq!(
+            one.to_string(),
+            "world thread on any CPU, browsers and the bench's other threads on any CPU"
+        );
         // `any` pins nothing; the world alone pinned leaves the rest free to share its CPU.
-        assert_eq!(Placement::resolve(&CpuChoice::Any, &CpuChoice::Auto, &[0, 1]).unwrap(), Placement::default());
+        assert_eq!(
+            Placement::resolve(&CpuChoice::Any, &CpuChoice::Auto, &[0, 1]).unwrap(),
+            Placement::default()
+        );
         let world_only = Placement::resolve(&CpuChoice::Cpus(vec![0]), &CpuChoice::Any, &[0, 1]).unwrap();
         assert_eq!(world_only, Placement { world: Some(0), others: None });
         let chosen = Placement::resolve(&CpuChoice::Cpus(vec![0]), &CpuChoice::Auto, &[0, 1]).unwrap();

@@ -126,7 +126,11 @@ pub fn start_view(
         Some(addr) => View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..opts })?,
         // The default port may be taken (another spidar): then any free one.
         None => View::start(scene.name(), &look, &opts).or_else(|_| {
-            View::start(scene.name(), &look, &ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..opts.clone() })
+            View::start(
+                scene.name(),
+                &look,
+                &ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..opts.clone() },
+            )
         })?,
     };
     crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());

@@ -526,7 +526,10 @@ mod tests {
 
     #[test]
     fn the_page_is_told_the_rate_frames_arrive_at_at_most_one_a_step() {
-        assert!((arriving_frame_hz(1000.0, 0.003) - 1000.0 / 3.0).abs() < 1e-9, "a frame after every 3 ms step");
+        assert!(
+            (arriving_frame_hz(1000.0, 0.003) - 1000.0 / 3.0).abs() < 1e-9,
+            "a frame after every 3 ms step"
+        );
         assert_eq!(arriving_frame_hz(60.0, 0.003), 60.0, "fewer than one a step: as sent");
         assert_eq!(arriving_frame_hz(1000.0, 0.0), 1000.0, "the step not known: as sent");
         assert_eq!(arriving_frame_hz(1000.0, f64::NAN), 1000.0);
