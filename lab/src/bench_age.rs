@@ -173,9 +173,9 @@ pub fn bench_age(rig: &Rig, o: &AgeBenchOptions) -> anyhow::Result<AgeReport> {
     };
     let (kind, page) = if o.headset { ("headset", "headset") } else { ("screen", "screen") };
     let mut browser = if o.headset {
-        Page::Headset(Headset::open(&url, &o.page, o.width, o.height)?)
+        Page::Headset(Headset::open(&url, &o.page, o.width, o.height, &[])?)
     } else {
-        Page::Screen(Browser::open(&format!("{url}/?camera=eye&{}", o.page), o.width, o.height)?)
+        Page::Screen(Browser::open(&format!("{url}/?camera=eye&{}", o.page), o.width, o.height, &[])?)
     };
     let load_start = load();
     // The page draws and reports; then the window of reports is what this run drew.

@@ -6,6 +6,13 @@
 //! script's punches reach the virtual human through the loop's proxies). Each step is timed from
 //! the scene's step through the observers' calls. Blocks cycle: view off (no observer), view on
 //! with no viewer, view on with `viewers` WebSocket clients reading every frame.
+//!
+//! Where it runs is part of what it measures: by default (with two CPUs or more) the world thread
+//! has a CPU of its own and the browsers, their drivers and the bench's other threads run on the
+//! rest, as on a rig whose display's browser draws on other cores or another machine
+//! ([`crate::cpus::Placement`]). Each step's thread CPU time and whether the thread was preempted
+//! while stepping are kept beside its wall time, to tell a step slowed on its CPU from one taken
+//! off it.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -77,6 +84,9 @@ pub struct ViewBenchOptions {
     pub page: String,
     /// The view's most frames a second (None: its default, a frame after every step).
     pub frame_hz: Option<f64>,
+    /// The world thread's CPU, and the CPUs of the browsers and the bench's other threads.
+    pub world_cpu: crate::cpus::CpuChoice,
+    pub browser_cpus: crate::cpus::CpuChoice,
 }
 
 /// What a block has watching the world.
@@ -126,6 +136,10 @@ pub struct Phase {
     /// The scene's step alone (without the observers' calls), and the observers' calls.
     pub scene: DurationHist,
     pub observer: DurationHist,
+    /// The world thread's CPU time over the whole step (what it ran, not what it waited).
+    pub cpu: DurationHist,
+    /// Steps during which the world thread was switched out while it could run (preempted).
+    pub preempted: u64,
     /// Steps that started more than one step late.
     pub late: u64,
     /// Frames the viewers read, and the seconds they were connected (summed over viewers).
@@ -142,6 +156,7 @@ pub struct ViewBenchReport {
     pub phases: Vec<(String, Phase)>,
     pub load: String,
     pub rt: String,
+    pub placement: crate::cpus::Placement,
 }
 
 type Spawn = (String, Arc<AtomicBool>, Arc<AtomicU64>, Arc<AtomicU64>);
@@ -242,6 +257,9 @@ impl World<'_> {
             samples.clear();
             samples.extend(v.far.samples.try_iter());
             let t = v.clock.now_ns() as f64 * 1e-9;
+            // The CPU clock and the switch count are read outside the wall-clock stamps.
+            let switches = crate::cpus::thread_involuntary_switches();
+            let c0 = crate::cpus::thread_cpu_ns();
             let t0 = Instant::now();
             let m = scene.step(t, samples);
             let t1 = Instant::now();
@@ -257,7 +275,12 @@ impl World<'_> {
                 o.after_step(&sv);
             }
             let t2 = Instant::now();
+            let c2 = crate::cpus::thread_cpu_ns();
+            if crate::cpus::thread_involuntary_switches() > switches {
+                phase.preempted += 1;
+            }
             let _ = v.far.models.try_send(m);
+            phase.cpu.record(c2.saturating_sub(c0) as f64 * 1e-9);
             phase.step.record((t2 - t0).as_secs_f64());
             phase.scene.record((t1 - t0).as_secs_f64());
             phase.observer.record((t2 - t1).as_secs_f64());
@@ -277,6 +300,13 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             anyhow::bail!("unknown scene '{other}' for the view bench: use boxing, boxing-passive or crowd")
         }
     };
+    let allowed = crate::cpus::allowed_cpus();
+    let placement = crate::cpus::Placement::resolve(&o.world_cpu, &o.browser_cpus, &allowed)
+        .map_err(|e| anyhow::anyhow!(e))?;
+    // The view's threads and the viewers' spawner are started on the others' CPUs (threads inherit
+    // their creator's), then this thread, the world's, moves to its own.
+    let others = placement.others.clone().unwrap_or_default();
+    crate::cpus::pin_current_thread(&others).context("moving the bench to --browser-cpus")?;
     let scripts = load_scripts(script, rig, 1)?;
     let dev = sim_device(rig, scripts, &SimOptions::default())?;
     let mut v = VirtualRun::new(dev, rig, None)?;
@@ -288,6 +318,7 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         &ViewOptions {
             addr: ([127, 0, 0, 1], 0).into(),
             frame_hz: o.frame_hz.unwrap_or(ViewOptions::default().frame_hz),
+            world_step_s: scene.step_s(),
             ..Default::default()
         },
     )
@@ -302,6 +333,8 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
             let _ = joined_tx.send(viewer(url, stop, frames, bytes));
         }
     });
+    let world_cpus = placement.world.map_or(allowed.clone(), |w| vec![w]);
+    crate::cpus::pin_current_thread(&world_cpus).context("pinning the world thread to --world-cpu")?;
     let rt = match o.fifo {
         Some(p) => spidar_rt::rt_thread::setup_current_thread(&spidar_rt::rt_thread::RtOptions {
             fifo_priority: Some(p),
@@ -343,8 +376,11 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
                     &format!("{url}/?camera=eye&{}", o.page),
                     960,
                     540,
+                    &others,
                 )?),
-                Block::Headset => Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540)?),
+                Block::Headset => {
+                    Page::Headset(crate::browser::Headset::open(url, &o.page, 960, 540, &others)?)
+                }
                 _ => Page::None,
             };
             for c in &counts {
@@ -412,6 +448,7 @@ pub fn bench_view(rig: &Rig, o: &ViewBenchOptions) -> anyhow::Result<ViewBenchRe
         phases,
         load,
         rt,
+        placement,
     })
 }
 
@@ -429,10 +466,10 @@ fn row(p: &Percentiles) -> String {
 impl std::fmt::Display for ViewBenchReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(f, "spidar bench view: scene {}, world step = scene step + observers, blocks alternating (load average {})", self.scene, self.load)?;
-        writeln!(f, "  world thread: {}", self.rt)?;
+        writeln!(f, "  world thread: {}; {}", self.rt, self.placement)?;
         writeln!(
             f,
-            "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   scene p99   observer p99   frames/s per viewer",
+            "  {:<18} {:>7} {:>9} {:>9} {:>9} {:>9} {:>6}   scene p99   observer p99    cpu p99  preempted   frames/s per viewer",
             "", "steps", "p50", "p99", "p99.9", "max", "late"
         )?;
         for (name, p) in &self.phases {
@@ -452,12 +489,14 @@ impl std::fmt::Display for ViewBenchReport {
             };
             writeln!(
                 f,
-                "  {name:<18} {:>7} {} {:>6}   {:>9}   {:>12}   {rate}",
+                "  {name:<18} {:>7} {} {:>6}   {:>9}   {:>12}  {:>9}  {:>9}   {rate}",
                 p.step.len(),
                 row(&p.step.percentiles()),
                 p.late,
                 spidar_rt::telemetry::fmt_dur(p.scene.percentiles().p99_s),
                 spidar_rt::telemetry::fmt_dur(p.observer.percentiles().p99_s),
+                spidar_rt::telemetry::fmt_dur(p.cpu.percentiles().p99_s),
+                p.preempted,
             )?;
         }
         Ok(())

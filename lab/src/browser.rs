@@ -45,8 +45,9 @@ pub struct Browser {
 }
 
 impl Browser {
-    /// Opens `url` in a new headless chromium with a `width` x `height` window.
-    pub fn open(url: &str, width: u32, height: u32) -> anyhow::Result<Browser> {
+    /// Opens `url` in a new headless chromium with a `width` x `height` window, its processes on
+    /// `cpus` (empty: any).
+    pub fn open(url: &str, width: u32, height: u32, cpus: &[usize]) -> anyhow::Result<Browser> {
         let exe = chromium()?;
         let profile = std::env::temp_dir().join(format!(
             "spidar-bench-chromium-{}-{}",
@@ -55,7 +56,9 @@ impl Browser {
         ));
         std::fs::create_dir_all(&profile).context("making the browser's profile folder")?;
         use std::os::unix::process::CommandExt;
-        let child = Command::new(&exe)
+        let mut cmd = Command::new(&exe);
+        crate::cpus::run_on(&mut cmd, cpus);
+        let child = cmd
             .args([
                 "--headless=new",
                 "--no-sandbox",
@@ -195,14 +198,16 @@ pub struct Headset {
 impl Headset {
     /// Opens `url` (the view's `http://HOST:PORT`) with the page's `query` in a `width` x `height`
     /// window with an emulated headset, and has the page enter a session (the world must be sending
-    /// frames meanwhile).
-    pub fn open(url: &str, query: &str, width: u32, height: u32) -> anyhow::Result<Headset> {
+    /// frames meanwhile). The driver and its browser run on `cpus` (empty: any).
+    pub fn open(url: &str, query: &str, width: u32, height: u32, cpus: &[usize]) -> anyhow::Result<Headset> {
         let exe = chromium()?;
         let dir = browser_tests_dir();
         let script = headset_driver(&dir)?;
         let node = node()?;
         use std::os::unix::process::CommandExt;
-        let mut child = Command::new(&node)
+        let mut cmd = Command::new(&node);
+        crate::cpus::run_on(&mut cmd, cpus);
+        let mut child = cmd
             .arg(&script)
             .args([url, &width.to_string(), &height.to_string(), query])
             .current_dir(&dir)
@@ -215,7 +220,10 @@ impl Headset {
             .with_context(|| format!("starting {} {}", node.display(), script.display()))?;
         let stdout = child.stdout.take().context("the headset driver's output")?;
         let (tx, lines) = std::sync::mpsc::channel();
+        let on = cpus.to_vec();
         std::thread::spawn(move || {
+            // With the browser, not on the CPU of the thread that opened it (a bench's world).
+            let _ = crate::cpus::pin_current_thread(&on);
             for l in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
                 if tx.send(l).is_err() {
                     break;

@@ -12,6 +12,7 @@ pub mod bench_record;
 pub mod bench_replay;
 pub mod bench_view;
 pub mod browser;
+pub mod cpus;
 pub mod crowd_run;
 pub mod eval;
 pub mod eval_blows;

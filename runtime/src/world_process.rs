@@ -121,19 +121,17 @@ pub fn start_view(
     }
     let tls = a.view_tls.as_deref().map(TlsIdentity::from_arg).transpose()?;
     let look = scene.look();
+    let opts = ViewOptions { tls, world_step_s: scene.step_s(), ..Default::default() };
     let view = match &a.view {
-        Some(addr) => View::start(
-            scene.name(),
-            &look,
-            &ViewOptions { addr: parse_addr(addr)?, tls: tls.clone(), ..Default::default() },
-        )?,
+        Some(addr) => View::start(scene.name(), &look, &ViewOptions { addr: parse_addr(addr)?, ..opts })?,
         // The default port may be taken (another spidar): then any free one.
-        None => View::start(scene.name(), &look, &ViewOptions { tls: tls.clone(), ..Default::default() })
-            .or_else(|_| {
-                let any =
-                    ViewOptions { addr: ([127, 0, 0, 1], 0).into(), tls: tls.clone(), ..Default::default() };
-                View::start(scene.name(), &look, &any)
-            })?,
+        None => View::start(scene.name(), &look, &opts).or_else(|_| {
+            View::start(
+                scene.name(),
+                &look,
+                &ViewOptions { addr: ([127, 0, 0, 1], 0).into(), ..opts.clone() },
+            )
+        })?,
     };
     crate::errln!("spidar world: live view at {} (frames on {})", view.url(), view.ws_url());
     Ok(Some(view))

@@ -280,6 +280,15 @@ async function live(browser) {
     return { worker: after.framesWorker, seq0, newest, seq: after.seq, renders: after.renders - renders };
   });
   check(busy.worker, 'a worker receives the frames (the page is cross-origin isolated)');
+  // The frames handed over from the worker come in a few buffers used again, not a new one each.
+  const reuse = await a.evaluate(async () => {
+    const s0 = spidarView.state();
+    for (let k = 0; k < 30; k++) await spidarView.rendered();
+    const s1 = spidarView.state();
+    return { frames: s1.seq - s0.seq, made: s1.frameBuffersMade - s0.frameBuffersMade };
+  });
+  check(reuse.frames > 20 && reuse.made === 0,
+    `frames ${reuse.frames} handed over in the page's buffers, ${reuse.made} new buffers made`);
   check(busy.newest >= busy.seq0 + 10 && busy.seq >= busy.newest,
     `after its main thread was busy while frames ${busy.seq0 + 1}..${busy.newest} came, the page draws frame ${busy.seq} (the newest, not the next) in ${busy.renders} pictures`);
   const p = await pause(a);

@@ -318,6 +318,14 @@ enum BenchCmd {
         /// the world step's cost at another rate, e.g. 60.
         #[arg(long, conflicts_with = "age", value_parser = bench_frame_hz)]
         frame_hz: Option<f64>,
+        /// The CPU the world thread steps on: a number, `any` (not pinned) or `auto` (with two
+        /// CPUs or more the last one, as a rig gives the world a core of its own; else any).
+        #[arg(long, default_value = "auto", conflicts_with = "age")]
+        world_cpu: spidar_lab::cpus::CpuChoice,
+        /// The CPUs of the browsers, their drivers and the bench's other threads, e.g. `0` or
+        /// `0,2-3`: `any`, or `auto` (the CPUs other than the world's).
+        #[arg(long, default_value = "auto", conflicts_with = "age")]
+        browser_cpus: spidar_lab::cpus::CpuChoice,
     },
     /// Lateness of the tick loop next to a bare absolute-sleep loop, in one run.
     Rt {
@@ -714,6 +722,8 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
             headset,
             page,
             frame_hz,
+            world_cpu,
+            browser_cpus,
         } => {
             use spidar_lab::bench_view::{bench_view, ViewBenchOptions};
             let (characters, viewers) = (characters as usize, viewers as usize);
@@ -750,6 +760,8 @@ fn bench(what: BenchCmd) -> anyhow::Result<()> {
                     headset,
                     page,
                     frame_hz,
+                    world_cpu,
+                    browser_cpus,
                 };
                 bench_view(&r, &o)?.to_string()
             }

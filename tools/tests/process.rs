@@ -593,6 +593,23 @@ fn numbers_out_of_their_range_are_refused_by_the_command_line() {
 }
 
 #[test]
+fn bench_view_refuses_a_cpu_placement_it_cannot_keep_naming_the_option_before_any_block() {
+    let (status, _, err) = spidar(&["bench", "view", "--world-cpu", "x"]);
+    assert_eq!(status.code(), Some(2), "{err}");
+    assert!(err.contains("error: invalid value 'x' for '--world-cpu"), "{err}");
+    let cases: &[(&[&str], &str)] = &[
+        (&["bench", "view", "--world-cpu", "1000"], "--world-cpu: CPU 1000 is not one this process may use"),
+        (&["bench", "view", "--world-cpu", "0", "--browser-cpus", "0"], "CPU 0 is the world's (--world-cpu)"),
+    ];
+    for (args, says) in cases {
+        let (status, out, err) = spidar(args);
+        assert_eq!(status.code(), Some(1), "{args:?}: {out}\n{err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!out.contains("spidar bench view:"), "nothing ran: {out}");
+    }
+}
+
+#[test]
 fn zwidth_refuses_numbers_out_of_range_naming_the_option_before_any_bout() {
     let cases: &[(&[&str], &str)] = &[
         (&["bench", "zwidth", "--seconds", "1"], "--seconds 1: give a number from 2 to 600"),

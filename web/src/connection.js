@@ -140,7 +140,9 @@ export function canShareFrames() {
 
 // Connects. Handlers: onScene, onRig, onStatus, onPlayback, onStudy (JSON messages), onState
 // ('connected' / 'disconnected'), onFrame(buffer, layoutId, seq, arrivedMs): a frame (arrivedMs:
-// when it came, on the page's clock). Returns { send(cmd), poll(), received(), shared }: the page
+// when it came, on the page's clock); holds(buffer): whether the page still holds a frame's buffer
+// (with a worker, frames come in a few buffers used again once the page lets them go; without
+// `holds` every frame comes in a new one). Returns { send(cmd), poll(), received(), shared }: the page
 // calls `poll` when it is about to draw, which hands it the newest frame that came since (with a
 // worker; without one frames are handed over as they come and `poll` does nothing); `received`
 // counts the frames that came, `newestSeq` is the newest one's sequence number, `hands` the
@@ -157,7 +159,8 @@ export function connect(handlers, { worker = canShareFrames() } = {}) {
     if (words[0] !== MAGIC) return;
     handlers.onFrame(data, words[1], words[2], arrivedMs);
   };
-  return worker ? viaWorker(handlers.onState, text, frame) : direct(handlers.onState, text, frame);
+  const holds = handlers.holds ?? (() => true);
+  return worker ? viaWorker(handlers.onState, text, frame, holds) : direct(handlers.onState, text, frame);
 }
 
 // The page's own WebSocket: frames handed over as the main thread gets them.
@@ -199,7 +202,7 @@ function direct(onState, text, frame) {
 }
 
 // A worker's WebSocket: the newest frame in shared memory, taken by `poll`.
-function viaWorker(onState, text, frame) {
+function viaWorker(onState, text, frame, holds) {
   const src = `(${receiver.toString()})();`;
   const w = new Worker(URL.createObjectURL(new Blob([src], { type: 'text/javascript' })));
   let ctrl = null;
@@ -209,6 +212,32 @@ function viaWorker(onState, text, frame) {
   let seen = 0; // the publication number of the newest frame handed over
   let ringCount = null;
   let ring = null;
+  // The frames handed over, in three buffers used in turn: one the page still holds (`holds`: its
+  // newest frame, the frame it drew) is not written again. Each is resized to its frame's length
+  // (frames with more contacts are longer); a new one only when that cannot be done, or when the
+  // page holds all three. `made` counts the buffers made.
+  const buffers = [null, null, null];
+  let turn = 0;
+  let made = 0;
+  const make = (len) => {
+    made++;
+    return typeof ArrayBuffer.prototype.resize === 'function'
+      ? new ArrayBuffer(len, { maxByteLength: Math.max(len, slotBytes) })
+      : new ArrayBuffer(len);
+  };
+  const free = (len) => {
+    for (let j = 1; j <= buffers.length; j++) {
+      const c = (turn + j) % buffers.length;
+      const b = buffers[c];
+      if (!b || !holds(b)) {
+        if (b && b.resizable && b.maxByteLength >= len) b.resize(len);
+        else if (!b || b.byteLength !== len) buffers[c] = make(len);
+        turn = c;
+        return buffers[c];
+      }
+    }
+    return make(len);
+  };
   w.onmessage = (ev) => {
     const m = ev.data;
     if (m.shared) {
@@ -224,7 +253,8 @@ function viaWorker(onState, text, frame) {
   };
   w.postMessage({ url: framesUrl(), layout: LAYOUT });
   // The newest whole frame, if newer than the last one handed over: a copy (the worker writes the
-  // slot again two frames later) and its arrival on the page's clock; else null.
+  // slot again two frames later) in a buffer the page does not hold, and its arrival on the page's
+  // clock; else null.
   const newest = () => {
     for (let tries = 0; tries < 4; tries++) {
       const k = Atomics.load(ctrl, NEWEST) - 1;
@@ -235,12 +265,12 @@ function viaWorker(onState, text, frame) {
       const number = ctrl[o + 1];
       if (number <= seen) return null;
       const len = ctrl[o + 2];
-      const data = new ArrayBuffer(len);
-      new Uint8Array(data).set(bytes.subarray(k * slotBytes, k * slotBytes + len));
+      const into = free(len);
+      new Uint8Array(into).set(bytes.subarray(k * slotBytes, k * slotBytes + len));
       const at = arrivals[k];
       if (Atomics.load(ctrl, o) !== v) continue; // overwritten while copied: again
       seen = number;
-      return { data, arrivedMs: at - performance.timeOrigin };
+      return { data: into, arrivedMs: at - performance.timeOrigin };
     }
     return null;
   };
@@ -258,6 +288,7 @@ function viaWorker(onState, text, frame) {
       if (f) frame(f.data, f.arrivedMs);
     },
     received: () => (ctrl ? Atomics.load(ctrl, RECEIVED) : 0),
+    buffersMade: () => made,
     // The hands of the newest `k` frames that came (at most half the ring: the worker does not
     // reach them while they are read), oldest first: [{ wallMs, p: [6] }].
     hands: (k = RING / 2) => {

@@ -192,6 +192,8 @@ const conn = connect({
   onRig,
   onStatus: (s) => { status = s; hud.setStatus(s); },
   onFrame,
+  // The frames the page holds: the newest and the one drawn (a headset keeps copies of its own).
+  holds: (buffer) => (latest !== null && latest.f.buffer === buffer) || (applied !== null && applied.f.buffer === buffer),
   onState: (s) => { connection = s; hud.setConnection(s); },
   onPlayback: (p) => {
     conn.poll(); // the frame that came before this message
@@ -313,6 +315,7 @@ window.spidarView = {
     // Frames that came (handed to the page, or fed by a test), and whether a worker receives them.
     framesReceived: conn.shared ? conn.received() : framesReceived,
     framesWorker: conn.shared,
+    frameBuffersMade: conn.shared ? conn.buffersMade() : null,
     seq: applied ? applied.seq : null,
     t: applied ? applied.t : null,
     receivedT: latest ? latest.t : null,

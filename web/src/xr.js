@@ -87,8 +87,12 @@ export class Interpolator {
   // [{ wallMs, p }], oldest first), else null: the frames pushed here make the history.
   push(frame, nowMs, L, hands = null) {
     if (this.latest && frame === this.latest.frame) return;
+    // The two newest frames' numbers are kept as copies (the page's frame buffers are used again),
+    // in two arrays used in turn.
+    const spare = this.prev && this.prev.f.length === frame.f.length ? this.prev.f : new Float32Array(frame.f.length);
+    spare.set(frame.f);
     this.prev = this.latest;
-    this.latest = { frame, at: frame.arrivedMs ?? nowMs };
+    this.latest = { frame, f: spare, at: frame.arrivedMs ?? nowMs };
     if (hands && hands.length >= 2) {
       this.history = hands;
       this.judge();
@@ -121,12 +125,12 @@ export class Interpolator {
   // ahead of their tick the grips are drawn (ms).
   at(nowMs, desc, showMs = nowMs) {
     const L = desc.layout;
-    const cur = this.latest.frame.f;
+    const cur = this.latest.f;
     if (!this.out || this.out.length !== cur.length) this.out = new Float32Array(cur.length);
     const out = this.out;
     out.set(cur);
-    if (this.prev && this.prev.frame.f.length === cur.length) {
-      const old = this.prev.frame.f;
+    if (this.prev && this.prev.f.length === cur.length) {
+      const old = this.prev.f;
       // Bodies at the world time one frame interval before the newest's, moved on by the time
       // since it came: between the two newest frames.
       const gapS = this.latest.frame.t - this.prev.frame.t;

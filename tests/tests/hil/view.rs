@@ -1218,6 +1218,10 @@ fn view_served_by_spidar_runs_child_world_process() {
     }
     let run = RunPath::start("boxing", "box");
     assert!(run.url.starts_with("http://127.0.0.1:") && !run.url.ends_with(":0"), "printed {}", run.url);
+    // Boxing steps every 3 ms and a frame goes out after each step: the page is told 333 a second
+    // (the headset interpolates over that interval), not the view's most, 1,000.
+    let hz = run.get("/scene.json")["frame_hz"].as_f64().unwrap();
+    assert!((hz - 1000.0 / 3.0).abs() < 0.01, "the scene message says {hz} frames a second");
     node(&["live", &run.url], |q| run.answer(q));
     // (Faults are not checked: this rig loop runs at normal priority, and a loaded machine makes
     // its replies late; the HUD shows whatever the rig reports.)

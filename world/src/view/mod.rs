@@ -86,6 +86,9 @@ pub struct ViewOptions {
     /// Large frames (a big crowd's) go out less often than `frame_hz`, keeping each viewer's
     /// stream under this many bytes a second, but never less often than [`MIN_FRAME_HZ`].
     pub frame_bytes_per_s: f64,
+    /// The world's step (s), when known (0: not known): a frame goes out at most once a step, so
+    /// the page is told the rate frames arrive at, at most one a step ([`arriving_frame_hz`]).
+    pub world_step_s: f64,
     /// Status messages per second.
     pub status_hz: f64,
     /// Most viewers at once (each one is a thread).
@@ -103,6 +106,7 @@ impl Default for ViewOptions {
             addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
             frame_hz: 1000.0,
             frame_bytes_per_s: 4e6,
+            world_step_s: 0.0,
             status_hz: 4.0,
             max_viewers: 8,
             write_timeout: Duration::from_secs(2),
@@ -120,6 +124,17 @@ pub const MIN_FRAME_HZ: f64 = 60.0;
 pub fn frame_hz_for(opts: &ViewOptions, frame_bytes: usize) -> f64 {
     let by_bytes = (opts.frame_bytes_per_s / frame_bytes.max(1) as f64).max(MIN_FRAME_HZ);
     opts.frame_hz.min(by_bytes).max(1.0)
+}
+
+/// The frames a second a page receives from a view sending `frame_hz` after world steps of
+/// `world_step_s` (0: not known): at most one a step (a frame after every 3 ms step is 333 a second,
+/// not the 1000 a view may send at most). The headset's page interpolates over this interval.
+pub fn arriving_frame_hz(frame_hz: f64, world_step_s: f64) -> f64 {
+    if world_step_s > 0.0 && world_step_s.is_finite() {
+        frame_hz.min(1.0 / world_step_s)
+    } else {
+        frame_hz
+    }
 }
 
 /// Counters of a view, readable from any thread.
@@ -292,7 +307,8 @@ impl View {
         let (frames, sender) = frame_buffers(layout.max_words, finisher.states());
         let shared = Shared::new(None);
         let frame_hz = frame_hz_for(opts, 4 * layout.contacts_at);
-        let description = json::scene(scene_name, look, &layout, frame_hz);
+        let description =
+            json::scene(scene_name, look, &layout, arriving_frame_hz(frame_hz, opts.world_step_s));
         let server = server::Server::start(
             opts,
             shared.clone(),
@@ -506,6 +522,17 @@ mod tests {
         assert_eq!(frame_hz_for(&o, 40_000), 100.0, "4 MB/s of 40 kB frames");
         assert_eq!(frame_hz_for(&o, 300_000), MIN_FRAME_HZ, "never under 60 a second");
         assert_eq!(frame_hz_for(&ViewOptions { frame_hz: 30.0, ..o }, 300_000), 30.0, "unless asked");
+    }
+
+    #[test]
+    fn the_page_is_told_the_rate_frames_arrive_at_at_most_one_a_step() {
+        assert!(
+            (arriving_frame_hz(1000.0, 0.003) - 1000.0 / 3.0).abs() < 1e-9,
+            "a frame after every 3 ms step"
+        );
+        assert_eq!(arriving_frame_hz(60.0, 0.003), 60.0, "fewer than one a step: as sent");
+        assert_eq!(arriving_frame_hz(1000.0, 0.0), 1000.0, "the step not known: as sent");
+        assert_eq!(arriving_frame_hz(1000.0, f64::NAN), 1000.0);
     }
 
     #[test]
