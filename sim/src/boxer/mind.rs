@@ -952,21 +952,8 @@ impl Mind {
         if self.body == BodyBehaviour::Standby {
             let held = self.reaches[2].is_some_and(|r| is_hold(&r));
             if guarding && !held {
-                let (body, home) = (self.vh.head, self.reaches[2].map(|r| r.home_m));
-                let here = ws.com_world(model, body);
-                let mut hold = Reach::start(
-                    model,
-                    ws,
-                    body,
-                    here,
-                    now,
-                    0.05,
-                    bp.reach_body_k_n_per_m,
-                    bp.reach_body_d_n_s_per_m,
-                );
-                hold.home_m = home.unwrap_or(here);
-                hold.duration_s = f64::INFINITY;
-                self.reaches[2] = Some(hold);
+                let home = self.reaches[2].map(|r| r.home_m);
+                self.reaches[2] = Some(hold_here(model, ws, self.vh.head, home, now, bp));
             } else if !guarding && held && self.defence.is_none() {
                 self.reaches[2] = self.reaches[2].and_then(|r| {
                     ((r.home_m - r.target_m).length() > 0.01)
@@ -1050,14 +1037,16 @@ impl Mind {
         }
     }
 
-    /// A dodge (or lean) under way stops where it is, held there, once the head moves toward a
-    /// fist that has started toward it (as it truly is: this only keeps the body's
-    /// own motion out of a punch, as [`Mind::fist_in_flight`] does). A dodge is aimed away from
-    /// the fist it answers and, when it starts, away from the other one too; but a combination's
-    /// next fist may leave its guard while the head is still on its way, and from where it comes
-    /// the rest of that way can lead into it (issue 15's 2 cm bound: the third punch of a
-    /// combination met a head dodging the second 2.2-3.7 cm toward it). The hold keeps the
-    /// dodge's home, so the way back to the guard after the defence is as before.
+    /// A dodge (or lean: both are reaches of the head) under way stops where it is, held there,
+    /// once the head moves toward a fist that has started toward it (as it truly is: this only
+    /// keeps the body's own motion out of a punch, as [`Mind::fist_in_flight`] does). A dodge is
+    /// aimed away from the fist it answers and, when it starts, away from the other one too; but a
+    /// combination's next fist may leave its guard while the head is still on its way, and from
+    /// where it comes the rest of that way can lead into it (issue 15's 2 cm bound: the second or
+    /// third punch of a combination met a head dodging the one before 2.2-3.7 cm toward it). The
+    /// hold keeps the dodge's home, so the way back to the guard after the defence is as before.
+    /// Only the head's motion is checked: checking the chest's as well stopped leans that pulled
+    /// the chest down, partly toward a low fist, and let a straight reach the chest.
     fn stop_a_dodge_into_a_fist(&mut self, model: &Model, ws: &Workspace, now: f64, bp: &BoxerParams) {
         if self.body != BodyBehaviour::Avoidance {
             return;
@@ -1069,19 +1058,7 @@ impl Mind {
             -fist_v.dot(to) > STARTED_M_PER_S && v.dot(to) > STARTED_M_PER_S
         });
         if into {
-            let mut hold = Reach::start(
-                model,
-                ws,
-                r.body,
-                at,
-                now,
-                0.05,
-                bp.reach_body_k_n_per_m,
-                bp.reach_body_d_n_s_per_m,
-            );
-            hold.home_m = r.home_m;
-            hold.duration_s = f64::INFINITY;
-            self.reaches[2] = Some(hold);
+            self.reaches[2] = Some(hold_here(model, ws, r.body, Some(r.home_m), now, bp));
         }
     }
 
@@ -1167,6 +1144,24 @@ fn still(
 }
 
 /// A reach that holds its part where it is while a fist is about (it never ends).
+/// A hold ([`is_hold`]) of `body` where it is now, with `home` (default: here) as where its way
+/// back to the guard goes once it is let go.
+fn hold_here(
+    model: &Model,
+    ws: &Workspace,
+    body: usize,
+    home: Option<DVec3>,
+    now: f64,
+    bp: &BoxerParams,
+) -> Reach {
+    let here = ws.com_world(model, body);
+    let mut hold =
+        Reach::start(model, ws, body, here, now, 0.05, bp.reach_body_k_n_per_m, bp.reach_body_d_n_s_per_m);
+    hold.home_m = home.unwrap_or(here);
+    hold.duration_s = f64::INFINITY;
+    hold
+}
+
 fn is_hold(r: &Reach) -> bool {
     r.duration_s.is_infinite()
 }
