@@ -200,8 +200,11 @@ async function people(browser) {
     check(off < 34 ? deg < 1 : Math.abs(clamped - 35) < 1,
       `the scene's gaze: an eye looks at the point the frame says the virtual human looks at (${deg.toFixed(2)} degrees off; that point ${off.toFixed(1)} degrees off the head's forward)`);
   }
-  // With a gaze of the test's making (the frame's 9 gaze numbers replaced), both eyes turn to it.
-  const target = [ahead.pos[0] + 0.35, ahead.pos[1] - 0.15, ahead.pos[2] + 1.2];
+  // With a gaze of the test's making (the frame's 9 gaze numbers replaced), both eyes turn to it:
+  // a point 1.2 m ahead of the head and 15 degrees off its forward, whichever way the head is
+  // turned after the punch (a point beyond the eyes' 35 degrees would be looked toward, clamped).
+  const off15 = rot(ahead.quat, [0.25, -0.1, -1.0]).map((x) => x * 1.2 / Math.hypot(0.25, 0.1, 1.0));
+  const target = ahead.pos.map((p, i) => p + off15[i]);
   const made = await page.evaluate(async (target) => {
     const desc = JSON.parse(JSON.stringify(spidarView.desc()));
     const f = spidarView.frameWords();
@@ -227,7 +230,8 @@ async function people(browser) {
   for (const e of made.eyes) {
     const want = norm(target.map((t, i) => t - e.at[i]));
     const deg = Math.acos(Math.min(1, dot(norm(e.dir), want))) * 180 / Math.PI;
-    check(deg < 1, `gaze sent: an eye looks at the attended point (${deg.toFixed(2)} degrees off)`);
+    const offAhead = Math.acos(Math.min(1, dot(want, headAhead))) * 180 / Math.PI;
+    check(deg < 1, `gaze sent: an eye looks at the attended point (${deg.toFixed(2)} degrees off; that point ${offAhead.toFixed(1)} degrees off the head's forward)`);
   }
   // The toggle: the collision shapes instead (a red capsule head).
   await page.evaluate(() => spidarView.setBodies(false));
