@@ -31,7 +31,7 @@ use spidar_rt::{Clock, Rig};
 use spidar_sim::boxer::{Behaviour, BodyBehaviour, BoxerParams, Mind, SkillLevel};
 
 use spidar_runtime::scripts::{
-    aim_points_now, box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind, SeeingUser,
+    aim_points_now, box_plan, Aim, BoxPlan, PlanOptions, Punch, PunchKind, SeeingUser, UserGuard,
 };
 use spidar_runtime::session::{sim_device, SimOptions, VirtualRun, HOLD_AT_HOME_S};
 use spidar_world::boxing::BoxingScene;
@@ -131,7 +131,7 @@ impl Bout {
     /// starts, at the part where the user saw it ([`SeeingUser`]), the way a person at the rig
     /// aims at the picture, not at where the part stood in its guard.
     pub fn seeing(params: BoxerParams, plan: &BoxPlan, seed: u64) -> anyhow::Result<Bout> {
-        let user = SeeingUser::new(plan, &Rig::default_rig());
+        let user = SeeingUser::new(plan);
         let mut b = Bout::new(params, user.holding_scripts(), seed)?;
         b.user = Some(user);
         Ok(b)
@@ -1161,6 +1161,9 @@ pub fn trial_bout(active: bool, target: usize, seed: u64) -> anyhow::Result<(Bou
         speed_m_per_s: (3.0, 5.0),
         pause_s: (0.5, 0.6),
         high_low: false,
+        // From the avatar's own guard, as before the box script's user boxed from the chin
+        // (docs/boxing.md 5.3 has both).
+        guard: UserGuard::Home,
     };
     let plan = box_plan(&rig, &params, seed, &opts)?;
     let mut b = Bout::new(params, plan.scripts, seed)?;

@@ -48,6 +48,11 @@ pub enum Aim {
 }
 
 impl Aim {
+    /// The chest or one of its sides: a punch at the body.
+    pub fn is_body(self) -> bool {
+        matches!(self, Aim::Chest | Aim::LeftChest | Aim::RightChest)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Aim::Head => "head",
@@ -71,8 +76,14 @@ pub struct Punch {
     pub feint: bool,
     /// Planned peak speed of the hand along its path (the simulated arm follows with some lag).
     pub speed_m_per_s: f64,
-    /// When the hand leaves its guard, seconds after the script's start hold.
+    /// When the fist starts its way out, seconds after the script's start hold.
     pub start_s: f64,
+    /// Where the way out starts (rig frame): the user's guard, or for a punch at the body the
+    /// guard lowered by [`USER_BODY_DIP_M`].
+    pub from_rig_m: DVec3,
+    /// How long before `start_s` the hand leaves its guard to lower the level (0 for a punch at
+    /// the head).
+    pub dip_s: f64,
     /// Out to the end of the path, and back to the guard.
     pub out_s: f64,
     pub back_s: f64,
@@ -111,6 +122,21 @@ pub struct PlanOptions {
     /// A combination's punches alternate between the head and the chest (the first one's aim
     /// drawn, the next at the other level).
     pub high_low: bool,
+    /// Where the user holds its fists between punches.
+    pub guard: UserGuard,
+}
+
+/// Where the scripted user holds its fists between punches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum UserGuard {
+    /// A boxer's guard, the fists at the chin ([`user_guard_rig`]), raised into at the script's
+    /// start; a punch at the body lowers the level first ([`USER_BODY_DIP_M`]). The `box` script's.
+    #[default]
+    Chin,
+    /// The grips' home points, where the rig's grips rest and `user_offset_m` puts the avatar's
+    /// hands in its own guard (the body model's); no rise, no dip, the first punch at the start.
+    /// The reaction experiment's single straights (docs/boxing.md 5.3).
+    Home,
 }
 
 impl Default for PlanOptions {
@@ -128,6 +154,7 @@ impl Default for PlanOptions {
             speed_m_per_s: (2.0, 9.0),
             pause_s: (0.6, 1.2),
             high_low: false,
+            guard: UserGuard::Chin,
         }
     }
 }
@@ -142,6 +169,38 @@ pub struct BoxPlan {
     /// The aim points of the guard the punches were planned at ([`aim_points_rig`]); a punch's
     /// `target_rig_m` minus its aim's point is its scatter.
     pub guard_aims_rig: [DVec3; 6],
+    /// The user's own guard, where each hand waits between punches ([`user_guard_rig`]).
+    pub user_guard_rig: [DVec3; 2],
+}
+
+/// How far below the virtual human's head centre the scripted user holds its fists: at the chin,
+/// as a boxer guards it, the user taken as tall as the virtual human (its head centre is about
+/// 8 cm above its chin). Measured on the product path (docs/boxing.md 5.1): at the cheekbones
+/// (3 cm) straights at the head landed as often as hooks on the default seed.
+pub const USER_GUARD_BELOW_HEAD_M: f64 = 0.08;
+
+/// How long the scripted user takes to raise its hands from the rig's home points into its guard
+/// at the start of a script; its first punch starts [`USER_GUARD_UP_S`] + 0.1 s after the start.
+pub const USER_GUARD_UP_S: f64 = 0.5;
+
+/// How far the scripted user lowers its fist before a punch at the body (the knees bend, as a boxer
+/// changes levels to go to the body rather than punching down at it), and in how long: from the
+/// guard at the chin this puts the fist about 5 cm under the rig's home points, 11 cm above the
+/// chest's aim point.
+pub const USER_BODY_DIP_M: f64 = 0.15;
+pub const USER_BODY_DIP_S: f64 = 0.15;
+
+/// The scripted user's guard (rig frame), from the aim points of the virtual human's guard
+/// ([`aim_points_rig`]): each fist straight above its home point, at the height of the virtual
+/// human's head less [`USER_GUARD_BELOW_HEAD_M`]. The rig's home points are where the grips rest,
+/// at the virtual human's chest height; a boxer holds the fists at the chin, and a punch at the head
+/// from the chest rises past the glove that guards the opponent's chin (docs/boxing.md 5.1).
+pub fn user_guard_rig(rig: &spidar_rt::Rig, aims: &[DVec3; 6]) -> [DVec3; 2] {
+    let y = aims[aim_index(Aim::Head)].y - USER_GUARD_BELOW_HEAD_M;
+    [0, 1].map(|h| {
+        let home = rig.hands[h].home_m;
+        DVec3::new(home.x, y, home.z)
+    })
 }
 
 /// The aim points of the scripted boxer, rig frame, for every [`Aim`]: where the virtual human's
@@ -194,7 +253,8 @@ fn path_point(kind: PunchKind, hand: usize, from: DVec3, to: DVec3, s: f64) -> D
     let side = if hand == 0 { -1.0 } else { 1.0 };
     let c = match kind {
         PunchKind::Straight => return from + (to - from) * s,
-        PunchKind::Hook => DVec3::new(to.x + side * 0.26, mid.y + 0.05, to.z + 0.15),
+        // A hook swings level with its target.
+        PunchKind::Hook => DVec3::new(to.x + side * 0.26, to.y, to.z + 0.15),
         PunchKind::Uppercut => DVec3::new((mid.x + to.x) * 0.5, to.y - 0.32, to.z + 0.12),
     };
     let u = 1.0 - s;
@@ -252,11 +312,13 @@ pub fn box_plan(
         "a box script needs at least one kind, aim and hand"
     );
     let aims = aim_points_rig(rig, params)?;
-    let home = [rig.hands[0].home_m, rig.hands[1].home_m];
+    let (guard, dip_m, mut t) = match opts.guard {
+        UserGuard::Chin => (user_guard_rig(rig, &aims), USER_BODY_DIP_M, USER_GUARD_UP_S + 0.1),
+        UserGuard::Home => ([rig.hands[0].home_m, rig.hands[1].home_m], 0.0, 0.0),
+    };
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ 0xB0C5);
     let pick = |rng: &mut rand_pcg::Pcg64Mcg, n: usize| rng.random_range(0..n);
     let mut punches = Vec::with_capacity(opts.punches);
-    let mut t = 0.0;
     let mut combo_left = 0u32;
     let mut in_combo = 0u32;
     let mut last_hand = 0usize;
@@ -290,7 +352,14 @@ pub fn box_plan(
         // Scattered a little around the aim point, as no two punches land on the same spot.
         let scatter = DVec3::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03), 0.0);
         let target = aims[aim_index(aim)] + scatter;
-        let from = home[hand];
+        // A punch at the body starts from a lower level (see [`USER_BODY_DIP_M`]).
+        let (from, dip_s) = if aim.is_body() && dip_m > 0.0 {
+            (guard[hand] - DVec3::Y * dip_m, USER_BODY_DIP_S)
+        } else {
+            (guard[hand], 0.0)
+        };
+        // `t` is when the hand leaves its guard.
+        let start_s = t + dip_s;
         let s_end =
             if feint { feint_end(kind, hand, from, target, rng.random_range(0.22..0.32)) } else { 1.0 };
         let len = path_length(kind, hand, from, target, s_end);
@@ -303,7 +372,9 @@ pub fn box_plan(
             aim,
             feint,
             speed_m_per_s: speed,
-            start_s: t,
+            start_s,
+            from_rig_m: from,
+            dip_s,
             out_s,
             back_s,
             in_combo,
@@ -316,14 +387,15 @@ pub fn box_plan(
         // The next punch of a combination starts as this one comes back (with the other hand),
         // or after it is back (the same hand); the next combination after a pause.
         let next_same_hand = opts.hands.len() == 1;
+        t = start_s;
         t += if combo_left > 0 {
             out_s + if next_same_hand { back_s } else { 0.5 * back_s } + rng.random_range(0.0..0.1)
         } else {
             out_s + back_s + rng.random_range(opts.pause_s.0..opts.pause_s.1)
         };
     }
-    let scripts = hand_scripts(&punches, home)?;
-    Ok(BoxPlan { punches, scripts, guard_aims_rig: aims })
+    let scripts = hand_scripts(&punches, guard, opts.guard == UserGuard::Chin)?;
+    Ok(BoxPlan { punches, scripts, guard_aims_rig: aims, user_guard_rig: guard })
 }
 
 /// How old what the [`SeeingUser`] aims from is when its punch leaves the guard: the picture's
@@ -344,7 +416,8 @@ pub struct SeeingUser {
     /// The punches as thrown: `target_rig_m` is the aim actually taken once launched.
     pub punches: Vec<Punch>,
     guard_aims: [DVec3; 6],
-    home: [DVec3; 2],
+    /// The user's guard, where the hands wait between punches.
+    guard: [DVec3; 2],
     next: usize,
     /// What was seen (script time, aim points), oldest first; trimmed to what a launch can need.
     seen: std::collections::VecDeque<(f64, [DVec3; 6])>,
@@ -352,21 +425,23 @@ pub struct SeeingUser {
 }
 
 impl SeeingUser {
-    pub fn new(plan: &BoxPlan, rig: &spidar_rt::Rig) -> SeeingUser {
+    pub fn new(plan: &BoxPlan) -> SeeingUser {
         SeeingUser {
             punches: plan.punches.clone(),
             guard_aims: plan.guard_aims_rig,
-            home: [rig.hands[0].home_m, rig.hands[1].home_m],
+            guard: plan.user_guard_rig,
             next: 0,
             seen: std::collections::VecDeque::with_capacity(128),
             delay_s: USER_SEEING_DELAY_S,
         }
     }
 
-    /// The hands' scripts before any punch: both hold their guard (launches replace them).
+    /// The hands' scripts before any punch: both rise from home into the guard and hold it
+    /// (launches replace them).
     pub fn holding_scripts(&self) -> [Script; 2] {
-        self.home
-            .map(|h| Script::from_segments(vec![Segment::Hold { at_m: h.to_array(), for_s: 1e6 }], false))
+        self.guard.map(|g| {
+            Script::from_segments(vec![guard_up(g), Segment::Hold { at_m: g.to_array(), for_s: 1e6 }], false)
+        })
     }
 
     /// The virtual human's aim points as seen at script time `t_s` (rig frame, [`aim_points_now`]).
@@ -390,7 +465,8 @@ impl SeeingUser {
     /// Call again until `None` (two punches may start within one tick).
     pub fn due(&mut self, now_s: f64, period_s: f64) -> anyhow::Result<Option<(usize, usize, Script)>> {
         let Some(p) = self.punches.get(self.next).copied() else { return Ok(None) };
-        if p.start_s >= now_s + period_s {
+        // The hand leaves its guard `dip_s` before the fist starts out.
+        if p.start_s - p.dip_s >= now_s + period_s {
             return Ok(None);
         }
         let i = self.next;
@@ -400,45 +476,56 @@ impl SeeingUser {
         let target = self.seen_at(p.start_s - self.delay_s)[a] + scatter;
         self.punches[i].target_rig_m = target;
         let h = p.hand;
-        let mut segs = Vec::with_capacity(4);
-        let wait = p.start_s - now_s;
+        let mut segs = Vec::with_capacity(5);
+        let wait = p.start_s - p.dip_s - now_s;
         if wait > 0.0 {
-            segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: wait });
+            segs.push(Segment::Hold { at_m: self.guard[h].to_array(), for_s: wait });
         }
-        segs.extend(punch_segments(&p, self.home[h], target)?);
-        segs.push(Segment::Hold { at_m: self.home[h].to_array(), for_s: 1e6 });
+        segs.extend(punch_segments(&p, self.guard[h], target)?);
+        segs.push(Segment::Hold { at_m: self.guard[h].to_array(), for_s: 1e6 });
         Ok(Some((i, h, Script::from_segments(segs, false))))
     }
 }
 
-/// A punch's way out from `home` to `target` (rig frame) along its kind's path, and its way back.
-fn punch_segments(p: &Punch, home: DVec3, target: DVec3) -> anyhow::Result<[Segment; 2]> {
-    let samples = out_samples(p.kind, p.hand, home, target, p.path_end, p.out_s);
-    Ok([
-        Segment::recorded("box script punch", samples)?,
-        Segment::Reach { to_m: home.to_array(), duration_s: p.back_s },
-    ])
+/// The start of every box script: the hand rises from where it starts (the rig's home point,
+/// where the grips rest) into the user's `guard` in [`USER_GUARD_UP_S`].
+fn guard_up(guard: DVec3) -> Segment {
+    Segment::Reach { to_m: guard.to_array(), duration_s: USER_GUARD_UP_S }
 }
 
-/// The two hands' scripts for `punches` (sorted by start): each hand holds its guard until its
-/// next punch, follows the punch's path out, and comes back in a minimum-jerk reach.
-fn hand_scripts(punches: &[Punch], home: [DVec3; 2]) -> anyhow::Result<[Script; 2]> {
-    let mut segs: [Vec<Segment>; 2] = [Vec::new(), Vec::new()];
-    let mut free_at = [0.0f64; 2];
+/// A punch from the guard: the level lowered first if it goes to the body, its way out from
+/// there to `target` (rig frame) along its kind's path, and its way back to `guard`.
+fn punch_segments(p: &Punch, guard: DVec3, target: DVec3) -> anyhow::Result<Vec<Segment>> {
+    let samples = out_samples(p.kind, p.hand, p.from_rig_m, target, p.path_end, p.out_s);
+    let mut segs = Vec::with_capacity(3);
+    if p.dip_s > 0.0 {
+        segs.push(Segment::Reach { to_m: p.from_rig_m.to_array(), duration_s: p.dip_s });
+    }
+    segs.push(Segment::recorded("box script punch", samples)?);
+    segs.push(Segment::Reach { to_m: guard.to_array(), duration_s: p.back_s });
+    Ok(segs)
+}
+
+/// The two hands' scripts for `punches` (sorted by start): each hand rises into its guard (if
+/// `rise`), holds
+/// it until its next punch, follows the punch's path out, and comes back in a minimum-jerk reach.
+fn hand_scripts(punches: &[Punch], guard: [DVec3; 2], rise: bool) -> anyhow::Result<[Script; 2]> {
+    let mut segs: [Vec<Segment>; 2] = guard.map(|g| if rise { vec![guard_up(g)] } else { Vec::new() });
+    let mut free_at = [if rise { USER_GUARD_UP_S } else { 0.0 }; 2];
     let hold = |at: DVec3, for_s: f64| Segment::Hold { at_m: at.to_array(), for_s };
     for p in punches {
         let h = p.hand;
-        let wait = p.start_s - free_at[h];
+        let wait = p.start_s - p.dip_s - free_at[h];
         anyhow::ensure!(wait >= -1e-9, "punches of one hand overlap at {:.3} s", p.start_s);
         if wait > 0.0 {
-            segs[h].push(hold(home[h], wait));
+            segs[h].push(hold(guard[h], wait));
         }
-        segs[h].extend(punch_segments(p, home[h], p.target_rig_m)?);
+        segs[h].extend(punch_segments(p, guard[h], p.target_rig_m)?);
         free_at[h] = p.end_s();
     }
     Ok([0, 1].map(|h| {
         let mut s = std::mem::take(&mut segs[h]);
-        s.push(hold(home[h], 1e6));
+        s.push(hold(guard[h], 1e6));
         Script::from_segments(s, false)
     }))
 }
@@ -556,7 +643,7 @@ mod tests {
         let rig = spidar_rt::Rig::default_rig();
         let opts = PlanOptions { punches: 6, feint_share: 0.0, combo_share: 0.0, ..Default::default() };
         let plan = box_plan(&rig, &BoxerParams::default(), 3, &opts).unwrap();
-        let mut u = SeeingUser::new(&plan, &rig);
+        let mut u = SeeingUser::new(&plan);
         let drift = |t: f64| DVec3::new(0.0, 0.0, -0.2 * t);
         let seen_at = |t: f64| plan.guard_aims_rig.map(|a| a + drift(t));
         let period = 0.001;
@@ -575,7 +662,9 @@ mod tests {
         for (i, now, hand, script) in launched {
             let p = &plan.punches[i];
             assert_eq!(hand, p.hand);
-            assert!(p.start_s >= now - 1e-12 && p.start_s < now + period, "punch {i} launched at {now}");
+            // Launched when the hand leaves its guard: the level's dip before a body punch.
+            let leaves = p.start_s - p.dip_s;
+            assert!(leaves >= now - 1e-12 && leaves < now + period, "punch {i} launched at {now}");
             // The newest sight at or before start - delay: world steps every 3 ms.
             // (Nothing seen yet, for a punch in the first 0.15 s: the guard.)
             let want_t = (((p.start_s - u.delay_s) / 0.003).floor() * 0.003).max(0.0);
@@ -588,10 +677,75 @@ mod tests {
             // It goes there: the way out ends at the aim (no feints here), from a hold until its start.
             assert!((last_out_point(&script) - want).length() < 1e-9);
             match script.segments[0] {
-                Segment::Hold { for_s, .. } => assert!((for_s - (p.start_s - now)).abs() < 1e-12),
-                _ => assert!(p.start_s - now <= 0.0),
+                Segment::Hold { for_s, .. } => assert!((for_s - (leaves - now)).abs() < 1e-12),
+                _ => assert!(leaves - now <= 0.0),
             }
         }
+    }
+
+    /// The box script's user boxes from a guard at the chin: both hands rise into it first, every
+    /// punch at the head leaves from it, every punch at the body from it lowered by the level's
+    /// dip (reached in the dip's time just before the punch), every way back ends in it, and a hook
+    /// ends its swing level with its target.
+    #[test]
+    fn the_scripted_user_punches_from_a_guard_at_the_chin_and_dips_to_the_body() {
+        let rig = spidar_rt::Rig::default_rig();
+        let opts = PlanOptions { punches: 60, ..Default::default() };
+        let plan = box_plan(&rig, &BoxerParams::default(), 7, &opts).unwrap();
+        let head = plan.guard_aims_rig[aim_index(Aim::Head)];
+        for h in 0..2 {
+            let g = plan.user_guard_rig[h];
+            assert!((g.y - (head.y - USER_GUARD_BELOW_HEAD_M)).abs() < 1e-12, "the guard is at the chin");
+            assert!(g.y > rig.hands[h].home_m.y + 0.05, "above the grips' home: {g:?}");
+            assert_eq!((g.x, g.z), (rig.hands[h].home_m.x, rig.hands[h].home_m.z));
+            // The script's first move raises the hand into the guard, before any punch.
+            match plan.scripts[h].segments[0] {
+                Segment::Reach { to_m, duration_s } => {
+                    assert_eq!(DVec3::from(to_m), g);
+                    assert_eq!(duration_s, USER_GUARD_UP_S);
+                }
+                ref s => panic!("hand {h} starts with {s:?}"),
+            }
+        }
+        assert!(plan.punches[0].start_s - plan.punches[0].dip_s > USER_GUARD_UP_S);
+        let (mut body, mut head_n, mut hooks) = (0, 0, 0);
+        for p in &plan.punches {
+            let g = plan.user_guard_rig[p.hand];
+            if p.aim.is_body() {
+                body += 1;
+                assert_eq!(p.from_rig_m, g - DVec3::Y * USER_BODY_DIP_M);
+                assert_eq!(p.dip_s, USER_BODY_DIP_S);
+            } else {
+                head_n += 1;
+                assert_eq!((p.from_rig_m, p.dip_s), (g, 0.0));
+            }
+            let segs = punch_segments(p, g, p.target_rig_m).unwrap();
+            let rec = segs.iter().find_map(|s| match s {
+                Segment::Recorded(r) => Some(r.samples()),
+                _ => None,
+            });
+            let out = rec.expect("a way out");
+            assert!((out[0].pos_m - p.from_rig_m).length() < 1e-12, "the way out starts where the dip ends");
+            if p.dip_s > 0.0 {
+                assert!(
+                    matches!(segs[0], Segment::Reach { to_m, duration_s } if DVec3::from(to_m) == p.from_rig_m && duration_s == p.dip_s)
+                );
+            }
+            assert!(
+                matches!(segs.last(), Some(Segment::Reach { to_m, .. }) if DVec3::from(*to_m) == g),
+                "back to the guard"
+            );
+            if p.kind == PunchKind::Hook && !p.feint {
+                hooks += 1;
+                // The last fifth of its way comes in within 1 cm of the target's height.
+                let tail = &out[out.len() * 4 / 5..];
+                assert!(
+                    tail.iter().all(|s| (s.pos_m.y - p.target_rig_m.y).abs() < 0.01),
+                    "a hook ends level"
+                );
+            }
+        }
+        assert!(body > 5 && head_n > 5 && hooks > 5, "{body} body, {head_n} head punches, {hooks} hooks");
     }
 
     /// Before anything is seen, a punch goes to the guard's aim point (the open-loop plan's).
@@ -600,7 +754,7 @@ mod tests {
         let rig = spidar_rt::Rig::default_rig();
         let opts = PlanOptions { punches: 1, feint_share: 0.0, combo_share: 0.0, ..Default::default() };
         let plan = box_plan(&rig, &BoxerParams::default(), 5, &opts).unwrap();
-        let mut u = SeeingUser::new(&plan, &rig);
+        let mut u = SeeingUser::new(&plan);
         let (i, _, _) = u.due(plan.punches[0].start_s, 0.001).unwrap().unwrap();
         assert!((u.punches[i].target_rig_m - plan.punches[0].target_rig_m).length() < 1e-12);
         assert!(u.due(1e3, 0.001).unwrap().is_none(), "one punch, launched once");

@@ -105,7 +105,7 @@ fn has(texts: &[String], start: &str) -> bool {
 #[test]
 fn plot_draws_every_panel_of_a_recorded_bout_and_plots_a_file_cut_short_with_a_note() {
     let dir = temp_dir("plot");
-    spidar(&dir, &["run", "--virtual", "--seconds", "4", "--record", "bout.mcap", "--quiet"]);
+    spidar(&dir, &["run", "--virtual", "--seconds", "6", "--record", "bout.mcap", "--quiet"]);
     let out = spidar(&dir, &["plot", "bout.mcap"]);
     assert!(out.contains("wrote        bout.svg") && out.contains("world        bout.world.mcap"), "{out}");
     let (texts, lines) = svg(&dir.join("bout.svg"));
