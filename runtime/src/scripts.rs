@@ -175,8 +175,8 @@ pub struct BoxPlan {
 
 /// How far below the virtual human's head centre the scripted user holds its fists: at the chin,
 /// as a boxer guards it, the user taken as tall as the virtual human (its head centre is about
-/// 8 cm above its chin). Measured on the product path (docs/boxing.md 5.1): at the cheekbones
-/// (3 cm) straights at the head landed as often as hooks on the default seed.
+/// 8 cm above its chin). Measured on the product path (docs/boxing.md 5.1): from the cheekbones
+/// (3 cm) straights at the head landed more often than hooks on the default seed.
 pub const USER_GUARD_BELOW_HEAD_M: f64 = 0.08;
 
 /// How long the scripted user takes to raise its hands from the rig's home points into its guard
@@ -507,8 +507,8 @@ fn punch_segments(p: &Punch, guard: DVec3, target: DVec3) -> anyhow::Result<Vec<
 }
 
 /// The two hands' scripts for `punches` (sorted by start): each hand rises into its guard (if
-/// `rise`), holds
-/// it until its next punch, follows the punch's path out, and comes back in a minimum-jerk reach.
+/// `rise`), holds it until its next punch, follows the punch's path out, and comes back in a
+/// minimum-jerk reach.
 fn hand_scripts(punches: &[Punch], guard: [DVec3; 2], rise: bool) -> anyhow::Result<[Script; 2]> {
     let mut segs: [Vec<Segment>; 2] = guard.map(|g| if rise { vec![guard_up(g)] } else { Vec::new() });
     let mut free_at = [if rise { USER_GUARD_UP_S } else { 0.0 }; 2];
