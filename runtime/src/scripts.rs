@@ -387,12 +387,12 @@ pub fn box_plan(
         // The next punch of a combination starts as this one comes back (with the other hand),
         // or after it is back (the same hand); the next combination after a pause.
         let next_same_hand = opts.hands.len() == 1;
-        t = start_s;
-        t += if combo_left > 0 {
-            out_s + if next_same_hand { back_s } else { 0.5 * back_s } + rng.random_range(0.0..0.1)
-        } else {
-            out_s + back_s + rng.random_range(opts.pause_s.0..opts.pause_s.1)
-        };
+        t = start_s
+            + if combo_left > 0 {
+                out_s + if next_same_hand { back_s } else { 0.5 * back_s } + rng.random_range(0.0..0.1)
+            } else {
+                out_s + back_s + rng.random_range(opts.pause_s.0..opts.pause_s.1)
+            };
     }
     let scripts = hand_scripts(&punches, guard, opts.guard == UserGuard::Chin)?;
     Ok(BoxPlan { punches, scripts, guard_aims_rig: aims, user_guard_rig: guard })

@@ -1143,7 +1143,6 @@ fn still(
     fists && hands && !reaching
 }
 
-/// A reach that holds its part where it is while a fist is about (it never ends).
 /// A hold ([`is_hold`]) of `body` where it is now, with `home` (default: here) as where its way
 /// back to the guard goes once it is let go.
 fn hold_here(
@@ -1162,6 +1161,7 @@ fn hold_here(
     hold
 }
 
+/// A reach that holds its part where it is while a fist is about (it never ends).
 fn is_hold(r: &Reach) -> bool {
     r.duration_s.is_infinite()
 }
